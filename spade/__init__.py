@@ -1,0 +1,3 @@
+"""SPADE: sketch-guided path planning augmented with diffusion experts."""
+
+__version__ = "0.1.0"

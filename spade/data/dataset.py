@@ -1,0 +1,146 @@
+"""``PathDataset``: a torch Dataset over a SPADE path dataset directory, memory-mapped, never loaded whole."""
+
+from __future__ import annotations
+
+import hashlib
+import mmap
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from spade.data.format import DatasetError, Manifest, read_manifest
+from spade.data.packing import unpack_bits, unpack_two_bit
+
+_HASH_CHUNK = 1 << 22
+
+
+def file_sha256(path: Path) -> str:
+    """sha256 of a file, read in chunks (the file is never held in memory whole)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        while chunk := handle.read(_HASH_CHUNK):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def check_files(manifest: Manifest, checksums: bool = True) -> None:
+    """Check that every array file exists with the size (and, if ``checksums``, the sha256) the manifest gives.
+
+    Raises :class:`DatasetError` naming the file and what is wrong with it.
+    """
+    for name, spec in manifest.specs.items():
+        entry = manifest.files[name]
+        path = manifest.root / spec.filename
+        expected = manifest.num_instances * spec.row_nbytes
+        fix = "Re-generate the dataset (python -m spade.annotate ...) or restore the file from a copy."
+        if not path.is_file():
+            raise DatasetError(f"{path}: array file '{name}' is missing. {fix}")
+        size = path.stat().st_size
+        if size != expected or int(entry.get("bytes", expected)) != expected:
+            what = "truncated" if size < expected else "longer than expected"
+            raise DatasetError(f"{path}: {what}: {size} bytes, the manifest implies {expected}. {fix}")
+        if checksums:
+            actual = file_sha256(path)
+            if actual != entry["sha256"]:
+                raise DatasetError(
+                    f"{path}: sha256 {actual[:12]}... differs from the manifest's {entry['sha256'][:12]}...: "
+                    f"the file was altered or corrupted. {fix}"
+                )
+
+
+class PathDataset(Dataset):
+    """Instances of a dataset directory as dicts of tensors.
+
+    Each item: ``state`` float32 (3, H, W) [occupancy unknown 0 / free 0.5 / obstacle 1, start, goal];
+    ``path`` float32 (1, H, W) in {0, 1}; ``waypoints`` float32 (K, 2) in pixel coordinates (x = column,
+    y = row); ``resolution`` (metres per pixel); ``shape``, ``map_id``, ``scenario_id`` labels; ``index``.
+
+    Opening checks that every file is present with the right size, and by default its sha256 (``verify=False``
+    skips the hashing, e.g. in DataLoader workers). Files are memory-mapped; ``release_every`` items read in a
+    row, the mapped pages are handed back to the OS so that one pass over a large dataset keeps a small
+    resident set (the page cache still holds them, so re-reading stays fast).
+    """
+
+    def __init__(self, root: str | Path, verify: bool = True, release_every: int = 2048) -> None:
+        self.root = Path(root)
+        self.manifest = read_manifest(self.root)
+        check_files(self.manifest, checksums=verify)
+        self.release_every = int(release_every)
+        self._maps: dict[str, np.memmap] | None = None
+        self._reads = 0
+        self._pixels = self.manifest.height * self.manifest.width
+
+    # -- mapping ---------------------------------------------------------------------------------------------
+    def _arrays(self) -> dict[str, np.memmap]:
+        if self._maps is None:
+            n = self.manifest.num_instances
+            self._maps = {
+                name: np.memmap(self.root / spec.filename, dtype=spec.dtype, mode="r", shape=(n, *spec.row_shape))
+                for name, spec in self.manifest.specs.items()
+                if n > 0
+            }
+        return self._maps
+
+    def release_pages(self) -> None:
+        """Drop this process's resident pages of the mapped files (MADV_DONTNEED; the data stays on disk)."""
+        if not self._maps or not hasattr(mmap, "MADV_DONTNEED"):
+            return
+        for arr in self._maps.values():
+            mm = getattr(arr, "_mmap", None)
+            if mm is not None:
+                mm.madvise(mmap.MADV_DONTNEED)
+
+    def __getstate__(self) -> dict[str, Any]:
+        # Memory maps do not pickle; each DataLoader worker maps the files anew.
+        state = self.__dict__.copy()
+        state["_maps"] = None
+        return state
+
+    # -- Dataset API -----------------------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return self.manifest.num_instances
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        return self.manifest.height, self.manifest.width
+
+    @property
+    def resolution(self) -> float:
+        return self.manifest.resolution
+
+    def labels(self, key: str) -> list[str]:
+        """The per-instance values of label ``key`` ("shape", "map_id" or "scenario_id")."""
+        values, index = self.manifest.labels[key], self.manifest.label_index[key]
+        return [values[i] for i in index]
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        n = len(self)
+        if not -n <= index < n:
+            raise IndexError(f"index {index} out of range for a dataset of {n} instances")
+        index = int(index) % n
+        arrays = self._arrays()
+        h, w = self.manifest.height, self.manifest.width
+        occupancy = unpack_two_bit(arrays["occupancy"][index], self._pixels).reshape(h, w)
+        binary = unpack_bits(np.stack([arrays[c][index] for c in ("start", "goal", "path")]), self._pixels)
+        state = np.empty((3, h, w), dtype=np.float32)
+        np.multiply(occupancy, np.float32(0.5), out=state[0])
+        state[1:] = binary[:2].reshape(2, h, w)
+        path = binary[2].reshape(1, h, w).astype(np.float32)
+        waypoints = np.array(arrays["waypoints"][index], dtype=np.float32)
+        self._reads += 1
+        if self.release_every > 0 and self._reads % self.release_every == 0:
+            self.release_pages()
+        m = self.manifest
+        return {
+            "state": torch.from_numpy(state),
+            "path": torch.from_numpy(path),
+            "waypoints": torch.from_numpy(waypoints),
+            "resolution": m.resolution,
+            "shape": m.label("shape", index),
+            "map_id": m.label("map_id", index),
+            "scenario_id": m.label("scenario_id", index),
+            "index": index,
+        }

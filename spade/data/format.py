@@ -1,0 +1,148 @@
+"""The on-disk layout of a SPADE path dataset and the validation of its manifest.
+
+A dataset is one directory::
+
+    manifest.json    format version, image size, metres per pixel, counts, per-instance labels,
+                     the generator's full config, and the size and sha256 of every array file
+    occupancy.bin    uint8 (N, ceil(H*W/4)): occupancy codes, 2 bits per pixel (see spade.data.packing)
+    start.bin        uint8 (N, ceil(H*W/8)): start disc, 1 bit per pixel
+    goal.bin         uint8 (N, ceil(H*W/8)): goal disc, 1 bit per pixel
+    path.bin         uint8 (N, ceil(H*W/8)): remaining path, 1 bit per pixel
+    waypoints.bin    float32 (N, K, 2): ground-truth polyline in pixel coordinates (x = column, y = row)
+
+Array files are raw C-order arrays whose shapes follow from the manifest, so that readers memory-map them.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from spade.data.packing import bit_nbytes, two_bit_nbytes
+
+FORMAT_NAME = "spade-path-dataset"
+FORMAT_VERSION = 1
+MANIFEST = "manifest.json"
+LABEL_KEYS = ("shape", "map_id", "scenario_id")
+BINARY_CHANNELS = ("start", "goal", "path")
+
+
+class DatasetError(RuntimeError):
+    """A dataset directory that is missing, incomplete, corrupt or of another format."""
+
+
+@dataclass(frozen=True)
+class ArraySpec:
+    """One array file: its name, element type and the shape of one instance's row."""
+
+    name: str
+    dtype: np.dtype
+    row_shape: tuple[int, ...]
+
+    @property
+    def filename(self) -> str:
+        return f"{self.name}.bin"
+
+    @property
+    def row_nbytes(self) -> int:
+        return int(np.prod(self.row_shape)) * self.dtype.itemsize
+
+
+def array_specs(height: int, width: int, num_waypoints: int) -> dict[str, ArraySpec]:
+    """The array files of a dataset with instances of ``height`` x ``width`` and ``num_waypoints`` points."""
+    pixels = height * width
+    specs = [ArraySpec("occupancy", np.dtype(np.uint8), (two_bit_nbytes(pixels),))]
+    specs += [ArraySpec(name, np.dtype(np.uint8), (bit_nbytes(pixels),)) for name in BINARY_CHANNELS]
+    specs.append(ArraySpec("waypoints", np.dtype("<f4"), (num_waypoints, 2)))
+    return {s.name: s for s in specs}
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """The parsed and validated ``manifest.json`` of a dataset."""
+
+    root: Path
+    height: int
+    width: int
+    resolution: float
+    num_waypoints: int
+    num_instances: int
+    labels: dict[str, tuple[str, ...]]
+    label_index: dict[str, np.ndarray]
+    files: dict[str, dict[str, Any]]
+    generator: dict[str, Any]
+    extra: dict[str, Any]
+
+    @property
+    def specs(self) -> dict[str, ArraySpec]:
+        return array_specs(self.height, self.width, self.num_waypoints)
+
+    def label(self, key: str, index: int) -> str:
+        return self.labels[key][int(self.label_index[key][index])]
+
+
+def _require(cond: bool, path: Path, what: str) -> None:
+    if not cond:
+        raise DatasetError(f"{path}: {what}. Re-generate the dataset (python -m spade.annotate ...) or restore it.")
+
+
+def read_manifest(root: str | Path) -> Manifest:
+    """Read and validate ``root/manifest.json``; raise :class:`DatasetError` naming the problem."""
+    root = Path(root)
+    path = root / MANIFEST
+    if not root.is_dir():
+        raise DatasetError(
+            f"{root}: no such dataset directory. Create one with `python -m spade.annotate out_dir={root}`."
+        )
+    _require(path.is_file(), path, "manifest.json is missing (an interrupted write leaves no manifest)")
+    try:
+        raw = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{path}: cannot be parsed as JSON ({exc}). Re-generate the dataset.") from exc
+    _require(isinstance(raw, dict) and raw.get("format") == FORMAT_NAME, path, f"not a {FORMAT_NAME} manifest")
+    version = raw.get("format_version")
+    _require(version == FORMAT_VERSION, path, f"format_version {version!r}, this SPADE reads {FORMAT_VERSION}")
+    try:
+        height, width = (int(v) for v in raw["image_size"])
+        resolution = float(raw["resolution"])
+        num_waypoints = int(raw["num_waypoints"])
+        count = int(raw["num_instances"])
+        labels_raw = raw["labels"]
+        files = raw["files"]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DatasetError(f"{path}: a required field is missing or malformed ({exc!r}). Re-generate it.") from exc
+    _require(height > 0 and width > 0, path, f"image_size must be positive, got {height} x {width}")
+    _require(resolution > 0, path, f"resolution must be > 0 m/px, got {resolution}")
+    _require(num_waypoints >= 2, path, f"num_waypoints must be >= 2, got {num_waypoints}")
+    _require(count >= 0, path, f"num_instances must be >= 0, got {count}")
+    labels: dict[str, tuple[str, ...]] = {}
+    index: dict[str, np.ndarray] = {}
+    for key in LABEL_KEYS:
+        entry = labels_raw.get(key) if isinstance(labels_raw, dict) else None
+        _require(isinstance(entry, dict), path, f"labels.{key} is missing")
+        values = tuple(str(v) for v in entry.get("values", []))
+        idx = np.asarray(entry.get("index", []), dtype=np.int64)
+        _require(idx.shape == (count,), path, f"labels.{key}.index has {idx.size} entries for {count} instances")
+        _require(
+            count == 0 or (idx.min() >= 0 and idx.max() < len(values)), path, f"labels.{key}.index out of range"
+        )
+        labels[key], index[key] = values, idx
+    for name in array_specs(height, width, num_waypoints):
+        _require(isinstance(files.get(name), dict) and "sha256" in files[name], path, f"files.{name} is missing")
+    return Manifest(
+        root=root,
+        height=height,
+        width=width,
+        resolution=resolution,
+        num_waypoints=num_waypoints,
+        num_instances=count,
+        labels=labels,
+        label_index=index,
+        files=files,
+        generator=dict(raw.get("generator") or {}),
+        extra=dict(raw.get("extra") or {}),
+    )

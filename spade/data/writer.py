@@ -1,0 +1,192 @@
+"""Atomic writing of path datasets (see :mod:`spade.data.format` for the layout)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import uuid
+from pathlib import Path
+from types import TracebackType
+from typing import Any, BinaryIO
+
+import numpy as np
+
+from spade.data.format import FORMAT_NAME, FORMAT_VERSION, LABEL_KEYS, MANIFEST, ArraySpec, array_specs
+from spade.data.packing import pack_bits, pack_two_bit
+
+
+class _LabelTable:
+    """Interns label strings: the manifest stores each distinct value once plus one index per instance."""
+
+    def __init__(self) -> None:
+        self.values: list[str] = []
+        self.lookup: dict[str, int] = {}
+        self.index: list[int] = []
+
+    def add(self, value: str) -> None:
+        value = str(value)
+        if value not in self.lookup:
+            self.lookup[value] = len(self.values)
+            self.values.append(value)
+        self.index.append(self.lookup[value])
+
+    def to_json(self) -> dict[str, Any]:
+        return {"values": self.values, "index": self.index}
+
+
+class DatasetWriter:
+    """Write a dataset into a temporary directory and rename it into place only when complete.
+
+    Use as a context manager; call :meth:`add` once per instance. An exception inside the ``with`` block (or a
+    killed process) leaves ``root`` untouched: the temporary directory never holds a manifest until every array
+    file is complete, and it is renamed onto ``root`` in one step. An existing ``root`` is replaced only with
+    ``overwrite=True``, and then only after the new dataset is complete.
+    """
+
+    def __init__(
+        self,
+        root: str | Path,
+        image_size: tuple[int, int] | int,
+        resolution: float,
+        num_waypoints: int = 64,
+        generator_config: dict[str, Any] | None = None,
+        overwrite: bool = False,
+    ) -> None:
+        self.root = Path(root)
+        height, width = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
+        if height <= 0 or width <= 0:
+            raise ValueError(f"image_size must be positive, got {height} x {width}")
+        if not resolution > 0:
+            raise ValueError(f"resolution must be > 0 metres per pixel, got {resolution}")
+        if num_waypoints < 2:
+            raise ValueError(f"num_waypoints must be >= 2, got {num_waypoints}")
+        if self.root.exists() and not overwrite:
+            raise FileExistsError(
+                f"{self.root} already exists; choose another out_dir or pass overwrite=True to replace it "
+                "(the old dataset is kept until the new one is complete)"
+            )
+        self.height, self.width = int(height), int(width)
+        self.resolution = float(resolution)
+        self.num_waypoints = int(num_waypoints)
+        self.generator_config = json.loads(json.dumps(generator_config or {}, default=str))
+        self.specs: dict[str, ArraySpec] = array_specs(self.height, self.width, self.num_waypoints)
+        self.count = 0
+        self._extra: dict[str, Any] = {}
+        self._labels = {key: _LabelTable() for key in LABEL_KEYS}
+        self._tmp: Path | None = None
+        self._files: dict[str, BinaryIO] = {}
+        self._hashes: dict[str, Any] = {}
+
+    # -- context manager -------------------------------------------------------------------------------------
+    def __enter__(self) -> "DatasetWriter":
+        self.root.parent.mkdir(parents=True, exist_ok=True)
+        self._tmp = self.root.parent / f".{self.root.name}.partial-{uuid.uuid4().hex[:8]}"
+        self._tmp.mkdir()
+        for name, spec in self.specs.items():
+            self._files[name] = open(self._tmp / spec.filename, "wb")
+            self._hashes[name] = hashlib.sha256()
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        for handle in self._files.values():
+            if exc_type is None:
+                handle.flush()
+                os.fsync(handle.fileno())
+            handle.close()
+        assert self._tmp is not None
+        if exc_type is not None:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            return
+        try:
+            self._finish()
+        except BaseException:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise
+
+    # -- writing ---------------------------------------------------------------------------------------------
+    def add(
+        self,
+        occupancy: np.ndarray,
+        start: np.ndarray,
+        goal: np.ndarray,
+        path: np.ndarray,
+        waypoints: np.ndarray,
+        shape: str,
+        map_id: str,
+        scenario_id: str,
+    ) -> int:
+        """Append one instance; returns its index. Arrays are checked against the dataset's sizes."""
+        if self._tmp is None:
+            raise RuntimeError("DatasetWriter.add must be called inside `with DatasetWriter(...) as writer:`")
+        hw = (self.height, self.width)
+        occupancy = np.asarray(occupancy)
+        for name, arr in (("occupancy", occupancy), ("start", start), ("goal", goal), ("path", path)):
+            if np.shape(arr) != hw:
+                raise ValueError(f"{name} has shape {np.shape(arr)}, this dataset's instances are {hw}")
+        if occupancy.dtype != np.uint8 or (occupancy.size and occupancy.max() > 2):
+            raise ValueError("occupancy must be uint8 codes UNKNOWN=0 / FREE=1 / OCCUPIED=2 (see spade.maps)")
+        wp = np.asarray(waypoints, dtype="<f4")
+        if wp.shape != (self.num_waypoints, 2):
+            raise ValueError(f"waypoints has shape {wp.shape}, expected ({self.num_waypoints}, 2)")
+        if not np.isfinite(wp).all():
+            raise ValueError("waypoints hold NaN or inf")
+        rows = {
+            "occupancy": pack_two_bit(occupancy),
+            "start": pack_bits(start),
+            "goal": pack_bits(goal),
+            "path": pack_bits(path),
+            "waypoints": wp,
+        }
+        for name, row in rows.items():
+            data = np.ascontiguousarray(row).tobytes()
+            self._files[name].write(data)
+            self._hashes[name].update(data)
+        for key, value in (("shape", shape), ("map_id", map_id), ("scenario_id", scenario_id)):
+            self._labels[key].add(value)
+        self.count += 1
+        return self.count - 1
+
+    def set_extra(self, key: str, value: Any) -> None:
+        """Record JSON-able information in the manifest's ``extra`` section (e.g. rejection counts)."""
+        self._extra[key] = json.loads(json.dumps(value, default=str))
+
+    def _finish(self) -> None:
+        assert self._tmp is not None
+        files = {}
+        for name, spec in self.specs.items():
+            files[name] = {
+                "file": spec.filename,
+                "dtype": spec.dtype.str,
+                "row_shape": list(spec.row_shape),
+                "bytes": self.count * spec.row_nbytes,
+                "sha256": self._hashes[name].hexdigest(),
+            }
+        manifest = {
+            "format": FORMAT_NAME,
+            "format_version": FORMAT_VERSION,
+            "image_size": [self.height, self.width],
+            "resolution": self.resolution,
+            "num_waypoints": self.num_waypoints,
+            "num_instances": self.count,
+            "channels": {
+                "state": ["occupancy (unknown 0.0 / free 0.5 / obstacle 1.0)", "start", "goal"],
+                "target": ["path"],
+            },
+            "labels": {key: table.to_json() for key, table in self._labels.items()},
+            "generator": self.generator_config,
+            "extra": self._extra,
+            "files": files,
+        }
+        # The manifest is written last: a directory without one is never taken for a dataset.
+        (self._tmp / MANIFEST).write_text(json.dumps(manifest, indent=1, sort_keys=True))
+        backup = None
+        if self.root.exists():
+            backup = self.root.parent / f".{self.root.name}.old-{uuid.uuid4().hex[:8]}"
+            os.replace(self.root, backup)
+        os.replace(self._tmp, self.root)
+        if backup is not None:
+            shutil.rmtree(backup, ignore_errors=True)
