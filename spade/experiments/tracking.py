@@ -1,0 +1,66 @@
+"""What every run records in MLflow besides Lightning's metrics: config, tags, metric identities, checkpoints."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import lightning as L
+from lightning.pytorch.loggers import Logger, MLFlowLogger
+from omegaconf import DictConfig, OmegaConf
+
+log = logging.getLogger(__name__)
+
+
+def flatten(cfg: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested dict -> {"a/b/c": value}; lists are kept as their string form (MLflow params are strings)."""
+    out: dict[str, Any] = {}
+    for key, value in cfg.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(flatten(value, f"{name}/"))
+        else:
+            out[name] = value
+    return out
+
+
+def mlflow_logger(loggers: list[Logger]) -> MLFlowLogger | None:
+    return next((lg for lg in loggers if isinstance(lg, MLFlowLogger)), None)
+
+
+def start_run_logging(cfg: DictConfig, model: L.LightningModule, loggers: list[Logger]) -> None:
+    """Log the composed config (flattened params and a YAML artifact) and the FID extractor's identity."""
+    ml = mlflow_logger(loggers)
+    if ml is None:
+        return
+    resolved = OmegaConf.to_container(cfg, resolve=True)
+    params = {f"cfg/{k}": v for k, v in flatten(resolved).items() if not k.startswith("hydra")}
+    fid = getattr(getattr(model, "test_metrics", None), "fid_identity", None)
+    if fid:
+        params["metrics/fid_extractor"] = fid
+    ml.log_hyperparams(params)
+    ml.experiment.log_text(ml.run_id, OmegaConf.to_yaml(cfg, resolve=True), "config/train.yaml")
+    if fid:
+        ml.experiment.set_tag(ml.run_id, "fid_extractor", fid)
+
+
+def finish_run(cfg: DictConfig, trainer: L.Trainer, model: L.LightningModule, loggers: list[Logger]) -> None:
+    """Log the best and last checkpoints as artifacts and register the model when the config asks for it."""
+    ml = mlflow_logger(loggers)
+    if ml is None:
+        return
+    ckpt_cb = trainer.checkpoint_callback
+    paths = {}
+    if ckpt_cb is not None:
+        if ckpt_cb.best_model_path:
+            paths["best"] = ckpt_cb.best_model_path
+        if getattr(ckpt_cb, "last_model_path", ""):
+            paths["last"] = ckpt_cb.last_model_path
+    for kind, path in paths.items():
+        ml.experiment.log_artifact(ml.run_id, path, artifact_path=f"checkpoints/{kind}")
+    registry = cfg.get("registry") or {}
+    if registry.get("name") and paths:
+        from spade.experiments.registry import register_checkpoint
+
+        register_checkpoint(ml, registry["name"], f"checkpoints/{'best' if 'best' in paths else 'last'}",
+                            tags=dict(registry.get("tags") or {}))

@@ -1,0 +1,89 @@
+"""What the student and the expert modules share: metrics per stage, prediction pictures, optimiser, NaN guard."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import lightning as L
+import torch
+from lightning.pytorch.loggers import MLFlowLogger
+
+from spade.training.evaluation import PathMetrics
+from spade.training.logging_utils import log_image
+from spade.training.visualize import prediction_grid
+
+
+class PathPlanningModule(L.LightningModule):
+    """Base of :class:`StudentModule` and :class:`ExpertModule`.
+
+    Subclasses implement ``predict_paths(batch) -> probabilities (B, 1, H, W)`` and the training step; this
+    class evaluates ``predict_paths`` with APE / Hd19 / FID in validation and test, logs a picture grid of
+    predictions each validation epoch, and builds the optimiser from a Hydra ``_partial_`` callable.
+    """
+
+    def __init__(self, optimizer: Callable[..., torch.optim.Optimizer] | None, metrics: dict | None,
+                 val_metric_batches: int | None, grid_size: int) -> None:
+        super().__init__()
+        self.optimizer_factory = optimizer
+        metrics = dict(metrics or {})
+        self.val_metrics = PathMetrics(**metrics)
+        self.test_metrics = PathMetrics(**metrics)
+        self.val_metric_batches = val_metric_batches
+        self.grid_size = grid_size
+
+    role: str = "model"
+
+    # -- to implement --------------------------------------------------------------------------------------
+    def predict_paths(self, batch: dict) -> torch.Tensor:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    # -- shared machinery ----------------------------------------------------------------------------------
+    def check_finite(self, loss: torch.Tensor, parts: dict[str, torch.Tensor]) -> None:
+        """Stop on a NaN or inf loss with a message naming the step and the loss terms."""
+        if not torch.isfinite(loss):
+            terms = ", ".join(f"{k}={float(v):.4g}" for k, v in parts.items())
+            raise FloatingPointError(
+                f"non-finite training loss {float(loss)} at global step {self.global_step} (epoch "
+                f"{self.current_epoch}): {terms}. Lower the learning rate or the guidance weight, or check the data."
+            )
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        info: dict[str, Any] = {"role": self.role, "config": dict(self.net.config)}
+        for logger in self.loggers:
+            if isinstance(logger, MLFlowLogger):
+                info["mlflow_run_id"] = logger.run_id
+        checkpoint["spade"] = info
+
+    def configure_optimizers(self) -> Any:
+        params = [p for p in self.parameters() if p.requires_grad]
+        if self.optimizer_factory is None:
+            return torch.optim.AdamW(params, lr=1e-3)
+        return self.optimizer_factory(params=params)
+
+    def validation_step(self, batch: dict, batch_idx: int) -> None:
+        self.log_dict(self.validation_losses(batch), batch_size=batch["state"].shape[0], sync_dist=True)
+        if self.val_metric_batches is not None and batch_idx >= self.val_metric_batches:
+            return
+        prob = self.predict_paths(batch)
+        self.val_metrics.update(prob, batch)
+        if batch_idx == 0 and self.grid_size > 0 and not self.trainer.sanity_checking:
+            n = min(self.grid_size, prob.shape[0])
+            grid = prediction_grid(batch["state"][:n], batch["path"][:n], prob[:n])
+            log_image(self.logger, grid, f"predictions/epoch{self.current_epoch:03d}.png", self.trainer.log_dir)
+
+    def validation_losses(self, batch: dict) -> dict[str, torch.Tensor]:
+        return {}
+
+    def on_validation_epoch_end(self) -> None:
+        if self.val_metrics.ape.total > 0:
+            self.log_dict({f"val/{k}": v for k, v in self.val_metrics.compute().items()}, sync_dist=False)
+        self.val_metrics.reset()
+
+    def test_step(self, batch: dict, batch_idx: int) -> None:
+        prob = self.predict_paths(batch)
+        self.test_metrics.update(prob, batch)
+
+    def on_test_epoch_end(self) -> None:
+        self.log_dict({f"test/{k}": v for k, v in self.test_metrics.compute().items()}, sync_dist=False)
+        self.test_metrics.reset()

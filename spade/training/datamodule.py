@@ -1,0 +1,156 @@
+"""``PathDataModule``: train/validation split by scenario, a held-out test dataset, D4 augmentation."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+from torch.utils.data import DataLoader, Subset
+
+from spade.data import DatasetError, PathDataset, read_manifest
+from spade.training.augment import augment_batch
+
+# (dataset directory, annotation config) -> None; builds the dataset when it is missing.
+Generator = Callable[[Path, Any], None]
+
+
+def split_by_scenario(scenario_ids: list[str], val_fraction: float, seed: int) -> tuple[list[int], list[int]]:
+    """Indices of (train, validation) with whole scenarios on one side: instances of a scenario are near-duplicates."""
+    if not 0.0 <= val_fraction < 1.0:
+        raise ValueError(f"data.val_fraction must be in [0, 1), got {val_fraction}")
+    scenarios = sorted(set(scenario_ids))
+    if val_fraction == 0.0 or len(scenarios) < 2:
+        return list(range(len(scenario_ids))), []
+    order = np.random.default_rng(seed).permutation(len(scenarios))
+    n_val = min(len(scenarios) - 1, max(1, math.ceil(val_fraction * len(scenarios))))
+    val_set = {scenarios[i] for i in order[:n_val]}
+    train = [i for i, s in enumerate(scenario_ids) if s not in val_set]
+    val = [i for i, s in enumerate(scenario_ids) if s in val_set]
+    return train, val
+
+
+def _default_generator(root: Path, config: Any) -> None:
+    from spade.annotation.pipeline import build_dataset
+
+    build_dataset(config, out_dir=root)
+
+
+class PathDataModule(L.LightningDataModule):
+    """Datasets of the annotation tool as Lightning data.
+
+    ``train_dir`` is split into train and validation by scenario; ``test_dir`` (a held-out map) is the test set
+    (the validation split stands in when it is None). ``train_generate`` / ``test_generate`` are annotation
+    configs: ``prepare_data`` builds a missing dataset with them, so a fresh machine needs no manual step.
+    """
+
+    def __init__(
+        self,
+        train_dir: str | Path,
+        test_dir: str | Path | None = None,
+        train_generate: Any = None,
+        test_generate: Any = None,
+        val_fraction: float = 0.1,
+        split_seed: int = 0,
+        batch_size: int = 32,
+        eval_batch_size: int | None = None,
+        num_workers: int = 0,
+        pin_memory: bool = False,
+        persistent_workers: bool = False,
+        augment: bool = True,
+        max_train_instances: int | None = None,
+        max_test_instances: int | None = None,
+        generator: Generator | None = None,
+    ) -> None:
+        super().__init__()
+        if batch_size < 1:
+            raise ValueError(f"data.batch_size must be >= 1, got {batch_size}")
+        if num_workers < 0:
+            raise ValueError(f"data.num_workers must be >= 0, got {num_workers}")
+        self.train_dir = Path(train_dir)
+        self.test_dir = Path(test_dir) if test_dir else None
+        self.train_generate, self.test_generate = train_generate, test_generate
+        self.val_fraction, self.split_seed = val_fraction, split_seed
+        self.batch_size = batch_size
+        self.eval_batch_size = eval_batch_size or batch_size
+        self.num_workers, self.pin_memory = num_workers, pin_memory
+        self.persistent_workers = persistent_workers and num_workers > 0
+        self.augment = augment
+        self.max_train_instances, self.max_test_instances = max_train_instances, max_test_instances
+        self.generator = generator or _default_generator
+        self.train_set = self.val_set = self.test_set = None
+
+    # -- Lightning hooks -------------------------------------------------------------------------------------
+    def prepare_data(self) -> None:
+        for root, config in ((self.train_dir, self.train_generate), (self.test_dir, self.test_generate)):
+            if root is None or (root / "manifest.json").is_file():
+                continue
+            if config is None:
+                raise DatasetError(
+                    f"{root}: dataset missing and no generator config given. Build it with "
+                    f"`python -m spade.annotate out_dir={root}` or set the data config's *_generate."
+                )
+            self.generator(root, config)
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.train_set is None:
+            full = PathDataset(self.train_dir)
+            train, val = split_by_scenario(full.labels("scenario_id"), self.val_fraction, self.split_seed)
+            if self.max_train_instances:
+                train = train[: self.max_train_instances]
+                val = val[: max(1, self.max_train_instances // 4)] if val else val
+            self.train_set, self.val_set = Subset(full, train), Subset(full, val)
+        if self.test_set is None:
+            if self.test_dir is not None:
+                test = PathDataset(self.test_dir)
+                self._check_compatible(test)
+                idx = list(range(len(test)))[: self.max_test_instances or None]
+                self.test_set = Subset(test, idx)
+            else:
+                self.test_set = self.val_set
+
+    def _check_compatible(self, test: PathDataset) -> None:
+        train = self.train_set.dataset
+        if test.image_size != train.image_size or test.resolution != train.resolution:
+            raise DatasetError(
+                f"{self.test_dir}: test instances are {test.image_size} at {test.resolution} m/px, training ones "
+                f"{train.image_size} at {train.resolution} m/px; regenerate one of them with the other's window"
+            )
+        shared = set(test.labels("scenario_id")) & set(train.labels("scenario_id"))
+        if shared:
+            raise DatasetError(f"{self.test_dir}: shares {len(shared)} scenarios with {self.train_dir} (leak)")
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        if self.train_set is not None:
+            return self.train_set.dataset.image_size
+        manifest = read_manifest(self.train_dir)
+        return manifest.height, manifest.width
+
+    def _loader(self, dataset: Subset, shuffle: bool, batch_size: int) -> DataLoader:
+        return DataLoader(
+            dataset,
+            batch_size=batch_size,
+            shuffle=shuffle,
+            num_workers=self.num_workers,
+            pin_memory=self.pin_memory,
+            persistent_workers=self.persistent_workers,
+            drop_last=False,
+        )
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader(self.train_set, True, self.batch_size)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader(self.val_set, False, self.eval_batch_size)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader(self.test_set, False, self.eval_batch_size)
+
+    def on_after_batch_transfer(self, batch: dict, dataloader_idx: int) -> dict:
+        if self.augment and self.trainer is not None and self.trainer.training:
+            return augment_batch(batch)
+        return batch

@@ -1,0 +1,151 @@
+"""``ExpertModule``: a DDPM path expert (conditional or unconditional) with EMA weights and DDIM/DDPM sampling."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import torch
+import torch.nn.functional as F
+from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
+
+from spade.models import build_model
+from spade.models.diffusion import NoiseSchedule
+from spade.training.base import PathPlanningModule
+from spade.training.guidance import to_model_range
+
+
+class ExpertModule(PathPlanningModule):
+    """Trains a diffusion expert on demonstrations; its test step is the paper's standalone-expert row.
+
+    Conditional (Cond-DBC): denoises the path channel, FiLM-conditioned on the 3-channel state.
+    Unconditional (DBC): denoises the 4-channel stack (state, path); to predict a path for a given state it
+    samples with the state channels inpainted (replaced at each step by the noised true state).
+    Data live in [-1, 1]: x = 2 p - 1 for every [0, 1] channel.
+    """
+
+    role = "expert"
+
+    def __init__(
+        self,
+        conditional: bool = True,
+        preset: str = "paper",
+        num_train_timesteps: int = 1000,
+        beta_schedule: str = "squaredcos_cap_v2",
+        ema_decay: float = 0.999,
+        sampler: str = "ddim",
+        num_inference_steps: int = 50,
+        sample_seed: int = 0,
+        optimizer: Callable[..., torch.optim.Optimizer] | None = None,
+        metrics: dict | None = None,
+        val_metric_batches: int | None = 1,
+        grid_size: int = 8,
+        image_size: int | None = None,
+    ) -> None:
+        super().__init__(optimizer, metrics, val_metric_batches, grid_size)
+        if sampler not in ("ddim", "ddpm"):
+            raise ValueError(f"sampler must be 'ddim' or 'ddpm', got {sampler!r}")
+        if not 0.0 <= ema_decay < 1.0:
+            raise ValueError(f"ema_decay must be in [0, 1), got {ema_decay}")
+        self.save_hyperparameters(ignore=["optimizer"])
+        self.conditional = conditional
+        self.net = build_model("cond_expert" if conditional else "uncond_expert", preset)
+        self.ema = AveragedModel(self.net, multi_avg_fn=get_ema_multi_avg_fn(ema_decay), use_buffers=True)
+        self.ema.requires_grad_(False)
+        self.schedule = NoiseSchedule(num_train_timesteps=num_train_timesteps, beta_schedule=beta_schedule)
+        self.sample_seconds = 0.0
+        self.sample_count = 0
+
+    # -- networks ------------------------------------------------------------------------------------------
+    def ema_net(self) -> torch.nn.Module:
+        """The EMA copy of the denoiser: what evaluation and guidance use."""
+        return self.ema.module
+
+    def check_compatible(self, in_channels: int, image_size: tuple[int, int] | None, source: str) -> None:
+        """Raise a clear error when this expert cannot judge a student's paths on the given data."""
+        from spade.training.student_module import ExpertMismatchError
+
+        expected = in_channels if self.conditional else in_channels + 1
+        have = self.net.condition_channels if self.conditional else self.net.in_channels
+        what = "condition" if self.conditional else "input"
+        if have != expected:
+            raise ExpertMismatchError(
+                f"expert {source} takes {have} {what} channels, the student's data need {expected}: train an "
+                "expert on the same kind of data"
+            )
+        trained = self.hparams.get("image_size")
+        if image_size is not None and trained is not None and tuple(image_size) != (trained, trained):
+            raise ExpertMismatchError(
+                f"expert {source} was trained on {trained} x {trained} instances, the student's are "
+                f"{image_size[0]} x {image_size[1]}: use an expert trained at the same scale"
+            )
+
+    def setup(self, stage: str) -> None:
+        dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
+        if dm is not None and self.hparams.get("image_size") is None:
+            self.hparams["image_size"] = int(dm.image_size[0])
+
+    # -- training ------------------------------------------------------------------------------------------
+    def clean_sample(self, batch: dict) -> torch.Tensor:
+        if self.conditional:
+            return to_model_range(batch["path"])
+        return to_model_range(torch.cat([batch["state"], batch["path"]], dim=1))
+
+    def denoise(self, net: torch.nn.Module, x_t: torch.Tensor, t: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        return net(x_t, t, to_model_range(state)) if self.conditional else net(x_t, t)
+
+    def denoising_loss(self, net: torch.nn.Module, batch: dict, generator: torch.Generator | None = None) -> torch.Tensor:
+        x0 = self.clean_sample(batch)
+        noise = torch.randn(x0.shape, generator=generator, device=x0.device, dtype=x0.dtype)
+        t = torch.randint(0, self.schedule.num_train_timesteps, (x0.shape[0],), device=x0.device, generator=generator)
+        return F.mse_loss(self.denoise(net, self.schedule.add_noise(x0, noise, t), t, batch["state"]), noise)
+
+    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
+        loss = self.denoising_loss(self.net, batch)
+        self.check_finite(loss, {"loss_denoise": loss})
+        self.log("train/loss", loss, prog_bar=True, batch_size=batch["state"].shape[0])
+        return loss
+
+    def on_train_batch_end(self, outputs, batch, batch_idx: int) -> None:
+        self.ema.update_parameters(self.net)
+
+    def validation_losses(self, batch: dict) -> dict[str, torch.Tensor]:
+        gen = torch.Generator(device=batch["state"].device).manual_seed(1234)
+        return {"val/loss": self.denoising_loss(self.ema_net(), batch, gen)}
+
+    # -- sampling ------------------------------------------------------------------------------------------
+    @torch.no_grad()
+    def sample_paths(self, state: torch.Tensor, sampler: str | None = None, num_inference_steps: int | None = None,
+                     seed: int | None = None) -> torch.Tensor:
+        """Path probabilities (B, 1, H, W) in [0, 1] sampled for ``state`` (B, 3, H, W)."""
+        sampler = sampler or self.hparams.sampler
+        steps = num_inference_steps or self.hparams.num_inference_steps
+        gen = torch.Generator(device=state.device).manual_seed(self.hparams.sample_seed if seed is None else seed)
+        net = self.ema_net()
+        b, _, h, w = state.shape
+        if self.conditional:
+            x0 = self.schedule.sample(lambda x, t: net(x, t, to_model_range(state)), (b, 1, h, w), generator=gen,
+                                      sampler=sampler, num_inference_steps=steps, device=state.device)
+            path = x0
+        else:
+            known = to_model_range(state)
+            x0 = self.schedule.sample(lambda x, t: net(x, t), (b, 4, h, w), generator=gen, sampler=sampler,
+                                      num_inference_steps=steps, device=state.device,
+                                      inpaint=(known, slice(0, 3)))
+            path = x0[:, 3:4]
+        return ((path + 1) / 2).clamp(0, 1)
+
+    def predict_paths(self, batch: dict) -> torch.Tensor:
+        t0 = time.perf_counter()
+        prob = self.sample_paths(batch["state"])
+        self.sample_seconds += time.perf_counter() - t0
+        self.sample_count += batch["state"].shape[0]
+        return prob
+
+    def on_test_epoch_start(self) -> None:
+        self.sample_seconds, self.sample_count = 0.0, 0
+
+    def on_test_epoch_end(self) -> None:
+        if self.sample_count:
+            self.log("test/seconds_per_sample", self.sample_seconds / self.sample_count)
+        super().on_test_epoch_end()

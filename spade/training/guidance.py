@@ -1,0 +1,109 @@
+"""The diffusion margin of DBC / Cond-DBC (DESIGN.md section 4): how much less expert-like the student's path is.
+
+L_agent  = || eps_phi(x_t(a_hat), t [, s]) - eps ||^2,  L_expert = || eps_phi(x_t(a), t [, s]) - eps ||^2,
+L_DM = E[max(L_agent - L_expert, 0)] (per-sample clipping, the paper's formula) or max(E[L_agent - L_expert], 0)
+(per-batch clipping, DBC's official code). Agent and expert terms share noise and timestep; the expert term
+carries no gradient; the expert's weights never change, but gradients flow through it into the student's
+prediction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+
+@dataclass(frozen=True)
+class GuidanceConfig:
+    """Options of the diffusion margin."""
+
+    weight: float = 1.0  # lambda in L_total = L_BC + lambda * L_DM
+    clip: str = "sample"  # "sample" (E[max(.,0)]) or "batch" (max(E[.],0))
+    antithetic: bool = True  # half the timesteps t, half T-1-t
+    num_noise: int = 1  # K noise draws per instance, averaged
+    t_min: int = 0
+    t_max: int | None = None  # exclusive; None = the schedule's T
+
+    def __post_init__(self) -> None:
+        if self.weight < 0:
+            raise ValueError(f"guidance weight (lambda) must be >= 0, got {self.weight}")
+        if self.clip not in ("sample", "batch"):
+            raise ValueError(f"guidance clip must be 'sample' or 'batch', got {self.clip!r}")
+        if self.num_noise < 1:
+            raise ValueError(f"guidance num_noise must be >= 1, got {self.num_noise}")
+        if self.t_min < 0 or (self.t_max is not None and self.t_max <= self.t_min):
+            raise ValueError(f"guidance timestep range [{self.t_min}, {self.t_max}) is empty or negative")
+
+
+def sample_timesteps(n: int, t_min: int, t_max: int, antithetic: bool, device: torch.device,
+                     generator: torch.Generator | None = None) -> torch.Tensor:
+    """``n`` timesteps in [t_min, t_max); antithetic pairs t and t_min + t_max - 1 - t."""
+    if not antithetic:
+        return torch.randint(t_min, t_max, (n,), device=device, generator=generator)
+    half = torch.randint(t_min, t_max, ((n + 1) // 2,), device=device, generator=generator)
+    return torch.cat([half, t_min + t_max - 1 - half])[:n]
+
+
+def to_model_range(p: torch.Tensor) -> torch.Tensor:
+    """Map [0, 1] images (probabilities, occupancy 0/0.5/1) to the experts' [-1, 1] data range."""
+    return p * 2.0 - 1.0
+
+
+class DiffusionMargin(nn.Module):
+    """Computes L_DM for a frozen expert.
+
+    ``expert(x_t, t, cond)`` predicts noise; ``conditional`` experts see the path channel only, conditioned on
+    the state; unconditional ones see the 4-channel stack (state, path) with noise on all four channels.
+    ``add_noise(x0, noise, t)`` is the schedule's forward process.
+    """
+
+    def __init__(self, expert: nn.Module, add_noise, num_train_timesteps: int, conditional: bool,
+                 config: GuidanceConfig) -> None:
+        super().__init__()
+        self.expert = expert.eval().requires_grad_(False)
+        self.add_noise = add_noise
+        self.T = int(num_train_timesteps)
+        self.conditional = conditional
+        self.config = config
+        t_max = config.t_max if config.t_max is not None else self.T
+        if t_max > self.T:
+            raise ValueError(f"guidance t_max={t_max} exceeds the expert's {self.T} training timesteps")
+        self.t_max = t_max
+
+    def train(self, mode: bool = True) -> "DiffusionMargin":
+        # The expert stays in eval mode (frozen normalisation statistics, no dropout) whatever the student does.
+        super().train(mode)
+        self.expert.eval()
+        return self
+
+    def _eps(self, x_t: torch.Tensor, t: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        return self.expert(x_t, t, to_model_range(state)) if self.conditional else self.expert(x_t, t)
+
+    def forward(self, student_prob: torch.Tensor, target: torch.Tensor, state: torch.Tensor,
+                generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Return (L_DM, fraction of active margins). ``student_prob`` and ``target`` are (B, 1, H, W) in [0, 1]."""
+        cfg = self.config
+        if self.conditional:
+            agent_x0, expert_x0 = to_model_range(student_prob), to_model_range(target)
+        else:
+            agent_x0 = to_model_range(torch.cat([state, student_prob], dim=1))
+            expert_x0 = to_model_range(torch.cat([state, target], dim=1))
+        b = student_prob.shape[0]
+        margins = []
+        for _ in range(cfg.num_noise):
+            t = sample_timesteps(b, cfg.t_min, self.t_max, cfg.antithetic, student_prob.device, generator)
+            noise = torch.randn(agent_x0.shape, device=agent_x0.device, dtype=agent_x0.dtype, generator=generator)
+            with torch.no_grad():
+                expert_err = (self._eps(self.add_noise(expert_x0, noise, t), t, state) - noise).pow(2)
+                expert_err = expert_err.flatten(1).mean(1)
+            agent_err = (self._eps(self.add_noise(agent_x0, noise, t), t, state) - noise).pow(2).flatten(1).mean(1)
+            margins.append(agent_err - expert_err)
+        margin = torch.stack(margins).mean(0)
+        if cfg.clip == "sample":
+            loss = margin.clamp_min(0).mean()
+        else:
+            loss = margin.mean().clamp_min(0)
+        active = (margin > 0).float().mean()
+        return loss, active

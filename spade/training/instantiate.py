@@ -1,0 +1,52 @@
+"""Building callbacks and loggers from Hydra config groups (lightning-hydra-template style)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import hydra
+import torch
+from lightning import Callback
+from lightning.pytorch.loggers import Logger
+from omegaconf import DictConfig
+
+log = logging.getLogger(__name__)
+
+
+def instantiate_callbacks(cfg: DictConfig | None) -> list[Callback]:
+    """Every ``_target_`` entry of the callbacks group, in order."""
+    callbacks: list[Callback] = []
+    for name, conf in (cfg or {}).items():
+        if isinstance(conf, DictConfig) and "_target_" in conf:
+            log.info("Instantiating callback %s <%s>", name, conf._target_)
+            callbacks.append(hydra.utils.instantiate(conf))
+    return callbacks
+
+
+def instantiate_loggers(cfg: DictConfig | None, run_id: str | None = None) -> list[Logger]:
+    """Every ``_target_`` entry of the logger group; an MLflow logger resumes ``run_id`` when given."""
+    loggers: list[Logger] = []
+    for name, conf in (cfg or {}).items():
+        if isinstance(conf, DictConfig) and "_target_" in conf:
+            extra = {}
+            if run_id and conf._target_.endswith("MLFlowLogger"):
+                extra["run_id"] = run_id
+            log.info("Instantiating logger %s <%s>", name, conf._target_)
+            loggers.append(hydra.utils.instantiate(conf, **extra))
+    return loggers
+
+
+def run_id_from_checkpoint(ckpt_path: str | Path | None) -> str | None:
+    """The MLflow run id a checkpoint was written under (so that a resumed run continues that run)."""
+    if not ckpt_path:
+        return None
+    path = Path(ckpt_path)
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"ckpt_path={path} does not exist; pass the path of a checkpoint written by an earlier run "
+            "(they live under the run's output directory, checkpoints/last.ckpt)"
+        )
+    checkpoint: dict[str, Any] = torch.load(path, map_location="cpu", weights_only=False)
+    return (checkpoint.get("spade") or {}).get("mlflow_run_id")

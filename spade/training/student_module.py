@@ -1,0 +1,137 @@
+"""``StudentModule``: the compact U-Net policy trained by BC, optionally guided by a frozen diffusion expert."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+import torch
+import torch.nn.functional as F
+
+from spade.models import build_model
+from spade.training.base import PathPlanningModule
+from spade.training.guidance import DiffusionMargin, GuidanceConfig
+
+
+class ExpertMismatchError(ValueError):
+    """A guidance expert that does not fit the student's data."""
+
+
+class StudentModule(PathPlanningModule):
+    """BC (binary cross-entropy on logits) plus ``weight`` x the diffusion margin of a frozen expert.
+
+    Args:
+        size: student preset (``small``, ``medium``, ``large``, or a smaller test preset).
+        guidance: None for plain BC, else a dict with ``expert_ckpt`` (an :class:`ExpertModule` checkpoint) and
+            the :class:`~spade.training.guidance.GuidanceConfig` options (weight, clip, antithetic, num_noise,
+            t_min, t_max). The expert is loaded when fitting starts; it is never part of this module's
+            checkpoint, so a deployed student needs no expert.
+        optimizer: a ``_partial_`` optimiser factory (AdamW lr 1e-3 when None).
+    """
+
+    role = "student"
+
+    def __init__(
+        self,
+        size: str = "medium",
+        guidance: dict | None = None,
+        init_ckpt: str | None = None,
+        optimizer: Callable[..., torch.optim.Optimizer] | None = None,
+        metrics: dict | None = None,
+        val_metric_batches: int | None = None,
+        grid_size: int = 8,
+        image_size: int | None = None,
+    ) -> None:
+        super().__init__(optimizer, metrics, val_metric_batches, grid_size)
+        self.save_hyperparameters(ignore=["optimizer"])
+        self.net = build_model("student", size)
+        if init_ckpt:
+            self.load_pretrained(init_ckpt)
+        self.guidance_cfg = None
+        if guidance:
+            options = {k: v for k, v in dict(guidance).items() if k != "expert_ckpt"}
+            self.guidance_cfg = GuidanceConfig(**options)
+            ckpt = guidance.get("expert_ckpt")
+            if not ckpt:
+                raise ValueError("guidance needs expert_ckpt: the path of a trained ExpertModule checkpoint")
+            if not Path(ckpt).is_file():
+                raise FileNotFoundError(
+                    f"guidance expert checkpoint {ckpt} does not exist; train one with "
+                    "`python -m spade.train +experiment=<expert experiment>` and pass its checkpoint path"
+                )
+        self._margin: list[DiffusionMargin] = []  # kept out of the module tree: never checkpointed or optimised
+
+    def load_pretrained(self, ckpt: str | Path) -> None:
+        """Initialise the network from another student's checkpoint (fine-tuning), checking it is the same net."""
+        path = Path(ckpt)
+        if not path.is_file():
+            raise FileNotFoundError(f"init_ckpt={path} does not exist; pass a student checkpoint (.ckpt)")
+        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+        info = checkpoint.get("spade") or {}
+        if info.get("role") != "student":
+            raise ValueError(f"init_ckpt={path} is a {info.get('role', 'non-SPADE')} checkpoint, not a student's")
+        if dict(info.get("config") or {}) != dict(self.net.config):
+            raise ValueError(
+                f"init_ckpt={path} holds a student {info.get('config')}, this run builds {dict(self.net.config)}: "
+                "set model.size to the pretrained student's size"
+            )
+        weights = {k[len("net."):]: v for k, v in checkpoint["state_dict"].items() if k.startswith("net.")}
+        self.net.load_state_dict(weights)
+
+    # -- guidance ------------------------------------------------------------------------------------------
+    @property
+    def margin(self) -> DiffusionMargin | None:
+        return self._margin[0] if self._margin else None
+
+    def load_guidance(self, image_size: tuple[int, int] | None = None) -> None:
+        """Load and check the frozen expert named by the guidance config (once)."""
+        if self.guidance_cfg is None or self._margin:
+            return
+        from spade.training.expert_module import ExpertModule
+
+        ckpt = self.hparams.guidance["expert_ckpt"]
+        expert = ExpertModule.load_from_checkpoint(ckpt, map_location="cpu")
+        expert.check_compatible(in_channels=self.net.in_channels, image_size=image_size, source=str(ckpt))
+        margin = DiffusionMargin(
+            expert.ema_net(), expert.schedule.add_noise, expert.schedule.num_train_timesteps,
+            expert.conditional, self.guidance_cfg,
+        )
+        self._margin.append(margin.to(self.device))
+
+    def setup(self, stage: str) -> None:
+        if stage == "fit" and self.guidance_cfg is not None:
+            dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
+            self.load_guidance(getattr(dm, "image_size", None))
+
+    def on_fit_start(self) -> None:
+        if self.margin is not None:
+            self.margin.to(self.device)
+
+    # -- steps ---------------------------------------------------------------------------------------------
+    def forward(self, state: torch.Tensor) -> torch.Tensor:
+        """Path logits (B, 1, H, W) for a state (B, 3, H, W)."""
+        return self.net(state)
+
+    def predict_paths(self, batch: dict) -> torch.Tensor:
+        return torch.sigmoid(self(batch["state"]))
+
+    def losses(self, batch: dict) -> dict[str, torch.Tensor]:
+        logits = self(batch["state"])
+        target = batch["path"].to(logits.dtype)
+        out = {"loss_bc": F.binary_cross_entropy_with_logits(logits, target)}
+        total = out["loss_bc"]
+        if self.margin is not None:
+            loss_dm, active = self.margin(torch.sigmoid(logits), target, batch["state"].to(logits.dtype))
+            out.update(loss_dm=loss_dm, margin_active=active)
+            total = total + self.guidance_cfg.weight * loss_dm
+        out["loss"] = total
+        return out
+
+    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
+        parts = self.losses(batch)
+        self.check_finite(parts["loss"], parts)
+        self.log_dict({f"train/{k}": v for k, v in parts.items()}, prog_bar=True, batch_size=batch["state"].shape[0])
+        return parts["loss"]
+
+    def validation_losses(self, batch: dict) -> dict[str, torch.Tensor]:
+        logits = self(batch["state"])
+        return {"val/loss_bc": F.binary_cross_entropy_with_logits(logits, batch["path"].to(logits.dtype))}
