@@ -1,0 +1,258 @@
+"""The annotation run: maps -> scenarios (in a process pool) -> instances written in scenario order.
+
+Scenarios are enumerated round-robin (for k = 0, 1, ...: for every map: for every shape) and consumed strictly
+in that order, however many workers compute them, until ``num_instances`` are collected; every scenario
+draws from its own seeded generator, so the output bytes never depend on the worker count.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+from collections import Counter, deque
+from concurrent.futures import Executor, Future, ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator, Mapping
+
+from spade.annotation.execution import Rejection, execute_sketch
+from spade.annotation.rasterize import Instance, fits
+from spade.annotation.scenarios import (
+    MapContext,
+    ScenarioResult,
+    generate_scenario,
+    instances_along,
+    prepare_map,
+    scenario_rng,
+)
+from spade.annotation.templates import SHAPES, check_shape
+
+log = logging.getLogger(__name__)
+
+
+class NotEnoughInstancesError(RuntimeError):
+    """The maps cannot give as many instances as were asked for."""
+
+
+@dataclass
+class RunStats:
+    """What the manifest records about a run besides the instances."""
+
+    rejections: Counter = field(default_factory=Counter)
+    rejections_by_map: dict[str, Counter] = field(default_factory=dict)
+    scenarios: list[dict[str, Any]] = field(default_factory=list)
+    scenarios_tried: int = 0
+
+    def add(self, result: ScenarioResult) -> None:
+        self.scenarios_tried += 1
+        self.rejections.update(result.rejections)
+        self.rejections_by_map.setdefault(result.map_id, Counter()).update(result.rejections)
+
+    def to_json(self) -> dict[str, Any]:
+        attempts = sum(v for k, v in self.rejections.items() if k != "scenario_failed") + len(self.scenarios)
+        return {
+            "rejections": dict(sorted(self.rejections.items())),
+            "rejections_by_map": {k: dict(sorted(v.items())) for k, v in sorted(self.rejections_by_map.items())},
+            "attempts": attempts,
+            "scenarios_tried": self.scenarios_tried,
+            "scenarios_accepted": len(self.scenarios),
+            "scenarios": self.scenarios,
+        }
+
+
+def shapes_of(cfg: Mapping[str, Any]) -> list[str]:
+    """``shape`` as a list of checked labels (``L``, ``U`` or both)."""
+    value = cfg["shape"]
+    shapes = [value] if isinstance(value, str) else list(value)
+    if not shapes:
+        raise ValueError("shape= is empty; use shape=L, shape=U or shape=[L,U]")
+    return [check_shape(str(s)) for s in shapes]
+
+
+# ----------------------------------------------------------------------------------------- worker side
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(contexts: list[MapContext], cfg: Mapping[str, Any]) -> None:
+    _WORKER["contexts"] = contexts
+    _WORKER["cfg"] = cfg
+
+
+def _run_scenario(map_index: int, shape: str, index: int) -> ScenarioResult:
+    return generate_scenario(_WORKER["contexts"][map_index], shape, index, _WORKER["cfg"])
+
+
+class _InlineExecutor(Executor):
+    """Runs tasks at submit time, in this process (workers <= 1)."""
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future:
+        fut: Future = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # surfaced by .result(), like a pool would
+            fut.set_exception(exc)
+        return fut
+
+
+def _executor(workers: int, start_method: str, contexts: list[MapContext], cfg: Mapping[str, Any]) -> Executor:
+    if workers <= 1:
+        _init_worker(contexts, cfg)
+        return _InlineExecutor()
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(start_method),
+                               initializer=_init_worker, initargs=(contexts, cfg))
+
+
+def ordered_results(executor: Executor, tasks: Iterable[tuple[int, str, int]], window: int
+                    ) -> Iterator[tuple[int, ScenarioResult]]:
+    """(map index, result) of ``tasks`` in task order, at most ``window`` in flight; stops submitting when the
+    consumer stops iterating."""
+    pending: deque[tuple[int, Future]] = deque()
+    it = iter(tasks)
+    for task in it:
+        pending.append((task[0], executor.submit(_run_scenario, *task)))
+        if len(pending) >= window:
+            break
+    while pending:
+        map_index, future = pending.popleft()
+        result = future.result()
+        for task in it:
+            pending.append((task[0], executor.submit(_run_scenario, *task)))
+            break
+        yield map_index, result
+    # Futures still queued when the consumer stops are cancelled by the executor's shutdown.
+
+
+def scenario_tasks(n_maps: int, shapes: list[str], max_per_map: int, first_index: int = 0
+                   ) -> Iterator[tuple[int, str, int]]:
+    """Round-robin over maps and shapes so that every map contributes evenly; scenario indices start at
+    ``first_index`` (a test split of a training map uses an offset, so its scenario ids never collide)."""
+    for k in range(first_index, first_index + max_per_map):
+        for m in range(n_maps):
+            for shape in shapes:
+                yield m, shape, k
+
+
+def template_instances(contexts: list[MapContext], cfg: Mapping[str, Any], stats: RunStats,
+                       progress: Callable[[int], None] = lambda n: None) -> Iterator[tuple[Instance, str, str, str]]:
+    """Yield exactly ``num_instances`` (instance, shape, map_id, scenario_id) from template scenarios.
+
+    A (map, shape) pair whose last ``scenario.max_failures`` scenarios in a row all failed is given up; the
+    decision is taken on results in scenario order, so it does not depend on the worker count either.
+    """
+    shapes = shapes_of(cfg)
+    wanted = int(cfg["num_instances"])
+    if wanted < 1:
+        raise ValueError(f"num_instances must be >= 1, got {wanted}")
+    workers = int(cfg["workers"])
+    max_per_map = int(cfg["scenario"]["max_per_map"])
+    max_failures = int(cfg["scenario"]["max_failures"])
+    failures: Counter = Counter()
+    dead: set[tuple[int, str]] = set()
+    executor = _executor(workers, str(cfg["start_method"]), contexts, cfg)
+    produced = 0
+    tasks = (t for t in scenario_tasks(len(contexts), shapes, max_per_map, int(cfg["scenario"].get("first_index", 0)))
+             if (t[0], t[1]) not in dead)  # only saves work; correctness comes from the check below
+    try:
+        for map_index, result in ordered_results(executor, tasks, window=max(1, 3 * workers)):
+            pair = (map_index, result.shape)
+            if pair in dead:
+                continue
+            stats.add(result)
+            if not result.instances:
+                failures[pair] += 1
+                if failures[pair] >= max_failures:
+                    dead.add(pair)
+                    log.warning("giving up %s shape %s after %d failed scenarios in a row: %s", result.map_id,
+                                result.shape, max_failures, dict(stats.rejections_by_map[result.map_id]))
+                continue
+            failures[pair] = 0
+            take = result.instances[: wanted - produced]
+            stats.scenarios.append(_summary(result, len(take)))
+            for inst in take:
+                yield inst, result.shape, result.map_id, result.scenario_id
+            produced += len(take)
+            progress(len(take))
+            if produced >= wanted:
+                return
+    finally:
+        if isinstance(executor, ProcessPoolExecutor):
+            executor.shutdown(wait=True, cancel_futures=True)
+    given_up = sorted(f"{contexts[m].map_id}:{s}" for m, s in dead)
+    raise NotEnoughInstancesError(
+        f"asked for num_instances={wanted} but {len(contexts)} map(s) x shapes {shapes} gave only {produced} from "
+        f"{len(stats.scenarios)} accepted scenarios out of {stats.scenarios_tried} tried "
+        f"(scenario.max_per_map={max_per_map}; given up after {max_failures} failures in a row: {given_up}); "
+        f"rejections: {dict(stats.rejections)}. Lower num_instances, add maps, lower instances.spacing_m "
+        f"(more states per path) or raise scenario.max_per_map."
+    )
+
+
+def _summary(result: ScenarioResult, n_instances: int) -> dict[str, Any]:
+    ex = result.executed
+    assert ex is not None
+    return {
+        "scenario_id": result.scenario_id,
+        "map_id": result.map_id,
+        "shape": result.shape,
+        "instances": n_instances,
+        "length_m": round(ex.length_m, 3),
+        "turn_deg": round(ex.turn_deg, 1),
+        "deviation_m": round(ex.deviation_m, 3),
+        "min_clearance_m": round(ex.min_clearance_m, 3),
+    }
+
+
+def sketch_instances(ctx: MapContext, sketches: list[tuple[str, str, Any]], cfg: Mapping[str, Any], stats: RunStats,
+                     progress: Callable[[int], None] = lambda n: None) -> Iterator[tuple[Instance, str, str, str]]:
+    """Instances of operator sketches ``(name, shape, waypoints_px)`` on one map; a rejected sketch is counted
+    and logged, never silently dropped."""
+    from spade.annotation.sketch_file import densify
+
+    res = ctx.costmap.resolution
+    size = int(cfg["window"]["size_px"])
+    margin = float(cfg["window"]["margin_m"]) / res
+    for k, (name, shape, waypoints_px) in enumerate(sketches):
+        result = ScenarioResult(f"{ctx.map_id}/{name}", ctx.map_id, shape, k)
+        dense = densify(waypoints_px, 0.5)
+        try:
+            executed = execute_sketch(ctx.costmap, waypoints_px, dense, SHAPES[shape], cfg["execution"])
+            if not fits(executed.points, size, margin):
+                raise Rejection("window", f"the executed path does not fit a {size} px window with "
+                                          f"{cfg['window']['margin_m']} m margin")
+        except Rejection as rej:
+            result.rejections[rej.reason] += 1
+            stats.add(result)
+            log.warning("sketch %s rejected: %s", result.scenario_id, rej)
+            continue
+        result.executed = executed
+        result.instances = instances_along(ctx, executed, cfg, scenario_rng(int(cfg["seed"]), ctx.map_id, shape, k))
+        stats.add(result)
+        stats.scenarios.append(_summary(result, len(result.instances)))
+        for inst in result.instances:
+            yield inst, shape, ctx.map_id, result.scenario_id
+        progress(len(result.instances))
+
+
+def write_dataset(out_dir: str | Path, items: Iterable[tuple[Instance, str, str, str]], cfg: Mapping[str, Any],
+                  extra: Mapping[str, Any] | Callable[[], Mapping[str, Any]], resolution: float) -> int:
+    """Write instances with :class:`spade.data.DatasetWriter`; ``extra`` (or what it returns once every item is
+    written) goes into the manifest. Returns the number of instances."""
+    from spade.data import DatasetWriter
+
+    size = int(cfg["window"]["size_px"])
+    with DatasetWriter(out_dir, image_size=(size, size), resolution=resolution, num_waypoints=int(cfg["num_waypoints"]),
+                       generator_config=dict(cfg), overwrite=bool(cfg.get("overwrite", False))) as writer:
+        for inst, shape, map_id, scenario_id in items:
+            writer.add(inst.occupancy, inst.start, inst.goal, inst.path, inst.waypoints, shape, map_id, scenario_id)
+        info = extra() if callable(extra) else extra
+        if writer.count == 0:  # raised inside the block so that no empty dataset is left behind
+            raise NotEnoughInstancesError(f"no instance was produced for {out_dir}: {dict(info)}")
+        for key, value in info.items():
+            writer.set_extra(key, value)
+        count = writer.count
+    return count
+
+
+def build_contexts(sources: list[Any], cfg: Mapping[str, Any]) -> list[MapContext]:
+    """Costmaps and goal areas of every map (raises :class:`NoFreeAreaError` for a map too cluttered)."""
+    return [prepare_map(s.map_id, s.map.grid, s.map.resolution, cfg) for s in sources]

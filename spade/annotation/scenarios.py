@@ -1,0 +1,194 @@
+"""Last-mile delivery scenarios: a goal in open free space, a sketch ending on it, its execution and the
+instances rasterised along it.
+
+Every scenario draws its randomness from its own generator, seeded by (dataset seed, map id, shape, scenario
+index) through ``numpy.random.SeedSequence``, so scenarios can be computed in any order and in any number of
+processes without changing a byte of the output.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+from scipy.cluster.vq import kmeans2
+
+from spade.annotation.execution import Costmap, ExecutedPath, Rejection, build_costmap, execute_sketch
+from spade.annotation.rasterize import Instance, fits, make_instance, state_indices
+from spade.annotation.templates import SHAPES, check_shape, place_template, sample_template
+
+
+class NoFreeAreaError(ValueError):
+    """A map has no free cell with the clearance a scenario's goal needs."""
+
+
+def stable_hash(text: str) -> int:
+    """A process-independent 32-bit hash of ``text`` (Python's ``hash`` is salted per process)."""
+    return zlib.crc32(text.encode("utf-8"))
+
+
+def scenario_rng(seed: int, map_id: str, shape: str, index: int) -> np.random.Generator:
+    """The generator of one scenario, independent of every other scenario's."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), stable_hash(map_id), stable_hash(shape),
+                                                         int(index)]))
+
+
+def goal_clearance_m(cfg: Mapping[str, Any]) -> float:
+    """Clearance a goal needs: ``scenario.goal_clearance_m`` or, when null, robot radius + inflation radius."""
+    value = cfg["scenario"].get("goal_clearance_m")
+    if value is None:
+        return float(cfg["robot"]["radius_m"]) + float(cfg["robot"]["inflation_radius_m"])
+    return float(value)
+
+
+@dataclass
+class MapContext:
+    """What scenarios need from one map, computed once: the inflated costmap and goal areas."""
+
+    map_id: str
+    costmap: Costmap
+    goal_cells: np.ndarray  # (M, 2) int (col, row) cells with enough clearance
+    goal_area: np.ndarray  # (M,) area label of each goal cell
+    n_areas: int
+
+
+def prepare_map(map_id: str, grid: np.ndarray, resolution: float, cfg: Mapping[str, Any]) -> MapContext:
+    """Inflate the map and split its goal candidates into spatially separate areas (k-means on cell
+    positions), so that consecutive scenarios of a map land in different parts of it."""
+    costmap = build_costmap(grid, resolution, cfg["robot"], float(cfg["execution"]["cost_weight"]))
+    need_px = goal_clearance_m(cfg) / resolution
+    rows, cols = np.nonzero(costmap.clearance_px >= need_px)
+    if len(rows) == 0:
+        best = float(costmap.clearance_px.max()) * resolution
+        raise NoFreeAreaError(
+            f"map {map_id!r} ({grid.shape[1]} x {grid.shape[0]} px at {resolution} m/px, "
+            f"{int((grid == 1).sum())} free cells) has no free cell with {goal_clearance_m(cfg):.2f} m clearance "
+            f"for a goal; its most open cell has {best:.2f} m. Remove the map from maps= or lower "
+            f"scenario.goal_clearance_m / robot.inflation_radius_m."
+        )
+    cells = np.stack([cols, rows], axis=1)
+    n_areas = int(min(int(cfg["scenario"]["areas_per_map"]), len(cells)))
+    rng = np.random.default_rng(np.random.SeedSequence([stable_hash(map_id), 7]))
+    sample = cells[rng.choice(len(cells), size=min(len(cells), 4000), replace=False)].astype(np.float64)
+    if n_areas > 1:
+        centroids, _ = kmeans2(sample, n_areas, minit="++", seed=rng)
+        labels = np.argmin(((cells[:, None, :] - centroids[None]) ** 2).sum(-1), axis=1)
+        # Order areas along the map so area k is reproducible and empty areas are dropped.
+        used = np.unique(labels)
+        order = used[np.lexsort((centroids[used, 0], centroids[used, 1]))]
+        remap = np.full(n_areas, -1)
+        remap[order] = np.arange(len(order))
+        labels = remap[labels]
+        n_areas = len(order)
+    else:
+        labels = np.zeros(len(cells), dtype=np.int64)
+    return MapContext(map_id, costmap, cells, labels, n_areas)
+
+
+def costmap_context(map_id: str, grid: np.ndarray, resolution: float, cfg: Mapping[str, Any]) -> MapContext:
+    """A context with the costmap only, for sketches whose goals are given (operator sketch files)."""
+    costmap = build_costmap(grid, resolution, cfg["robot"], float(cfg["execution"]["cost_weight"]))
+    return MapContext(map_id, costmap, np.zeros((0, 2), dtype=np.int64), np.zeros(0, dtype=np.int64), 0)
+
+
+@dataclass
+class ScenarioResult:
+    """The outcome of one scenario: its instances (empty if every attempt was rejected) and the rejections."""
+
+    scenario_id: str
+    map_id: str
+    shape: str
+    index: int
+    rejections: Counter = field(default_factory=Counter)
+    instances: list[Instance] = field(default_factory=list)
+    executed: ExecutedPath | None = None
+    sketch: np.ndarray | None = None  # keypoints, map pixel coords
+
+
+def scenario_area(ctx: MapContext, index: int, cfg: Mapping[str, Any]) -> int:
+    """Goal area of scenario ``index``: cycles through ``scenario.areas`` (all areas when null), so that a train
+    and a test split of one map can use disjoint parts of it."""
+    areas = cfg["scenario"].get("areas")
+    if areas is None:
+        return index % ctx.n_areas
+    areas = [int(a) for a in areas]
+    bad = [a for a in areas if not 0 <= a < ctx.n_areas]
+    if bad or not areas:
+        raise ValueError(f"scenario.areas={areas} on map {ctx.map_id!r}: areas are numbered 0..{ctx.n_areas - 1} "
+                         f"(scenario.areas_per_map={cfg['scenario']['areas_per_map']}); use indices in that range")
+    return areas[index % len(areas)]
+
+
+def _placement(ctx: MapContext, shape: str, goal: np.ndarray, cfg: Mapping[str, Any], rng: np.random.Generator,
+               window_px: int, margin_px: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Try ``scenario.headings_per_goal`` sampled templates at ``goal``; return the first whose ideal curve lies
+    on free space with ``scenario.sketch_clearance_m`` and fits the window, else None."""
+    res = ctx.costmap.resolution
+    need = float(cfg["scenario"]["sketch_clearance_m"]) / res
+    h, w = ctx.costmap.grid.shape
+    for _ in range(int(cfg["scenario"]["headings_per_goal"])):
+        template = sample_template(shape, cfg["template"], rng)
+        keypoints, dense = place_template(template, goal, res)
+        if not fits(dense, window_px, margin_px):
+            continue
+        cells = np.rint(dense).astype(np.int64)
+        if (cells < 0).any() or (cells[:, 0] >= w).any() or (cells[:, 1] >= h).any():
+            continue
+        if ctx.costmap.clearance_px[cells[:, 1], cells[:, 0]].min() < need:
+            continue
+        return keypoints, dense
+    return None
+
+
+def instances_along(ctx: MapContext, executed: ExecutedPath, cfg: Mapping[str, Any],
+                    rng: np.random.Generator) -> list[Instance]:
+    """Rasterise robot states every ``instances.spacing_m`` along an executed path."""
+    res = ctx.costmap.resolution
+    win = cfg["window"]
+    size = int(win["size_px"])
+    margin = float(win["margin_m"]) / res
+    idx = state_indices(len(executed.points), executed.step_px, float(cfg["instances"]["spacing_m"]) / res,
+                        float(cfg["instances"]["min_remaining_m"]) / res)
+    out = []
+    for i in idx:
+        inst = make_instance(ctx.costmap.grid, executed.points[i:], size, margin,
+                             float(cfg["instances"]["disc_radius_m"]) / res, int(cfg["num_waypoints"]), rng)
+        if (inst.occupancy[inst.path] != 1).any():  # cannot happen for a path checked against the costmap
+            raise RuntimeError(f"path pixel off free space in {ctx.map_id} at state {i}")
+        out.append(inst)
+    return out
+
+
+def generate_scenario(ctx: MapContext, shape: str, index: int, cfg: Mapping[str, Any]) -> ScenarioResult:
+    """Scenario ``index`` of ``shape`` on one map: up to ``scenario.max_attempts`` goal/sketch draws, each
+    executed and checked; the first accepted one yields the instances."""
+    check_shape(shape)
+    result = ScenarioResult(f"{ctx.map_id}/{shape}{index:03d}", ctx.map_id, shape, index)
+    rng = scenario_rng(int(cfg["seed"]), ctx.map_id, shape, index)
+    res = ctx.costmap.resolution
+    size = int(cfg["window"]["size_px"])
+    margin = float(cfg["window"]["margin_m"]) / res
+    in_area = np.flatnonzero(ctx.goal_area == scenario_area(ctx, index, cfg))
+    for _ in range(int(cfg["scenario"]["max_attempts"])):
+        goal = ctx.goal_cells[in_area[rng.integers(len(in_area))]].astype(np.float64)
+        placed = _placement(ctx, shape, goal, cfg, rng, size, margin)
+        if placed is None:
+            result.rejections["placement"] += 1
+            continue
+        keypoints, dense = placed
+        try:
+            executed = execute_sketch(ctx.costmap, keypoints, dense, SHAPES[shape], cfg["execution"])
+        except Rejection as rej:
+            result.rejections[rej.reason] += 1
+            continue
+        if not fits(executed.points, size, margin):
+            result.rejections["window"] += 1
+            continue
+        result.executed, result.sketch = executed, keypoints
+        result.instances = instances_along(ctx, executed, cfg, rng)
+        return result
+    result.rejections["scenario_failed"] += 1
+    return result

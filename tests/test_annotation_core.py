@@ -1,0 +1,189 @@
+"""Unit tests of the annotation tool's parts on hand-made grids (no map loading, no dataset writing)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from spade.annotation.checks import instance_problems
+from spade.annotation.execution import Rejection, build_costmap, execute_sketch, total_turn_deg
+from spade.annotation.rasterize import draw_curve, make_instance, place_window, state_indices
+from spade.annotation.scenarios import NoFreeAreaError, generate_scenario, prepare_map, scenario_rng
+from spade.annotation.sketch_file import densify
+from spade.annotation.templates import SHAPES, UnknownShapeError, check_shape, place_template, sample_template
+
+CONF = Path(__file__).resolve().parents[1] / "conf" / "annotate.yaml"
+
+
+def base_cfg() -> dict:
+    cfg = OmegaConf.to_container(OmegaConf.load(CONF), resolve=False)
+    cfg.pop("defaults", None)
+    cfg.pop("hydra", None)
+    return cfg
+
+
+def room(h: int = 200, w: int = 220) -> np.ndarray:
+    """A walled room at 0.05 m/px with a wall segment, a pillar and an unknown corner."""
+    g = np.ones((h, w), np.uint8)
+    g[[0, -1], :] = 2
+    g[:, [0, -1]] = 2
+    g[60:66, 30:150] = 2
+    g[120:140, 150:160] = 2
+    g[:30, :30] = 0
+    return g
+
+
+@pytest.mark.parametrize("shape", ["L", "U"])
+def test_template_turns_by_the_shape_angle_and_ends_on_goal(shape: str) -> None:
+    cfg = base_cfg()["template"]
+    for seed in range(20):
+        t = sample_template(shape, cfg, np.random.default_rng(seed))
+        assert abs(abs(total_turn_deg(t.dense / 0.05 * [1, -1], 2)) - SHAPES[shape]) < 1.0
+        kp, dense = place_template(t, np.array([50.0, 60.0]), 0.05)
+        np.testing.assert_allclose(kp[-1], [50.0, 60.0], atol=1e-9)
+        np.testing.assert_allclose(dense[-1], [50.0, 60.0], atol=1e-9)
+        leg = cfg[shape]["leg_m"]
+        assert leg[0] <= t.leg_m <= leg[1]
+
+
+def test_template_variations_cover_mirror_radius_tail_heading() -> None:
+    cfg = base_cfg()["template"]
+    ts = [sample_template("L", cfg, np.random.default_rng(s)) for s in range(200)]
+    assert {t.mirror for t in ts} == {True, False}
+    sharp_hi, wide_lo = cfg["L"]["radius_m"]["sharp"][1], cfg["L"]["radius_m"]["wide"][0]
+    assert any(t.radius_m <= sharp_hi for t in ts) and any(t.radius_m >= wide_lo for t in ts)
+    small_hi, large_lo = cfg["L"]["tail_m"]["small"][1], cfg["L"]["tail_m"]["large"][0]
+    assert any(t.tail_m <= small_hi for t in ts) and any(t.tail_m >= large_lo for t in ts)
+    headings = np.rad2deg([t.heading_rad for t in ts])
+    assert np.histogram(headings, bins=8, range=(0, 360))[0].min() > 0  # not only the four axes
+
+
+def test_unknown_shape_is_refused_with_the_known_ones() -> None:
+    with pytest.raises(UnknownShapeError, match=r"'Z'.*\['L', 'U'\]"):
+        check_shape("Z")
+
+
+def test_costmap_is_lethal_within_robot_radius_and_cheaper_far_away() -> None:
+    cfg = base_cfg()
+    cm = build_costmap(room(), 0.05, cfg["robot"], 4.0)
+    assert np.isinf(cm.cost[61, 80]) and np.isinf(cm.cost[67, 80])  # obstacle, and 1 px from it
+    assert np.isfinite(cm.cost[100, 100])
+    assert cm.cost[72, 80] > cm.cost[100, 80] >= 1.0
+
+
+def test_execution_bends_around_an_obstacle_between_waypoints() -> None:
+    cfg = base_cfg()
+    g = np.ones((120, 200), np.uint8)
+    g[[0, -1], :] = 2
+    g[:, [0, -1]] = 2
+    g[40:80, 95:105] = 2  # a block in the straight line between the waypoints
+    cm = build_costmap(g, 0.05, cfg["robot"], 4.0)
+    kp = np.array([[20.0, 60.0], [180.0, 60.0]])
+    ex_cfg = {**cfg["execution"], "max_deviation_m": 10.0, "shape_tolerance_deg": 360.0}
+    ex = execute_sketch(cm, kp, kp, 0.0, ex_cfg)
+    cells = np.rint(ex.points).astype(int)
+    assert (g[cells[:, 1], cells[:, 0]] == 1).all()
+    assert np.abs(ex.points[:, 1] - 60).max() > 20 / 1  # went around the block
+    assert ex.min_clearance_m >= cfg["robot"]["radius_m"]
+    np.testing.assert_allclose(ex.points[[0, -1]], kp, atol=1e-6)
+    steps = np.linalg.norm(np.diff(ex.points, axis=0), axis=1)
+    assert np.allclose(steps, steps.mean(), rtol=0.05)  # evenly resampled
+
+
+def test_execution_rejects_deviation_shape_and_blocked_sketches() -> None:
+    cfg = base_cfg()
+    g = np.ones((120, 200), np.uint8)
+    g[[0, -1], :] = 2
+    g[:, [0, -1]] = 2
+    g[36:84, 95:105] = 2  # detour possible inside the planner crop, but far from the sketch
+    cm = build_costmap(g, 0.05, cfg["robot"], 4.0)
+    kp = np.array([[20.0, 60.0], [180.0, 60.0]])
+    with pytest.raises(Rejection) as err:
+        execute_sketch(cm, kp, densify(kp, 1.0), 0.0, {**cfg["execution"], "shape_tolerance_deg": 360.0})
+    assert err.value.reason == "deviation"
+    open_cm = build_costmap(np.pad(np.ones((100, 180), np.uint8), 10, constant_values=2), 0.05, cfg["robot"], 4.0)
+    with pytest.raises(Rejection) as err:
+        execute_sketch(open_cm, kp, densify(kp, 1.0), 90.0, cfg["execution"])  # a straight line is not an L
+    assert err.value.reason == "shape"
+    g[:, 95:105] = 2
+    with pytest.raises(Rejection) as err:
+        execute_sketch(build_costmap(g, 0.05, cfg["robot"], 4.0), kp, kp, 0.0, cfg["execution"])
+    assert err.value.reason == "no_path"
+
+
+def test_draw_curve_is_one_thin_8_connected_component() -> None:
+    t = np.linspace(0, np.pi, 400)
+    pts = np.stack([30 + 20 * np.cos(t), 30 + 20 * np.sin(t)], axis=1)
+    img = draw_curve(pts, 64)
+    from scipy import ndimage
+
+    assert ndimage.label(img, structure=np.ones((3, 3)))[1] == 1
+    nbrs = ndimage.convolve(img.astype(int), np.ones((3, 3), int), mode="constant") - 1
+    assert (nbrs[img] <= 2).all()  # one pixel wide: no pixel has more than two neighbours
+    assert img[30, 50] and img[30, 10]
+
+
+def test_window_contains_path_with_margin_and_is_random() -> None:
+    pts = np.array([[100.0, 100.0], [140.0, 130.0]])
+    origins = {place_window(pts, 64, 5, np.random.default_rng(s)) for s in range(30)}
+    assert len(origins) > 5
+    for c0, r0 in origins:
+        local = pts - [c0, r0]
+        assert (local >= 5 - 1e-9).all() and (local <= 63 - 5 + 1e-9).all()
+    with pytest.raises(ValueError, match="do not fit"):
+        place_window(np.array([[0.0, 0.0], [100.0, 0.0]]), 64, 5, np.random.default_rng(0))
+
+
+def test_state_indices_respect_spacing_and_remaining_length() -> None:
+    idx = state_indices(n_points=201, step_px=0.5, spacing_px=10, min_remaining_px=20)
+    assert idx[0] == 0 and np.all(np.diff(idx) == 20) and (200 - idx[-1]) * 0.5 >= 20
+
+
+def test_instance_invariants_on_a_hand_made_room() -> None:
+    cfg = base_cfg()
+    ctx = prepare_map("room", room(), 0.05, cfg)
+    n = 0
+    for shape in ("L", "U"):
+        for k in range(3):
+            r = generate_scenario(ctx, shape, k, cfg)
+            assert r.instances, dict(r.rejections)
+            for inst in r.instances:
+                assert instance_problems(inst.occupancy, inst.start, inst.goal, inst.path, inst.waypoints) == []
+                n += 1
+            first = r.instances[0].waypoints
+            assert abs(abs(total_turn_deg(first, 3)) - SHAPES[shape]) <= cfg["execution"]["shape_tolerance_deg"] + 5
+    assert n > 100
+
+
+def test_scenario_is_a_pure_function_of_seed_map_shape_index() -> None:
+    cfg = base_cfg()
+    ctx = prepare_map("room", room(), 0.05, cfg)
+    a = generate_scenario(ctx, "U", 4, cfg)
+    b = generate_scenario(ctx, "U", 4, cfg)
+    assert a.scenario_id == "room/U004"
+    assert len(a.instances) == len(b.instances)
+    for x, y in zip(a.instances, b.instances):
+        assert np.array_equal(x.path, y.path) and np.array_equal(x.waypoints, y.waypoints)
+    other = generate_scenario(ctx, "U", 4, {**cfg, "seed": 99})
+    assert not np.array_equal(other.instances[0].waypoints, a.instances[0].waypoints)
+    r1, r2 = scenario_rng(0, "m", "L", 1).random(3), scenario_rng(0, "m", "L", 2).random(3)
+    assert not np.allclose(r1, r2)
+
+
+def test_map_without_room_for_a_goal_names_the_numbers() -> None:
+    cfg = base_cfg()
+    g = np.full((60, 60), 2, np.uint8)
+    g[20:40, 20:40] = 1  # 1 m square: at most 0.5 m clearance, goal needs 0.655 m
+    with pytest.raises(NoFreeAreaError, match=r"0\.66 m clearance.*most open cell has 0\.50 m"):
+        prepare_map("tiny", g, 0.05, cfg)
+
+
+def test_make_instance_pads_outside_the_map_with_unknown() -> None:
+    g = np.ones((40, 40), np.uint8)
+    path = np.stack([np.linspace(5, 30, 60), np.full(60, 20.0)], axis=1)
+    inst = make_instance(g, path, 64, 3, 2, 16, np.random.default_rng(0))
+    assert (inst.occupancy == 0).any() and (inst.occupancy == 1).sum() == 40 * 40
+    assert instance_problems(inst.occupancy, inst.start, inst.goal, inst.path, inst.waypoints) == []
