@@ -17,13 +17,11 @@ from __future__ import annotations
 
 import logging
 
-from hydra import compose
-from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from spade.experiments.registry import fetch_checkpoint, registry_name
-from spade.paths import CONF_DIR
+from spade.experiments.config import compose_config
 
 log = logging.getLogger(__name__)
 
@@ -48,11 +46,7 @@ def _parent_overrides() -> list[str]:
 
 def compose_experiment(name: str, overrides: list[str]) -> DictConfig:
     """Compose ``train`` with ``+experiment=name`` and ``overrides`` (inside or outside a Hydra app)."""
-    if not GlobalHydra.instance().is_initialized():
-        from hydra import initialize_config_dir
-
-        initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3")
-    return compose(config_name="train", overrides=[f"+experiment={name}", *overrides])
+    return compose_config("train", [f"+experiment={name}", *overrides])
 
 
 def resolve_prerequisites(cfg: DictConfig, depth: int = 0) -> None:
@@ -64,8 +58,10 @@ def resolve_prerequisites(cfg: DictConfig, depth: int = 0) -> None:
             continue
         if depth > 4:
             raise RecursionError(f"prerequisite chain too deep at {key} ({req.experiment})")
-        overrides = _parent_overrides()
-        sub = compose_experiment(req.experiment, overrides)
+        overrides = [o for o in _parent_overrides() if not o.lstrip("+~").startswith("scale=")]
+        overrides.append(f"scale={cfg.scale.name}")
+        out_dir = f"{cfg.paths.output_dir}/prerequisites/{req.experiment}"
+        sub = compose_experiment(req.experiment, [*overrides, f"paths.output_dir={out_dir}"])
         name = registry_name(sub)
         if name is None:
             raise ValueError(f"experiment {req.experiment} registers no model (registry.prefix unset)")

@@ -37,7 +37,7 @@ def start_run_logging(cfg: DictConfig, model: L.LightningModule, loggers: list[L
     params = {f"cfg/{k}": v for k, v in flatten(resolved).items() if not k.startswith("hydra")}
     fid = getattr(getattr(model, "test_metrics", None), "fid_identity", None)
     if fid:
-        params["metrics/fid_extractor"] = fid
+        params["fid/extractor_identity"] = fid
     ml.log_hyperparams(params)
     ml.experiment.log_text(ml.run_id, OmegaConf.to_yaml(cfg, resolve=True), "config/train.yaml")
     if fid:
@@ -58,9 +58,9 @@ def finish_run(cfg: DictConfig, trainer: L.Trainer, model: L.LightningModule, lo
             paths["last"] = ckpt_cb.last_model_path
     for kind, path in paths.items():
         ml.experiment.log_artifact(ml.run_id, path, artifact_path=f"checkpoints/{kind}")
-    registry = cfg.get("registry") or {}
-    if registry.get("name") and paths:
-        from spade.experiments.registry import register_checkpoint
+    from spade.experiments.registry import register_checkpoint, registry_name
 
-        register_checkpoint(ml, registry["name"], f"checkpoints/{'best' if 'best' in paths else 'last'}",
-                            tags=dict(registry.get("tags") or {}))
+    name = registry_name(cfg)
+    if name and paths:
+        tags = {**dict(cfg.get("tags") or {}), **dict((cfg.get("registry") or {}).get("tags") or {})}
+        register_checkpoint(ml, name, f"checkpoints/{'best' if 'best' in paths else 'last'}", tags=tags)

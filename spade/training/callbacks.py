@@ -21,9 +21,9 @@ def batch1_latency_ms(net: torch.nn.Module, input_shape: tuple[int, ...], runs: 
     net.eval()
     device = next(net.parameters()).device
     args = [torch.zeros(1, *input_shape, device=device)]
-    if getattr(net, "needs_timestep", False):
+    if hasattr(net, "condition_channels"):  # a diffusion expert: (x_t, t[, cond])
         args.append(torch.zeros(1, dtype=torch.long, device=device))
-        if getattr(net, "condition_channels", 0):
+        if net.condition_channels:
             args.append(torch.zeros(1, net.condition_channels, *input_shape[1:], device=device))
     times = []
     for i in range(warmup + runs):

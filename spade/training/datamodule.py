@@ -33,10 +33,32 @@ def split_by_scenario(scenario_ids: list[str], val_fraction: float, seed: int) -
     return train, val
 
 
-def _default_generator(root: Path, config: Any) -> None:
-    from spade.annotation.pipeline import build_dataset
+def annotation_config(root: Path, config: Any) -> Any:
+    """The annotation tool's config for a data config's ``*_generate`` entry.
 
-    build_dataset(config, out_dir=root)
+    ``config`` holds ``preset`` (a ``conf/annotate/preset`` name), optional ``overrides`` (command-line style
+    strings, e.g. ``split=test``) and ``set`` (a dict, or a list of dicts merged in order, e.g. the scale's
+    window and instance counts; null values are skipped, keeping the preset's).
+    """
+    from omegaconf import OmegaConf
+
+    from spade.experiments.config import compose_config
+
+    config = OmegaConf.to_container(OmegaConf.create(config), resolve=True) if config is not None else {}
+    overrides = [f"annotate/preset@_global_={config['preset']}"] if config.get("preset") else []
+    overrides += list(config.get("overrides") or [])
+    cfg = compose_config("annotate", overrides)
+    layers = config.get("set") or []
+    for layer in layers if isinstance(layers, list) else [layers]:
+        layer = {k: v for k, v in (layer or {}).items() if v is not None}
+        cfg = OmegaConf.merge(cfg, layer)
+    return OmegaConf.merge(cfg, {"out_dir": str(root), "overwrite": False})
+
+
+def _default_generator(root: Path, config: Any) -> None:
+    from spade.annotate import annotate
+
+    annotate(annotation_config(root, config))
 
 
 class PathDataModule(L.LightningDataModule):
@@ -63,6 +85,7 @@ class PathDataModule(L.LightningDataModule):
         augment: bool = True,
         max_train_instances: int | None = None,
         max_test_instances: int | None = None,
+        test_shape: str | None = None,
         generator: Generator | None = None,
     ) -> None:
         super().__init__()
@@ -80,6 +103,7 @@ class PathDataModule(L.LightningDataModule):
         self.persistent_workers = persistent_workers and num_workers > 0
         self.augment = augment
         self.max_train_instances, self.max_test_instances = max_train_instances, max_test_instances
+        self.test_shape = test_shape
         self.generator = generator or _default_generator
         self.train_set = self.val_set = self.test_set = None
 
@@ -107,7 +131,13 @@ class PathDataModule(L.LightningDataModule):
             if self.test_dir is not None:
                 test = PathDataset(self.test_dir)
                 self._check_compatible(test)
-                idx = list(range(len(test)))[: self.max_test_instances or None]
+                shapes = test.labels("shape")
+                idx = [i for i, s in enumerate(shapes) if self.test_shape in (None, s)]
+                if not idx:
+                    raise DatasetError(
+                        f"{self.test_dir}: no test instances of shape {self.test_shape!r} (shapes: {sorted(set(shapes))})"
+                    )
+                idx = idx[: self.max_test_instances or None]
                 self.test_set = Subset(test, idx)
             else:
                 self.test_set = self.val_set
