@@ -16,6 +16,7 @@ import lightning as L
 from lightning.pytorch.loggers import MLFlowLogger
 from omegaconf import DictConfig, OmegaConf
 
+import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
 from spade.training.instantiate import instantiate_callbacks, instantiate_loggers, run_id_from_checkpoint
 
 log = logging.getLogger(__name__)
@@ -41,6 +42,12 @@ def train(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
     trainer: L.Trainer = hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
     start_run_logging(cfg, model, loggers)
 
+    baseline: dict[str, float] = {}
+    if cfg.get("test_untrained", False):
+        baseline = untrained_test_metrics(cfg, model, datamodule)
+        for logger in loggers:
+            logger.log_metrics(baseline, step=0)
+
     if cfg.get("train", True):
         trainer.fit(model=model, datamodule=datamodule, ckpt_path=ckpt_path)
     metrics: dict[str, Any] = {k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1}
@@ -53,9 +60,30 @@ def train(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
             log.warning("No best checkpoint found: testing the last weights")
         trainer.test(model=model, datamodule=datamodule, ckpt_path=best if best else None)
         metrics.update({k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1})
+    metrics.update(baseline)
 
     finish_run(cfg, trainer, model, loggers)
     return metrics, {"cfg": cfg, "datamodule": datamodule, "model": model, "trainer": trainer, "loggers": loggers}
+
+
+def untrained_test_metrics(cfg: DictConfig, model: L.LightningModule, datamodule: L.LightningDataModule) -> dict:
+    """Test metrics of the model before any training, as ``untrained/...`` (the baseline learning must beat)."""
+    tester = hydra.utils.instantiate(cfg.trainer, logger=False, callbacks=[], enable_progress_bar=False)
+    results = tester.test(model=model, datamodule=datamodule, verbose=False)[0]
+    return {k.replace("test/", "untrained/"): float(v) for k, v in results.items()}
+
+
+def summary(cfg: DictConfig, metrics: dict[str, Any]) -> str:
+    """The closing lines: test metrics (and the untrained baseline) and how to open the run in the MLflow UI."""
+    keys = ("ape_cm", "fid", "hd19", "failure_rate", "seconds_per_sample")
+    lines = [f"run {cfg.get('run_name')} finished"]
+    for prefix in ("test", "untrained"):
+        vals = [f"{k}={metrics[f'{prefix}/{k}']:.4g}" for k in keys if f"{prefix}/{k}" in metrics]
+        if vals:
+            lines.append(f"  {prefix:9s}: " + "  ".join(vals))
+    uri = cfg.paths.mlflow_tracking_uri
+    lines.append(f"open the MLflow UI on it with:  mlflow ui --backend-store-uri {uri}")
+    return "\n".join(lines)
 
 
 def optimized_value(cfg: DictConfig, metrics: dict[str, Any]) -> float | None:
@@ -72,6 +100,7 @@ def optimized_value(cfg: DictConfig, metrics: dict[str, Any]) -> float | None:
 def main(cfg: DictConfig) -> float | None:
     log.debug("Config:\n%s", OmegaConf.to_yaml(cfg))
     metrics, _ = train(cfg)
+    print(summary(cfg, metrics), flush=True)
     return optimized_value(cfg, metrics)
 
 

@@ -18,3 +18,36 @@ def maps_dir() -> Path:
     if not path.is_dir() or not any(path.rglob("*.yaml")):
         pytest.skip(f"SPADE_MAPS_DIR={path} holds no ROS map yaml files")
     return path
+
+
+@pytest.fixture(scope="session")
+def spade_home(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A SPADE_HOME for the training tests, holding the tiny datasets every row shares (built on first use)."""
+    home = tmp_path_factory.mktemp("spade_home")
+    old = os.environ.get("SPADE_HOME")
+    os.environ["SPADE_HOME"] = str(home)
+    yield home
+    if old is None:
+        os.environ.pop("SPADE_HOME", None)
+    else:
+        os.environ["SPADE_HOME"] = old
+
+
+@pytest.fixture(scope="session")
+def tiny_checkpoints(spade_home: Path) -> dict[str, str]:
+    """Checkpoints of a tiny conditional expert, a tiny unconditional expert and a medium student (L shape)."""
+    import hydra
+
+    from spade.train import train
+    from training_helpers import compose_row
+
+    out = {}
+    for key, row in (("cond", "expert_cond_L"), ("uncond", "expert_uncond_L"), ("student", "t1_medium_bc_L")):
+        cfg = compose_row(row, spade_home, "logger=none", "trainer.max_steps=2", "trainer.max_epochs=1",
+                          "test=false", "+trainer.limit_val_batches=1")
+        _, objects = train(cfg)
+        path = spade_home / f"{key}.ckpt"
+        objects["trainer"].save_checkpoint(path)
+        out[key] = str(path)
+    del hydra
+    return out

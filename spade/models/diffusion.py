@@ -148,8 +148,13 @@ class NoiseSchedule:
         eta: float = 0.0,
         device: torch.device | str | None = None,
         dtype: torch.dtype = torch.float32,
+        inpaint: tuple[torch.Tensor, slice] | None = None,
     ) -> torch.Tensor:
         """Run the full reverse loop from Gaussian noise and return x0 (in [-1, 1] when ``clip_sample``).
+
+        ``inpaint=(known, channels)`` keeps the given channels to ``known`` (B, C_known, H, W): before every
+        step they are replaced by ``known`` noised to that step's level (RePaint-style conditioning of an
+        unconditional model, e.g. sampling a path for a given state), and set to ``known`` at the end.
 
         ``model_fn(x_t, t)`` (or ``model_fn(x_t, t, cond)`` when ``cond`` is given) returns the network's
         prediction; ``t`` is a (B,) long tensor. The same ``generator`` seed gives the same samples (DDIM with
@@ -171,8 +176,16 @@ class NoiseSchedule:
         step_kwargs: dict[str, Any] = {"generator": generator}
         if sampler == "ddim":
             step_kwargs["eta"] = eta
+        if inpaint is not None:
+            known, channels = inpaint
+            known = known.to(device=device, dtype=dtype)
+            known_noise = torch.randn(known.shape, generator=generator, device=gen_device, dtype=dtype).to(device)
         for t in scheduler.timesteps:
             t_batch = torch.full((shape[0],), int(t), dtype=torch.long, device=device)
+            if inpaint is not None:
+                x[:, channels] = self.add_noise(known, known_noise, t_batch)
             out = model_fn(x, t_batch) if cond is None else model_fn(x, t_batch, cond)
             x = scheduler.step(out, t, x, **step_kwargs).prev_sample
+        if inpaint is not None:
+            x[:, channels] = known
         return x

@@ -1,0 +1,172 @@
+"""Training behaviour: losses fall, the expert stays frozen, resume, reliability and the smoke pipeline."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import hydra
+import pytest
+import torch
+
+from spade.train import train
+from spade.training.expert_module import ExpertModule
+from spade.training.student_module import ExpertMismatchError, StudentModule
+from training_helpers import compose_row
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _data(spade_home: Path, row: str = "t1_small_bc_L"):
+    cfg = compose_row(row, spade_home)
+    dm = hydra.utils.instantiate(cfg.data, augment=False)
+    dm.prepare_data()
+    dm.setup("fit")
+    return dm
+
+
+def _falls(losses: list[float]) -> bool:
+    k = max(3, len(losses) // 5)
+    return sum(losses[-k:]) / k < 0.8 * sum(losses[:k]) / k
+
+
+def _fit_steps(module, loss_fn, batches, steps: int, lr: float) -> list[float]:
+    opt = torch.optim.Adam([p for p in module.parameters() if p.requires_grad], lr=lr)
+    out = []
+    for i in range(steps):
+        loss = loss_fn(batches[i % len(batches)])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        if hasattr(module, "ema"):
+            module.ema.update_parameters(module.net)
+        out.append(loss.item())
+    return out
+
+
+def test_bc_expert_and_cond_dbc_losses_fall(spade_home: Path, tiny_checkpoints: dict) -> None:
+    torch.manual_seed(0)
+    batches = list(_data(spade_home).train_dataloader())[:4]
+    student = StudentModule(size="small")
+    assert _falls(_fit_steps(student, lambda b: student.losses(b)["loss_bc"], batches, 40, 3e-3))
+    expert = ExpertModule(conditional=True, preset="tiny")
+    assert _falls(_fit_steps(expert, lambda b: expert.denoising_loss(expert.net, b), batches, 60, 3e-3))
+    guided = StudentModule(size="small", guidance={"expert_ckpt": tiny_checkpoints["cond"], "weight": 1.0})
+    guided.load_guidance((64, 64))
+    assert _falls(_fit_steps(guided, lambda b: guided.losses(b)["loss"], batches, 40, 3e-3))
+
+
+def test_guided_step_changes_student_never_expert(spade_home: Path, tiny_checkpoints: dict) -> None:
+    batch = next(iter(_data(spade_home).train_dataloader()))
+    student = StudentModule(size="small", guidance={"expert_ckpt": tiny_checkpoints["cond"], "weight": 5.0})
+    student.load_guidance((64, 64))
+    expert = student.margin.expert
+    before = {k: v.clone() for k, v in expert.state_dict().items()}
+    opt = torch.optim.SGD([p for p in student.parameters() if p.requires_grad], lr=0.1)
+    parts = student.losses(batch)
+    parts["loss_dm"].backward()
+    grads = [p.grad for p in student.net.parameters() if p.grad is not None]
+    assert grads and sum(g.abs().sum() for g in grads) > 0
+    opt.step()
+    assert all(torch.equal(before[k], v) for k, v in expert.state_dict().items())
+    assert all(p.grad is None for p in expert.parameters())
+    assert not any(k.startswith("_margin") or "expert" in k for k in student.state_dict())
+
+
+def test_margin_is_zero_when_the_student_outputs_the_demonstration(spade_home: Path, tiny_checkpoints: dict) -> None:
+    batch = next(iter(_data(spade_home).train_dataloader()))
+    student = StudentModule(size="small", guidance={"expert_ckpt": tiny_checkpoints["cond"]})
+    student.load_guidance((64, 64))
+    loss, active = student.margin(batch["path"], batch["path"], batch["state"], torch.Generator().manual_seed(0))
+    assert loss.item() == 0.0 and active.item() == 0.0
+
+
+def test_same_seed_gives_identical_metrics(spade_home: Path) -> None:
+    runs = []
+    for _ in range(2):
+        cfg = compose_row("t1_small_bc_L", spade_home, "logger=none", "trainer.max_steps=3", "trainer.max_epochs=1",
+                          "callbacks=none")
+        metrics, _ = train(cfg)
+        runs.append({k: v for k, v in metrics.items() if k.startswith("test/")})
+    assert runs[0] and runs[0] == runs[1]
+
+
+def test_nan_loss_stops_with_the_step(spade_home: Path) -> None:
+    batch = next(iter(_data(spade_home).train_dataloader()))
+    batch["state"][0, 0, 0, 0] = float("nan")
+    student = StudentModule(size="small")
+    with pytest.raises(FloatingPointError, match="global step 0"):
+        student.training_step(batch, 0)
+
+
+def test_bad_inputs_fail_before_training(spade_home: Path, tiny_checkpoints: dict, tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        StudentModule(size="small", guidance={"expert_ckpt": str(tmp_path / "missing.ckpt")})
+    with pytest.raises(ValueError, match="small"):
+        StudentModule(size="huge")
+    with pytest.raises(ValueError, match="lambda"):
+        StudentModule(size="small", guidance={"expert_ckpt": tiny_checkpoints["cond"], "weight": -1.0})
+    guided = StudentModule(size="small", guidance={"expert_ckpt": tiny_checkpoints["cond"]})
+    with pytest.raises(ExpertMismatchError, match="64 x 64"):
+        guided.load_guidance((32, 32))
+    expert = ExpertModule.load_from_checkpoint(tiny_checkpoints["uncond"], map_location="cpu")
+    with pytest.raises(ExpertMismatchError, match="channels"):
+        expert.check_compatible(in_channels=2, image_size=None, source="x")
+    with pytest.raises(ValueError, match="init_ckpt"):
+        StudentModule(size="small", init_ckpt=tiny_checkpoints["student"])  # a medium student's weights
+
+
+def _run(args: list[str], home: Path, **kw) -> subprocess.Popen:
+    env = {**os.environ, "SPADE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
+    return subprocess.Popen([sys.executable, "-m", "spade.train", *args], cwd=REPO, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **kw)
+
+
+def test_smoke_experiment_logs_a_run_with_test_metrics(tmp_path: Path) -> None:
+    proc = _run(["+experiment=smoke", "trainer.enable_progress_bar=false"], tmp_path)
+    out, _ = proc.communicate(timeout=600)
+    assert proc.returncode == 0, out[-3000:]
+    assert "mlflow ui --backend-store-uri" in out
+    from mlflow import MlflowClient
+
+    client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path}/logs/mlflow.db")
+    exp = client.get_experiment_by_name("smoke")
+    runs = client.search_runs([exp.experiment_id])
+    assert len(runs) == 1 and runs[0].info.run_name == "smoke"
+    run = runs[0]
+    assert {"test/ape_cm", "test/hd19", "model/params"} <= set(run.data.metrics)
+    assert run.data.tags["approach"] == "Cond-DBC" and "fid_extractor" in run.data.tags
+    artifacts = {a.path for a in client.list_artifacts(run.info.run_id)}
+    assert {"checkpoints", "config", "predictions"} <= artifacts
+    assert client.search_model_versions("name LIKE 'spade-cond_expert-L-tiny-%'")
+
+
+def test_killed_run_resumes_into_the_same_mlflow_run(tmp_path: Path) -> None:
+    run_dir = tmp_path / "run"
+    args = ["+experiment=t1_small_bc_L", "trainer.max_epochs=6", "trainer.enable_progress_bar=false",
+            f"hydra.run.dir={run_dir}", "test=false"]
+    proc = _run(args, tmp_path, start_new_session=True)
+    last = run_dir / "checkpoints" / "last.ckpt"
+    deadline = time.time() + 300
+    while not last.exists() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+    assert last.exists(), proc.communicate()[0][-3000:]
+    time.sleep(0.5)  # into the next epoch
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    resumed = run_dir / "resume.ckpt"
+    resumed.write_bytes(last.read_bytes())
+    proc = _run([*args, f"ckpt_path={resumed}"], tmp_path)
+    out, _ = proc.communicate(timeout=600)
+    assert proc.returncode == 0, out[-3000:]
+    from mlflow import MlflowClient
+
+    client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path}/logs/mlflow.db")
+    runs = client.search_runs([client.get_experiment_by_name("table1").experiment_id])
+    assert len(runs) == 1
+    epochs = [m.value for m in client.get_metric_history(runs[0].info.run_id, "epoch")]
+    assert max(epochs) == 5
