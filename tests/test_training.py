@@ -170,3 +170,15 @@ def test_killed_run_resumes_into_the_same_mlflow_run(tmp_path: Path) -> None:
     assert len(runs) == 1
     epochs = [m.value for m in client.get_metric_history(runs[0].info.run_id, "epoch")]
     assert max(epochs) == 5
+
+
+def test_evaluate_entry_point_tests_a_checkpoint(spade_home: Path, tiny_checkpoints: dict) -> None:
+    from spade.evaluate import evaluate, load_module
+    from spade.experiments.config import compose_config
+
+    cfg = compose_config("evaluate", [f"ckpt_path={tiny_checkpoints['student']}", "logger=none",
+                                      "trainer.enable_progress_bar=false", f"paths.output_dir={spade_home}/eval"])
+    metrics = evaluate(cfg)
+    assert {"test/ape_cm", "test/hd19", "test/failure_rate"} <= set(metrics)
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        load_module(spade_home / "nope.ckpt")
