@@ -10,9 +10,8 @@ import torch.nn.functional as F
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
 from spade.models import build_model
-from spade.models.diffusion import NoiseSchedule
+from spade.models.diffusion import NoiseSchedule, to_model_range
 from spade.training.base import PathPlanningModule
-from spade.training.guidance import to_model_range
 
 
 class ExpertModule(PathPlanningModule):

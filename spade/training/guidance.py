@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from spade.models.diffusion import to_model_range
+
 
 @dataclass(frozen=True)
 class GuidanceConfig:
@@ -44,11 +46,6 @@ def sample_timesteps(n: int, t_min: int, t_max: int, antithetic: bool, device: t
         return torch.randint(t_min, t_max, (n,), device=device, generator=generator)
     half = torch.randint(t_min, t_max, ((n + 1) // 2,), device=device, generator=generator)
     return torch.cat([half, t_min + t_max - 1 - half])[:n]
-
-
-def to_model_range(p: torch.Tensor) -> torch.Tensor:
-    """Map [0, 1] images (probabilities, occupancy 0/0.5/1) to the experts' [-1, 1] data range."""
-    return p * 2.0 - 1.0
 
 
 class DiffusionMargin(nn.Module):
