@@ -22,7 +22,7 @@ def test_there_is_one_experiment_per_row() -> None:
 
 @pytest.mark.parametrize("table,count", sorted(TABLES.items()))
 def test_table_compositions_launch_their_rows(table: str, count: int, spade_home: Path) -> None:
-    cfg = compose_row(table, spade_home)
+    cfg = compose_row(table, spade_home, hydra_config=True)
     rows = cfg.hydra.sweeper.params.experiment.split(",")
     assert cfg.hydra.mode.name == "MULTIRUN" and len(rows) == count
     assert all(r in ROWS for r in rows)

@@ -38,7 +38,16 @@ def start_run_logging(cfg: DictConfig, model: L.LightningModule, loggers: list[L
     fid = getattr(getattr(model, "test_metrics", None), "fid_identity", None)
     if fid:
         params["fid/extractor_identity"] = fid
-    ml.log_hyperparams(params)
+    # A resumed run continues an MLflow run whose params are immutable: log only what it lacks (ckpt_path and
+    # anything else set differently for the resume is recorded as a tag instead).
+    existing = ml.experiment.get_run(ml.run_id).data.params
+    if existing:
+        changed = {k: v for k, v in params.items() if k in existing and existing[k] != str(v)}
+        for key, value in changed.items():
+            ml.experiment.set_tag(ml.run_id, f"resumed/{key}", str(value))
+        params = {k: v for k, v in params.items() if k not in existing}
+    if params:
+        ml.log_hyperparams(params)
     ml.experiment.log_text(ml.run_id, OmegaConf.to_yaml(cfg, resolve=True), "config/train.yaml")
     if fid:
         ml.experiment.set_tag(ml.run_id, "fid_extractor", fid)
