@@ -21,7 +21,7 @@ install: $(VENV)/.installed
 install-dev: $(VENV)/.installed-dev
 
 quickstart: install
-	$(PY) -m spade.quickstart
+	$(PY) -m spade.train +experiment=quickstart
 
 test: install-dev
 	$(PY) -m pytest
