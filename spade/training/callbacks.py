@@ -9,9 +9,7 @@ import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback
 
-
-def count_parameters(module: torch.nn.Module, trainable_only: bool = True) -> int:
-    return sum(p.numel() for p in module.parameters() if p.requires_grad or not trainable_only)
+from spade.models import count_parameters
 
 
 @torch.inference_mode()
