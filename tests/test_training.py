@@ -103,6 +103,19 @@ def test_nan_loss_stops_with_the_step(spade_home: Path) -> None:
         student.training_step(batch, 0)
 
 
+def test_bc_pos_weight_weighs_path_pixels() -> None:
+    logits = torch.tensor([[[[2.0, -1.0], [0.5, -3.0]]]])
+    target = torch.tensor([[[[1.0, 0.0], [0.0, 1.0]]]])
+    p = torch.sigmoid(logits)
+    # Hand-computed: -(w * y log p + (1 - y) log(1 - p)), averaged over the 4 pixels.
+    expected = -(4 * target * p.log() + (1 - target) * (1 - p).log()).mean()
+    assert torch.allclose(StudentModule(size="small", bc_pos_weight=4).bc_loss(logits, target), expected)
+    plain = -(target * p.log() + (1 - target) * (1 - p).log()).mean()
+    assert torch.allclose(StudentModule(size="small").bc_loss(logits, target), plain)
+    with pytest.raises(ValueError, match="bc_pos_weight"):
+        StudentModule(size="small", bc_pos_weight=0)
+
+
 def test_bad_inputs_fail_before_training(spade_home: Path, tiny_checkpoints: dict, tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match="does not exist"):
         StudentModule(size="small", guidance={"expert_ckpt": str(tmp_path / "missing.ckpt")})

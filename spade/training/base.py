@@ -50,6 +50,11 @@ class PathPlanningModule(L.LightningModule):
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         info: dict[str, Any] = {"role": self.role, "config": dict(self.net.config)}
+        datamodule = getattr(self._trainer, "datamodule", None) if self._trainer is not None else None
+        if datamodule is not None and hasattr(datamodule, "resolution"):
+            # What a deployment needs to feed the network the windows it was trained on (spade.planner).
+            info["data"] = {"image_size": list(datamodule.image_size), "resolution_m": datamodule.resolution,
+                            "input_encoding": "occupancy code * 0.5 (unknown 0, free 0.5, occupied 1), start, goal"}
         for logger in self.loggers:
             if isinstance(logger, MLFlowLogger):
                 info["mlflow_run_id"] = logger.run_id

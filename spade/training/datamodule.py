@@ -9,6 +9,7 @@ from typing import Any
 
 import lightning as L
 import numpy as np
+from lightning.pytorch.overrides.distributed import UnrepeatedDistributedSampler
 from torch.utils.data import DataLoader, Subset
 
 from spade.data import DatasetError, PathDataset, read_manifest
@@ -160,11 +161,20 @@ class PathDataModule(L.LightningDataModule):
         manifest = read_manifest(self.train_dir)
         return manifest.height, manifest.width
 
-    def _loader(self, dataset: Subset, shuffle: bool, batch_size: int) -> DataLoader:
+    @property
+    def resolution(self) -> float:
+        """Metres per pixel of the training windows."""
+        if self.train_set is not None:
+            return float(self.train_set.dataset.resolution)
+        return float(read_manifest(self.train_dir).resolution)
+
+    def _loader(self, dataset: Subset, shuffle: bool, batch_size: int, evaluation: bool = False) -> DataLoader:
+        sampler = self._evaluation_sampler(dataset) if evaluation else None
         return DataLoader(
             dataset,
             batch_size=batch_size,
-            shuffle=shuffle,
+            shuffle=shuffle if sampler is None else None,
+            sampler=sampler,
             num_workers=self.num_workers,
             pin_memory=self.pin_memory,
             persistent_workers=self.persistent_workers,
@@ -174,11 +184,24 @@ class PathDataModule(L.LightningDataModule):
     def train_dataloader(self) -> DataLoader:
         return self._loader(self.train_set, True, self.batch_size)
 
+    def _evaluation_sampler(self, dataset: Subset) -> UnrepeatedDistributedSampler | None:
+        """Under DDP, each instance of a validation/test set on exactly one rank.
+
+        Lightning's default DistributedSampler pads the set with repeated instances to give every rank the same
+        number of batches, so synced metrics would count those twice (43 test instances on 2 ranks -> 44).
+        Evaluation needs no equal batch counts: metric states sync once, at epoch end.
+        """
+        trainer = self.trainer
+        if trainer is None or trainer.world_size < 2 or len(dataset) < trainer.world_size:
+            return None
+        return UnrepeatedDistributedSampler(dataset, num_replicas=trainer.world_size, rank=trainer.global_rank,
+                                            shuffle=False)
+
     def val_dataloader(self) -> DataLoader:
-        return self._loader(self.val_set, False, self.eval_batch_size)
+        return self._loader(self.val_set, False, self.eval_batch_size, evaluation=True)
 
     def test_dataloader(self) -> DataLoader:
-        return self._loader(self.test_set, False, self.eval_batch_size)
+        return self._loader(self.test_set, False, self.eval_batch_size, evaluation=True)
 
     def on_after_batch_transfer(self, batch: dict, dataloader_idx: int) -> dict:
         if self.augment and self.trainer is not None and self.trainer.training:

@@ -26,6 +26,10 @@ class StudentModule(PathPlanningModule):
             t_min, t_max). The expert is loaded when fitting starts; it is never part of this module's
             checkpoint, so a deployed student needs no expert.
         optimizer: a ``_partial_`` optimiser factory (AdamW lr 1e-3 when None).
+        bc_pos_weight: weight of the path pixels in the BCE (``pos_weight`` of
+            :func:`torch.nn.functional.binary_cross_entropy_with_logits`). None or 1 is the paper's plain BCE. A path
+            covers about 1-2% of a window, so a briefly trained student keeps every pixel below 0.5 and no path can
+            be extracted; a weight of a few (the quickstart uses 4) makes it commit to a path early.
     """
 
     role = "student"
@@ -40,9 +44,13 @@ class StudentModule(PathPlanningModule):
         val_metric_batches: int | None = None,
         grid_size: int = 8,
         image_size: int | None = None,
+        bc_pos_weight: float | None = None,
     ) -> None:
         super().__init__(optimizer, metrics, val_metric_batches, grid_size)
         self.save_hyperparameters(ignore=["optimizer"])
+        if bc_pos_weight is not None and not bc_pos_weight > 0:
+            raise ValueError(f"bc_pos_weight must be > 0 (or null for plain BCE), got {bc_pos_weight}")
+        self.bc_pos_weight = None if bc_pos_weight in (None, 1, 1.0) else float(bc_pos_weight)
         self.net = build_model("student", size)
         if init_ckpt:
             self.load_pretrained(init_ckpt)
@@ -114,10 +122,17 @@ class StudentModule(PathPlanningModule):
     def predict_paths(self, batch: dict) -> torch.Tensor:
         return torch.sigmoid(self(batch["state"]))
 
+    def bc_loss(self, logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        """Pixel-wise binary cross-entropy on logits, path pixels weighted by ``bc_pos_weight``."""
+        pos_weight = None
+        if self.bc_pos_weight is not None:
+            pos_weight = torch.tensor(self.bc_pos_weight, dtype=logits.dtype, device=logits.device)
+        return F.binary_cross_entropy_with_logits(logits, target, pos_weight=pos_weight)
+
     def losses(self, batch: dict) -> dict[str, torch.Tensor]:
         logits = self(batch["state"])
         target = batch["path"].to(logits.dtype)
-        out = {"loss_bc": F.binary_cross_entropy_with_logits(logits, target)}
+        out = {"loss_bc": self.bc_loss(logits, target)}
         total = out["loss_bc"]
         if self.margin is not None:
             loss_dm, active = self.margin(torch.sigmoid(logits), target, batch["state"].to(logits.dtype))
@@ -134,4 +149,4 @@ class StudentModule(PathPlanningModule):
 
     def validation_losses(self, batch: dict) -> dict[str, torch.Tensor]:
         logits = self(batch["state"])
-        return {"val/loss_bc": F.binary_cross_entropy_with_logits(logits, batch["path"].to(logits.dtype))}
+        return {"val/loss_bc": self.bc_loss(logits, batch["path"].to(logits.dtype))}
