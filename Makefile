@@ -14,7 +14,7 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 $(VENV)/.installed-dev: $(VENV)/.installed
-	$(PY) -m pip install -q "$(TORCH)" -e ".[onnx,dev]"
+	$(PY) -m pip install -q "$(TORCH)" -e ".[onnx,sweeps,dev]"
 	touch $@
 
 install: $(VENV)/.installed

@@ -139,7 +139,7 @@ def _markdown_table(header: list[str], body: list[list[str]]) -> str:
 
 def _header(table: Table) -> list[str]:
     cell = " / ".join(METRICS[k].label for k in CELL_METRICS)
-    return [*table.label_columns, *(f"{s}-shape ({cell})" for s in table.shapes), "params"]
+    return [*table.label_columns, *(f"{s}-shape: {cell}" for s in table.shapes), "params"]
 
 
 def render_table(table: Table, results: dict[str, RowResult]) -> str:
@@ -181,16 +181,23 @@ def render_comparisons(comparisons: list[ComparisonResult]) -> str:
 def render_notes(table: Table, results: dict[str, RowResult]) -> list[str]:
     """Which rows are missing, which have several runs (and which one is used), which scales are mixed."""
     notes = []
+    never = [row for row in table.rows if results[row].n_runs == 0]
+    if never:
+        notes.append(f"missing, no run: {', '.join(never)} (launch a row with `python -m spade.train "
+                     f"+experiment=ROW`, the table with `+experiment={table.composition}`)")
     for row in table.rows:
         r = results[row]
-        if not r.found:
-            what = "no run" if r.n_runs == 0 else f"{r.n_runs} run(s), none finished ({', '.join(r.statuses)})"
-            notes.append(f"{row}: missing ({what}); launch it with python -m spade.train +experiment={row}")
+        if not r.found and r.n_runs:
+            notes.append(f"{row}: missing, {r.n_runs} run(s), none finished ({', '.join(r.statuses)})")
         elif r.n_runs > 1:
             notes.append(f"{row}: {r.n_runs} runs ({r.n_finished} finished); using the latest finished, run {r.run_id}")
     scales = sorted({r.scale for r in results.values() if r.found and r.scale})
     if len(scales) > 1:
         notes.append(f"rows come from different scales ({', '.join(scales)}); pass scale=NAME to keep one")
+    failed = [row for row in table.rows if results[row].found and results[row].value("ape_cm") is None]
+    if failed:
+        notes.append(f"APE n/a: no path could be extracted from any test prediction of {', '.join(failed)} "
+                     "(see test/failure_rate in the CSV)")
     if any(r.found and "fid" not in r.metrics for r in results.values()):
         notes.append("FID n/a: the run logged no test/fid (its test set is smaller than the FID extractor needs)")
     return notes
@@ -223,20 +230,20 @@ def write_comparisons_csv(comparisons: list[ComparisonResult], path: Path) -> No
 
 
 def plot_table(table: Table, results: dict[str, RowResult], path: Path, paper: bool = True) -> None:
-    """Grouped bars (one panel per metric, one bar per shape and line); missing rows are labelled, paper
-    figures drawn as black ticks."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """Grouped bars, one panel per metric and one bar per line and shape; rows without a value are labelled
+    ("missing" or "n/a"), the paper's figures drawn as black ticks."""
     import numpy as np
+    from matplotlib.figure import Figure  # not pyplot: no global backend or figure state (notebooks, servers)
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
 
     metrics = [METRICS[k] for k in CELL_METRICS]
     labels = [" ".join(line.labels) for line in table.lines]
     x = np.arange(len(table.lines))
     width = 0.8 / len(table.shapes)
-    fig, axes = plt.subplots(1, len(metrics), figsize=(4 + 0.9 * len(labels) * len(metrics), 4.5), squeeze=False)
-    for ax, metric in zip(axes[0], metrics):
+    fig = Figure(figsize=(max(7.0, 2.5 + 0.55 * len(labels) * len(table.shapes)), 2.6 * len(metrics)))
+    axes = fig.subplots(len(metrics), 1, sharex=True, squeeze=False)
+    for ax, metric in zip(axes[:, 0], metrics):
         for j, shape in enumerate(table.shapes):
             offset = (j - (len(table.shapes) - 1) / 2) * width
             for i, line in enumerate(table.lines):
@@ -248,24 +255,21 @@ def plot_table(table: Table, results: dict[str, RowResult], path: Path, paper: b
                     ax.text(x[i] + offset, 0, MISSING if not results[row].found else "n/a", rotation=90,
                             ha="center", va="bottom", fontsize=7, color="grey")
                 else:
-                    ax.bar(x[i] + offset, value, width, color=f"C{j}", label=f"{shape}-shape" if i == 0 else None)
+                    ax.bar(x[i] + offset, value, width, color=f"C{j}")
                 figure = line.paper.get(shape, {}).get(metric.key)
                 if paper and figure is not None:
-                    ax.plot(x[i] + offset, figure, marker="_", color="black", markersize=12, mew=2,
-                            label="paper" if (i == 0 and j == 0) else None)
-        ax.set_title(metric.label)
-        ax.set_xticks(x, labels, rotation=35, ha="right", fontsize=8)
+                    ax.plot(x[i] + offset, figure, marker="_", color="black", markersize=10, mew=2)
+        ax.set_ylabel(metric.label)
         ax.set_ylim(bottom=0)
-    handles = {}
-    for ax in axes[0]:
-        for h, lab in zip(*ax.get_legend_handles_labels()):
-            handles.setdefault(lab, h)
-    if handles:
-        fig.legend(handles.values(), handles.keys(), loc="upper right", fontsize=8)
-    fig.suptitle(table.title, fontsize=10)
-    fig.tight_layout(rect=(0, 0, 0.93, 0.95))
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+        ax.grid(axis="y", alpha=0.3)
+    axes[-1, 0].set_xticks(x, labels, rotation=30, ha="right", fontsize=8)
+    handles = [Patch(color=f"C{j}", label=f"{s}-shape (measured)") for j, s in enumerate(table.shapes)]
+    if paper:
+        handles.append(Line2D([], [], color="black", marker="_", linestyle="none", markersize=10, mew=2, label="paper"))
+    axes[0, 0].legend(handles=handles, fontsize=7, loc="upper right")
+    axes[0, 0].set_title(table.title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 @dataclass

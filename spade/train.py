@@ -82,7 +82,10 @@ def summary(cfg: DictConfig, metrics: dict[str, Any]) -> str:
         if vals:
             lines.append(f"  {prefix:9s}: " + "  ".join(vals))
     uri = cfg.paths.mlflow_tracking_uri
-    lines.append(f"open the MLflow UI on it with:  mlflow ui --backend-store-uri {uri}")
+    if str(uri).startswith(("http://", "https://")):
+        lines.append(f"open the MLflow UI on it at:  {uri}")
+    else:
+        lines.append(f"open the MLflow UI on it with:  mlflow ui --backend-store-uri {uri}")
     return "\n".join(lines)
 
 

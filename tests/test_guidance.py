@@ -9,6 +9,12 @@ from torch import nn
 from spade.training.guidance import DiffusionMargin, GuidanceConfig, sample_timesteps
 
 
+@pytest.fixture(autouse=True)
+def _seeded() -> None:
+    """The denoisers below are randomly initialised: seed them so that every run checks the same margins."""
+    torch.manual_seed(0)
+
+
 class TinyDenoiser(nn.Module):
     """A small conditional eps-predictor, enough to carry gradients."""
 
@@ -76,3 +82,77 @@ def test_antithetic_timesteps_pair_up() -> None:
 def test_bad_guidance_options_are_refused(bad: dict) -> None:
     with pytest.raises(ValueError):
         GuidanceConfig(**bad)
+
+
+class AnchoredDenoiser(TinyDenoiser):
+    """An expert that has memorised the demonstration ``anchor`` (in [-1, 1]): it predicts the noise exactly when
+    x0 is the anchor, plus a small conv term so that it has weights. Margins of any other path are then positive."""
+
+    def __init__(self, anchor: torch.Tensor, cond: int = 3) -> None:
+        super().__init__(anchor.shape[1], cond)
+        self.anchor = anchor
+
+    def forward(self, x, t, c=None):
+        anchor = self.anchor.repeat(x.shape[0] // self.anchor.shape[0], 1, 1, 1)  # [agent; expert] batches too
+        abar = (1 - t.float() / 1000).view(-1, 1, 1, 1)
+        return (x - abar.sqrt() * anchor) / (1 - abar).clamp_min(1e-3).sqrt() + 0.1 * super().forward(x, t, c)
+
+
+def _reference_margin(expert, state, prob, target, conditional: bool, clip: str, num_noise: int, seed: int):
+    """DESIGN.md section 4 written out: shared noise and timestep, K draws averaged, then clipped."""
+    g = torch.Generator().manual_seed(seed)
+    if conditional:
+        agent, demo, cond = 2 * prob - 1, 2 * target - 1, 2 * state - 1
+    else:
+        agent, demo, cond = 2 * torch.cat([state, prob], 1) - 1, 2 * torch.cat([state, target], 1) - 1, None
+    margins = []
+    for _ in range(num_noise):
+        t = sample_timesteps(prob.shape[0], 0, 1000, True, torch.device("cpu"), g)
+        noise = torch.randn(agent.shape, generator=g)
+
+        def err(x0):
+            eps = expert(_add_noise(x0, noise, t), t, cond) if conditional else expert(_add_noise(x0, noise, t), t)
+            return (eps - noise).pow(2).flatten(1).mean(1)
+
+        margins.append(err(agent) - err(demo).detach())
+    margin = torch.stack(margins).mean(0)
+    return margin.clamp_min(0).mean() if clip == "sample" else margin.mean().clamp_min(0)
+
+
+@pytest.mark.parametrize("conditional", [True, False])
+@pytest.mark.parametrize("clip", ["sample", "batch"])
+def test_batched_and_separate_terms_equal_the_formula(conditional: bool, clip: str) -> None:
+    state, target = _batch(b=6)
+    if conditional:
+        expert = AnchoredDenoiser(2 * target - 1)
+    else:
+        expert = AnchoredDenoiser(2 * torch.cat([state, target], 1) - 1, cond=0)
+    logits0 = torch.randn(target.shape, generator=torch.Generator().manual_seed(5))
+    results = {}
+    for batch_terms in (False, True, None):  # None: the reference formula
+        logits = logits0.clone().requires_grad_(True)
+        if batch_terms is None:
+            loss = _reference_margin(expert, state, torch.sigmoid(logits), target, conditional, clip, 2, seed=7)
+        else:
+            config = GuidanceConfig(clip=clip, num_noise=2, batch_terms=batch_terms)
+            margin = DiffusionMargin(expert, _add_noise, 1000, conditional, config)
+            loss, _ = margin(torch.sigmoid(logits), target, state, generator=torch.Generator().manual_seed(7))
+        loss.backward()
+        results[batch_terms] = (loss.detach(), logits.grad.clone())
+    assert results[None][0] > 0 and results[None][1].abs().sum() > 0
+    for batch_terms in (False, True):
+        torch.testing.assert_close(results[batch_terms][0], results[None][0], rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(results[batch_terms][1], results[None][1], rtol=1e-4, atol=1e-7)
+
+
+def test_batched_terms_keep_the_expert_frozen_and_its_term_gradient_free() -> None:
+    state, target = _batch()
+    expert = AnchoredDenoiser(2 * target - 1)
+    margin = DiffusionMargin(expert, _add_noise, 1000, True, GuidanceConfig(batch_terms=True))
+    demo = target.clone().requires_grad_(True)  # were the expert term differentiable, this would get a gradient
+    logits = torch.zeros_like(target, requires_grad=True)
+    loss, _ = margin(torch.sigmoid(logits), demo, state, generator=torch.Generator().manual_seed(1))
+    loss.backward()
+    assert loss.item() > 0 and logits.grad.abs().sum() > 0
+    assert demo.grad is None or demo.grad.abs().sum() == 0
+    assert all(p.grad is None for p in expert.parameters())

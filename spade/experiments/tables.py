@@ -174,7 +174,9 @@ def _table1() -> Table:
 
 def _ablation(key: str, title: str, composition: str, rows: list[tuple[str, str, tuple]],
               row: str, baseline: str, comparison_title: str) -> Table:
-    lines = tuple(Line((label,), {"U": name}, {"U": _paper(*figures)}) for label, name, figures in rows)
+    # Every ablation row is a medium student.
+    lines = tuple(Line((label,), {"U": name}, {"U": {**_paper(*figures), "params": PAPER_PARAMS["medium"]}})
+                  for label, name, figures in rows)
     figures_by_row = {name: figures for _, name, figures in rows}
     a, b = figures_by_row[row], figures_by_row[baseline]
     derived = {k: round(relative_change(x, y), 1) for k, x, y in zip(("fid", "ape_cm", "hd19"), a, b)}

@@ -5,6 +5,14 @@ L_DM = E[max(L_agent - L_expert, 0)] (per-sample clipping, the paper's formula) 
 (per-batch clipping, DBC's official code). Agent and expert terms share noise and timestep; the expert term
 carries no gradient; the expert's weights never change, but gradients flow through it into the student's
 prediction.
+
+Cost. A guided step adds three expert passes to BC's student forward and backward: the agent term's forward, its
+backward (input gradients only: the expert's parameters do not require grad, so no weight gradients are formed)
+and the expert term's forward without autograd. By default the two terms go through the expert separately;
+``batch_terms=True`` sends ``[agent; expert]`` through one forward of twice the batch (the expert half detached),
+which saves per-call overhead but makes the backward compute input gradients for the expert half too: on a CPU
+at batch 32 it is about 1.4x slower than separate passes, so it is only worth it where per-call overhead
+dominates (small batches on an accelerator). ``python -m spade.bench`` measures both.
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ class GuidanceConfig:
     num_noise: int = 1  # K noise draws per instance, averaged
     t_min: int = 0
     t_max: int | None = None  # exclusive; None = the schedule's T
+    batch_terms: bool = False  # one expert forward over [agent; expert] (see the module docstring for when it pays)
 
     def __post_init__(self) -> None:
         if self.weight < 0:
@@ -75,8 +84,22 @@ class DiffusionMargin(nn.Module):
         self.expert.eval()
         return self
 
-    def _eps(self, x_t: torch.Tensor, t: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
-        return self.expert(x_t, t, to_model_range(state)) if self.conditional else self.expert(x_t, t)
+    def _eps(self, x_t: torch.Tensor, t: torch.Tensor, cond: torch.Tensor | None) -> torch.Tensor:
+        return self.expert(x_t, t, cond) if self.conditional else self.expert(x_t, t)
+
+    def _errors(self, agent_x0: torch.Tensor, expert_x0: torch.Tensor, noise: torch.Tensor, t: torch.Tensor,
+                cond: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per-sample denoising errors (agent with autograd, expert without) for one shared noise and timestep."""
+        if self.config.batch_terms:
+            b = agent_x0.shape[0]
+            x_t = self.add_noise(torch.cat([agent_x0, expert_x0.detach()]), torch.cat([noise, noise]), torch.cat([t, t]))
+            eps = self._eps(x_t, torch.cat([t, t]), None if cond is None else torch.cat([cond, cond]))
+            err = (eps - torch.cat([noise, noise])).pow(2).flatten(1).mean(1)
+            return err[:b], err[b:].detach()
+        with torch.no_grad():
+            expert_err = (self._eps(self.add_noise(expert_x0, noise, t), t, cond) - noise).pow(2).flatten(1).mean(1)
+        agent_err = (self._eps(self.add_noise(agent_x0, noise, t), t, cond) - noise).pow(2).flatten(1).mean(1)
+        return agent_err, expert_err
 
     def forward(self, student_prob: torch.Tensor, target: torch.Tensor, state: torch.Tensor,
                 generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -84,18 +107,17 @@ class DiffusionMargin(nn.Module):
         cfg = self.config
         if self.conditional:
             agent_x0, expert_x0 = to_model_range(student_prob), to_model_range(target)
+            cond = to_model_range(state)
         else:
             agent_x0 = to_model_range(torch.cat([state, student_prob], dim=1))
             expert_x0 = to_model_range(torch.cat([state, target], dim=1))
+            cond = None
         b = student_prob.shape[0]
         margins = []
         for _ in range(cfg.num_noise):
             t = sample_timesteps(b, cfg.t_min, self.t_max, cfg.antithetic, student_prob.device, generator)
             noise = torch.randn(agent_x0.shape, device=agent_x0.device, dtype=agent_x0.dtype, generator=generator)
-            with torch.no_grad():
-                expert_err = (self._eps(self.add_noise(expert_x0, noise, t), t, state) - noise).pow(2)
-                expert_err = expert_err.flatten(1).mean(1)
-            agent_err = (self._eps(self.add_noise(agent_x0, noise, t), t, state) - noise).pow(2).flatten(1).mean(1)
+            agent_err, expert_err = self._errors(agent_x0, expert_x0, noise, t, cond)
             margins.append(agent_err - expert_err)
         margin = torch.stack(margins).mean(0)
         if cfg.clip == "sample":

@@ -31,8 +31,13 @@ def instantiate_loggers(cfg: DictConfig | None, run_id: str | None = None) -> li
     for name, conf in (cfg or {}).items():
         if isinstance(conf, DictConfig) and "_target_" in conf:
             extra = {}
-            if run_id and conf._target_.endswith("MLFlowLogger"):
-                extra["run_id"] = run_id
+            if conf._target_.endswith("MLFlowLogger"):
+                if run_id:
+                    extra["run_id"] = run_id
+                if conf.get("tags"):
+                    # MLflow tags are strings; a file store stringifies numbers itself, a REST store
+                    # (`mlflow server`) refuses them (e.g. a sweep's `lambda: ${model.guidance.weight}`).
+                    extra["tags"] = {str(k): str(v) for k, v in conf.tags.items() if v is not None}
             log.info("Instantiating logger %s <%s>", name, conf._target_)
             loggers.append(hydra.utils.instantiate(conf, **extra))
     return loggers

@@ -1,0 +1,60 @@
+"""``python -m spade.export ckpt_path=PATH [format=onnx|torchscript]``: deploy a trained student as one file.
+
+Writes the student with its metadata (window size, metres per pixel, input encoding, network config), checks
+that the file reproduces PyTorch's logits (prints the max absolute difference) and prints eager and exported
+latency. See ``conf/export.yaml`` for the options and :mod:`spade.deploy.export` for the file format.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
+from spade.deploy.export import ExportReport, export_student
+
+log = logging.getLogger(__name__)
+
+
+OPTIONS = ("ckpt_path", "out_path", "format", "image_size", "resolution_m", "input_encoding", "opset", "parity_batch",
+           "tolerance", "latency_runs", "latency_batches", "threads", "report_path")
+
+
+def export(cfg: DictConfig) -> ExportReport:
+    """Run :func:`~spade.deploy.export.export_student` with a composed ``export`` config."""
+    # Only this task's keys are resolved: paths.output_dir needs a running Hydra app, and export() works without.
+    options = {k: OmegaConf.to_container(cfg[k], resolve=True) if OmegaConf.is_config(cfg[k]) else cfg[k]
+               for k in OPTIONS if k in cfg}
+    report = export_student(
+        options["ckpt_path"],
+        options.get("out_path"),
+        options.get("format", "onnx"),
+        image_size=options.get("image_size"),
+        resolution_m=options.get("resolution_m"),
+        input_encoding=options.get("input_encoding"),
+        opset=int(options.get("opset", 17)),
+        parity_batch=int(options.get("parity_batch", 4)),
+        tolerance=options.get("tolerance"),
+        latency_runs=int(options.get("latency_runs", 20)),
+        latency_batches=tuple(options.get("latency_batches") or (1,)),
+        threads=options.get("threads"),
+    )
+    if options.get("report_path"):
+        path = Path(options["report_path"])
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(report.to_dict(), indent=2))
+        log.info("report written to %s", path)
+    return report
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="export")
+def main(cfg: DictConfig) -> None:
+    print(export(cfg).summary())
+
+
+if __name__ == "__main__":
+    main()

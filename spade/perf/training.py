@@ -1,0 +1,79 @@
+"""Training step time of BC, DBC and Cond-DBC with the same student, batch and optimiser.
+
+A step is what Lightning runs per batch minus its bookkeeping: ``StudentModule.losses`` (BCE, plus the diffusion
+margin of a frozen expert when guided), backward, AdamW step. The experts have random weights (their cost does
+not depend on them) and are wired into the student exactly as ``StudentModule.load_guidance`` does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import torch
+
+from spade.perf.timing import measure
+
+
+def guided_student(size: str, expert: str | None = None, preset: str = "tiny", **guidance: Any) -> Any:
+    """A :class:`StudentModule` of ``size``; guided by a fresh ``cond``/``uncond`` expert of ``preset`` if given."""
+    from spade.models import build_model
+    from spade.models.diffusion import NoiseSchedule
+    from spade.training.guidance import DiffusionMargin, GuidanceConfig
+    from spade.training.student_module import StudentModule
+
+    module = StudentModule(size=size)
+    if expert is not None:
+        if expert not in ("cond", "uncond"):
+            raise ValueError(f"expert must be 'cond' or 'uncond', got {expert!r}")
+        net = build_model("cond_expert" if expert == "cond" else "uncond_expert", preset)
+        schedule = NoiseSchedule()
+        config = GuidanceConfig(**guidance)
+        module.guidance_cfg = config
+        module._margin.append(DiffusionMargin(net, schedule.add_noise, schedule.num_train_timesteps,
+                                              expert == "cond", config))
+    return module.train()
+
+
+def step_time(module: Any, batch: dict[str, torch.Tensor], runs: int = 3, warmup: int = 1) -> dict[str, float]:
+    """Median (and min) ms of one optimisation step of ``module`` on ``batch``."""
+    optimizer = torch.optim.AdamW([p for p in module.parameters() if p.requires_grad], lr=1e-3)
+
+    def step() -> None:
+        optimizer.zero_grad(set_to_none=True)
+        module.losses(batch)["loss"].backward()
+        optimizer.step()
+
+    timing = measure(step, runs, warmup)
+    return {"step_ms": timing.median_ms, "step_min_ms": timing.min_ms, "runs": timing.runs}
+
+
+def training_step_times(student: str, image_size: int, batch_size: int, cond_presets: Sequence[str],
+                        uncond_preset: str | None, runs: int = 3, warmup: int = 1,
+                        batched_terms: bool = True) -> list[dict[str, Any]]:
+    """Step time of BC, DBC (unconditional expert of ``uncond_preset``), Cond-DBC with each conditional expert
+    preset and, with ``batched_terms``, Cond-DBC with ``batch_terms=True`` (one expert forward over
+    [agent; expert]) for the first preset; each with its ratio to BC."""
+    from spade.deploy.export import example_states
+
+    torch.manual_seed(0)
+    state = example_states(batch_size, (image_size, image_size), seed=0)
+    path = (torch.rand(batch_size, 1, image_size, image_size) > 0.97).float()
+    batch = {"state": state, "path": path}
+    setups: list[tuple[str, str | None, str | None, dict]] = [("BC", None, None, {})]
+    if uncond_preset:
+        setups.append(("DBC", "uncond", uncond_preset, {}))
+    setups += [("Cond-DBC", "cond", preset, {}) for preset in cond_presets]
+    if batched_terms and cond_presets:
+        setups.append(("Cond-DBC (batch_terms)", "cond", cond_presets[0], {"batch_terms": True}))
+    rows = []
+    for name, expert, preset, options in setups:
+        module = guided_student(student, expert, preset or "tiny", **options)
+        row = {"approach": name, "student": student, "expert_preset": preset, "image_size": image_size,
+               "batch_size": batch_size, **step_time(module, batch, runs, warmup)}
+        rows.append(row)
+        del module
+    bc = rows[0]["step_ms"]
+    for row in rows:
+        row["ratio_to_bc"] = row["step_ms"] / bc
+    return rows

@@ -1,0 +1,95 @@
+"""``python -m spade.bench``: quick mode runs every section end to end; the targets are judged as stated."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from spade.perf.report import check_targets, format_report
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_quick_bench_measures_every_section(tmp_path: Path) -> None:
+    pytest.importorskip("onnxruntime")
+    out = tmp_path / "bench.json"
+    env = {**os.environ, "SPADE_HOME": str(tmp_path / "home")}
+    cmd = [sys.executable, "-m", "spade.bench", "quick=true", f"out_json={out}"]
+    proc = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    results = json.loads(out.read_text())
+    assert results["mode"] == "quick" and results["machine"]["torch_threads"] == 1
+
+    (student,) = results["student"]
+    for key in ("eager_b1_ms", "onnxruntime_b1_ms", "eager_b2_ms", "onnxruntime_b2_ms", "gflop_b1"):
+        assert student[key] > 0
+    assert {e["expert"] for e in results["experts"]} == {"cond", "uncond"}
+    for e in results["experts"]:
+        assert e["params"] > 0 and e["ddpm"]["steps"] == 1000 and e["ddpm"]["extrapolated"]
+        assert all(r["seconds_per_sample"] > 0 and r["speedup_vs_ddpm"] > 1 for r in e["ddim"])
+    approaches = [r["approach"] for r in results["training"]]
+    assert approaches == ["BC", "DBC", "Cond-DBC", "Cond-DBC (batch_terms)"]
+    assert results["training"][0]["ratio_to_bc"] == 1.0 and all(r["step_ms"] > 0 for r in results["training"])
+    assert results["metrics"]["ape_hd_instances_per_s"] > 0 and results["metrics"]["fid_images_per_s"] > 0
+    assert [g["preset"] for g in results["data"]["generation"]] == ["lshape", "test"]
+    assert results["data"]["read"]["instances"] == results["data"]["generation"][0]["instances"] > 0
+    rows = results["quality"]["rows"]
+    assert [(r["sampler"], r["steps"]) for r in rows] == [("ddim", 2), ("ddim", 5), ("ddpm", 50)]
+    assert all(r["samples"] == 4 and r["seconds_per_sample"] > 0 for r in rows)
+    assert any(t["target"].startswith("Cond-DBC") for t in results["targets"])
+
+    for heading in ("Student latency", "Expert sampling", "DDIM vs DDPM", "Training step", "Metrics", "Data", "Targets"):
+        assert f"### {heading}" in proc.stdout
+
+
+def _results(onnx_ms: float, cond_ratio: float, ddim: list[tuple[int, float, float]]) -> dict:
+    """Bench results with one medium student row, BC / Cond-DBC rows and DDIM rows (steps, APE, s) vs DDPM (1.0 cm, 10 s)."""
+    quality = [{"sampler": "ddim", "steps": k, "ape_cm": ape, "seconds_per_sample": s, "samples": 8,
+                "failures": 0, "hd_count": 0}
+               for k, ape, s in ddim]
+    quality.append({"sampler": "ddpm", "steps": 1000, "ape_cm": 1.0, "seconds_per_sample": 10.0, "samples": 8,
+                    "failures": 0, "hd_count": 0})
+    training = [{"approach": a, "student": "medium", "expert_preset": p, "image_size": 64, "batch_size": 32,
+                 "step_ms": 100.0 * r, "ratio_to_bc": r}
+                for a, p, r in (("BC", None, 1.0), ("Cond-DBC", "paper", cond_ratio),
+                                ("Cond-DBC (batch_terms)", "paper", 99.0))]
+    return {"student": [{"size": "medium", "image_size": 128, "params": 1, "gflop_b1": 3.8, "eager_b1_ms": 40.0,
+                         "onnxruntime_b1_ms": onnx_ms}],
+            "training": training, "quality": {"expert": "x", "rows": quality}}
+
+
+def test_targets_are_judged_as_the_issue_states() -> None:
+    met = check_targets(_results(14.0, 2.4, [(10, 1.5, 0.1), (50, 1.08, 0.5), (100, 1.0, 1.2)]))
+    assert [t["met"] for t in met] == [True, True, True]
+    assert met[2]["value"] == "20 x" and "DDIM-50" in met[2]["setting"]  # fastest DDIM within 10 % of DDPM's APE
+    missed = check_targets(_results(16.0, 2.6, [(10, 1.5, 0.1), (100, 1.05, 1.2)]))
+    assert [t["met"] for t in missed] == [False, False, False]  # DDIM-100 is within 10 % but only 8x faster
+    assert "batch_terms" not in " ".join(t["setting"] for t in missed)
+    none_within = check_targets(_results(10.0, 2.0, [(10, 1.5, 0.1)]))
+    assert none_within[2]["met"] is False and none_within[2]["value"] == "-"
+    table = format_report({"mode": "full", "machine": {}, **_results(14.0, 2.4, [(10, 1.05, 0.1)])})
+    assert "| medium student batch-1 ONNX Runtime <= 15 ms |" in table and "MISSED" not in table
+
+
+def test_quick_and_full_settings_come_from_one_config() -> None:
+    import spade.bench  # noqa: F401  (registers the quick_or resolver)
+    from spade.experiments.config import compose_config
+
+    full = compose_config("bench", [])
+    quick = compose_config("bench", ["quick=true", "student.runs=7"])
+    assert list(full.student.sizes) == ["small", "medium", "large"] and full.experts.cond_preset == "paper"
+    assert list(quick.student.sizes) == ["small"] and quick.experts.cond_preset == "tiny"
+    assert quick.student.runs == 7 and quick.threads == 1 and full.threads is None
+
+
+def test_unknown_sections_are_refused() -> None:
+    from spade.bench import bench
+    from spade.experiments.config import compose_config
+
+    with pytest.raises(ValueError, match="unknown bench sections"):
+        bench(compose_config("bench", ["quick=true", "sections=[student,gpu]"]))

@@ -1,0 +1,152 @@
+"""spade.report and spade.experiments.tables: layouts match the experiments, missing rows stay, arithmetic holds."""
+
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from spade.experiments.tables import TABLES, get_table, relative_change
+from spade.paths import CONF_DIR
+from spade.report import build_report, compare, fetch_results, render_table, report
+
+# The paper's rows behind its headline (DESIGN.md section 6): medium Cond-DBC and large BC, L-shape.
+MEDIUM_CONDDBC_L = {"test/ape_cm": 1.46, "test/fid": 13.58, "test/hd19": 2.0, "model/params": 1_926_209.0}
+LARGE_BC_L = {"test/ape_cm": 2.41, "test/fid": 20.45, "test/hd19": 5.0, "model/params": 31_114_785.0}
+
+
+def _experiment_yaml(name: str) -> dict:
+    return yaml.safe_load((CONF_DIR / "experiment" / f"{name}.yaml").read_text())
+
+
+@pytest.mark.parametrize("key", sorted(TABLES))
+def test_table_layouts_match_the_experiment_configs(key: str) -> None:
+    table = TABLES[key]
+    for row in table.rows:
+        cfg = _experiment_yaml(row)
+        assert cfg["run_name"] == row and cfg["tags"]["table"] == table.experiment, row
+    launched = _experiment_yaml(table.composition)["hydra"]["sweeper"]["params"]["experiment"].split(",")
+    assert sorted(launched) == sorted(table.rows)
+    for comp in table.comparisons:
+        assert {comp.row, comp.baseline} <= set(table.rows)
+
+
+def test_every_row_of_the_paper_is_in_a_table() -> None:
+    rows = {p.stem for p in (CONF_DIR / "experiment").glob("*.yaml") if p.stem.startswith(("t1_", "t2_", "t3_", "expert_"))}
+    assert rows == {r for t in TABLES.values() for r in t.rows} and len(rows) == 27
+
+
+def test_get_table_accepts_aliases_and_names_the_choices() -> None:
+    assert get_table("2") is get_table("ablation_finetune") is TABLES["table2"]
+    with pytest.raises(ValueError, match="table1, table2, table3"):
+        get_table("table4")
+
+
+def test_relative_change_against_hand_computed_values() -> None:
+    assert relative_change(1.46, 2.41) == pytest.approx(-39.4190871, abs=1e-6)  # (1.46 - 2.41) / 2.41
+    assert relative_change(1_926_209, 31_114_785) == pytest.approx(-93.8093, abs=1e-4)
+    assert relative_change(3.0, 2.0) == pytest.approx(50.0)
+    assert relative_change(1.0, 0.0) is None and relative_change(None, 1.0) is None
+    assert relative_change(float("nan"), 1.0) is None
+
+
+def _log_run(client, experiment_id: str, name: str, metrics: dict[str, float], status: str = "FINISHED",
+             scale: str = "tiny") -> str:
+    run = client.create_run(experiment_id, run_name=name, tags={"scale": scale, "row": name})
+    for key, value in metrics.items():
+        client.log_metric(run.info.run_id, key, value)
+    if status != "RUNNING":
+        client.set_terminated(run.info.run_id, status=status)
+    time.sleep(0.01)  # distinct end times
+    return run.info.run_id
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """An MLflow store holding part of Table 1 and two of Table 2's three rows (one of them run three times)."""
+    from mlflow import MlflowClient
+
+    uri = f"sqlite:///{tmp_path_factory.mktemp('mlflow')}/mlflow.db"
+    client = MlflowClient(tracking_uri=uri)
+    t1 = client.create_experiment("table1")
+    _log_run(client, t1, "t1_medium_conddbc_L", MEDIUM_CONDDBC_L)
+    _log_run(client, t1, "t1_large_bc_L", LARGE_BC_L)
+    _log_run(client, t1, "t1_large_bc_U", {**LARGE_BC_L, "test/hd19": 0.0})
+    _log_run(client, t1, "t1_medium_conddbc_U", MEDIUM_CONDDBC_L)
+    _log_run(client, t1, "t1_small_bc_L", {"test/ape_cm": 9.0}, scale="cpu")
+    t2 = client.create_experiment("table2")
+    _log_run(client, t2, "t2_bc_finetune_U", {"test/ape_cm": 8.0, "test/hd19": 10.0})
+    latest = _log_run(client, t2, "t2_bc_finetune_U", {"test/ape_cm": 6.0, "test/hd19": 4.0})
+    _log_run(client, t2, "t2_bc_finetune_U", {}, status="FAILED")
+    _log_run(client, t2, "t2_augbc_finetune_conddbc_U", {"test/ape_cm": 4.5, "test/hd19": 3.0})
+    _log_run(client, t2, "t2_augbc_finetune_bc_U", {"test/ape_cm": 1.0}, status="RUNNING")
+    return {"uri": uri, "latest": latest}
+
+
+def test_missing_rows_are_shown_never_dropped(store: dict) -> None:
+    table = TABLES["table2"]
+    rep = build_report(table, store["uri"])
+    lines = [ln for ln in render_table(table, rep.results).splitlines()[2:]]
+    assert len(lines) == 3
+    unfinished = next(ln for ln in lines if "Aug. BC, fine-tuned (BC)" in ln)
+    assert "missing" in unfinished
+    assert "t2_augbc_finetune_bc_U: missing, 1 run(s), none finished (RUNNING)" in rep.text
+    assert "2 of 3 rows have a finished run" in rep.text
+    empty = build_report(TABLES["table3"], store["uri"])  # no MLflow experiment at all
+    assert empty.text.count("| missing |") == 2
+    assert "missing, no run: t3_bc_scratch_U, t3_augbc_pretrained_expert_U" in empty.text
+
+
+def test_latest_finished_run_is_used_and_counted(store: dict) -> None:
+    results = fetch_results(TABLES["table2"], store["uri"])
+    row = results["t2_bc_finetune_U"]
+    assert row.run_id == store["latest"] and (row.n_runs, row.n_finished) == (3, 2)
+    assert row.value("ape_cm") == 6.0 and row.value("fid") is None
+    text = build_report(TABLES["table2"], store["uri"]).text
+    assert f"t2_bc_finetune_U: 3 runs (2 finished); using the latest finished, run {store['latest']}" in text
+    assert "| 6.00 / 4 |" not in text and "n/a / 6.00 / 4" in text
+
+
+def test_headline_comparison_arithmetic(store: dict) -> None:
+    table = TABLES["table1"]
+    changes = {(c.title, c.metric): c for c in compare(table, fetch_results(table, store["uri"]))}
+    head = "medium Cond-DBC vs large BC (L)"
+    assert changes[head, "ape_cm"].change == pytest.approx(100 * (1.46 - 2.41) / 2.41)
+    assert changes[head, "fid"].change == pytest.approx(100 * (13.58 - 20.45) / 20.45)  # -33.59
+    assert changes[head, "hd19"].change == pytest.approx(-60.0)
+    assert changes[head, "params"].change == pytest.approx(100 * (1_926_209 - 31_114_785) / 31_114_785)
+    assert changes[head, "ape_cm"].paper == -39.1 and changes[head, "params"].paper == -93.8
+    assert changes["medium Cond-DBC vs large BC (U)", "hd19"].change is None  # baseline Hd19 is 0
+    text = build_report(table, store["uri"]).text
+    assert "-39.4%" in text and "n/a (baseline 0)" in text
+
+
+def test_scale_filter_and_mixed_scale_note(store: dict) -> None:
+    table = TABLES["table1"]
+    assert "different scales (cpu, tiny)" in build_report(table, store["uri"]).text
+    assert not fetch_results(table, store["uri"], scale="tiny")["t1_small_bc_L"].found
+
+
+def test_cli_config_writes_markdown_csv_and_png(store: dict, tmp_path: Path) -> None:
+    from PIL import Image
+
+    from spade.experiments.config import compose_config
+
+    cfg = compose_config("report", ["table=ablation_finetune", f"tracking_uri={store['uri']}",
+                                    f"output_dir={tmp_path}", "paths.output_dir=."])
+    (rep,) = report(cfg)
+    assert set(rep.files) == {"csv", "comparisons_csv", "png", "markdown"}
+    with open(rep.files["csv"]) as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["row"] for r in rows] == TABLES["table2"].rows
+    assert [r["status"] for r in rows] == ["ok", "missing", "ok"]
+    assert float(rows[0]["ape_cm"]) == 6.0 and rows[1]["ape_cm"] == "" and float(rows[0]["paper_ape_cm"]) == 7.75
+    with open(rep.files["comparisons_csv"]) as fh:
+        ape = next(r for r in csv.DictReader(fh) if r["metric"] == "ape_cm")
+    assert float(ape["change_pct"]) == pytest.approx(100 * (4.5 - 6.0) / 6.0)
+    with Image.open(rep.files["png"]) as im:
+        assert im.size[0] > 300 and im.size[1] > 200
+    assert rep.files["markdown"].read_text().startswith("## Table 2")

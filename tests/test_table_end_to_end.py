@@ -1,0 +1,72 @@
+"""A whole table from an empty MLflow store: ``+experiment=ablation_finetune`` trains its prerequisites (an expert,
+two pretrained students) and its three rows, and ``python -m spade.report`` prints Table 2 with every row filled."""
+
+from __future__ import annotations
+
+import csv
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from spade.experiments.tables import TABLES
+
+REPO = Path(__file__).resolve().parents[1]
+# One "epoch" of 2 training batches, one validation batch (so that optimized_metric is logged), one test batch.
+CAPPED = ("trainer.max_epochs=1", "++trainer.limit_train_batches=2", "++trainer.limit_val_batches=1",
+          "++trainer.limit_test_batches=1", "++trainer.num_sanity_val_steps=0")
+SAME_KEYS = {"test/ape_cm", "test/hd19", "test/failure_rate", "model/params"}
+
+
+def _python(args: list[str], home: Path, timeout: int) -> str:
+    env = {**os.environ, "SPADE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
+    env.pop("MLFLOW_TRACKING_URI", None)
+    proc = subprocess.run([sys.executable, "-m", *args], cwd=REPO, env=env, capture_output=True, text=True,
+                          timeout=timeout)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-4000:]
+    return proc.stdout
+
+
+def _table2_end_to_end(home: Path, *train_overrides: str) -> None:
+    _python(["spade.train", "+experiment=ablation_finetune", "scale=tiny", "trainer.enable_progress_bar=false",
+             *train_overrides], home, timeout=1800)
+    out = _python(["spade.report", "table=table2"], home, timeout=300)
+
+    table = TABLES["table2"]
+    body = out.split("| approach |", 1)[1].split("\n\n", 1)[0].splitlines()[2:]
+    assert len(body) == 3 and not any("missing" in line for line in body), out
+    assert "3 of 3 rows have a finished run" in out
+    assert "Aug. BC fine-tuned with Cond-DBC vs SKIPP BC fine-tuned" in out
+    reports = home / "logs" / "reports"
+    with open(reports / "table2.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["row"] for r in rows] == table.rows and all(r["status"] == "ok" for r in rows)
+    assert all(r["hd19"] != "" and float(r["params"]) > 1e6 for r in rows)  # medium students
+    assert (reports / "table2.png").stat().st_size > 10_000
+
+    # The MLflow UI view: one experiment per table, run names = row names, the same metric keys in every row.
+    from mlflow import MlflowClient
+
+    client = MlflowClient(tracking_uri=f"sqlite:///{home}/logs/mlflow.db")
+    exp = client.get_experiment_by_name("table2")
+    assert "ablation_finetune" in exp.tags["mlflow.note.content"]
+    runs = client.search_runs([exp.experiment_id])
+    assert sorted(r.info.run_name for r in runs) == sorted(table.rows)
+    assert all(SAME_KEYS <= set(r.data.metrics) and r.info.status == "FINISHED" for r in runs)
+    assert all(r.data.tags["table"] == "table2" and r.data.tags["row"] == r.info.run_name for r in runs)
+    prerequisites = client.search_runs([client.get_experiment_by_name("table1").experiment_id])
+    assert sorted(r.info.run_name for r in prerequisites) == ["expert_cond_L", "t1_medium_bc_L", "t1_medium_conddbc_L"]
+
+
+def test_table2_from_an_empty_store_capped_steps(tmp_path: Path) -> None:
+    """The default-run variant: every training (prerequisites included) capped at one epoch of 2 batches."""
+    _table2_end_to_end(tmp_path, *CAPPED)
+
+
+@pytest.mark.slow
+def test_table2_from_an_empty_store_full_tiny_scale(tmp_path: Path) -> None:
+    """Exactly the README's commands at tiny scale (2 epochs per training)."""
+    _table2_end_to_end(tmp_path)
