@@ -1,7 +1,7 @@
 """``python -m spade.plan MAP.yaml start=X,Y goal=X,Y [model=PATH] [key=value ...]``: plan once and show it.
 
-Loads a student (checkpoint or ONNX export; ``model=`` or the ``SPADE_PLANNER_MODEL`` environment variable),
-plans from ``start`` to ``goal`` (map-frame metres) on the map with :class:`spade.planner.Planner`, prints the
+Loads a student (checkpoint or ONNX export; ``model=``, short for ``model_path=``, or the ``SPADE_PLANNER_MODEL``
+environment variable), plans from ``start`` to ``goal`` (map-frame metres) on the map with :class:`spade.planner.Planner`, prints the
 waypoints (one ``x y`` line each, metres) and writes a PNG: the map around the student's window, the window,
 the predicted path probabilities, the start (blue), the goal (red) and the waypoints (green). Exits with status
 1 when no path was found (the PNG is written all the same, for debugging).
@@ -42,7 +42,8 @@ _POINT = re.compile(r"^(?P<key>\+?(?:start|goal))=(?P<value>[^\[\]'\"]+,[^\[\]'\
 
 
 def rewrite_argv(args: list[str]) -> list[str]:
-    """The command line as Hydra needs it: ``MAP.yaml`` -> ``map=MAP.yaml``, ``start=X,Y`` -> ``start=[X,Y]``."""
+    """The command line as Hydra needs it: ``MAP.yaml`` -> ``map=MAP.yaml``, ``start=X,Y`` -> ``start=[X,Y]``,
+    ``model=PATH`` -> ``model_path=PATH``."""
     out: list[str] = []
     skip_next = False
     for arg in args:
@@ -55,7 +56,9 @@ def rewrite_argv(args: list[str]) -> list[str]:
             out.append(arg)
             continue
         point = _POINT.match(arg)
-        if point:
+        if arg.startswith("model="):  # `model` is a config group of conf/: the key is model_path
+            out.append("model_path=" + arg[len("model="):])
+        elif point:
             out.append(f"{point['key']}=[{point['value']}]")
         elif not arg.startswith("-") and "=" not in arg and _looks_like_map(arg):
             if any(a.startswith("map=") for a in args):
@@ -141,11 +144,11 @@ def plan_image(m: OccupancyMap, result: PlanResult, context_m: float = 1.0, widt
 
 def plan(cfg: DictConfig) -> tuple[PlanResult, Path]:
     """Run one query of the config; returns the result and the PNG path."""
-    if cfg.get("model") in (None, ""):
+    if cfg.get("model_path") in (None, ""):
         raise ValueError("no model: pass model=PATH (a student .ckpt from python -m spade.train or its .onnx "
                          "export) or set the SPADE_PLANNER_MODEL environment variable")
     options: dict[str, Any] = OmegaConf.to_container(cfg.planner, resolve=True)  # type: ignore[assignment]
-    planner = Planner(cfg.model, device=cfg.device, **options)
+    planner = Planner(cfg.model_path, device=cfg.device, **options)
     m = load_map(cfg.map)
     result = planner.plan(m, list(cfg.start), list(cfg.goal))
     out = Path(cfg.out)

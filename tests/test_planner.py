@@ -253,3 +253,62 @@ def trained_student(spade_home: Path) -> str:
     path = spade_home / "planner_student.ckpt"
     objects["trainer"].save_checkpoint(path)
     return str(path)
+    path = spade_home / "planner_student.ckpt"
+    objects["trainer"].save_checkpoint(path)
+    return str(path)
+
+
+def _round_trip(ckpt: str, m: OccupancyMap, scenarios: int) -> tuple[list[PlanResult], int]:
+    queries = annotation_queries(m, scenarios)
+    assert len(queries) >= 6, f"too few annotation queries on {m.name}"
+    results = Planner(ckpt).plan_batch(m, [s for s, _ in queries], [g for _, g in queries])
+    for (start, goal), r in zip(queries, results):
+        if r.success:
+            # Waypoints in metres, from the start to the goal, every one on a free cell of the original map.
+            assert r.waypoints.shape[1] == 2 and len(r.waypoints) >= 2
+            np.testing.assert_allclose(r.waypoints[0], start, atol=2 * RES)
+            assert np.linalg.norm(r.waypoints[-1] - goal) <= 3 * RES
+            assert free_in(m, r.waypoints).all(), f"{m.name}: a waypoint off the free space"
+        else:
+            assert r.code and r.reason and r.waypoints.shape == (0, 2)
+    return results, len(queries)
+
+
+def test_trained_student_round_trip_on_a_procedural_map(trained_student: str) -> None:
+    results, n = _round_trip(trained_student, generate_map("warehouse", 101), scenarios=6)
+    codes = Counter(r.code for r in results)
+    assert codes[None] >= n // 2, codes  # half at least (measured: 15 of 18; an untrained student 4)
+
+
+def test_trained_student_round_trip_on_a_real_map(trained_student: str, maps_dir: Path) -> None:
+    m = load_ros_map(maps_dir / "aws-robomaker-small-warehouse-world" / "small_warehouse_002.yaml")
+    results, n = _round_trip(trained_student, m, scenarios=6)
+    codes = Counter(r.code for r in results)
+    assert codes[None] >= n // 2, codes  # a real map it never saw (measured: 13 of 18; untrained 5)
+
+
+def test_plan_command_prints_waypoints_and_writes_the_picture(trained_student: str, tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    m = generate_map("warehouse", 101)
+    start, goal = annotation_queries(m, 6)[0]
+    repo = Path(__file__).resolve().parents[1]
+    base = [sys.executable, "-m", "spade.plan", "warehouse:101", f"model={trained_student}",
+            f"hydra.run.dir={tmp_path}/run"]
+    ok = subprocess.run([*base, f"start={start[0]},{start[1]}", f"goal={goal[0]},{goal[1]}",
+                         f"out={tmp_path}/plan.png"], cwd=repo, capture_output=True, text=True, timeout=300)
+    expected = Planner(trained_student).plan(m, start, goal)
+    lines = [ln for ln in ok.stdout.splitlines() if ln and not ln.startswith("#")]
+    assert ok.returncode == (0 if expected.success else 1), ok.stdout + ok.stderr
+    if expected.success:
+        np.testing.assert_allclose(np.array([[float(v) for v in ln.split()] for ln in lines]), expected.waypoints,
+                                   atol=1e-3)
+    else:
+        assert expected.code in ok.stdout and not lines
+    assert (tmp_path / "plan.png").stat().st_size > 1000
+    # A goal off the map: a failure result, exit status 1, the reason printed, the picture still written.
+    bad = subprocess.run([*base, f"start={start[0]},{start[1]}", "goal=-100,-100", f"out={tmp_path}/bad.png"],
+                         cwd=repo, capture_output=True, text=True, timeout=300)
+    assert bad.returncode == 1 and "goal_outside_map" in bad.stdout, bad.stdout + bad.stderr
+    assert (tmp_path / "bad.png").is_file()
