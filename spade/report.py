@@ -319,7 +319,9 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
 def report(cfg: DictConfig) -> list[Report]:
     """The reports of ``cfg.table`` (one table, or every table with ``table=all``)."""
     tables = list(TABLES.values()) if str(cfg.table) == "all" else [get_table(cfg.table)]
-    return [build_report(t, cfg.tracking_uri, cfg.get("output_dir"), cfg.get("scale"), cfg.get("paper", True),
+    # `scale` is the config group of conf/scale (so that scale=cpu reads as everywhere else); its name filters runs.
+    scale = cfg.scale.name if cfg.get("scale") else None
+    return [build_report(t, cfg.tracking_uri, cfg.get("output_dir"), scale, cfg.get("paper", True),
                          cfg.get("chart", True)) for t in tables]
 
 
