@@ -150,3 +150,16 @@ def test_cli_config_writes_markdown_csv_and_png(store: dict, tmp_path: Path) -> 
     with Image.open(rep.files["png"]) as im:
         assert im.size[0] > 300 and im.size[1] > 200
     assert rep.files["markdown"].read_text().startswith("## Table 2")
+
+
+def test_cli_scale_override_filters_runs(store: dict, tmp_path: Path) -> None:
+    """`scale=cpu` on the command line selects the conf/scale group, whose name filters the runs."""
+    from spade.experiments.config import compose_config
+
+    overrides = ["table=table1", f"tracking_uri={store['uri']}", f"output_dir={tmp_path}", "paths.output_dir=.",
+                 "chart=false"]
+    (everything,) = report(compose_config("report", overrides))
+    (cpu,) = report(compose_config("report", [*overrides, "scale=cpu"]))
+    (tiny,) = report(compose_config("report", [*overrides, "scale=tiny"]))
+    assert everything.results["t1_small_bc_L"].found and cpu.results["t1_small_bc_L"].found
+    assert not tiny.results["t1_small_bc_L"].found and "scale cpu" in cpu.text
