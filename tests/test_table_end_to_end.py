@@ -70,3 +70,16 @@ def test_table2_from_an_empty_store_capped_steps(tmp_path: Path) -> None:
 def test_table2_from_an_empty_store_full_tiny_scale(tmp_path: Path) -> None:
     """Exactly the README's commands at tiny scale (2 epochs per training)."""
     _table2_end_to_end(tmp_path)
+
+
+@pytest.mark.parametrize("composition,key", [("ablation_scratch", "table3"), ("table1", "table1")])
+def test_whole_table_composition_from_an_empty_store(composition: str, key: str, tmp_path: Path) -> None:
+    """The other two table compositions, capped steps: every row (and prerequisite) runs, the report fills them."""
+    _python(["spade.train", f"+experiment={composition}", "scale=tiny", "trainer.enable_progress_bar=false",
+             *CAPPED], tmp_path, timeout=2400)
+    out = _python(["spade.report", f"table={key}", "scale=tiny", "chart=false"], tmp_path, timeout=300)
+    table = TABLES[key]
+    assert f"{len(table.rows)} of {len(table.rows)} rows have a finished run" in out, out
+    with open(tmp_path / "logs" / "reports" / f"{key}.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert sorted(r["row"] for r in rows) == sorted(table.rows) and all(r["status"] == "ok" for r in rows)
