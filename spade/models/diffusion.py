@@ -41,6 +41,20 @@ def from_model_range(x: torch.Tensor) -> torch.Tensor:
     return (x + 1.0) / 2.0
 
 
+def sample_timesteps(n: int, t_min: int, t_max: int, antithetic: bool, device: torch.device | str | None = None,
+                     generator: torch.Generator | None = None) -> torch.Tensor:
+    """``n`` timesteps (long) uniform in [t_min, t_max); ``antithetic`` pairs t with t_min + t_max - 1 - t.
+
+    Drawn on the generator's device (so that a CPU generator serves any device), then moved to ``device``."""
+    gen_device = generator.device if generator is not None else "cpu"
+    if antithetic:
+        half = torch.randint(t_min, t_max, ((n + 1) // 2,), generator=generator, device=gen_device)
+        t = torch.cat((half, t_min + t_max - 1 - half))[:n]
+    else:
+        t = torch.randint(t_min, t_max, (n,), generator=generator, device=gen_device)
+    return t.to(device) if device is not None else t
+
+
 class NoiseSchedule:
     """A DDPM forward process and its DDPM / DDIM reverse samplers, sharing one beta schedule.
 
@@ -128,13 +142,7 @@ class NoiseSchedule:
         self, batch_size: int, generator: torch.Generator | None = None, antithetic: bool = True, device: torch.device | str | None = None
     ) -> torch.Tensor:
         """Uniform training timesteps (B,) long; ``antithetic`` pairs each t with T - 1 - t, as DBC's code does."""
-        gen_device = generator.device if generator is not None else "cpu"
-        if antithetic:
-            half = torch.randint(0, self.num_train_timesteps, ((batch_size + 1) // 2,), generator=generator, device=gen_device)
-            t = torch.cat((half, self.num_train_timesteps - 1 - half))[:batch_size]
-        else:
-            t = torch.randint(0, self.num_train_timesteps, (batch_size,), generator=generator, device=gen_device)
-        return t.to(device) if device is not None else t
+        return sample_timesteps(batch_size, 0, self.num_train_timesteps, antithetic, device, generator)
 
     @torch.no_grad()
     def sample(

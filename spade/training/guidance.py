@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from spade.models.diffusion import to_model_range
+from spade.models.diffusion import sample_timesteps, to_model_range
 
 
 @dataclass(frozen=True)
@@ -46,15 +46,6 @@ class GuidanceConfig:
             raise ValueError(f"guidance num_noise must be >= 1, got {self.num_noise}")
         if self.t_min < 0 or (self.t_max is not None and self.t_max <= self.t_min):
             raise ValueError(f"guidance timestep range [{self.t_min}, {self.t_max}) is empty or negative")
-
-
-def sample_timesteps(n: int, t_min: int, t_max: int, antithetic: bool, device: torch.device,
-                     generator: torch.Generator | None = None) -> torch.Tensor:
-    """``n`` timesteps in [t_min, t_max); antithetic pairs t and t_min + t_max - 1 - t."""
-    if not antithetic:
-        return torch.randint(t_min, t_max, (n,), device=device, generator=generator)
-    half = torch.randint(t_min, t_max, ((n + 1) // 2,), device=device, generator=generator)
-    return torch.cat([half, t_min + t_max - 1 - half])[:n]
 
 
 class DiffusionMargin(nn.Module):
