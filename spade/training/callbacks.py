@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import statistics
-import time
-
 import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback
 
 from spade.models import count_parameters
+from spade.perf.timing import measure
 
 
 @torch.inference_mode()
@@ -23,18 +21,18 @@ def batch1_latency_ms(net: torch.nn.Module, input_shape: tuple[int, ...], runs: 
         args.append(torch.zeros(1, dtype=torch.long, device=device))
         if net.condition_channels:
             args.append(torch.zeros(1, net.condition_channels, *input_shape[1:], device=device))
-    times = []
-    for i in range(warmup + runs):
-        if device.type == "cuda":
-            torch.cuda.synchronize()
-        t0 = time.perf_counter()
+    cuda = device.type == "cuda"
+    if cuda:
+        torch.cuda.synchronize()
+
+    def forward() -> None:
         net(*args)
-        if device.type == "cuda":
+        if cuda:  # time the kernels, not their launch
             torch.cuda.synchronize()
-        if i >= warmup:
-            times.append((time.perf_counter() - t0) * 1000)
+
+    timing = measure(forward, runs, warmup)
     net.train(was_training)
-    return statistics.median(times)
+    return timing.median_ms
 
 
 class ModelInfo(Callback):
