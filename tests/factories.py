@@ -33,6 +33,7 @@ def synthetic_instance(rng: np.random.Generator, size: int = 32, k: int = 16) ->
         "goal": goal,
         "path": path,
         "waypoints": resample_polyline(corners, k).astype(np.float32),
+        "pose": (float(sx) * 0.05, float(sy) * 0.05, float(rng.uniform(-np.pi, np.pi))),
     }
 
 

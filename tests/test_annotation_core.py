@@ -10,7 +10,8 @@ from omegaconf import OmegaConf
 
 from spade.annotation.checks import instance_problems
 from spade.annotation.execution import Rejection, build_costmap, execute_sketch, total_turn_deg
-from spade.annotation.rasterize import draw_curve, make_instance, place_window, state_indices
+from spade.annotation.frame import RobotFrame, heading_from_yaw, path_heading, yaw_from_heading
+from spade.annotation.rasterize import draw_curve, robot_instance, state_indices
 from spade.annotation.scenarios import NoFreeAreaError, generate_scenario, prepare_map, scenario_rng
 from spade.annotation.sketch_file import densify
 from spade.annotation.templates import SHAPES, UnknownShapeError, check_shape, place_template, sample_template
@@ -126,15 +127,52 @@ def test_draw_curve_is_one_thin_8_connected_component() -> None:
     assert img[30, 50] and img[30, 10]
 
 
-def test_window_contains_path_with_margin_and_is_random() -> None:
-    pts = np.array([[100.0, 100.0], [140.0, 130.0]])
-    origins = {place_window(pts, 64, 5, np.random.default_rng(s)) for s in range(30)}
-    assert len(origins) > 5
-    for c0, r0 in origins:
-        local = pts - [c0, r0]
-        assert (local >= 5 - 1e-9).all() and (local <= 63 - 5 + 1e-9).all()
-    with pytest.raises(ValueError, match="do not fit"):
-        place_window(np.array([[0.0, 0.0], [100.0, 0.0]]), 64, 5, np.random.default_rng(0))
+@pytest.mark.parametrize("heading_deg", [0, 37, 90, 180, 233, -90])
+def test_robot_frame_puts_the_robot_at_its_pixel_heading_up(heading_deg: float) -> None:
+    frame = RobotFrame.for_size(64)
+    assert frame.robot_px == (32.0, 48.0)
+    a = np.deg2rad(heading_deg)
+    robot = np.array([100.0, 80.0])
+    ahead = robot + 10 * np.array([np.cos(a), np.sin(a)])
+    left_in_image = robot + 5 * np.array([np.sin(a), -np.cos(a)])  # 90 degrees counter-clockwise on screen
+    pose = frame.place(robot, path_heading(np.stack([robot, ahead])))
+    np.testing.assert_allclose(pose.to_window(robot), [32, 48], atol=1e-9)
+    np.testing.assert_allclose(pose.to_window(ahead), [32, 38], atol=1e-9)  # straight up the image
+    np.testing.assert_allclose(pose.to_window(left_in_image), [27, 48], atol=1e-9)  # a rotation, not a mirror
+    pts = np.random.default_rng(0).uniform(0, 200, (20, 2))
+    np.testing.assert_allclose(pose.to_map(pose.to_window(pts)), pts, atol=1e-9)
+
+
+def test_robot_frame_rotation_keeps_thin_walls_and_unknown() -> None:
+    """A one-cell wall at every angle stays an unbroken wall; off-map and unknown cells stay unknown."""
+    frame = RobotFrame.for_size(64)
+    from scipy import ndimage
+
+    for deg in range(0, 180, 7):
+        g = np.ones((200, 200), np.uint8)
+        g[:, 120] = 2  # a thin wall along the rows, 20 cells east of the robot
+        g[:, :60] = 0  # unknown strip far west
+        pose = frame.place(np.array([100.0, 100.0]), np.deg2rad(deg))
+        occ = pose.occupancy(g)
+        seen = pose.to_window(np.stack([np.full(400, 120.0), np.linspace(-100, 300, 400)], axis=1))
+        inside = ((seen >= 0) & (seen <= 63)).all(axis=1)
+        cells = np.rint(seen[inside]).astype(int)
+        assert (occ[cells[:, 1], cells[:, 0]] == 2).all(), deg  # every wall point lands on an obstacle pixel
+        walls = ndimage.label(occ == 2, structure=np.ones((3, 3)))[1]
+        assert walls == (1 if inside.any() else 0), deg  # never broken into pieces
+        # Free space is never invented: every free window pixel maps onto free map cells.
+        fr = np.argwhere(occ == 1)[:, ::-1].astype(float)
+        back = np.rint(pose.to_map(fr)).astype(int)
+        assert (g[back[:, 1], back[:, 0]] == 1).all()
+    far = frame.place(np.array([5.0, 5.0]), 0.0).occupancy(np.ones((10, 10), np.uint8))
+    assert (far == 0).sum() > 0.9 * far.size  # outside the map is unknown
+
+
+def test_yaw_and_pixel_heading_round_trip() -> None:
+    for yaw in (-2.0, 0.0, 0.5, 3.0):
+        assert yaw_from_heading(heading_from_yaw(yaw)) == pytest.approx(yaw)
+    # Rows grow downwards: a ROS yaw of +90 degrees (north) points up the map image (row decreasing).
+    assert np.sin(heading_from_yaw(np.pi / 2)) == pytest.approx(-1.0)
 
 
 def test_state_indices_respect_spacing_and_remaining_length() -> None:
@@ -181,9 +219,16 @@ def test_map_without_room_for_a_goal_names_the_numbers() -> None:
         prepare_map("tiny", g, 0.05, cfg)
 
 
-def test_make_instance_pads_outside_the_map_with_unknown() -> None:
+def test_robot_instance_pads_outside_the_map_with_unknown_and_skips_paths_leaving_the_window() -> None:
     g = np.ones((40, 40), np.uint8)
     path = np.stack([np.linspace(5, 30, 60), np.full(60, 20.0)], axis=1)
-    inst = make_instance(g, path, 64, 3, 2, 16, np.random.default_rng(0))
-    assert (inst.occupancy == 0).any() and (inst.occupancy == 1).sum() == 40 * 40
+    frame = RobotFrame.for_size(64)
+    inst = robot_instance(g, path, frame, 3, 2, 16)
+    assert inst is not None
+    assert (inst.occupancy == 0).any() and (inst.occupancy == 1).any()
     assert instance_problems(inst.occupancy, inst.start, inst.goal, inst.path, inst.waypoints) == []
+    np.testing.assert_allclose(inst.waypoints[0], [32, 48], atol=1e-5)
+    np.testing.assert_allclose(inst.waypoints[-1], [32, 48 - 25], atol=1e-4)  # 25 px straight ahead
+    assert inst.pose == pytest.approx((5.0, 20.0, 0.0))  # pixel pose without a to_world
+    long = np.stack([np.linspace(0, 60, 120), np.full(120, 20.0)], axis=1)  # 60 px ahead > 48 - margin
+    assert robot_instance(np.ones((80, 80), np.uint8), long, frame, 3, 2, 16) is None

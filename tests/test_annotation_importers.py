@@ -100,8 +100,11 @@ def test_rosbag_round_trip(tmp_path: Path, storage: str) -> None:
 
     item = PathDataset(tmp_path / "ds")[0]
     wp = item["waypoints"].numpy()
-    # The robot is at the window centre (rolling costmap snapped to the grid): pixel (32, 32) +- 0.5 + 0.5.
-    assert np.abs(wp[0] - [SIZE / 2 - 0.5, SIZE / 2 - 0.5]).max() <= 1.0
+    # Robot frame: the robot at its fixed pixel (32, 48), the path leaving it straight up the window.
+    np.testing.assert_allclose(wp[0], [SIZE / 2, 0.75 * SIZE], atol=1e-4)
+    assert wp[3, 1] < wp[0, 1] and abs(wp[3, 0] - wp[0, 0]) < 1.0
+    pose = item["pose"].numpy()
+    np.testing.assert_allclose(pose[:2], trajectory()[0][:2], atol=0.05)  # recorded in map metres
     occ = np.rint(item["state"].numpy()[0] * 2)
     assert (occ == 2).any() and (occ == 0).any()  # the wall and the unknown outside the site
 
@@ -161,10 +164,13 @@ def test_skipp_layout_import(tmp_path: Path) -> None:
 
     item = PathDataset(tmp_path / "ds")[0]
     wp = item["waypoints"].numpy()
-    np.testing.assert_allclose(wp[-1], [(80 + 0.5) / 2 - 0.5, (160 + 0.5) / 2 - 0.5], atol=0.6)  # goal, halved
-    np.testing.assert_allclose(wp[0], [(70 + 0.5) / 2 - 0.5, (100 + 0.5) / 2 - 0.5], atol=1.1)  # far end = start
+    # Robot frame: the far end of the stroke (the start, heading east along row 100) at the robot pixel
+    # (64, 96), heading up; the goal (halved SKIPP pixels, 5 px east and 30 px south of the start) lands 30 px
+    # to the right and 5 px up: a quarter turn clockwise of the image, no mirror.
+    np.testing.assert_allclose(wp[0], [64, 96], atol=1e-4)
+    np.testing.assert_allclose(wp[-1], [64 + 30, 96 - 5], atol=1.2)
     occ = np.rint(item["state"].numpy()[0] * 2)
-    assert (occ[:10] == 0).all() and (occ[100:105, 10:115] == 2).any()
+    assert (occ == 2).any() and (occ == 0).any() and (occ == 1).any()
 
 
 def test_skipp_missing_goal_poses(tmp_path: Path) -> None:

@@ -16,14 +16,14 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping
 
 from spade.annotation.execution import Rejection, execute_sketch
-from spade.annotation.rasterize import Instance, fits
+from spade.annotation.rasterize import Instance, fits_robot_frame
 from spade.annotation.scenarios import (
     MapContext,
     ScenarioResult,
     generate_scenario,
     instances_along,
     prepare_map,
-    scenario_rng,
+    window_frame,
 )
 from spade.annotation.templates import SHAPES, check_shape
 
@@ -40,12 +40,14 @@ class RunStats:
 
     rejections: Counter = field(default_factory=Counter)
     rejections_by_map: dict[str, Counter] = field(default_factory=dict)
+    skipped_states: Counter = field(default_factory=Counter)
     scenarios: list[dict[str, Any]] = field(default_factory=list)
     scenarios_tried: int = 0
 
     def add(self, result: ScenarioResult) -> None:
         self.scenarios_tried += 1
         self.rejections.update(result.rejections)
+        self.skipped_states.update(result.skipped)
         self.rejections_by_map.setdefault(result.map_id, Counter()).update(result.rejections)
 
     def to_json(self) -> dict[str, Any]:
@@ -53,6 +55,7 @@ class RunStats:
         return {
             "rejections": dict(sorted(self.rejections.items())),
             "rejections_by_map": {k: dict(sorted(v.items())) for k, v in sorted(self.rejections_by_map.items())},
+            "skipped_states": dict(sorted(self.skipped_states.items())),
             "attempts": attempts,
             "scenarios_tried": self.scenarios_tried,
             "scenarios_accepted": len(self.scenarios),
@@ -209,15 +212,16 @@ def sketch_instances(ctx: MapContext, sketches: list[tuple[str, str, Any]], cfg:
     from spade.annotation.sketch_file import densify
 
     res = ctx.costmap.resolution
-    size = int(cfg["window"]["size_px"])
+    frame = window_frame(cfg)
     margin = float(cfg["window"]["margin_m"]) / res
     for k, (name, shape, waypoints_px) in enumerate(sketches):
         result = ScenarioResult(f"{ctx.map_id}/{name}", ctx.map_id, shape, k)
         dense = densify(waypoints_px, 0.5)
         try:
             executed = execute_sketch(ctx.costmap, waypoints_px, dense, SHAPES[shape], cfg["execution"])
-            if not fits(executed.points, size, margin):
-                raise Rejection("window", f"the executed path does not fit a {size} px window with "
+            if not fits_robot_frame(executed.points, frame, margin):
+                raise Rejection("window", f"the executed path does not fit the {frame.size} px robot-frame window "
+                                          f"(robot at pixel {frame.robot_px}, heading up) with "
                                           f"{cfg['window']['margin_m']} m margin")
         except Rejection as rej:
             result.rejections[rej.reason] += 1
@@ -225,7 +229,7 @@ def sketch_instances(ctx: MapContext, sketches: list[tuple[str, str, Any]], cfg:
             log.warning("sketch %s rejected: %s", result.scenario_id, rej)
             continue
         result.executed = executed
-        result.instances = instances_along(ctx, executed, cfg, scenario_rng(int(cfg["seed"]), ctx.map_id, shape, k))
+        result.instances = instances_along(ctx, executed, cfg, result.skipped)
         stats.add(result)
         stats.scenarios.append(_summary(result, len(result.instances)))
         for inst in result.instances:
@@ -243,7 +247,8 @@ def write_dataset(out_dir: str | Path, items: Iterable[tuple[Instance, str, str,
     with DatasetWriter(out_dir, image_size=(size, size), resolution=resolution, num_waypoints=int(cfg["num_waypoints"]),
                        generator_config=dict(cfg), overwrite=bool(cfg.get("overwrite", False))) as writer:
         for inst, shape, map_id, scenario_id in items:
-            writer.add(inst.occupancy, inst.start, inst.goal, inst.path, inst.waypoints, shape, map_id, scenario_id)
+            writer.add(inst.occupancy, inst.start, inst.goal, inst.path, inst.waypoints, shape, map_id, scenario_id,
+                       inst.pose)
         info = extra() if callable(extra) else extra
         if writer.count == 0:  # raised inside the block so that no empty dataset is left behind
             raise NotEnoughInstancesError(f"no instance was produced for {out_dir}: {dict(info)}")
@@ -255,4 +260,4 @@ def write_dataset(out_dir: str | Path, items: Iterable[tuple[Instance, str, str,
 
 def build_contexts(sources: list[Any], cfg: Mapping[str, Any]) -> list[MapContext]:
     """Costmaps and goal areas of every map (raises :class:`NoFreeAreaError` for a map too cluttered)."""
-    return [prepare_map(s.map_id, s.map.grid, s.map.resolution, cfg) for s in sources]
+    return [prepare_map(s.map_id, s.map.grid, s.map.resolution, cfg, s.map.origin) for s in sources]

@@ -1,18 +1,21 @@
 """Rasterisation of robot states along an executed path into the four instance images.
 
-The window is axis-aligned with the map (as Nav2's rolling local costmap is), so a robot state only decides
-where the window lies, never how it is rotated. Everything is in pixels: map pixel coordinates in, window
-pixel coordinates (x = column, y = row) out.
+Every window is in the robot's frame (:mod:`spade.annotation.frame`): the robot at a fixed pixel, its heading
+up the image, the occupancy rotated about it. Everything is in pixels: map pixel coordinates in, window pixel
+coordinates (x = column, y = row) out; each instance keeps the robot's map pose so that a prediction maps back
+to the map.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from skimage.draw import disk, line
 from skimage.morphology import thin
 
+from spade.annotation.frame import RobotFrame, path_heading
 from spade.data.polyline import resample_polyline
 
 UNKNOWN_CODE = 0  # spade.maps.UNKNOWN: cells outside the map read as unknown, as in a rolling costmap
@@ -27,7 +30,7 @@ class Instance:
     goal: np.ndarray  # (S, S) bool
     path: np.ndarray  # (S, S) bool
     waypoints: np.ndarray  # (K, 2) float32, window pixel coords
-    origin: tuple[int, int]  # window's top-left cell in the map, (col, row)
+    pose: tuple[float, float, float]  # the robot in the map: (x, y, yaw) in metres and radians (see robot_instance)
 
 
 def crop(grid: np.ndarray, col0: int, row0: int, size: int) -> np.ndarray:
@@ -58,22 +61,11 @@ def draw_curve(points: np.ndarray, size: int) -> np.ndarray:
     return thin(canvas)
 
 
-def fits(points: np.ndarray, size: int, margin_px: float) -> bool:
-    """Whether the points' bounding box plus ``margin_px`` on every side fits in a size x size window."""
-    span = points.max(axis=0) - points.min(axis=0)
-    return bool((span + 2 * margin_px <= size - 1).all())
-
-
-def place_window(points: np.ndarray, size: int, margin_px: float, rng: np.random.Generator) -> tuple[int, int]:
-    """Random integer top-left (col0, row0) such that all points lie ``margin_px`` inside the window."""
-    lo = np.ceil(points.max(axis=0) + margin_px - (size - 1)).astype(np.int64)
-    hi = np.floor(points.min(axis=0) - margin_px).astype(np.int64)
-    if (lo > hi).any():
-        raise ValueError(f"points spanning {points.max(axis=0) - points.min(axis=0)} px do not fit in a {size} px "
-                         f"window with a {margin_px} px margin")
-    col0 = int(rng.integers(lo[0], hi[0] + 1))
-    row0 = int(rng.integers(lo[1], hi[1] + 1))
-    return col0, row0
+def fits_robot_frame(points: np.ndarray, frame: RobotFrame, margin_px: float, lookahead_px: float = 2.0) -> bool:
+    """Whether a path (map pixel coords) seen from a robot at its first point, heading along it, lies
+    ``margin_px`` inside the robot-frame window."""
+    pose = frame.place(points[0], path_heading(points, 0, lookahead_px))
+    return frame.inside(pose.to_window(points), margin_px)
 
 
 def state_indices(n_points: int, step_px: float, spacing_px: float, min_remaining_px: float) -> np.ndarray:
@@ -88,7 +80,7 @@ def state_indices(n_points: int, step_px: float, spacing_px: float, min_remainin
 
 
 def render(occupancy: np.ndarray, local: np.ndarray, disc_radius_px: float, num_waypoints: int,
-           origin: tuple[int, int] = (0, 0)) -> Instance:
+           pose: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Instance:
     """Instance from a window's occupancy codes and the remaining path in window pixel coordinates."""
     size = occupancy.shape[0]
     path = draw_curve(local, size)
@@ -98,13 +90,22 @@ def render(occupancy: np.ndarray, local: np.ndarray, disc_radius_px: float, num_
         rr, cc = disk((round(y), round(x)), max(disc_radius_px, 0.5) + 0.5, shape=(size, size))
         canvas[rr, cc] = True
     waypoints = resample_polyline(local, num_waypoints).astype(np.float32)
-    return Instance(occupancy, start, goal, path, waypoints, origin)
+    return Instance(occupancy, start, goal, path, waypoints, tuple(float(v) for v in pose))  # type: ignore[arg-type]
 
 
-def make_instance(grid: np.ndarray, remaining: np.ndarray, size: int, margin_px: float, disc_radius_px: float,
-                  num_waypoints: int, rng: np.random.Generator) -> Instance:
-    """Rasterise the state 'robot at remaining[0], goal at remaining[-1]' into a randomly placed window of
-    ``grid`` (map pixel coordinates)."""
-    col0, row0 = place_window(remaining, size, margin_px, rng)
-    local = remaining - np.array([col0, row0], dtype=np.float64)
-    return render(crop(grid, col0, row0, size), local, disc_radius_px, num_waypoints, (col0, row0))
+def robot_instance(grid: np.ndarray, remaining: np.ndarray, frame: RobotFrame, margin_px: float,
+                   disc_radius_px: float, num_waypoints: int, lookahead_px: float = 2.0,
+                   to_world: Callable[[float, float, float], tuple[float, float, float]] | None = None
+                   ) -> Instance | None:
+    """Rasterise the state 'robot at remaining[0], heading along the path, goal at remaining[-1]' into its
+    robot-frame window of ``grid`` (map pixel coordinates); None when the remaining path leaves the window
+    (closer than ``margin_px`` to its edge). ``to_world`` turns (x_px, y_px, heading) into the pose the instance
+    records, (x, y, yaw) in map metres; without it the pixel pose is kept."""
+    heading = path_heading(remaining, 0, lookahead_px)
+    pose = frame.place(remaining[0], heading)
+    local = pose.to_window(remaining)
+    if not frame.inside(local, margin_px):
+        return None
+    robot = (float(remaining[0][0]), float(remaining[0][1]), heading)
+    return render(pose.occupancy(grid), local, disc_radius_px, num_waypoints,
+                  to_world(*robot) if to_world is not None else robot)

@@ -17,7 +17,8 @@ import numpy as np
 from scipy.cluster.vq import kmeans2
 
 from spade.annotation.execution import Costmap, ExecutedPath, Rejection, build_costmap, execute_sketch
-from spade.annotation.rasterize import Instance, fits, make_instance, state_indices
+from spade.annotation.frame import RobotFrame, yaw_from_heading
+from spade.annotation.rasterize import Instance, fits_robot_frame, robot_instance, state_indices
 from spade.annotation.templates import SHAPES, check_shape, place_template, sample_template
 
 
@@ -53,9 +54,23 @@ class MapContext:
     goal_cells: np.ndarray  # (M, 2) int (col, row) cells with enough clearance
     goal_area: np.ndarray  # (M,) area label of each goal cell
     n_areas: int
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the ROS map origin (of an axis-aligned map)
+
+    def world_pose(self, x_px: float, y_px: float, heading: float) -> tuple[float, float, float]:
+        """(x, y, yaw) in map metres of a robot at map pixel (x_px, y_px) with map-pixel heading ``heading``."""
+        res, height = self.costmap.resolution, self.costmap.grid.shape[0]
+        x = self.origin[0] + (x_px + 0.5) * res
+        y = self.origin[1] + (height - 1 - y_px + 0.5) * res
+        return float(x), float(y), yaw_from_heading(heading)
 
 
-def prepare_map(map_id: str, grid: np.ndarray, resolution: float, cfg: Mapping[str, Any]) -> MapContext:
+def window_frame(cfg: Mapping[str, Any]) -> RobotFrame:
+    """The robot frame of the configured window (``window.size_px``)."""
+    return RobotFrame.for_size(int(cfg["window"]["size_px"]))
+
+
+def prepare_map(map_id: str, grid: np.ndarray, resolution: float, cfg: Mapping[str, Any],
+                origin: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> MapContext:
     """Inflate the map and split its goal candidates into spatially separate areas (k-means on cell
     positions), so that consecutive scenarios of a map land in different parts of it."""
     costmap = build_costmap(grid, resolution, cfg["robot"], float(cfg["execution"]["cost_weight"]))
@@ -85,13 +100,15 @@ def prepare_map(map_id: str, grid: np.ndarray, resolution: float, cfg: Mapping[s
         n_areas = len(order)
     else:
         labels = np.zeros(len(cells), dtype=np.int64)
-    return MapContext(map_id, costmap, cells, labels, n_areas)
+    return MapContext(map_id, costmap, cells, labels, n_areas, tuple(float(v) for v in origin))  # type: ignore[arg-type]
 
 
-def costmap_context(map_id: str, grid: np.ndarray, resolution: float, cfg: Mapping[str, Any]) -> MapContext:
+def costmap_context(map_id: str, grid: np.ndarray, resolution: float, cfg: Mapping[str, Any],
+                    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> MapContext:
     """A context with the costmap only, for sketches whose goals are given (operator sketch files)."""
     costmap = build_costmap(grid, resolution, cfg["robot"], float(cfg["execution"]["cost_weight"]))
-    return MapContext(map_id, costmap, np.zeros((0, 2), dtype=np.int64), np.zeros(0, dtype=np.int64), 0)
+    return MapContext(map_id, costmap, np.zeros((0, 2), dtype=np.int64), np.zeros(0, dtype=np.int64), 0,
+                      tuple(float(v) for v in origin))  # type: ignore[arg-type]
 
 
 @dataclass
@@ -103,6 +120,7 @@ class ScenarioResult:
     shape: str
     index: int
     rejections: Counter = field(default_factory=Counter)
+    skipped: Counter = field(default_factory=Counter)  # robot states along an accepted path left out, by reason
     instances: list[Instance] = field(default_factory=list)
     executed: ExecutedPath | None = None
     sketch: np.ndarray | None = None  # keypoints, map pixel coords
@@ -123,16 +141,16 @@ def scenario_area(ctx: MapContext, index: int, cfg: Mapping[str, Any]) -> int:
 
 
 def _placement(ctx: MapContext, shape: str, goal: np.ndarray, cfg: Mapping[str, Any], rng: np.random.Generator,
-               window_px: int, margin_px: float) -> tuple[np.ndarray, np.ndarray] | None:
+               frame: RobotFrame, margin_px: float) -> tuple[np.ndarray, np.ndarray] | None:
     """Try ``scenario.headings_per_goal`` sampled templates at ``goal``; return the first whose ideal curve lies
-    on free space with ``scenario.sketch_clearance_m`` and fits the window, else None."""
+    on free space with ``scenario.sketch_clearance_m`` and fits the robot-frame window of its start, else None."""
     res = ctx.costmap.resolution
     need = float(cfg["scenario"]["sketch_clearance_m"]) / res
     h, w = ctx.costmap.grid.shape
     for _ in range(int(cfg["scenario"]["headings_per_goal"])):
         template = sample_template(shape, cfg["template"], rng)
         keypoints, dense = place_template(template, goal, res)
-        if not fits(dense, window_px, margin_px):
+        if not fits_robot_frame(dense, frame, margin_px):
             continue
         cells = np.rint(dense).astype(np.int64)
         if (cells < 0).any() or (cells[:, 0] >= w).any() or (cells[:, 1] >= h).any():
@@ -144,20 +162,30 @@ def _placement(ctx: MapContext, shape: str, goal: np.ndarray, cfg: Mapping[str, 
 
 
 def instances_along(ctx: MapContext, executed: ExecutedPath, cfg: Mapping[str, Any],
-                    rng: np.random.Generator) -> list[Instance]:
-    """Rasterise robot states every ``instances.spacing_m`` along an executed path."""
+                    skipped: Counter | None = None) -> list[Instance]:
+    """Rasterise robot states every ``instances.spacing_m`` along an executed path, each in its robot frame.
+
+    A state is skipped, and counted in ``skipped``, when its remaining path leaves the window
+    (``outside_window``) or a path pixel falls on a cell the conservative rotation of the occupancy marks as
+    non-free (``path_off_free``: a path that hugs a wall, at the window's pixel size).
+    """
     res = ctx.costmap.resolution
-    win = cfg["window"]
-    size = int(win["size_px"])
-    margin = float(win["margin_m"]) / res
+    frame = window_frame(cfg)
+    margin = float(cfg["window"]["margin_m"]) / res
     idx = state_indices(len(executed.points), executed.step_px, float(cfg["instances"]["spacing_m"]) / res,
                         float(cfg["instances"]["min_remaining_m"]) / res)
+    skipped = skipped if skipped is not None else Counter()
     out = []
     for i in idx:
-        inst = make_instance(ctx.costmap.grid, executed.points[i:], size, margin,
-                             float(cfg["instances"]["disc_radius_m"]) / res, int(cfg["num_waypoints"]), rng)
-        if (inst.occupancy[inst.path] != 1).any():  # cannot happen for a path checked against the costmap
-            raise RuntimeError(f"path pixel off free space in {ctx.map_id} at state {i}")
+        inst = robot_instance(ctx.costmap.grid, executed.points[i:], frame, margin,
+                              float(cfg["instances"]["disc_radius_m"]) / res, int(cfg["num_waypoints"]),
+                              to_world=ctx.world_pose)
+        if inst is None:
+            skipped["outside_window"] += 1
+            continue
+        if (inst.occupancy[inst.path] != 1).any():
+            skipped["path_off_free"] += 1
+            continue
         out.append(inst)
     return out
 
@@ -169,12 +197,12 @@ def generate_scenario(ctx: MapContext, shape: str, index: int, cfg: Mapping[str,
     result = ScenarioResult(f"{ctx.map_id}/{shape}{index:03d}", ctx.map_id, shape, index)
     rng = scenario_rng(int(cfg["seed"]), ctx.map_id, shape, index)
     res = ctx.costmap.resolution
-    size = int(cfg["window"]["size_px"])
+    frame = window_frame(cfg)
     margin = float(cfg["window"]["margin_m"]) / res
     in_area = np.flatnonzero(ctx.goal_area == scenario_area(ctx, index, cfg))
     for _ in range(int(cfg["scenario"]["max_attempts"])):
         goal = ctx.goal_cells[in_area[rng.integers(len(in_area))]].astype(np.float64)
-        placed = _placement(ctx, shape, goal, cfg, rng, size, margin)
+        placed = _placement(ctx, shape, goal, cfg, rng, frame, margin)
         if placed is None:
             result.rejections["placement"] += 1
             continue
@@ -184,11 +212,15 @@ def generate_scenario(ctx: MapContext, shape: str, index: int, cfg: Mapping[str,
         except Rejection as rej:
             result.rejections[rej.reason] += 1
             continue
-        if not fits(executed.points, size, margin):
+        if not fits_robot_frame(executed.points, frame, margin):
             result.rejections["window"] += 1
             continue
         result.executed, result.sketch = executed, keypoints
-        result.instances = instances_along(ctx, executed, cfg, rng)
+        result.instances = instances_along(ctx, executed, cfg, result.skipped)
+        if not result.instances:
+            result.rejections["no_state_fits"] += 1
+            result.executed = result.sketch = None
+            continue
         return result
     result.rejections["scenario_failed"] += 1
     return result

@@ -56,7 +56,7 @@ class PathDataset(Dataset):
 
     Each item: ``state`` float32 (3, H, W) [occupancy unknown 0 / free 0.5 / obstacle 1, start, goal];
     ``path`` float32 (1, H, W) in {0, 1}; ``waypoints`` float32 (K, 2) in pixel coordinates (x = column,
-    y = row); ``resolution`` (metres per pixel); ``shape``, ``map_id``, ``scenario_id`` labels; ``index``.
+    y = row); ``pose`` float32 (3,) the robot's (x, y, yaw) in its map; ``resolution`` (metres per pixel); ``shape``, ``map_id``, ``scenario_id`` labels; ``index``.
 
     Opening checks that every file is present with the right size, and by default its sha256 (``verify=False``
     skips the hashing, e.g. in DataLoader workers). Files are memory-mapped; ``release_every`` items read in a
@@ -111,6 +111,11 @@ class PathDataset(Dataset):
     def resolution(self) -> float:
         return self.manifest.resolution
 
+    @property
+    def frame(self) -> dict[str, Any]:
+        """The window frame of the manifest (robot pixel, heading up; spade.annotation.frame)."""
+        return dict(self.manifest.frame)
+
     def labels(self, key: str) -> list[str]:
         """The per-instance values of label ``key`` ("shape", "map_id" or "scenario_id")."""
         values, index = self.manifest.labels[key], self.manifest.label_index[key]
@@ -130,6 +135,7 @@ class PathDataset(Dataset):
         state[1:] = binary[:2].reshape(2, h, w)
         path = binary[2].reshape(1, h, w).astype(np.float32)
         waypoints = np.array(arrays["waypoints"][index], dtype=np.float32)
+        pose = np.array(arrays["pose"][index], dtype=np.float32)
         self._reads += 1
         if self.release_every > 0 and self._reads % self.release_every == 0:
             self.release_pages()
@@ -138,6 +144,7 @@ class PathDataset(Dataset):
             "state": torch.from_numpy(state),
             "path": torch.from_numpy(path),
             "waypoints": torch.from_numpy(waypoints),
+            "pose": torch.from_numpy(pose),
             "resolution": m.resolution,
             "shape": m.label("shape", index),
             "map_id": m.label("map_id", index),

@@ -9,6 +9,11 @@ A dataset is one directory::
     goal.bin         uint8 (N, ceil(H*W/8)): goal disc, 1 bit per pixel
     path.bin         uint8 (N, ceil(H*W/8)): remaining path, 1 bit per pixel
     waypoints.bin    float32 (N, K, 2): ground-truth polyline in pixel coordinates (x = column, y = row)
+    pose.bin         float32 (N, 3): the robot's pose in its map, (x, y, yaw) in metres and radians
+
+Version 2: every window is in the robot's frame (``frame`` in the manifest: the robot's pixel and "heading up",
+see spade.annotation.frame), so a prediction maps back to map metres through the instance's pose. Version 1
+windows were axis-aligned and hid the heading; they are refused with the command that rebuilds them.
 
 Array files are raw C-order arrays whose shapes follow from the manifest, so that readers memory-map them.
 """
@@ -25,7 +30,7 @@ import numpy as np
 from spade.data.packing import bit_nbytes, two_bit_nbytes
 
 FORMAT_NAME = "spade-path-dataset"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 MANIFEST = "manifest.json"
 LABEL_KEYS = ("shape", "map_id", "scenario_id")
 BINARY_CHANNELS = ("start", "goal", "path")
@@ -58,6 +63,7 @@ def array_specs(height: int, width: int, num_waypoints: int) -> dict[str, ArrayS
     specs = [ArraySpec("occupancy", np.dtype(np.uint8), (two_bit_nbytes(pixels),))]
     specs += [ArraySpec(name, np.dtype(np.uint8), (bit_nbytes(pixels),)) for name in BINARY_CHANNELS]
     specs.append(ArraySpec("waypoints", np.dtype("<f4"), (num_waypoints, 2)))
+    specs.append(ArraySpec("pose", np.dtype("<f4"), (3,)))
     return {s.name: s for s in specs}
 
 
@@ -76,6 +82,7 @@ class Manifest:
     files: dict[str, dict[str, Any]]
     generator: dict[str, Any]
     extra: dict[str, Any]
+    frame: dict[str, Any]
 
     @property
     def specs(self) -> dict[str, ArraySpec]:
@@ -105,6 +112,13 @@ def read_manifest(root: str | Path) -> Manifest:
         raise DatasetError(f"{path}: cannot be parsed as JSON ({exc}). Re-generate the dataset.") from exc
     _require(isinstance(raw, dict) and raw.get("format") == FORMAT_NAME, path, f"not a {FORMAT_NAME} manifest")
     version = raw.get("format_version")
+    if version == 1:
+        raise DatasetError(
+            f"{path}: format_version 1 (axis-aligned windows that hide the robot's heading); this SPADE reads "
+            f"version {FORMAT_VERSION} (robot-frame windows). Delete {root} and rebuild it: spade.train rebuilds "
+            f"a missing dataset by itself, or run `python -m spade.annotate out_dir={root} ...` with its settings "
+            "(the old manifest's `generator` section lists them)."
+        )
     _require(version == FORMAT_VERSION, path, f"format_version {version!r}, this SPADE reads {FORMAT_VERSION}")
     try:
         height, width = (int(v) for v in raw["image_size"])
@@ -131,6 +145,9 @@ def read_manifest(root: str | Path) -> Manifest:
             count == 0 or (idx.min() >= 0 and idx.max() < len(values)), path, f"labels.{key}.index out of range"
         )
         labels[key], index[key] = values, idx
+    frame = raw.get("frame")
+    _require(isinstance(frame, dict) and frame.get("kind") == "robot", path,
+             "the window frame (frame.kind = robot) is missing")
     for name in array_specs(height, width, num_waypoints):
         _require(isinstance(files.get(name), dict) and "sha256" in files[name], path, f"files.{name} is missing")
     return Manifest(
@@ -145,4 +162,5 @@ def read_manifest(root: str | Path) -> Manifest:
         files=files,
         generator=dict(raw.get("generator") or {}),
         extra=dict(raw.get("extra") or {}),
+        frame=dict(frame),
     )

@@ -53,6 +53,7 @@ class DatasetWriter:
         num_waypoints: int = 64,
         generator_config: dict[str, Any] | None = None,
         overwrite: bool = False,
+        frame: dict[str, Any] | None = None,
     ) -> None:
         self.root = Path(root)
         height, width = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
@@ -71,6 +72,11 @@ class DatasetWriter:
         self.resolution = float(resolution)
         self.num_waypoints = int(num_waypoints)
         self.generator_config = json.loads(json.dumps(generator_config or {}, default=str))
+        if frame is None:  # every SPADE window is in the robot frame of its side (spade.annotation.frame)
+            from spade.annotation.frame import RobotFrame
+
+            frame = RobotFrame.for_size(self.height).to_json()
+        self.frame = json.loads(json.dumps(frame))
         self.specs: dict[str, ArraySpec] = array_specs(self.height, self.width, self.num_waypoints)
         self.count = 0
         self._extra: dict[str, Any] = {}
@@ -118,8 +124,11 @@ class DatasetWriter:
         shape: str,
         map_id: str,
         scenario_id: str,
+        pose: Any,
     ) -> int:
-        """Append one instance; returns its index. Arrays are checked against the dataset's sizes."""
+        """Append one instance; returns its index. Arrays are checked against the dataset's sizes.
+
+        ``pose``: the robot's (x, y, yaw) in its map, metres and radians."""
         if self._tmp is None:
             raise RuntimeError("DatasetWriter.add must be called inside `with DatasetWriter(...) as writer:`")
         hw = (self.height, self.width)
@@ -134,12 +143,16 @@ class DatasetWriter:
             raise ValueError(f"waypoints has shape {wp.shape}, expected ({self.num_waypoints}, 2)")
         if not np.isfinite(wp).all():
             raise ValueError("waypoints hold NaN or inf")
+        pose_arr = np.asarray(pose, dtype="<f4").reshape(-1)
+        if pose_arr.shape != (3,) or not np.isfinite(pose_arr).all():
+            raise ValueError(f"pose must be three finite numbers (x, y, yaw), got {pose!r}")
         rows = {
             "occupancy": pack_two_bit(occupancy),
             "start": pack_bits(start),
             "goal": pack_bits(goal),
             "path": pack_bits(path),
             "waypoints": wp,
+            "pose": pose_arr,
         }
         for name, row in rows.items():
             data = np.ascontiguousarray(row).tobytes()
@@ -178,6 +191,7 @@ class DatasetWriter:
             },
             "labels": {key: table.to_json() for key, table in self._labels.items()},
             "generator": self.generator_config,
+            "frame": self.frame,
             "extra": self._extra,
             "files": files,
         }

@@ -6,7 +6,8 @@ A recording of a Nav2 waypoint run, as the paper's tool made it, holds:
   * ``/waypoints`` (nav_msgs/Path or geometry_msgs/PoseArray): the sketch; its last pose is the goal.
 Each waypoints message starts an episode (a scenario); the episode's poses until the next waypoints message
 form the driven trajectory, which is spline-smoothed and ends on the goal. Every pose sample becomes one
-instance, rasterised on the latest costmap at or before it (matched by header stamp, else by record time).
+instance, rasterised on the latest costmap at or before it (matched by header stamp, else by record time), in the
+robot's frame (spade.annotation.frame: the costmap rotated about the robot, which heads along the driven path).
 The costmap and the poses must share a frame (record the local costmap with ``global_frame: map``).
 """
 
@@ -20,7 +21,8 @@ import numpy as np
 from scipy import interpolate
 
 from spade.annotation.pipeline import RunStats
-from spade.annotation.rasterize import Instance, crop, render
+from spade.annotation.frame import RobotFrame, path_heading, yaw_from_heading
+from spade.annotation.rasterize import Instance, render
 from spade.annotation.scenarios import ScenarioResult
 from spade.annotation.templates import check_shape
 from spade.data.polyline import polyline_length, resample_polyline
@@ -188,19 +190,24 @@ def rosbag_instances(cfg: Mapping[str, Any], stats: RunStats,
 
 def _instance(cm: _Costmap, remaining_m: np.ndarray, size: int, disc_px: float, k_wp: int, threshold: int,
               result: ScenarioResult) -> Instance | None:
+    """The robot-frame window (spade.annotation.frame) of a robot at ``remaining_m[0]`` heading along the driven
+    path, cut out of the costmap it was recorded with (cells outside the costmap are unknown)."""
     h, w = cm.codes.shape
     res = cm.resolution
     col = (remaining_m[:, 0] - cm.origin[0]) / res - 0.5
     row = (h - 1) - ((remaining_m[:, 1] - cm.origin[1]) / res - 0.5)
-    # Centre the output window on the costmap (crop or pad with unknown when the sizes differ).
-    col0, row0 = (w - size) // 2, (h - size) // 2
-    local = np.stack([col - col0, row - row0], axis=1)
-    local = resample_polyline(local, max(2, int(np.ceil(polyline_length(local) / 0.5)) + 1))  # every half pixel
-    if (local < -0.5).any() or (local > size - 0.5).any():
+    pts = np.stack([col, row], axis=1)
+    pts = resample_polyline(pts, max(2, int(np.ceil(polyline_length(pts) / 0.5)) + 1))  # every half pixel
+    frame = RobotFrame.for_size(size)
+    heading = path_heading(pts)
+    pose = frame.place(pts[0], heading)
+    local = pose.to_window(pts)
+    if not frame.inside(local, 0.0):
         result.rejections["path_outside_window"] += 1
         return None
-    occupancy = crop(codes_from_values(cm.codes, threshold), col0, row0, size)
-    inst = render(occupancy, local, disc_px, k_wp, (col0, row0))
+    occupancy = pose.occupancy(codes_from_values(cm.codes, threshold))
+    world = (float(remaining_m[0, 0]), float(remaining_m[0, 1]), yaw_from_heading(heading))
+    inst = render(occupancy, local, disc_px, k_wp, world)
     if (inst.occupancy[inst.path] != 1).any():
         result.rejections["path_non_free"] += 1
         return None

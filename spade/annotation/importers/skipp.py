@@ -8,8 +8,10 @@ The EGM is grey-level: black unknown, grey free, white obstacle, which the loade
 
 SKIPP's loader puts the start at a fixed spot; here the start is the end of the path curve farther from the
 goal along the curve, so that the stored polyline runs from the robot to the goal as SPADE's format requires. 256 px images
-are reduced to ``window.size_px`` (occupancy by block maximum, so an obstacle never disappears) and the path
-is re-drawn from its ordered polyline, which keeps it one connected curve.
+are reduced to ``window.size_px`` (occupancy by block maximum, so an obstacle never disappears), then turned into
+SPADE's robot frame (spade.annotation.frame: robot at its fixed pixel, heading along the path up the image; cells
+that fall outside SKIPP's image are unknown), and the path is re-drawn from its ordered polyline, which keeps it
+one connected curve. The recorded pose is in SKIPP's image frame (metres from its top-left corner, y up).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from skimage.measure import block_reduce
 from skimage.morphology import skeletonize
 
 from spade.annotation.pipeline import RunStats
+from spade.annotation.frame import RobotFrame, path_heading, yaw_from_heading
 from spade.annotation.rasterize import Instance, render
 from spade.annotation.scenarios import ScenarioResult
 from spade.annotation.templates import check_shape
@@ -127,7 +130,15 @@ def skipp_instances(cfg: Mapping[str, Any], stats: RunStats,
                 ordered = np.concatenate([ordered, goal_xy[None]])
             local = (ordered + 0.5) / factor - 0.5
             occupancy = block_reduce(egm_codes(grey), (factor, factor), np.max).astype(np.uint8)
-            inst = render(occupancy, local, disc, k_wp)
+            frame = RobotFrame.for_size(size)
+            heading = path_heading(local)
+            pose = frame.place(local[0], heading)
+            window = pose.to_window(local)
+            if not frame.inside(window, 0.0):
+                result.rejections["path_outside_window"] += 1
+                continue
+            world = (float(local[0, 0] + 0.5) * res, -float(local[0, 1] + 0.5) * res, yaw_from_heading(heading))
+            inst = render(pose.occupancy(occupancy), window, disc, k_wp, world)
             if (inst.occupancy[inst.path] != 1).any():
                 result.rejections["path_non_free"] += 1
                 continue
