@@ -28,10 +28,11 @@ FREE_CODE = 1  # spade.maps.FREE; kept local so this module works on plain uint8
 class Rejection(Exception):
     """A scenario attempt was rejected; ``reason`` is the counter key written into the manifest."""
 
-    def __init__(self, reason: str, detail: str = "") -> None:
+    def __init__(self, reason: str, detail: str = "", points: np.ndarray | None = None) -> None:
         super().__init__(f"{reason}: {detail}" if detail else reason)
         self.reason = reason
         self.detail = detail
+        self.points = points  # the executed path (map pixels) when it was driven before the check failed
 
 
 @dataclass(frozen=True)
@@ -176,17 +177,17 @@ def execute_sketch(costmap: Costmap, keypoints: np.ndarray, sketch_dense: np.nda
     h, w = costmap.grid.shape
     cells = np.rint(path[:, ::-1]).astype(np.int64)
     if (cells < 0).any() or (cells[:, 0] >= h).any() or (cells[:, 1] >= w).any():
-        raise Rejection("non_free", "the smoothed path leaves the map")
+        raise Rejection("non_free", "the smoothed path leaves the map", path)
     clearance = costmap.clearance_px[cells[:, 0], cells[:, 1]]
     if (costmap.grid[cells[:, 0], cells[:, 1]] != FREE_CODE).any() or clearance.min() < costmap.robot_radius_px:
         raise Rejection("non_free", f"the smoothed path comes within {clearance.min() * res:.3f} m of non-free "
-                                    f"space, robot radius {costmap.robot_radius_px * res:.3f} m")
+                                    f"space, robot radius {costmap.robot_radius_px * res:.3f} m", path)
     deviation = hausdorff_px(path, sketch_dense) * res
     if deviation > float(cfg["max_deviation_m"]):
-        raise Rejection("deviation", f"{deviation:.2f} m from the sketch > {cfg['max_deviation_m']} m")
+        raise Rejection("deviation", f"{deviation:.2f} m from the sketch > {cfg['max_deviation_m']} m", path)
     turn = total_turn_deg(path, float(cfg["heading_window_m"]) / res)
     if abs(abs(turn) - shape_turn_deg) > float(cfg["shape_tolerance_deg"]):
         raise Rejection("shape", f"net heading change {turn:.0f} deg, expected {shape_turn_deg:.0f} "
-                                 f"+- {cfg['shape_tolerance_deg']} deg")
+                                 f"+- {cfg['shape_tolerance_deg']} deg", path)
     return ExecutedPath(path, float(cfg["step_px"]), polyline_length(path) * res, turn, deviation,
                         float(clearance.min() * res))

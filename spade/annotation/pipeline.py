@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping
 
-from spade.annotation.execution import Rejection, execute_sketch
+from spade.annotation.execution import ExecutedPath, Rejection, execute_sketch
 from spade.annotation.rasterize import Instance, fits_robot_frame
 from spade.annotation.scenarios import (
     MapContext,
@@ -205,24 +205,28 @@ def _summary(result: ScenarioResult, n_instances: int) -> dict[str, Any]:
     }
 
 
+def execute_operator_sketch(ctx: MapContext, shape: str, waypoints_px: Any, cfg: Mapping[str, Any]) -> ExecutedPath:
+    """Execute one operator sketch (map pixel waypoints) and apply every check of :func:`sketch_instances`;
+    raise :class:`Rejection` when one fails (``spade.sketching`` executes the browser's sketches with it)."""
+    from spade.annotation.sketch_file import densify
+
+    frame = window_frame(cfg)
+    executed = execute_sketch(ctx.costmap, waypoints_px, densify(waypoints_px, 0.5), SHAPES[shape], cfg["execution"])
+    if not fits_robot_frame(executed.points, frame, float(cfg["window"]["margin_m"]) / ctx.costmap.resolution):
+        raise Rejection("window", f"the executed path does not fit the {frame.size} px robot-frame window "
+                                  f"(robot at pixel {frame.robot_px}, heading up) with "
+                                  f"{cfg['window']['margin_m']} m margin", executed.points)
+    return executed
+
+
 def sketch_instances(ctx: MapContext, sketches: list[tuple[str, str, Any]], cfg: Mapping[str, Any], stats: RunStats,
                      progress: Callable[[int], None] = lambda n: None) -> Iterator[tuple[Instance, str, str, str]]:
     """Instances of operator sketches ``(name, shape, waypoints_px)`` on one map; a rejected sketch is counted
     and logged, never silently dropped."""
-    from spade.annotation.sketch_file import densify
-
-    res = ctx.costmap.resolution
-    frame = window_frame(cfg)
-    margin = float(cfg["window"]["margin_m"]) / res
     for k, (name, shape, waypoints_px) in enumerate(sketches):
         result = ScenarioResult(f"{ctx.map_id}/{name}", ctx.map_id, shape, k)
-        dense = densify(waypoints_px, 0.5)
         try:
-            executed = execute_sketch(ctx.costmap, waypoints_px, dense, SHAPES[shape], cfg["execution"])
-            if not fits_robot_frame(executed.points, frame, margin):
-                raise Rejection("window", f"the executed path does not fit the {frame.size} px robot-frame window "
-                                          f"(robot at pixel {frame.robot_px}, heading up) with "
-                                          f"{cfg['window']['margin_m']} m margin")
+            executed = execute_operator_sketch(ctx, shape, waypoints_px, cfg)
         except Rejection as rej:
             result.rejections[rej.reason] += 1
             stats.add(result)
