@@ -1,45 +1,64 @@
-"""D4 augmentation keeps images and polylines consistent."""
+"""The robot-frame augmentation (left-right mirror about the robot) and the widened path target."""
 
 from __future__ import annotations
 
+import numpy as np
+import pytest
 import torch
 
-from spade.training.augment import NUM_SYMMETRIES, augment_batch, transform_images, transform_points
+from spade.annotation.frame import RobotFrame
+from spade.annotation.rasterize import robot_instance
+from spade.training.augment import augment_batch, check_augmentation, mirror_images, mirror_points, widen_path
 
 
-def _marked(size: int = 9) -> tuple[torch.Tensor, torch.Tensor]:
-    pts = torch.tensor([[1.0, 2.0], [6.0, 2.0], [6.0, 7.0], [3.0, 8.0]])
-    img = torch.zeros(1, size, size)
-    for x, y in pts.long():
-        img[0, y, x] = 1.0
-    return img, pts
+def _instance(turn: float):
+    """A robot-frame instance of an L turning left (turn=-1) or right (turn=+1) in map pixels."""
+    t = np.linspace(0, 1, 80)
+    leg = np.stack([np.full(40, 50.0), np.linspace(60, 40, 40)], axis=1)  # heading north (up the map image)
+    arc = np.stack([50 + turn * (10 - 10 * np.cos(t * np.pi / 2)), 40 - 10 * np.sin(t * np.pi / 2)], axis=1)
+    pts = np.concatenate([leg, arc])
+    grid = np.ones((120, 120), np.uint8)
+    grid[:, 75:78] = 2
+    return robot_instance(grid, pts, RobotFrame.for_size(64), 2, 1.5, 32)
 
 
-def test_points_follow_pixels_for_every_symmetry() -> None:
-    img, pts = _marked()
-    seen = set()
-    for g in range(NUM_SYMMETRIES):
-        timg, tpts = transform_images(img, g), transform_points(pts, g, 9)
-        for x, y in tpts.long():
-            assert timg[0, y, x] == 1.0, f"symmetry {g}: point ({x}, {y}) not on its pixel"
-        assert timg.sum() == img.sum()
-        seen.add(timg.numpy().tobytes())
-    assert len(seen) == NUM_SYMMETRIES  # the 8 symmetries are distinct on an asymmetric picture
+def test_mirror_about_the_robot_turns_a_left_turn_into_the_right_one() -> None:
+    left, right = _instance(-1.0), _instance(+1.0)
+    rx = RobotFrame.for_size(64).robot_px[0]
+    mirrored = mirror_images(torch.from_numpy(left.path.astype(np.float32)), rx).numpy() > 0.5
+    assert (mirrored == right.path).mean() > 0.995  # same curve up to a pixel or two of rounding
+    start = mirror_images(torch.from_numpy(left.start.astype(np.float32)), rx).numpy() > 0.5
+    assert np.array_equal(start, left.start)  # the robot stays on its pixel
+    wp = mirror_points(torch.from_numpy(left.waypoints), rx).numpy()
+    np.testing.assert_allclose(wp, right.waypoints, atol=0.05)
+    img = torch.arange(64.0).repeat(2, 64, 1)
+    out = mirror_images(img, rx)
+    assert out[0, 5, 32] == 32 and out[0, 5, 40] == 24 and out[0, 5, 0] == 0  # column 0 comes from outside
 
 
-def test_augment_batch_applies_one_symmetry_per_instance_consistently() -> None:
-    img, pts = _marked()
-    b = 16
-    batch = {
-        "state": img.expand(b, 3, 9, 9).clone(),
-        "path": img.expand(b, 1, 9, 9).clone(),
-        "waypoints": pts.expand(b, 4, 2).clone(),
-        "shape": ["L"] * b,
-    }
-    out = augment_batch(batch, torch.Generator().manual_seed(0))
-    assert out["shape"] == batch["shape"]
-    assert len({out["path"][i].numpy().tobytes() for i in range(b)}) > 1
-    for i in range(b):
-        assert torch.equal(out["state"][i, 0], out["path"][i, 0])
-        for x, y in out["waypoints"][i].long():
-            assert out["path"][i, 0, y, x] == 1.0
+def test_augment_batch_mirrors_about_half_and_keeps_pairs_consistent() -> None:
+    inst = _instance(-1.0)
+    state = torch.from_numpy(np.stack([inst.occupancy * 0.5, inst.start, inst.goal]).astype(np.float32))
+    batch = {"state": state.repeat(64, 1, 1, 1), "path": torch.from_numpy(inst.path[None].astype(np.float32)).repeat(64, 1, 1, 1),
+             "waypoints": torch.from_numpy(inst.waypoints).repeat(64, 1, 1)}
+    batch["target"] = widen_path(batch["path"], 3)
+    out = augment_batch(batch, 32.0, torch.Generator().manual_seed(0))
+    flipped = (out["waypoints"][:, -1, 0] != batch["waypoints"][:, -1, 0])
+    assert 16 < int(flipped.sum()) < 48
+    for i in range(64):  # the goal disc is where the waypoints end, in both halves
+        gx, gy = out["waypoints"][i, -1].round().long()
+        assert out["state"][i, 2, gy, gx] == 1 and out["path"][i, 0].sum() == batch["path"][0, 0].sum()
+        assert (out["target"][i, 0] >= out["path"][i, 0]).all()
+
+
+def test_widen_path_and_bad_settings() -> None:
+    path = torch.zeros(1, 1, 9, 9)
+    path[0, 0, 4, :] = 1
+    assert widen_path(path, 1) is path
+    wide = widen_path(path, 3)
+    assert wide[0, 0, 3:6].sum() == 27 and wide.sum() == 27
+    with pytest.raises(ValueError, match="odd"):
+        widen_path(path, 2)
+    with pytest.raises(ValueError, match="mirror"):
+        check_augmentation("d4")
+    assert check_augmentation(False) == "none" and check_augmentation("mirror") == "mirror"

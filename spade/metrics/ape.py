@@ -8,7 +8,7 @@ from torchmetrics import Metric
 from torchmetrics.utilities import dim_zero_cat
 
 from spade.metrics._inputs import check_images, check_same_batch, to_numpy
-from spade.metrics.extraction import extract_path
+from spade.metrics.extraction import extract_path, marker_centre
 from spade.metrics.geometry import polyline_ape
 
 __all__ = ["APE"]
@@ -24,7 +24,11 @@ class APE(Metric):
 
     ``compute()`` returns tensors: ``ape_cm`` (mean over extracted instances), ``ape_std_cm`` (population std),
     ``ape_median_cm``, ``ape_max_cm`` (NaN when nothing was extracted), ``failures``, ``failure_rate``,
-    ``instances``. ``per_instance()`` gives the raw values (extracted instances only).
+    ``instances``, and ``score_cm``: the mean over *every* instance of its APE, a failed extraction scoring the
+    straight line's APE on that instance (the start-goal segment against the ground truth). ``ape_cm`` alone
+    rewards a model that fails more (it averages only what it could extract); ``score_cm`` cannot be improved by
+    failing, which is why checkpoint selection and sweeps minimise it. ``per_instance()`` gives the raw values
+    (extracted instances only).
     """
 
     is_differentiable = False
@@ -44,6 +48,7 @@ class APE(Metric):
             threshold=threshold, max_gap=max_gap, goal_tolerance=goal_tolerance, snap_endpoints=snap_endpoints
         )
         self.add_state("values", default=[], dist_reduce_fx="cat")
+        self.add_state("scores", default=[], dist_reduce_fx="cat")
         self.add_state("failures", default=torch.tensor(0, dtype=torch.long), dist_reduce_fx="sum")
         self.add_state("total", default=torch.tensor(0, dtype=torch.long), dist_reduce_fx="sum")
 
@@ -72,16 +77,20 @@ class APE(Metric):
         markers = to_numpy(state)[:, 1:3]
         truth = to_numpy(waypoints, np.float64)
         k = truth.shape[1]
-        values = []
+        values, scores = [], []
         failed = 0
         for i in range(b):
             result = extract_path(prob[i], markers[i, 0], markers[i, 1], k, **self.extract_kwargs)
             if not result.ok:
                 failed += 1
+                line = np.stack([marker_centre(markers[i, 0], "start"), marker_centre(markers[i, 1], "goal")])
+                scores.append(polyline_ape(line, truth[i]) * res[i] * 100.0)
                 continue
             values.append(polyline_ape(result.points, truth[i]) * res[i] * 100.0)
+            scores.append(values[-1])
         # Always append (possibly empty) so that every rank holds a float64 tensor for the DDP gather.
         self.values.append(torch.tensor(values, dtype=torch.float64, device=self.device))
+        self.scores.append(torch.tensor(scores, dtype=torch.float64, device=self.device))
         self.failures += failed
         self.total += b
 
@@ -102,4 +111,6 @@ class APE(Metric):
             "failure_rate": (self.failures.double() / total.double()) if total > 0 else nan,
             "instances": total,
         }
+        scores = dim_zero_cat(self.scores).double() if len(self.scores) else torch.zeros(0, dtype=torch.float64)
+        out["score_cm"] = scores.mean() if scores.numel() else nan
         return out

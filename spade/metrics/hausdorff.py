@@ -35,17 +35,25 @@ class HausdorffCount(Metric):
     higher_is_better = False
     full_state_update = False
 
-    def __init__(self, threshold: float = 19.0, pred_threshold: float = 0.5, **kwargs) -> None:
+    def __init__(self, threshold: float = 19.0, pred_threshold: float = 0.5, threshold_m: float | None = None,
+                 name: str | None = None, **kwargs) -> None:
         super().__init__(**kwargs)
         if threshold < 0:
             raise ValueError(f"threshold must be >= 0 pixels, got {threshold}")
+        if threshold_m is not None and not threshold_m > 0:
+            raise ValueError(f"threshold_m must be > 0 metres (or null for a pixel threshold), got {threshold_m}")
         self.threshold = float(threshold)
+        self.threshold_m = None if threshold_m is None else float(threshold_m)
         self.pred_threshold = float(pred_threshold)
-        self.name = _threshold_name(threshold)
+        self.name = name or _threshold_name(threshold)
         self.add_state("distances", default=[], dist_reduce_fx="cat")
+        self.add_state("limits", default=[], dist_reduce_fx="cat")
 
-    def update(self, pred_prob: torch.Tensor, target_path: torch.Tensor) -> None:
-        """pred_prob (B,1,H,W) in [0,1]; target_path (B,1,H,W) ground-truth path channel in {0,1}."""
+    def update(self, pred_prob: torch.Tensor, target_path: torch.Tensor,
+               resolution: torch.Tensor | float | None = None) -> None:
+        """pred_prob (B,1,H,W) in [0,1]; target_path (B,1,H,W) ground-truth path channel in {0,1}; ``resolution``
+        (metres per pixel, scalar or per instance) is needed when the threshold is in metres (``threshold_m``):
+        the paper's Hd19 is 19 px of a 128 px window at 0.05 m/px, i.e. 0.95 m, which is 9.5 px at 0.1 m/px."""
         check_images(pred_prob, "pred_prob", 1)
         check_images(target_path, "target_path", 1)
         check_same_batch(("pred_prob", pred_prob), ("target_path", target_path))
@@ -60,7 +68,16 @@ class HausdorffCount(Metric):
                 "ground-truth path (check the dataset)"
             )
         dists = [mask_hausdorff(p, t) for p, t in zip(pred, truth)]
+        if self.threshold_m is None:
+            limits = np.full(len(dists), self.threshold)
+        else:
+            if resolution is None:
+                raise ValueError(f"{self.name}: a threshold in metres ({self.threshold_m} m) needs the batch's resolution")
+            res = np.asarray(to_numpy(resolution, np.float64) if isinstance(resolution, torch.Tensor) else resolution,
+                             dtype=np.float64).reshape(-1)
+            limits = np.broadcast_to(self.threshold_m / res, (len(dists),)).astype(np.float64)
         self.distances.append(torch.tensor(dists, dtype=torch.float64, device=self.device))
+        self.limits.append(torch.tensor(limits, dtype=torch.float64, device=self.device))
 
     def per_instance(self) -> torch.Tensor:
         """Hausdorff distance (pixels, inf for an empty prediction) of every instance seen so far."""
@@ -68,9 +85,10 @@ class HausdorffCount(Metric):
 
     def compute(self) -> dict[str, torch.Tensor]:
         d = self.per_instance().double()
+        limits = dim_zero_cat(self.limits).double() if len(self.limits) else torch.zeros(0, dtype=torch.float64)
         finite = d[torch.isfinite(d)]
         nan = torch.tensor(math.nan, dtype=torch.float64)
-        count = (d > self.threshold).sum()
+        count = (d > limits).sum()
         n = torch.tensor(d.numel(), device=d.device)
         return {
             self.name: count,

@@ -1,50 +1,84 @@
-"""The 8 symmetries of the square (dihedral group D4), applied consistently to images and polylines."""
+"""Augmentation that is valid in the robot frame, and the widened path target.
+
+In the robot frame (spade.annotation.frame) the robot sits at a fixed pixel with its heading up the image, so a
+rotation or a transpose would turn "forward" into "sideways": the only symmetry that keeps the frame is the
+left-right mirror about the robot's column (a left turn becomes a right turn). The robot's column ``x_r`` is a
+pixel centre, so the mirror maps column ``x`` to ``2 x_r - x``; columns that come from outside the window are
+unknown (occupancy 0) and empty.
+"""
 
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 
-NUM_SYMMETRIES = 8
-
-
-def transform_images(images: torch.Tensor, g: int) -> torch.Tensor:
-    """Apply symmetry ``g`` (0..7) to images (..., H, W): a transpose when g >= 4, then g % 4 quarter turns."""
-    if not 0 <= g < NUM_SYMMETRIES:
-        raise ValueError(f"symmetry index must be in 0..7, got {g}")
-    if g >= 4:
-        images = images.transpose(-1, -2)
-    return torch.rot90(images, k=g % 4, dims=(-2, -1))
+AUGMENTATIONS = ("none", "mirror")
 
 
-def transform_points(points: torch.Tensor, g: int, size: int) -> torch.Tensor:
-    """Apply symmetry ``g`` to pixel coordinates (..., 2) as (x = column, y = row) of a ``size`` x ``size`` image.
+def check_augmentation(name: str | bool | None) -> str:
+    """Normalise ``data.augment`` (``none`` / ``mirror``; false/null mean none)."""
+    if name in (None, False, "none", "None"):
+        return "none"
+    if name == "mirror":
+        return "mirror"
+    raise ValueError(
+        f"data.augment={name!r}: robot-frame windows allow only 'mirror' (left-right about the robot) or 'none'; "
+        "rotations would turn the robot's heading sideways"
+    )
 
-    Consistent with :func:`transform_images`: a point on a set pixel lands on the transformed set pixel.
+
+def mirror_images(images: torch.Tensor, robot_x: float) -> torch.Tensor:
+    """Mirror images (..., H, W) about column ``robot_x``: new[..., x] = old[..., 2 robot_x - x], zeros outside."""
+    width = images.shape[-1]
+    axis = 2.0 * float(robot_x)
+    if not float(axis).is_integer():
+        raise ValueError(f"the robot's column {robot_x} must be a pixel centre (integer) to mirror about it")
+    shift = int(axis) - (width - 1)  # flip maps x -> (W - 1) - x; then shift by (2 x_r - (W - 1))
+    flipped = torch.flip(images, dims=[-1])
+    if shift == 0:
+        return flipped
+    out = torch.zeros_like(flipped)
+    if shift > 0:
+        out[..., shift:] = flipped[..., : width - shift]
+    else:
+        out[..., : width + shift] = flipped[..., -shift:]
+    return out
+
+
+def mirror_points(points: torch.Tensor, robot_x: float) -> torch.Tensor:
+    """Mirror pixel coordinates (..., 2) (x = column, y = row) about column ``robot_x``."""
+    out = points.clone()
+    out[..., 0] = 2.0 * float(robot_x) - points[..., 0]
+    return out
+
+
+def augment_batch(batch: dict, robot_x: float, generator: torch.Generator | None = None) -> dict:
+    """Mirror a random half of the batch about the robot's column (state, path, target and waypoints)."""
+    state = batch["state"]
+    flip = torch.rand(state.shape[0], generator=generator) < 0.5
+    idx = flip.nonzero(as_tuple=True)[0].to(state.device)
+    if len(idx) == 0:
+        return batch
+    out = dict(batch)
+    for key in ("state", "path", "target"):
+        if key in batch:
+            value = batch[key].clone()
+            value[idx] = mirror_images(batch[key][idx], robot_x)
+            out[key] = value
+    wp = batch["waypoints"].clone()
+    wp[idx] = mirror_points(batch["waypoints"][idx], robot_x)
+    out["waypoints"] = wp
+    return out
+
+
+def widen_path(path: torch.Tensor, width_px: int) -> torch.Tensor:
+    """The path channel (B, 1, H, W) dilated to ``width_px`` pixels (odd; 1 returns it unchanged).
+
+    The training target of the student (and the expert); the metrics keep the one-pixel path and the polyline.
     """
-    x, y = points[..., 0], points[..., 1]
-    if g >= 4:
-        x, y = y, x
-    last = size - 1
-    for _ in range(g % 4):
-        # torch.rot90(k=1, dims=(-2, -1)): new[r, c] = old[c, last - r]  =>  (x, y) -> (y, last - x)
-        x, y = y, last - x
-    return torch.stack([x, y], dim=-1)
-
-
-def augment_batch(batch: dict, generator: torch.Generator | None = None) -> dict:
-    """Draw one symmetry per instance and apply it to ``state``, ``path`` and ``waypoints`` of a square batch."""
-    state, path, waypoints = batch["state"], batch["path"], batch["waypoints"]
-    h, w = state.shape[-2:]
-    if h != w:
-        raise ValueError(f"D4 augmentation needs square instances, got {h} x {w}; set data.augment=false")
-    g = torch.randint(0, NUM_SYMMETRIES, (state.shape[0],), generator=generator)
-    new_state, new_path, new_wp = state.clone(), path.clone(), waypoints.clone()
-    for k in range(NUM_SYMMETRIES):
-        idx = (g == k).nonzero(as_tuple=True)[0]
-        if k == 0 or len(idx) == 0:
-            continue
-        idx = idx.to(state.device)
-        new_state[idx] = transform_images(state[idx], k)
-        new_path[idx] = transform_images(path[idx], k)
-        new_wp[idx] = transform_points(waypoints[idx], k, h)
-    return {**batch, "state": new_state, "path": new_path, "waypoints": new_wp}
+    width_px = int(width_px)
+    if width_px < 1 or width_px % 2 == 0:
+        raise ValueError(f"data.target_width_px must be an odd number of pixels >= 1, got {width_px}")
+    if width_px == 1:
+        return path
+    return F.max_pool2d(path, kernel_size=width_px, stride=1, padding=width_px // 2)

@@ -7,11 +7,11 @@ from typing import Any
 
 import lightning as L
 import torch
-from lightning.pytorch.loggers import MLFlowLogger
 
+from spade.models.modelfile import write_checkpoint_entry
 from spade.training.evaluation import PathMetrics
 from spade.training.logging_utils import log_image
-from spade.training.visualize import prediction_grid
+from spade.training.visualize import TestRecords, prediction_grid
 
 
 class PathPlanningModule(L.LightningModule):
@@ -49,16 +49,9 @@ class PathPlanningModule(L.LightningModule):
             )
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        info: dict[str, Any] = {"role": self.role, "config": dict(self.net.config)}
+        """The ``spade`` entry (role, network, training windows, MLflow run): see :mod:`spade.models.modelfile`."""
         datamodule = getattr(self._trainer, "datamodule", None) if self._trainer is not None else None
-        if datamodule is not None and hasattr(datamodule, "resolution"):
-            # What a deployment needs to feed the network the windows it was trained on (spade.planner).
-            info["data"] = {"image_size": list(datamodule.image_size), "resolution_m": datamodule.resolution,
-                            "input_encoding": "occupancy code * 0.5 (unknown 0, free 0.5, occupied 1), start, goal"}
-        for logger in self.loggers:
-            if isinstance(logger, MLFlowLogger):
-                info["mlflow_run_id"] = logger.run_id
-        checkpoint["spade"] = info
+        write_checkpoint_entry(checkpoint, self.role, self.net, datamodule, self.loggers)
 
     def configure_optimizers(self) -> Any:
         params = [p for p in self.parameters() if p.requires_grad]
@@ -74,7 +67,8 @@ class PathPlanningModule(L.LightningModule):
         self.val_metrics.update(prob, batch)
         if batch_idx == 0 and self.grid_size > 0 and not self.trainer.sanity_checking:
             n = min(self.grid_size, prob.shape[0])
-            grid = prediction_grid(batch["state"][:n], batch["path"][:n], prob[:n])
+            grid = prediction_grid(batch["state"][:n], batch["path"][:n], prob[:n], batch["waypoints"][:n],
+                                   batch["resolution"])
             log_image(self.logger, grid, f"predictions/epoch{self.current_epoch:03d}.png", self.trainer.log_dir)
 
     def validation_losses(self, batch: dict) -> dict[str, torch.Tensor]:
@@ -85,10 +79,30 @@ class PathPlanningModule(L.LightningModule):
             self.log_dict({f"val/{k}": v for k, v in self.val_metrics.compute().items()}, sync_dist=False)
         self.val_metrics.reset()
 
+    # -- test: the model next to the classical baselines, on the same instances ---------------------------
+    def on_test_epoch_start(self) -> None:
+        from spade.metrics.baselines import BASELINES
+
+        metrics = dict(self.hparams.get("metrics") or {})
+        self._baseline_metrics = {name: PathMetrics(**metrics).to(self.device) for name in BASELINES}
+        self._test_records = TestRecords()
+
     def test_step(self, batch: dict, batch_idx: int) -> None:
+        from spade.metrics.baselines import baseline_images
+
         prob = self.predict_paths(batch)
         self.test_metrics.update(prob, batch)
+        self._test_records.add(batch, prob)
+        for name, image in baseline_images(batch["state"], batch["resolution"]).items():
+            self._baseline_metrics[name].update(image, batch)
 
     def on_test_epoch_end(self) -> None:
         self.log_dict({f"test/{k}": v for k, v in self.test_metrics.compute().items()}, sync_dist=False)
         self.test_metrics.reset()
+        for name, metrics in getattr(self, "_baseline_metrics", {}).items():
+            self.log_dict({f"test/baseline/{name}/{k}": v for k, v in metrics.compute().items()}, sync_dist=False)
+        self._baseline_metrics = {}
+        records = getattr(self, "_test_records", None)
+        if records is not None and records.count and not self.trainer.sanity_checking:
+            for label, picture in records.pictures().items():
+                log_image(self.logger, picture, f"predictions/test_{label}.png", self.trainer.log_dir)

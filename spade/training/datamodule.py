@@ -1,4 +1,5 @@
-"""``PathDataModule``: train/validation split by scenario, a held-out test dataset, D4 augmentation."""
+"""``PathDataModule``: train/validation split by scenario, a held-out test dataset, the robot-frame mirror
+augmentation and the (optionally widened) path target."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from lightning.pytorch.overrides.distributed import UnrepeatedDistributedSampler
 from torch.utils.data import DataLoader, Subset
 
 from spade.data import DatasetError, PathDataset, read_manifest
-from spade.training.augment import augment_batch
+from spade.training.augment import augment_batch, check_augmentation, widen_path
 
 # (dataset directory, annotation config) -> None; builds the dataset when it is missing.
 Generator = Callable[[Path, Any], None]
@@ -83,7 +84,8 @@ class PathDataModule(L.LightningDataModule):
         num_workers: int = 0,
         pin_memory: bool = False,
         persistent_workers: bool = False,
-        augment: bool = True,
+        augment: str | bool | None = "none",
+        target_width_px: int = 1,
         max_train_instances: int | None = None,
         max_test_instances: int | None = None,
         test_shape: str | None = None,
@@ -102,7 +104,10 @@ class PathDataModule(L.LightningDataModule):
         self.eval_batch_size = eval_batch_size or batch_size
         self.num_workers, self.pin_memory = num_workers, pin_memory
         self.persistent_workers = persistent_workers and num_workers > 0
-        self.augment = augment
+        self.augment = check_augmentation(augment)
+        if int(target_width_px) < 1 or int(target_width_px) % 2 == 0:
+            raise ValueError(f"data.target_width_px must be an odd number of pixels >= 1, got {target_width_px}")
+        self.target_width_px = int(target_width_px)
         self.max_train_instances, self.max_test_instances = max_train_instances, max_test_instances
         self.test_shape = test_shape
         self.generator = generator or _default_generator
@@ -110,7 +115,11 @@ class PathDataModule(L.LightningDataModule):
 
     # -- Lightning hooks -------------------------------------------------------------------------------------
     def prepare_data(self) -> None:
-        for root, config in ((self.train_dir, self.train_generate), (self.test_dir, self.test_generate)):
+        from spade.experiments.validation import check_dataset
+
+        for key, root, config in (("data.train_dir", self.train_dir, self.train_generate),
+                                  ("data.test_dir", self.test_dir, self.test_generate)):
+            check_dataset(root, config, key)  # an existing dataset made with other settings, or not a dataset
             if root is None or (root / "manifest.json").is_file():
                 continue
             if config is None:
@@ -162,6 +171,13 @@ class PathDataModule(L.LightningDataModule):
         return manifest.height, manifest.width
 
     @property
+    def frame(self) -> dict[str, Any]:
+        """The training windows' frame (the manifest's ``frame``: robot pixel, heading up)."""
+        if self.train_set is not None:
+            return self.train_set.dataset.frame
+        return dict(read_manifest(self.train_dir).frame)
+
+    @property
     def resolution(self) -> float:
         """Metres per pixel of the training windows."""
         if self.train_set is not None:
@@ -204,6 +220,9 @@ class PathDataModule(L.LightningDataModule):
         return self._loader(self.test_set, False, self.eval_batch_size, evaluation=True)
 
     def on_after_batch_transfer(self, batch: dict, dataloader_idx: int) -> dict:
-        if self.augment and self.trainer is not None and self.trainer.training:
-            return augment_batch(batch)
+        """Add ``target`` (the path widened to ``target_width_px``, what the models learn) and, in training,
+        mirror half the batch when ``augment=mirror``."""
+        batch = {**batch, "target": widen_path(batch["path"], self.target_width_px)}
+        if self.augment == "mirror" and self.trainer is not None and self.trainer.training:
+            return augment_batch(batch, float(self.frame["robot_px"][0]))
         return batch

@@ -20,10 +20,14 @@ class PathMetrics(nn.Module):
     """
 
     def __init__(self, hd_threshold: float = 19.0, pred_threshold: float = 0.5, fid_extractor: str = "randconv",
-                 fid_extractor_kwargs: dict | None = None, fid: bool = True) -> None:
+                 fid_extractor_kwargs: dict | None = None, fid: bool = True, hd_threshold_m: float | None = 0.95
+                 ) -> None:
         super().__init__()
         self.ape = APE(threshold=pred_threshold)
-        self.hd = HausdorffCount(threshold=hd_threshold, pred_threshold=pred_threshold)
+        # Hd19 in metres (0.95 m = 19 px of the paper's 0.05 m/px) so that coarser windows count the same
+        # artifacts; the key stays "hd19". hd_threshold_m=null counts hd_threshold pixels instead.
+        self.hd = HausdorffCount(threshold=hd_threshold, pred_threshold=pred_threshold, threshold_m=hd_threshold_m,
+                                 name="hd19" if hd_threshold_m is not None else None)
         self.fid = FID(fid_extractor, fid_extractor_kwargs) if fid else None
         self._warned = False
 
@@ -35,7 +39,7 @@ class PathMetrics(nn.Module):
     def update(self, prob: torch.Tensor, batch: dict) -> None:
         prob = prob.detach().float().clamp(0, 1)
         self.ape.update(prob, batch["state"], batch["waypoints"], batch["resolution"])
-        self.hd.update(prob, batch["path"])
+        self.hd.update(prob, batch["path"], batch["resolution"])
         if self.fid is not None:
             self.fid.update(batch["path"].float(), real=True)
             self.fid.update(prob, real=False)

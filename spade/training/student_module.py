@@ -8,12 +8,10 @@ import torch
 import torch.nn.functional as F
 
 from spade.models import build_model
+from spade.models.modelfile import load_checkpoint, load_lightning
 from spade.training.base import PathPlanningModule
+from spade.training.errors import ExpertMismatchError  # noqa: F401  (raised by ExpertModule.check_compatible)
 from spade.training.guidance import DiffusionMargin, GuidanceConfig
-
-
-class ExpertMismatchError(ValueError):
-    """A guidance expert that does not fit the student's data."""
 
 
 class StudentModule(PathPlanningModule):
@@ -73,7 +71,7 @@ class StudentModule(PathPlanningModule):
         path = Path(ckpt)
         if not path.is_file():
             raise FileNotFoundError(f"init_ckpt={path} does not exist; pass a student checkpoint (.ckpt)")
-        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+        checkpoint = load_checkpoint(path)
         info = checkpoint.get("spade") or {}
         if info.get("role") != "student":
             raise ValueError(f"init_ckpt={path} is a {info.get('role', 'non-SPADE')} checkpoint, not a student's")
@@ -97,7 +95,7 @@ class StudentModule(PathPlanningModule):
         from spade.training.expert_module import ExpertModule
 
         ckpt = self.hparams.guidance["expert_ckpt"]
-        expert = ExpertModule.load_from_checkpoint(ckpt, map_location="cpu")
+        expert = load_lightning(ExpertModule, ckpt)
         expert.check_compatible(in_channels=self.net.in_channels, image_size=image_size, source=str(ckpt))
         margin = DiffusionMargin(
             expert.ema_net(), expert.schedule.add_noise, expert.schedule.num_train_timesteps,
@@ -131,7 +129,7 @@ class StudentModule(PathPlanningModule):
 
     def losses(self, batch: dict) -> dict[str, torch.Tensor]:
         logits = self(batch["state"])
-        target = batch["path"].to(logits.dtype)
+        target = batch.get("target", batch["path"]).to(logits.dtype)
         out = {"loss_bc": self.bc_loss(logits, target)}
         total = out["loss_bc"]
         if self.margin is not None:
@@ -149,4 +147,4 @@ class StudentModule(PathPlanningModule):
 
     def validation_losses(self, batch: dict) -> dict[str, torch.Tensor]:
         logits = self(batch["state"])
-        return {"val/loss_bc": self.bc_loss(logits, batch["path"].to(logits.dtype))}
+        return {"val/loss_bc": self.bc_loss(logits, batch.get("target", batch["path"]).to(logits.dtype))}

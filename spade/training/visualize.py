@@ -1,17 +1,25 @@
-"""Picture of predictions: state, ground truth and prediction as one colour overlay per instance."""
+"""Pictures of predictions a person can read: per instance, the state with the demonstration, and the prediction.
+
+Each instance is one row of two panels, upscaled: left, the occupancy (unknown dark, free grey, obstacles white)
+with the demonstrated path (green), the robot (blue) and the goal (red); right, the predicted path probability as a
+heat map over the dimmed occupancy, with the path extracted from it (white) and the demonstration (green, thin)
+for comparison. The row's title gives the instance's APE (or the reason extraction failed). The validation picture
+shows the first instances of the first batch; the test step keeps the worst and the median instances.
+"""
 
 from __future__ import annotations
+
+import io
 
 import numpy as np
 import torch
 
+from spade.data.polyline import resample_polyline
+
 
 def overlay(state: torch.Tensor, target: torch.Tensor, prob: torch.Tensor | None = None) -> np.ndarray:
-    """An RGB uint8 (H, W, 3) picture of one instance.
-
-    Occupancy as grey levels (unknown dark, free mid-grey, obstacle white), the ground-truth path in green,
-    the prediction in magenta (its intensity the probability), the start disc blue and the goal disc red.
-    """
+    """An RGB uint8 (H, W, 3) picture of one instance: occupancy grey levels, demonstration green, robot blue,
+    goal red; a prediction, when given, in magenta with its probability as intensity."""
     occ = state[0].float().cpu().numpy()
     grey = np.where(occ >= 0.75, 235.0, np.where(occ >= 0.25, 130.0, 35.0))
     rgb = np.repeat(grey[..., None], 3, axis=2)
@@ -25,15 +33,109 @@ def overlay(state: torch.Tensor, target: torch.Tensor, prob: torch.Tensor | None
     return rgb.clip(0, 255).astype(np.uint8)
 
 
-def prediction_grid(state: torch.Tensor, target: torch.Tensor, prob: torch.Tensor | None, ncols: int = 4,
-                    pad: int = 2) -> np.ndarray:
-    """Tile per-instance overlays of a batch (B, ...) into one RGB image."""
+def _instance_ape(prob: np.ndarray, state: np.ndarray, waypoints: np.ndarray, resolution: float
+                  ) -> tuple[float, np.ndarray | None, str | None]:
+    """(APE cm or inf, extracted polyline or None, failure reason or None) of one prediction."""
+    from spade.metrics import extract_path, polyline_ape
+
+    result = extract_path(prob, state[1], state[2], len(waypoints))
+    if not result.ok:
+        return float("inf"), None, result.failure
+    return polyline_ape(result.points, waypoints) * resolution * 100.0, result.points, None
+
+
+def prediction_grid(state: torch.Tensor, target: torch.Tensor, prob: torch.Tensor,
+                    waypoints: torch.Tensor | None = None, resolution: torch.Tensor | float = 0.1,
+                    titles: list[str] | None = None, upscale: int = 4) -> np.ndarray:
+    """An RGB uint8 picture of a batch (B, ...): one row per instance (see the module docstring)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
     b, _, h, w = state.shape
-    ncols = min(ncols, b)
-    nrows = (b + ncols - 1) // ncols
-    grid = np.full((nrows * (h + pad) + pad, ncols * (w + pad) + pad, 3), 255, dtype=np.uint8)
+    res = np.broadcast_to(np.asarray(resolution.cpu() if isinstance(resolution, torch.Tensor) else resolution,
+                                     dtype=np.float64).reshape(-1), (b,))
+    inch = max(1.6, upscale * w / 100.0)
+    fig, axes = plt.subplots(b, 2, figsize=(2 * inch + 0.4, b * (inch + 0.35) + 0.6), squeeze=False, dpi=100)
     for i in range(b):
-        r, c = divmod(i, ncols)
-        y, x = pad + r * (h + pad), pad + c * (w + pad)
-        grid[y : y + h, x : x + w] = overlay(state[i], target[i], None if prob is None else prob[i])
-    return grid
+        st = state[i].float().cpu().numpy()
+        p = prob[i, 0].float().cpu().numpy().clip(0, 1)
+        left = overlay(state[i], target[i])
+        occ = st[0]
+        dim = np.where(occ >= 0.75, 0.55, np.where(occ >= 0.25, 0.25, 0.05))
+        axes[i, 0].imshow(left, interpolation="nearest")
+        axes[i, 1].imshow(dim, cmap="gray", vmin=0, vmax=1, interpolation="nearest")
+        axes[i, 1].imshow(np.ma.masked_less(p, 0.02), cmap="inferno", vmin=0, vmax=1, interpolation="nearest",
+                          alpha=0.9)
+        label = titles[i] if titles else ""
+        if waypoints is not None:
+            wp = waypoints[i].float().cpu().numpy()
+            axes[i, 1].plot(wp[:, 0], wp[:, 1], color="#28c83c", lw=1.0)
+            ape, extracted, failure = _instance_ape(p, st, wp, float(res[i]))
+            if extracted is not None:
+                axes[i, 1].plot(extracted[:, 0], extracted[:, 1], color="white", lw=1.6, ls="--")
+                label = f"{label}  APE {ape:.1f} cm".strip()
+            else:
+                label = f"{label}  no path: {failure}".strip()
+        for ax in axes[i]:
+            ax.set_xticks([])
+            ax.set_yticks([])
+        axes[i, 0].set_title("state + demonstration", fontsize=8)
+        axes[i, 1].set_title(label or "prediction", fontsize=8)
+    handles = [Line2D([], [], color="#28c83c", lw=2, label="demonstration"),
+               Line2D([], [], color="white", lw=2, ls="--", label="extracted prediction"),
+               Line2D([], [], marker="o", color="#285aff", lw=0, label="robot (heading up)"),
+               Line2D([], [], marker="o", color="#f02828", lw=0, label="goal")]
+    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=7, facecolor="#777777", framealpha=1.0)
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    plt.close(fig)
+    buf.seek(0)
+    from PIL import Image
+
+    return np.asarray(Image.open(buf).convert("RGB"))
+
+
+class TestRecords:
+    """Per-instance APE of a test epoch plus compact copies of the instances, to draw the worst and the median."""
+
+    def __init__(self) -> None:
+        self.apes: list[float] = []
+        self.items: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]] = []
+
+    @property
+    def count(self) -> int:
+        return len(self.apes)
+
+    def add(self, batch: dict, prob: torch.Tensor) -> None:
+        state = batch["state"].detach().float().cpu().numpy()
+        path = batch["path"].detach().float().cpu().numpy()
+        p = prob.detach().float().cpu().numpy().clip(0, 1)
+        wps = batch["waypoints"].detach().float().cpu().numpy()
+        res = np.broadcast_to(np.asarray(batch["resolution"].cpu() if isinstance(batch["resolution"], torch.Tensor)
+                                         else batch["resolution"], dtype=np.float64).reshape(-1), (len(state),))
+        for i in range(len(state)):
+            ape, _, _ = _instance_ape(p[i, 0], state[i], wps[i], float(res[i]))
+            self.apes.append(ape)
+            self.items.append(((state[i] * 2).round().astype(np.uint8), (path[i] > 0.5).astype(np.uint8),
+                               (p[i] * 255).round().astype(np.uint8), wps[i].astype(np.float32), float(res[i])))
+
+    def _grid(self, indices: list[int], label: str) -> np.ndarray:
+        st = torch.from_numpy(np.stack([self.items[i][0] for i in indices]).astype(np.float32) / 2)
+        path = torch.from_numpy(np.stack([self.items[i][1] for i in indices]).astype(np.float32))
+        prob = torch.from_numpy(np.stack([self.items[i][2] for i in indices]).astype(np.float32) / 255)
+        wps = torch.from_numpy(np.stack([self.items[i][3] for i in indices]))
+        res = torch.tensor([self.items[i][4] for i in indices])
+        titles = [f"{label} #{i}" for i in indices]
+        return prediction_grid(st, path, prob, wps, res, titles)
+
+    def pictures(self, n: int = 4) -> dict[str, np.ndarray]:
+        """``worst`` and ``median`` pictures of ``n`` instances each (failures count as the worst)."""
+        order = np.argsort(np.asarray(self.apes), kind="stable")
+        worst = [int(i) for i in order[::-1][:n]]
+        mid = len(order) // 2
+        median = [int(i) for i in order[max(0, mid - n // 2): max(0, mid - n // 2) + n]]
+        return {"worst": self._grid(worst, "worst"), "median": self._grid(median, "median")}

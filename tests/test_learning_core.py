@@ -1,0 +1,162 @@
+"""The learning core: baselines, the failure-aware score, Hd19 in metres, EMA warm-up, the guidance gradient,
+the total loss, and a conditional expert that uses its state."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from spade.annotation.frame import RobotFrame
+from spade.annotation.rasterize import robot_instance
+from spade.metrics import APE, HausdorffCount
+from spade.metrics.baselines import BASELINES, baseline_images, baseline_polylines, heading_template, shortest_path
+from spade.training.expert_module import WarmupEMA, ema_decay_at
+from spade.training.guidance import DiffusionMargin, GuidanceConfig
+
+
+def _batch(turn: float = 1.0, wall: bool = False) -> dict:
+    """One robot-frame L instance as a batch of one (0.1 m/px)."""
+    t = np.linspace(0, 1, 60)
+    leg = np.stack([np.full(30, 60.0), np.linspace(80, 60, 30)], axis=1)
+    arc = np.stack([60 + turn * (8 - 8 * np.cos(t * np.pi / 2)), 60 - 8 * np.sin(t * np.pi / 2)], axis=1)
+    tail = np.stack([60 + turn * np.linspace(8, 16, 10), np.full(10, 52.0)], axis=1)
+    grid = np.ones((140, 140), np.uint8)
+    if wall:
+        grid[55:58, 50:75] = 2  # a wall across the straight line from start to goal
+    inst = robot_instance(grid, np.concatenate([leg, arc, tail]), RobotFrame.for_size(64), 2, 1.0, 32)
+    assert inst is not None
+    state = np.stack([inst.occupancy * 0.5, inst.start, inst.goal]).astype(np.float32)
+    return {"state": torch.from_numpy(state)[None], "path": torch.from_numpy(inst.path[None, None].astype(np.float32)),
+            "waypoints": torch.from_numpy(inst.waypoints)[None], "resolution": torch.tensor([0.1])}
+
+
+def test_baselines_by_hand() -> None:
+    start, goal = np.array([32.0, 48.0]), np.array([40.0, 30.0])
+    np.testing.assert_allclose(heading_template(start, goal), [[32, 48], [32, 30], [40, 30]])
+    batch = _batch()
+    polys = baseline_polylines(batch["state"][0].numpy(), 0.1)
+    assert set(polys) == set(BASELINES)
+    np.testing.assert_allclose(polys["straight"][0], [32, 48], atol=0.5)
+    # With nothing in the way, the costmap's shortest path is about as long as the straight line (an 8-connected
+    # grid path, smoothed, is a little longer) and ends on the goal.
+    length = lambda p: float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())  # noqa: E731
+    assert length(polys["straight"]) <= length(polys["shortest"]) < 1.1 * length(polys["straight"])
+    np.testing.assert_allclose(polys["shortest"][-1], polys["straight"][-1], atol=0.5)
+    # The heading template is the right answer for an L with a sharp corner: far better than the straight line.
+    ape = {}
+    images = baseline_images(batch["state"], batch["resolution"])
+    for name, image in images.items():
+        metric = APE()
+        metric.update(image, batch["state"], batch["waypoints"], batch["resolution"])
+        ape[name] = float(metric.compute()["ape_cm"])
+    assert ape["heading"] < 0.6 * ape["straight"], ape
+
+
+def test_shortest_path_goes_around_a_wall_and_fails_when_enclosed() -> None:
+    occ = np.ones((64, 64), np.uint8)
+    occ[30, 10:54] = 2
+    path = shortest_path(occ, np.array([32.0, 48.0]), np.array([32.0, 12.0]), 0.1)
+    assert path is not None and (path[:, 0].min() < 10 or path[:, 0].max() > 53)  # around an end of the wall
+    cells = np.rint(path).astype(int)
+    assert (occ[cells[:, 1], cells[:, 0]] == 1).all()
+    occ[:, 20] = 2
+    occ[:, 44] = 2
+    occ[40, :] = 2
+    assert shortest_path(occ, np.array([32.0, 48.0]), np.array([32.0, 12.0]), 0.1) is None
+
+
+def test_score_counts_failures_as_the_straight_line() -> None:
+    batch = _batch()
+    images = baseline_images(batch["state"], batch["resolution"])
+    straight = APE()
+    straight.update(images["straight"], batch["state"], batch["waypoints"], batch["resolution"])
+    empty = APE()
+    empty.update(torch.zeros_like(batch["path"]), batch["state"], batch["waypoints"], batch["resolution"])
+    s, e = straight.compute(), empty.compute()
+    assert int(e["failures"]) == 1 and torch.isnan(e["ape_cm"])
+    assert float(e["score_cm"]) == pytest.approx(float(s["ape_cm"]), rel=0.05)
+    perfect = APE()
+    perfect.update(batch["path"], batch["state"], batch["waypoints"], batch["resolution"])
+    assert float(perfect.compute()["score_cm"]) < 5
+
+
+def test_hd19_in_metres_is_19_px_at_the_papers_resolution() -> None:
+    pred = torch.zeros(2, 1, 64, 64)
+    truth = torch.zeros(2, 1, 64, 64)
+    truth[:, 0, 10, 10:20] = 1
+    pred[:, 0, 10, 10:20] = 1
+    pred[:, 0, 10 + 12, 15] = 1  # a stray pixel 12 px away
+    m = HausdorffCount(threshold_m=0.95, name="hd19")
+    m.update(pred, truth, torch.tensor([0.1, 0.05]))  # 9.5 px vs 19 px
+    out = m.compute()
+    assert int(out["hd19"]) == 1  # counted at 0.1 m/px (1.2 m > 0.95 m), not at 0.05 m/px (0.6 m)
+    with pytest.raises(ValueError, match="resolution"):
+        HausdorffCount(threshold_m=0.95).update(pred, truth)
+
+
+def test_ema_warmup_follows_diffusers_schedule_and_tracks_the_weights() -> None:
+    assert ema_decay_at(0, 0.999) == pytest.approx(0.1)
+    assert ema_decay_at(90, 0.999) == pytest.approx(91 / 100)
+    assert ema_decay_at(10**6, 0.999) == 0.999
+    net = torch.nn.Linear(3, 1)
+    ema = torch.optim.swa_utils.AveragedModel(net, multi_avg_fn=WarmupEMA(0.99), use_buffers=True)
+    torch.nn.init.constant_(net.weight, 5.0)
+    ema.update_parameters(net)  # first update copies
+    torch.nn.init.constant_(net.weight, 1.0)
+    for _ in range(60):
+        ema.update_parameters(net)
+    # With the warm-up, the average has almost forgotten the initial 5.0; a fixed 0.99 decay would still hold
+    # 0.99**60 = 55 % of it (about 3.2).
+    assert float(ema.module.weight.detach().mean()) < 1.05
+
+
+class _AnalyticExpert(torch.nn.Module):
+    """eps(x_t, t) of a data distribution concentrated on one image x* (the demonstration): the exact optimal
+    denoiser, so the margin's gradient must pull the student's output towards x*."""
+
+    def __init__(self, target: torch.Tensor, alphas_cumprod: torch.Tensor) -> None:
+        super().__init__()
+        self.register_buffer("target", target)
+        self.register_buffer("acp", alphas_cumprod)
+
+    def forward(self, x_t: torch.Tensor, t: torch.Tensor, cond: torch.Tensor | None = None) -> torch.Tensor:
+        a = self.acp[t].view(-1, 1, 1, 1)
+        return (x_t - a.sqrt() * self.target) / (1 - a).sqrt()
+
+
+def _analytic_margin(target01: torch.Tensor, weight: float = 1.0) -> DiffusionMargin:
+    from spade.models.diffusion import NoiseSchedule, to_model_range
+
+    schedule = NoiseSchedule(num_train_timesteps=100, beta_schedule="squaredcos_cap_v2")
+    expert = _AnalyticExpert(to_model_range(target01), schedule.alphas_cumprod)
+    return DiffusionMargin(expert, schedule.add_noise, 100, True, GuidanceConfig(weight=weight, t_min=5))
+
+
+def test_one_margin_step_moves_the_student_towards_the_demonstration() -> None:
+    torch.manual_seed(0)
+    target = _batch()["path"]
+    margin = _analytic_margin(target)
+    logits = torch.zeros_like(target, requires_grad=True)  # a student that outputs 0.5 everywhere
+    state = torch.zeros(1, 3, 64, 64)
+    loss, active = margin(torch.sigmoid(logits), target, state, torch.Generator().manual_seed(1))
+    assert loss > 0 and active == 1
+    loss.backward()
+    step = -logits.grad
+    # Descending L_DM raises the logits on the path and lowers them off it.
+    assert step[target > 0.5].mean() > 0 > step[target < 0.5].mean()
+
+
+def test_total_loss_is_bc_plus_lambda_times_margin() -> None:
+    from spade.training.student_module import StudentModule
+
+    torch.manual_seed(0)
+    batch = _batch()
+    batch["target"] = batch["path"]
+    student = StudentModule(size="small")
+    lam = 2.5
+    student.guidance_cfg = GuidanceConfig(weight=lam)
+    student._margin.append(_analytic_margin(batch["path"], lam))
+    torch.manual_seed(3)
+    parts = student.losses(batch)
+    assert float(parts["loss"]) == pytest.approx(float(parts["loss_bc"] + lam * parts["loss_dm"]), rel=1e-6)
