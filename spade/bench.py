@@ -186,18 +186,17 @@ def _quality(q: dict[str, Any], expert_ckpt: str | None, datasets: dict[str, Any
 
 
 def _load_expert(path: str | Path) -> Any:
-    import torch
-
+    from spade.models.modelfile import load_checkpoint, load_lightning
     from spade.training.expert_module import ExpertModule
 
     path = Path(path).expanduser()
     if not path.is_file():
         raise FileNotFoundError(f"expert_ckpt={path} does not exist; pass an expert checkpoint from "
                                 "python -m spade.train +experiment=expert_cond_L, or leave it out to train a tiny one")
-    role = (torch.load(path, map_location="cpu", weights_only=False).get("spade") or {}).get("role")
+    role = (load_checkpoint(path).get("spade") or {}).get("role")
     if role != "expert":
         raise ValueError(f"expert_ckpt={path} has role {role!r}, not 'expert': pass a diffusion expert checkpoint")
-    return ExpertModule.load_from_checkpoint(path, map_location="cpu")
+    return load_lightning(ExpertModule, path)
 
 
 def _train_expert(q: dict[str, Any], datasets: dict[str, Any], work: Path, seed: int) -> Any:

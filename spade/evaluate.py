@@ -8,35 +8,38 @@ from typing import Any
 
 import hydra
 import lightning as L
-import torch
 from omegaconf import DictConfig
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
+from spade.models.modelfile import load_checkpoint, load_lightning
 from spade.training.instantiate import instantiate_loggers
 
 log = logging.getLogger(__name__)
 
 
 def load_module(ckpt_path: str | Path) -> L.LightningModule:
-    """Load a SPADE checkpoint as the LightningModule that wrote it (student or expert)."""
+    """Load a SPADE checkpoint as the LightningModule that wrote it (student or expert), safely
+    (:func:`spade.models.modelfile.load_lightning`)."""
     path = Path(ckpt_path)
     if not path.is_file():
         raise FileNotFoundError(f"ckpt_path={path} does not exist; pass a checkpoint written by python -m spade.train")
-    info = torch.load(path, map_location="cpu", weights_only=False).get("spade") or {}
-    role = info.get("role")
+    role = (load_checkpoint(path).get("spade") or {}).get("role")
     if role == "student":
         from spade.training.student_module import StudentModule
 
-        return StudentModule.load_from_checkpoint(path, map_location="cpu")
+        return load_lightning(StudentModule, path)
     if role == "expert":
         from spade.training.expert_module import ExpertModule
 
-        return ExpertModule.load_from_checkpoint(path, map_location="cpu")
+        return load_lightning(ExpertModule, path)
     raise ValueError(f"{path} is not a SPADE student or expert checkpoint (role {role!r})")
 
 
 def evaluate(cfg: DictConfig) -> dict[str, Any]:
     """Test ``cfg.ckpt_path`` on ``cfg.data``'s test set; returns the test metrics."""
+    from spade.experiments.validation import validate_evaluate_config
+
+    validate_evaluate_config(cfg)  # role, and the checkpoint's window geometry against the test data's
     L.seed_everything(cfg.seed, workers=True)
     model = load_module(cfg.ckpt_path)
     datamodule = hydra.utils.instantiate(cfg.data)
@@ -48,7 +51,9 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
 def main(cfg: DictConfig) -> None:
-    metrics = evaluate(cfg)
+    from spade.experiments.validation import exit_on_user_error
+
+    metrics = exit_on_user_error(evaluate)(cfg)
     print("\n".join(f"{k}: {v:.4g}" for k, v in sorted(metrics.items())))
 
 

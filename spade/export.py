@@ -1,7 +1,7 @@
 """``python -m spade.export ckpt_path=PATH [format=onnx|torchscript]``: deploy a trained student as one file.
 
-Writes the student with its metadata (window size, metres per pixel, input encoding, network config), checks
-that the file reproduces PyTorch's logits (prints the max absolute difference) and prints eager and exported
+Writes the student with its metadata (window size, metres per pixel, robot frame, input encoding, network config),
+checks that the file reproduces PyTorch's logits (prints the max absolute difference) and prints eager and exported
 latency. See ``conf/export.yaml`` for the options and :mod:`spade.deploy.export` for the file format.
 """
 
@@ -20,8 +20,8 @@ from spade.deploy.export import ExportReport, export_student
 log = logging.getLogger(__name__)
 
 
-OPTIONS = ("ckpt_path", "out_path", "format", "image_size", "resolution_m", "input_encoding", "opset", "parity_batch",
-           "tolerance", "latency_runs", "latency_batches", "threads", "report_path")
+OPTIONS = ("ckpt_path", "out_path", "format", "opset", "parity_batch", "tolerance", "latency_runs", "latency_batches",
+           "threads", "report_path")
 
 
 def export(cfg: DictConfig) -> ExportReport:
@@ -33,9 +33,6 @@ def export(cfg: DictConfig) -> ExportReport:
         options["ckpt_path"],
         options.get("out_path"),
         options.get("format", "onnx"),
-        image_size=options.get("image_size"),
-        resolution_m=options.get("resolution_m"),
-        input_encoding=options.get("input_encoding"),
         opset=int(options.get("opset", 17)),
         parity_batch=int(options.get("parity_batch", 4)),
         tolerance=options.get("tolerance"),

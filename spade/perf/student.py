@@ -31,7 +31,8 @@ def student_latency(sizes: Sequence[str], image_size: int, batches: Sequence[int
     ``onnx``, ``onnxruntime_b<N>_ms`` for the model exported by :func:`spade.deploy.export.export_net`. The
     batch-1 runs are timed ``runs`` times, larger batches ``max(3, runs // 3)`` times.
     """
-    from spade.deploy.export import ExportedStudent, example_states, export_net
+    from spade.deploy.export import example_states, export_net
+    from spade.models.modelfile import open_model
 
     rows = []
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
@@ -43,7 +44,7 @@ def student_latency(sizes: Sequence[str], image_size: int, batches: Sequence[int
             if onnx:
                 path = export_net(net, Path(tmp) / f"{size}.onnx", "onnx", (image_size, image_size),
                                   {"role": "student", "config": net.config, "data": None})
-                exported = ExportedStudent(path, threads=threads)
+                exported = open_model(path, threads=threads)
             for b in batches:
                 n = runs if b == 1 else max(3, runs // 3)
                 state = example_states(int(b), (image_size, image_size), seed=b)

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any
 
 import hydra
-import torch
 from lightning import Callback
 from lightning.pytorch.loggers import Logger
 from omegaconf import DictConfig
+
+from spade.models.modelfile import load_checkpoint
 
 log = logging.getLogger(__name__)
 
@@ -53,5 +53,4 @@ def run_id_from_checkpoint(ckpt_path: str | Path | None) -> str | None:
             f"ckpt_path={path} does not exist; pass the path of a checkpoint written by an earlier run "
             "(they live under the run's output directory, checkpoints/last.ckpt)"
         )
-    checkpoint: dict[str, Any] = torch.load(path, map_location="cpu", weights_only=False)
-    return (checkpoint.get("spade") or {}).get("mlflow_run_id")
+    return (load_checkpoint(path).get("spade") or {}).get("mlflow_run_id")

@@ -1,0 +1,8 @@
+"""Errors the training modules share (kept here so that ``expert_module`` and ``student_module`` need not import
+each other)."""
+
+from __future__ import annotations
+
+
+class ExpertMismatchError(ValueError):
+    """A guidance expert that does not fit the student's data."""
