@@ -1,0 +1,47 @@
+"""``python -m spade.sketch MAP.yaml [port=8765] [out_dir=...] [model=student.ckpt|.onnx] [annotate.KEY=VALUE]``:
+sketching in the browser (spade/sketching/, README *Sketching in the browser*; settings in conf/sketch.yaml).
+
+Before Hydra parses the command line, a leading positional map becomes ``map=...``, ``model=`` becomes
+``model_path=`` and ``annotate.KEY=VALUE`` becomes ``++annotate.KEY=VALUE`` (conf/annotate.yaml overrides).
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
+
+OmegaConf.register_new_resolver("sketch_dir", lambda m: re.sub(r"[^A-Za-z0-9_.-]+", "-", Path(str(m)).stem),
+                                replace=True)
+
+
+def rewrite_argv(args: list[str]) -> list[str]:
+    out = []
+    for arg in args:
+        if arg.startswith("model="):
+            arg = "model_path=" + arg[len("model="):]
+        elif arg.startswith("annotate."):
+            arg = "++" + arg
+        elif "=" not in arg and not arg.startswith("-") and (out[-1:] != ["--cfg"]):
+            arg = f"map={arg}"
+        out.append(arg)
+    return out
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="sketch")
+def main(cfg: DictConfig) -> None:
+    from spade.sketching import build_app, serve
+
+    annotate = OmegaConf.to_container(cfg.annotate, resolve=True)
+    app = build_app(str(cfg.map), cfg.out_dir, annotate, cfg.model_path, cfg.device)  # type: ignore[arg-type]
+    serve(app, cfg.host, int(cfg.port))
+
+
+if __name__ == "__main__":
+    sys.argv = [sys.argv[0], *rewrite_argv(sys.argv[1:])]
+    main()

@@ -1,0 +1,327 @@
+"""The sketching app's JSON API (FastAPI TestClient): execute / save / list / delete round trips, dataset builds,
+the planner, every bad request (4xx with a message, the sketch file untouched) and saves racing."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+pytest.importorskip("fastapi")
+pytest.importorskip("httpx")
+from fastapi.testclient import TestClient  # noqa: E402
+
+from spade.annotation.sketch_file import load_sketch_file  # noqa: E402
+from spade.maps import OccupancyMap, save_ros_map  # noqa: E402
+from spade.sketching import build_app  # noqa: E402
+from spade.sketching.app import STATIC_DIR  # noqa: E402
+
+TINY = ["window.size_px=64", "window.resolution_m=0.1", "instances.spacing_m=0.15", "preview.count=4"]
+L_WAYPOINTS = [[0.0, 1.0], [1.5, 1.0], [2.5, 1.0], [3.1, 1.3], [3.4, 2.0], [3.4, 3.0]]
+L_SECOND = [[0.0, 6.0], [1.5, 6.0], [2.3, 6.0], [2.9, 6.3], [3.2, 7.0], [3.2, 8.0]]
+BLOCK = [4.0, 4.0]  # the middle of the site's obstacle
+
+
+def site(root: Path) -> Path:
+    """A 12 m x 10 m walled site at 0.1 m/px, origin (-2, -1), a 1 m block centred on (4, 4)."""
+    g = np.ones((100, 120), np.uint8)
+    g[[0, -1], :] = 2
+    g[:, [0, -1]] = 2
+    g[45:55, 55:65] = 2
+    return save_ros_map(OccupancyMap(g, 0.1, origin=(-2.0, -1.0, 0.0), name="site"), root / "site.yaml")
+
+
+@pytest.fixture
+def setup(tmp_path: Path) -> tuple[TestClient, Path, Path]:
+    """(client, map yaml, out_dir) of an app on the site map."""
+    yaml_path = site(tmp_path)
+    out = tmp_path / "out"
+    return TestClient(build_app(str(yaml_path), out, TINY)), yaml_path, out
+
+
+def digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest() if path.exists() else "absent"
+
+
+def student_checkpoint(path: Path, role: str = "student") -> Path:
+    """A checkpoint as spade.train writes it (untrained small student), without training."""
+    import torch
+
+    from spade.models import build_model
+
+    net = build_model("student", "small")
+    info = {"role": role, "config": dict(net.config), "data": {"image_size": [64, 64], "resolution_m": 0.1}}
+    torch.save({"spade": info, "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}, path)
+    return path
+
+
+# ------------------------------------------------------------------------------------------------ the page and map
+def test_map_metadata_images_and_a_self_contained_page(setup) -> None:
+    client, yaml_path, out = setup
+    meta = client.get("/api/map").json()
+    assert meta["map"] == str(yaml_path.resolve()) and meta["map_id"] == "site"
+    assert (meta["width_px"], meta["height_px"], meta["resolution"]) == (120, 100, 0.1)
+    assert meta["bounds_m"] == pytest.approx({"x_min": -2.0, "y_min": -1.0, "x_max": 10.0, "y_max": 9.0})
+    assert meta["shapes"] == ["L", "U"] and meta["model"] is None
+    assert meta["sketch_file"] == str(out.resolve() / "sketches.yaml")
+    assert "window.size_px=64" in meta["build_command"]
+    from io import BytesIO
+
+    from PIL import Image
+
+    assert Image.open(BytesIO(client.get("/api/map.png").content)).size == (120, 100)
+    overlay = Image.open(BytesIO(client.get("/api/costmap.png").content))
+    assert overlay.size == (120, 100) and overlay.mode == "RGBA"
+    alpha = np.asarray(overlay)[..., 3]
+    assert alpha[50, 30] == 0 and alpha[50, 54] > 0  # open floor clear, the band around the block tinted
+    page = client.get("/")
+    assert page.status_code == 200 and "/static/app.js" in page.text
+    for name in ("app.js", "style.css"):
+        assert client.get(f"/static/{name}").status_code == 200
+    for path in STATIC_DIR.iterdir():  # no CDN: nothing the page loads comes from elsewhere
+        assert not re.search(r"(src|href)=[\"']?(https?:)?//|import\s.*https?:|url\(\s*[\"']?https?:",
+                             path.read_text()), path
+
+
+# ------------------------------------------------------------------------------------------------ execute
+def test_execute_accepts_an_l_and_gives_the_executed_path_in_metres(setup) -> None:
+    client, _, _ = setup
+    r = client.post("/api/execute", json={"shape": "L", "waypoints": L_WAYPOINTS})
+    assert r.status_code == 200, r.text
+    res = r.json()
+    assert res["accepted"], res["message"]
+    path = np.asarray(res["path"])
+    assert np.linalg.norm(path[0] - L_WAYPOINTS[0]) < 0.1 and np.linalg.norm(path[-1] - L_WAYPOINTS[-1]) < 0.1
+    assert 60 < abs(res["turn_deg"]) < 120 and res["deviation_m"] < 0.35 and res["length_m"] > 4.0
+
+
+@pytest.mark.parametrize("shape, waypoints, reason, words", [
+    ("U", [[0.0, 1.0], [4.0, 1.0]], "shape", "does not turn like the shape"),
+    ("L", [[2.0, 4.0], BLOCK, [4.0, 6.0]], "sketch_off_free", "waypoint #2"),
+    ("L", [[2.0, 4.0], [6.0, 4.0], [6.0, 6.0]], "deviation", "strays too far from the sketch"),
+])
+def test_execute_rejections_in_words_with_the_offending_part(setup, shape, waypoints, reason, words) -> None:
+    client, _, out = setup
+    res = client.post("/api/execute", json={"shape": shape, "waypoints": waypoints}).json()
+    assert not res["accepted"] and res["reason"] == reason and words in res["message"], res
+    if reason == "sketch_off_free":
+        assert res["offending_waypoints"] == [1]
+    else:
+        assert res["path"] and res["offending"]  # the driven path and its offending points, in metres
+    assert not (out / "sketches.yaml").exists()
+
+
+# ------------------------------------------------------------------------------------------------ save, list, delete
+def test_save_list_delete_round_trip_and_restart(setup) -> None:
+    client, yaml_path, out = setup
+    t0 = time.perf_counter()
+    r = client.post("/api/sketches", json={"shape": "L", "waypoints": L_WAYPOINTS})
+    save_s = time.perf_counter() - t0
+    assert r.status_code == 201, r.text
+    first = r.json()
+    assert first["saved"]["name"] == "L000" and first["count"] == 1
+    print(f"\nsave: {1e3 * save_s:.1f} ms round trip ({first['save_ms']} ms in the server: execute + locked atomic write)")
+    r = client.post("/api/sketches", json={"shape": "L", "waypoints": L_SECOND, "name": "dock_b"})
+    assert r.status_code == 201, r.text
+    listed = client.get("/api/sketches").json()["sketches"]
+    assert [s["name"] for s in listed] == ["L000", "dock_b"]
+    assert listed[0]["waypoints"] == L_WAYPOINTS and listed[0]["executed"]["deviation_m"] < 0.35
+    assert client.get("/api/sketches/dock_b").json()["waypoints"] == L_SECOND
+
+    loaded = load_sketch_file(out / "sketches.yaml")  # the format spade.annotate sketches= reads
+    assert loaded.map == str(yaml_path.resolve())
+    assert [(s.name, s.shape) for s in loaded.sketches] == [("L000", "L"), ("dock_b", "L")]
+    np.testing.assert_allclose(loaded.sketches[1].waypoints_m, L_SECOND)
+
+    assert client.delete("/api/sketches/L000").json()["count"] == 1
+    assert client.delete("/api/sketches/L000").status_code == 404
+    restarted = TestClient(build_app(str(yaml_path), out, TINY))  # a new server on the same out_dir
+    assert [s["name"] for s in restarted.get("/api/sketches").json()["sketches"]] == ["dock_b"]
+    r = restarted.post("/api/sketches", json={"shape": "L", "waypoints": L_WAYPOINTS})
+    assert r.json()["saved"]["name"] == "L001"  # the first free default name after dock_b
+
+
+def test_a_sketch_file_of_another_map_is_refused(setup, tmp_path: Path) -> None:
+    client, _, out = setup
+    client.post("/api/sketches", json={"shape": "L", "waypoints": L_WAYPOINTS})
+    with pytest.raises(ValueError, match="holds sketches of map"):
+        build_app("warehouse:1", out, TINY)
+
+
+# ------------------------------------------------------------------------------------------------ bad requests
+BAD = [
+    ("POST", "/api/execute", b"{\"shape\": \"L\", \"waypoints\": [[0, 1], [1,", 400, "malformed JSON"),
+    ("POST", "/api/sketches", b"not json", 400, "malformed JSON"),
+    ("POST", "/api/execute", {"shape": "Z", "waypoints": L_WAYPOINTS}, 422, "unknown shape 'Z'"),
+    ("POST", "/api/sketches", {"shape": "S", "waypoints": L_WAYPOINTS}, 422, "unknown shape 'S'"),
+    ("POST", "/api/execute", {"shape": "L", "waypoints": [[0.0, 1.0], [15.0, 1.0]]}, 422,
+     r"waypoint #1 \(15.00, 1.00\) m lies outside map 'site'.*x \[-2.00, 10.00\]"),
+    ("POST", "/api/sketches", {"shape": "L", "waypoints": [[0.0, -3.0], [1.0, 1.0]]}, 422, "lies outside map"),
+    ("POST", "/api/execute", {"shape": "L", "waypoints": [[0.0, 1.0]]}, 422, "at least 2"),
+    ("POST", "/api/execute", {"shape": "L", "waypoints": [[0.0, 1.0, 2.0], [1.0, 1.0, 2.0]]}, 422, "at least 2 \\[x, y\\]"),
+    ("POST", "/api/execute", {"shape": "L", "waypoints": "0,1 2,3"}, 422, "waypoints"),
+    ("POST", "/api/execute", {"shape": "L"}, 422, "waypoints: missing"),
+    ("POST", "/api/execute", {"shape": "L", "waypoints": L_WAYPOINTS, "speed": 3}, 422, "speed: unknown field"),
+    ("POST", "/api/execute", b"{\"shape\": \"L\", \"waypoints\": [[0, 1], [NaN, 1]]}", 422, "finite|at least 2"),
+    ("POST", "/api/execute", [1, 2], 422, "invalid request"),
+    ("POST", "/api/sketches", {"shape": "U", "waypoints": [[0.0, 1.0], [4.0, 1.0]]}, 422,
+     "not saved, the sketch is rejected \\(shape\\)"),
+    ("POST", "/api/sketches", {"shape": "L", "waypoints": L_WAYPOINTS, "name": "../evil"}, 422, "not allowed"),
+    ("POST", "/api/sketches", {"shape": "L", "waypoints": L_WAYPOINTS, "name": "L000"}, 409, "already saved"),
+    ("DELETE", "/api/sketches/nope", None, 404, "no saved sketch named 'nope'"),
+    ("GET", "/api/sketches/nope", None, 404, "no saved sketch named 'nope'"),
+    ("POST", "/api/plan", {"pose": [0.0, 1.0, 0.0], "goal": [1.0, 1.0]}, 409, "no model loaded"),
+    ("POST", "/api/model", {"path": "/nonexistent/student.ckpt"}, 404, "no such file"),
+    ("GET", "/api/build/preview.png", None, 404, "build the dataset first"),
+]
+
+
+@pytest.mark.parametrize("method, url, body, status, message", BAD, ids=[f"{b[1]}:{b[4][:24]}" for b in BAD])
+def test_bad_requests_get_a_4xx_with_a_message_and_leave_the_file_alone(setup, method, url, body, status,
+                                                                          message) -> None:
+    client, _, out = setup
+    assert client.post("/api/sketches", json={"shape": "L", "waypoints": L_WAYPOINTS}).status_code == 201
+    before = digest(out / "sketches.yaml")
+    if isinstance(body, bytes):
+        r = client.request(method, url, content=body, headers={"Content-Type": "application/json"})
+    else:
+        r = client.request(method, url, json=body)
+    assert r.status_code == status, r.text
+    assert re.search(message, r.json()["error"]), r.json()
+    assert digest(out / "sketches.yaml") == before
+    assert len(load_sketch_file(out / "sketches.yaml").sketches) == 1
+
+
+def test_models_of_the_wrong_role_or_no_model_at_all_are_refused(setup, tmp_path: Path) -> None:
+    client, _, _ = setup
+    expert = student_checkpoint(tmp_path / "expert.ckpt", role="cond_expert")
+    r = client.post("/api/model", json={"path": str(expert)})
+    assert r.status_code == 422 and "'cond_expert'" in r.json()["error"], r.text  # says the role it found
+    junk = tmp_path / "notes.ckpt"
+    junk.write_text("not a checkpoint")
+    r = client.post("/api/model", json={"path": str(junk)})
+    assert r.status_code == 422 and "notes.ckpt" in r.json()["error"], r.text
+    assert client.get("/api/model").json() == {"model": None}
+    with pytest.raises(ValueError, match="cond_expert"):
+        build_app(str(setup[1]), tmp_path / "other", TINY, model=expert)
+
+
+# ------------------------------------------------------------------------------------------------ races
+def test_concurrent_saves_from_two_servers_lose_nothing(setup) -> None:
+    """Eight saves at once, half through a second server on the same sketch file: all land, the file stays valid."""
+    client, yaml_path, out = setup
+    other = TestClient(build_app(str(yaml_path), out, TINY))
+    barrier = threading.Barrier(8)
+    answers: list[int] = []
+
+    def save(k: int) -> None:
+        barrier.wait()
+        r = (client if k % 2 else other).post("/api/sketches", json={"shape": "L", "waypoints": L_WAYPOINTS,
+                                                                       "name": f"race_{k}"})
+        answers.append(r.status_code)
+
+    threads = [threading.Thread(target=save, args=(k,)) for k in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert answers == [201] * 8
+    names = sorted(s.name for s in load_sketch_file(out / "sketches.yaml").sketches)
+    assert names == [f"race_{k}" for k in range(8)]
+    assert not list(out.glob(".sketches.yaml.*.tmp"))  # no temporary file left behind
+    # default names never collide either
+    threads = [threading.Thread(target=lambda: answers.append(
+        client.post("/api/sketches", json={"shape": "L", "waypoints": L_WAYPOINTS}).status_code)) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert answers[8:] == [201] * 4
+    assert len({s["name"] for s in client.get("/api/sketches").json()["sketches"]}) == 12
+
+
+# ------------------------------------------------------------------------------------------------ dataset
+def test_build_dataset_from_the_saved_sketches(setup) -> None:
+    client, _, out = setup
+    r = client.post("/api/build", json={})
+    assert r.status_code == 409 and "no saved sketch" in r.json()["error"]
+    for wp in (L_WAYPOINTS, L_SECOND):
+        assert client.post("/api/sketches", json={"shape": "L", "waypoints": wp}).status_code == 201
+    r = client.post("/api/build", json={"wait": True})
+    assert r.status_code == 202, r.text
+    job = client.get("/api/build").json()
+    assert job["state"] == "done" and job["progress"] == 1.0, job
+    assert job["summary"]["scenarios_accepted"] == 2 and job["summary"]["rejections"] == {}
+    from spade.data import PathDataset
+
+    ds = PathDataset(out / "dataset")
+    assert len(ds) == job["instances"] > 20
+    manifest = json.loads((out / "dataset" / "manifest.json").read_text())
+    assert manifest["extra"]["source"] == "sketches"
+    assert set(manifest["labels"]["scenario_id"]["values"]) == {"site/L000", "site/L001"}
+    assert manifest["image_size"][0] == 64 and client.get("/api/build/preview.png").status_code == 200
+    header = (out / "sketches.yaml").read_text().splitlines()[1]
+    assert "python -m spade.annotate sketches=" in header and "window.size_px=64" in header
+
+
+# ------------------------------------------------------------------------------------------------ the policy
+class LineOracle:
+    """A stand-in network that 'predicts' the straight segment between the start and goal discs of its input."""
+
+    info: dict = {}
+
+    def logits(self, states: np.ndarray) -> np.ndarray:
+        from scipy import ndimage
+        from skimage.draw import line
+
+        out = np.full((len(states), 1, *states.shape[2:]), -10.0, dtype=np.float32)
+        for i, state in enumerate(states):
+            (r0, c0), (r1, c1) = (np.rint(ndimage.center_of_mass(state[k])).astype(int) for k in (1, 2))
+            rr, cc = line(r0, c0, r1, c1)
+            out[i, 0, rr, cc] = 10.0
+        return out
+
+
+def test_plan_with_a_student(setup, tmp_path: Path) -> None:
+    client, _, _ = setup
+    ckpt = student_checkpoint(tmp_path / "student.ckpt")
+    r = client.post("/api/model", json={"path": str(ckpt)})
+    assert r.status_code == 200 and r.json()["model"]["image_size"] == [64, 64], r.text
+    query = {"pose": [0.0, 1.0, 0.0], "goal": [2.0, 1.0]}
+    r = client.post("/api/plan", json=query)  # untrained weights: any answer, but a well-formed one
+    assert r.status_code == 200, r.text
+    res = r.json()
+    assert res["success"] or (res["code"] and res["reason"])
+    assert res["probability"].startswith("data:image/png;base64,") and res["latency_ms"] > 0
+
+    client.app.state.workspace.planner.backend = LineOracle()  # a network whose answer is known
+    times = []
+    for _ in range(5):
+        t0 = time.perf_counter()
+        res = client.post("/api/plan", json=query).json()
+        times.append(1e3 * (time.perf_counter() - t0))
+    assert res["success"], res
+    wp = np.asarray(res["waypoints"])
+    assert np.linalg.norm(wp[0] - query["pose"][:2]) < 0.3 and np.linalg.norm(wp[-1] - query["goal"]) < 0.3
+    assert np.abs(wp[:, 1] - 1.0).max() < 0.3  # the straight line, in map metres
+    print(f"\nplan: {np.median(times):.1f} ms round trip median of 5 ({res['latency_ms']} ms in the planner)")
+
+    for body, message in (({"pose": [30.0, 1.0, 0.0], "goal": [1.0, 1.0]}, "robot pose .* lies outside the map"),
+                          ({"pose": [0.0, 1.0], "goal": [1.0, 1.0]}, "pose \\(x, y, yaw\\) must be 3 finite"),
+                          ({"pose": [0.0, 1.0, 0.0], "goal": [1.0, -9.0]}, "goal .* lies outside the map")):
+        r = client.post("/api/plan", json=body)
+        assert r.status_code == 422 and re.search(message, r.json()["error"]), r.text
+
+
+def test_sketch_file_written_by_the_app_is_plain_yaml(setup) -> None:
+    client, _, out = setup
+    client.post("/api/sketches", json={"shape": "L", "waypoints": L_WAYPOINTS, "name": "dock_a"})
+    doc = yaml.safe_load((out / "sketches.yaml").read_text())
+    assert doc["scenarios"][0]["name"] == "dock_a" and doc["scenarios"][0]["shape"] == "L"
