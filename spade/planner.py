@@ -1,15 +1,15 @@
 """The planner API: ``from spade.planner import Planner``.
 
-    planner = Planner("student.ckpt")            # or the ONNX export: Planner("student.onnx")
-    result = planner.plan("map.yaml", start=(1.0, 2.0), goal=(3.5, 4.0))   # map-frame metres
+    planner = Planner("student.ckpt")            # or its export: Planner("student.onnx")
+    result = planner.plan("map.yaml", (1.0, 2.0, 0.5), goal=(3.5, 4.0))   # robot pose (x, y, yaw), goal: map metres
     if result.success:
-        print(result.waypoints)                   # (K, 2) metres, start -> goal
+        print(result.waypoints)                   # (K, 2) metres, robot -> goal
     else:
         print(result.code, result.reason)
 
 Implementation: :mod:`spade.deploy.planner`.
 """
 
-from spade.deploy.planner import PlannerConfigError, PlanResult, Planner, WindowPlacement
+from spade.deploy.planner import PlannerConfigError, PlanResult, Planner, PlanWindow
 
-__all__ = ["PlanResult", "Planner", "PlannerConfigError", "WindowPlacement"]
+__all__ = ["PlanResult", "PlanWindow", "Planner", "PlannerConfigError"]

@@ -1,32 +1,32 @@
-"""Plan with a trained student: a map (or a local window), a robot position and a goal in, waypoints out.
+"""Plan with a trained student: a map, a robot pose and a goal in, waypoints in map metres out.
 
-The student only ever saw the windows of the annotation tool (:mod:`spade.annotation.rasterize`), so a query is
-turned into exactly such a window:
+The student only ever saw the windows of the annotation tool, which are in the robot's frame
+(:mod:`spade.annotation.frame`): the robot at a fixed pixel, its heading up the image, the map rotated about it.
+A query is turned into exactly such a window:
 
 - the map is resampled to the student's resolution (``OccupancyMap.resampled``: obstacles never vanish);
-- the window is axis-aligned with the map (as Nav2's rolling local costmap and the annotation tool's windows),
-  its top-left cell an integer cell of that map and cells outside the map unknown (``rasterize.crop``). The
-  annotation tool draws the window uniformly among the placements that keep the whole remaining path
-  ``margin_m`` inside it; a planner knows only the start and the goal, so it takes the middle of the placements
-  that keep those two ``margin_m`` inside, i.e. centres the window on them. A map that already is a window of
-  the student's size and resolution (a local costmap) is used as it is;
-- the goal must lie in the window, as in every training instance. A goal too far for one window is a failure
-  (``far_goal="fail"``) or, with ``far_goal="clip"``, replaced by the farthest free point towards it that fits
-  (a sub-goal: plan again from nearer the goal);
-- the state is the dataset's encoding (``spade.data.PathDataset``): occupancy ``code * 0.5``, then the start
-  and goal discs drawn by ``rasterize.render`` (radius ``disc_radius_m``).
+- the robot pose (x, y, yaw) in map metres (ROS yaw: counter-clockwise from the map's +x axis) places the
+  window: ``frame.place(world_to_pixel(x, y), heading_from_yaw(yaw))``, the frame being the one the model file
+  records (``data.frame``; a model trained on the older axis-aligned windows is refused: retrain it);
+- the occupancy is the rotated map (``WindowPose.occupancy``: an obstacle is never skipped, free space never
+  invented, cells off the map unknown); the start disc is drawn at the robot's pixel and the goal disc at the
+  goal's window pixel (``rasterize.render``, radius ``disc_radius_m``), as in the dataset's encoding
+  (occupancy ``code * 0.5``, start, goal);
+- the goal must lie ``margin_m`` inside the window, as in every training instance. A goal farther away is a
+  failure (``far_goal="fail"``) or, with ``far_goal="clip"``, replaced by the farthest free point towards it
+  that fits (a sub-goal: plan again from nearer the goal).
 
-The path is extracted with :func:`spade.metrics.extract_path` (the evaluation's extraction) and converted back
-to map-frame metres. Every way a query can fail gives a :class:`PlanResult` with ``success=False``, a short
-``code`` and a readable ``reason``, keeping whatever was computed (window, probabilities) for debugging.
+The path is extracted with :func:`spade.metrics.extract_path` (the evaluation's extraction) and mapped back to
+map-frame metres (``WindowPose.to_map`` then ``pixel_to_world``). Every way a query can fail gives a
+:class:`PlanResult` with ``success=False``, a short ``code`` and a readable ``reason``, keeping whatever was
+computed (window, probabilities) for debugging.
 
-Backends: a Lightning checkpoint written by ``python -m spade.train`` (PyTorch) or an ONNX file written by
-``spade.deploy.export`` (onnxruntime); both give the same probabilities for the same window.
+Model files: a checkpoint from ``python -m spade.train``, or its ONNX / TorchScript export
+(``python -m spade.export``), opened by :func:`spade.models.modelfile.open_model` (one device policy).
 """
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -35,83 +35,87 @@ from typing import Any, Union
 
 import numpy as np
 
-from spade.annotation.rasterize import crop, render
+from spade.annotation.frame import RobotFrame, WindowPose, heading_from_yaw
+from spade.annotation.rasterize import render
 from spade.maps import FREE, OCCUPIED, OccupancyMap, load_ros_map
 from spade.metrics import ExtractedPath, extract_path
+from spade.models.modelfile import ModelFileError, open_model, robot_frame
 
-__all__ = ["PlanResult", "Planner", "PlannerConfigError", "WindowPlacement"]
+__all__ = ["PlanResult", "PlanWindow", "Planner", "PlannerConfigError"]
 
 MapLike = Union[OccupancyMap, str, Path]
 
-# The annotation tool's defaults (conf/annotate.yaml): what a checkpoint that does not record them was trained on.
+# The annotation tool's defaults (conf/annotate.yaml): what a model file that does not record them was trained on.
 DEFAULT_DISC_RADIUS_M = 0.1
 DEFAULT_MARGIN_M = 0.3
 
 
-class PlannerConfigError(ValueError):
-    """A model file the planner cannot use as it is (wrong role, missing window description, bad option)."""
+class PlannerConfigError(ModelFileError):
+    """A model file the planner cannot use as it is (wrong role, no robot frame, bad option)."""
 
 
 @dataclass(frozen=True)
-class WindowPlacement:
-    """The student's window in a map at the student's resolution: top-left cell (col0, row0), (height, width)."""
+class PlanWindow:
+    """The student's robot-frame window in a map at the student's resolution."""
 
     map: OccupancyMap
-    col0: int
-    row0: int
-    height: int
-    width: int
+    pose: WindowPose
 
     @property
-    def offset(self) -> np.ndarray:
-        return np.array([self.col0, self.row0], dtype=np.float64)
+    def size(self) -> int:
+        return self.pose.frame.size
 
     def to_window(self, xy_m: np.ndarray) -> np.ndarray:
         """Map-frame metres (..., 2) -> window pixel coordinates (..., 2) (x = column, y = row)."""
-        return self.map.world_to_pixel(np.asarray(xy_m, dtype=np.float64)) - self.offset
+        return self.pose.to_window(self.map.world_to_pixel(np.asarray(xy_m, dtype=np.float64)))
 
     def to_world(self, px: np.ndarray) -> np.ndarray:
         """Window pixel coordinates (..., 2) -> map-frame metres (..., 2)."""
-        return self.map.pixel_to_world(np.asarray(px, dtype=np.float64) + self.offset)
+        return self.map.pixel_to_world(self.pose.to_map(np.asarray(px, dtype=np.float64)))
 
     def occupancy(self) -> np.ndarray:
-        """(H, W) uint8 codes of the window; cells outside the map are unknown (as in the training windows)."""
-        if (self.height, self.width) == self.map.grid.shape and self.col0 == 0 and self.row0 == 0:
-            return self.map.grid
-        if self.height == self.width:
-            return crop(self.map.grid, self.col0, self.row0, self.height)
-        out = crop(self.map.grid, self.col0, self.row0, max(self.height, self.width))
-        return np.ascontiguousarray(out[: self.height, : self.width])
+        """(S, S) uint8 codes of the window (the training windows' conservative rotation)."""
+        return self.pose.occupancy(self.map.grid)
+
+    @property
+    def corners_m(self) -> np.ndarray:
+        """(4, 2) map-frame metres of the window's outer corners: top-left, top-right, bottom-right, bottom-left
+        in the window (its top edge lies ahead of the robot)."""
+        e = self.size - 0.5
+        return self.to_world(np.array([[-0.5, -0.5], [e, -0.5], [e, e], [-0.5, e]]))
 
     @property
     def bounds_m(self) -> tuple[float, float, float, float]:
-        """(x_min, y_min, x_max, y_max) of the window's outer edges in map-frame metres."""
-        corners = self.to_world(np.array([[-0.5, self.height - 0.5], [self.width - 0.5, -0.5]]))
-        return float(corners[0, 0]), float(corners[0, 1]), float(corners[1, 0]), float(corners[1, 1])
+        """(x_min, y_min, x_max, y_max) of the (rotated) window's corners in map-frame metres."""
+        c = self.corners_m
+        return float(c[:, 0].min()), float(c[:, 1].min()), float(c[:, 0].max()), float(c[:, 1].max())
 
 
 @dataclass
 class PlanResult:
     """The outcome of one query.
 
-    ``waypoints``: (K, 2) float64 map-frame metres from the start to the goal, evenly spaced by arc length; an
+    ``waypoints``: (K, 2) float64 map-frame metres from the robot to the goal, evenly spaced by arc length; an
     empty (0, 2) array when ``success`` is False. ``code``: None on success, else one of ``start_outside_map``,
     ``start_not_free``, ``goal_outside_map``, ``goal_not_free``, ``goal_too_far``, ``empty`` (no pixel above the
-    threshold), ``too_short``, ``goal_not_reached``, ``collision``; ``reason`` says it in words. ``goal``: the
-    goal planned to (the sub-goal when ``far_goal="clip"`` moved it; then ``subgoal`` is True). ``probability``:
-    the (H, W) path probabilities of the window and ``state`` the (3, H, W) network input (None when the query
-    failed before the network ran); ``pixels``: the waypoints in window pixel coordinates; ``extraction``: the
-    raw :class:`~spade.metrics.ExtractedPath`; ``blocked``: waypoints and path pixels on non-free cells.
+    threshold), ``too_short``, ``goal_not_reached``, ``collision``; ``reason`` says it in words. ``pose``: the
+    robot pose (x, y, yaw) planned from; ``start`` its (x, y). ``goal``: the goal planned to (the sub-goal when
+    ``far_goal="clip"`` moved it; then ``subgoal`` is True). ``window``: where the student's window lies
+    (:class:`PlanWindow`). ``probability``: the (S, S) path probabilities of the window and ``state`` the
+    (3, S, S) network input (None when the query failed before the network ran); ``pixels``: the waypoints in
+    window pixel coordinates; ``extraction``: the raw :class:`~spade.metrics.ExtractedPath`; ``blocked``:
+    waypoints and path pixels on non-free cells.
     """
 
     success: bool
     waypoints: np.ndarray
     code: str | None = None
     reason: str | None = None
+    pose: np.ndarray | None = None
     start: np.ndarray | None = None
     goal: np.ndarray | None = None
     subgoal: bool = False
-    window: WindowPlacement | None = None
+    window: PlanWindow | None = None
     state: np.ndarray | None = field(default=None, repr=False)
     probability: np.ndarray | None = field(default=None, repr=False)
     pixels: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
@@ -133,10 +137,25 @@ def _failure(code: str, reason: str, **kwargs: Any) -> PlanResult:
     return PlanResult(success=False, waypoints=np.zeros((0, 2)), code=code, reason=reason, **kwargs)
 
 
-def _point(value: Any, name: str) -> np.ndarray:
+def robot_pose(value: Any, name: str = "start") -> np.ndarray:
+    """(x, y, yaw) as float64; a bare (x, y) is refused: the window is in the robot's frame."""
+    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    if arr.shape == (2,):
+        raise ValueError(
+            f"{name}={list(arr)} is a position (x, y); the planner needs the robot's pose (x, y, yaw): the student "
+            "sees the map in the robot's frame, rotated with its heading. Pass (x, y, yaw) in map-frame metres and "
+            "radians (ROS yaw: counter-clockwise from the map's +x axis), e.g. start=X,Y,YAW on the command line"
+        )
+    if arr.shape != (3,) or not np.isfinite(arr).all():
+        raise ValueError(f"{name} must be a robot pose (x, y, yaw) in map-frame metres and radians, got {value!r}")
+    return arr
+
+
+def goal_point(value: Any, name: str = "goal") -> np.ndarray:
+    """(x, y) as float64 (a pose's yaw, if given, is not used: the student knows no goal heading)."""
     arr = np.asarray(value, dtype=np.float64).reshape(-1)
     if arr.shape not in ((2,), (3,)) or not np.isfinite(arr).all():
-        raise ValueError(f"{name} must be (x, y) or a pose (x, y, yaw) in map-frame metres, got {value!r}")
+        raise ValueError(f"{name} must be (x, y) in map-frame metres, got {value!r}")
     return arr[:2].copy()
 
 
@@ -144,75 +163,12 @@ def _sigmoid(x: np.ndarray) -> np.ndarray:
     return (0.5 * (1.0 + np.tanh(0.5 * x))).astype(np.float32)
 
 
-class _TorchBackend:
-    """A student's network from a Lightning checkpoint (no LightningModule, no expert needed)."""
-
-    def __init__(self, path: Path, device: str) -> None:
-        import torch
-
-        from spade.models import model_from_config
-
-        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
-        info = checkpoint.get("spade") if isinstance(checkpoint, dict) else None
-        if not info:
-            raise PlannerConfigError(f"{path} is not a SPADE checkpoint (no 'spade' entry); pass a student "
-                                     "checkpoint written by python -m spade.train or its ONNX export")
-        if info.get("role") != "student":
-            raise PlannerConfigError(f"{path} is a {info.get('role')!r} checkpoint; the planner runs students only "
-                                     "(experts are for training)")
-        self.info = info
-        self.net = model_from_config(dict(info["config"]))
-        weights = {k[len("net."):]: v for k, v in checkpoint["state_dict"].items() if k.startswith("net.")}
-        self.net.load_state_dict(weights)
-        self.device = torch.device(device)
-        self.net.to(self.device).eval()
-
-    def logits(self, states: np.ndarray) -> np.ndarray:
-        import torch
-
-        with torch.inference_mode():
-            x = torch.from_numpy(np.ascontiguousarray(states, dtype=np.float32)).to(self.device)
-            return self.net(x).float().cpu().numpy()
-
-
-class _OnnxBackend:
-    """An exported student run by onnxruntime: input ``state`` (N, 3, H, W), output ``logits`` (N, 1, H, W)."""
-
-    def __init__(self, path: Path, device: str) -> None:
-        try:
-            import onnxruntime as ort
-        except ImportError:  # pragma: no cover - depends on the installed extras
-            raise ImportError("planning with an .onnx file needs onnxruntime: pip install -e '.[onnx]'") from None
-        providers = ["CPUExecutionProvider"]
-        if device.startswith("cuda"):
-            providers.insert(0, "CUDAExecutionProvider")
-        self.session = ort.InferenceSession(str(path), providers=providers)
-        meta = self.session.get_modelmeta().custom_metadata_map
-        if "spade" not in meta:
-            raise PlannerConfigError(f"{path} carries no 'spade' metadata; export students with "
-                                     "spade.deploy.export.export_student (python -m spade.export)")
-        self.info = json.loads(meta["spade"])
-        if self.info.get("role") != "student":
-            raise PlannerConfigError(f"{path} holds a {self.info.get('role')!r} model; the planner runs students only")
-        self.input = self.session.get_inputs()[0].name
-        outputs = [o.name for o in self.session.get_outputs()]
-        self.output = "logits" if "logits" in outputs else outputs[0]
-
-    def logits(self, states: np.ndarray) -> np.ndarray:
-        x = np.ascontiguousarray(states, dtype=np.float32)
-        return np.asarray(self.session.run([self.output], {self.input: x})[0], dtype=np.float32)
-
-
 class Planner:
     """A trained student as a path planner (see the module docstring for how queries become windows).
 
     Args:
-        model: a student checkpoint (``.ckpt``, from ``python -m spade.train``) or its ONNX export (``.onnx``).
-        device: ``cpu`` or ``cuda[:N]`` (PyTorch device; for ONNX, ``cuda`` asks for the CUDA provider first).
-        image_size, resolution_m: the student's window (H, W) / (S, S) and metres per pixel. Read from the model
-            file (``checkpoint["spade"]["data"]``, written by every fit since the planner exists); give them only
-            for older checkpoints, and then exactly as the student was trained (the scale's image_size and
-            resolution_m).
+        model: a student checkpoint (``.ckpt``, from ``python -m spade.train``) or its export (``.onnx``, ``.pt``).
+        device: ``cpu``, ``cuda[:N]`` or ``auto`` (:func:`spade.models.modelfile.resolve_device`).
         num_waypoints: points of the returned polyline.
         threshold, max_gap, goal_tolerance_px: :func:`spade.metrics.extract_path` options (the evaluation's).
         disc_radius_m, margin_m: the annotation tool's ``instances.disc_radius_m`` and ``window.margin_m`` the
@@ -221,6 +177,7 @@ class Planner:
         require_goal: a path that does not reach the goal (within ``goal_tolerance_px``) is a failure.
         collision_check: a path over a non-free cell of the window (occupied or unknown) is a failure.
         batch_size: windows per forward pass in :meth:`plan_batch`.
+        threads: onnxruntime intra-op threads for an ONNX model (None: its default).
     """
 
     def __init__(
@@ -228,8 +185,6 @@ class Planner:
         model: str | Path,
         *,
         device: str = "cpu",
-        image_size: int | Sequence[int] | None = None,
-        resolution_m: float | None = None,
         num_waypoints: int = 64,
         threshold: float = 0.5,
         max_gap: float = 2.0,
@@ -240,25 +195,28 @@ class Planner:
         require_goal: bool = True,
         collision_check: bool = True,
         batch_size: int = 64,
+        threads: int | None = None,
     ) -> None:
         path = Path(model).expanduser()
         if not path.is_file():
             raise FileNotFoundError(f"planner model {path} does not exist; pass a student checkpoint (.ckpt) from "
-                                    "python -m spade.train or its ONNX export (.onnx)")
+                                    "python -m spade.train or its export (.onnx / .pt) from python -m spade.export")
         self.path = path
-        self.backend = _OnnxBackend(path, device) if path.suffix == ".onnx" else _TorchBackend(path, device)
-        data = dict(self.backend.info.get("data") or {})
-        self.image_size = self._image_size(image_size if image_size is not None else data.get("image_size"))
-        res = resolution_m if resolution_m is not None else data.get("resolution_m")
-        if res is None:
-            raise PlannerConfigError(
-                f"{path} does not record the window it was trained on (no 'data' entry: written before fits stored "
-                "it). Pass image_size= and resolution_m= exactly as the student was trained (its scale's "
-                "image_size and resolution_m, e.g. 64 and 0.1 for scale=tiny), or retrain/re-export it"
-            )
-        self.resolution = float(res)
+        try:
+            self.backend = open_model(path, device, threads, role="student")
+            self.frame = RobotFrame.from_json(robot_frame(self.backend.info, path))
+        except ModelFileError as err:
+            raise PlannerConfigError(str(err)) from None
+        data = dict(self.backend.info["data"])
+        size = [int(v) for v in data["image_size"]]
+        if size != [self.frame.size, self.frame.size]:
+            raise PlannerConfigError(f"{path}: image_size {size} disagrees with its robot frame's "
+                                     f"{self.frame.size} px window; the file was not written by SPADE")
+        self.image_size = (size[0], size[1])
+        self.resolution = float(data["resolution_m"])
         if not (math.isfinite(self.resolution) and self.resolution > 0):
-            raise PlannerConfigError(f"resolution_m must be a positive number of metres per pixel, got {res!r}")
+            raise PlannerConfigError(f"{path}: resolution_m must be a positive number of metres per pixel, "
+                                     f"got {data['resolution_m']!r}")
         self.disc_radius_m = float(disc_radius_m if disc_radius_m is not None
                                    else data.get("disc_radius_m", DEFAULT_DISC_RADIUS_M))
         self.margin_m = float(margin_m if margin_m is not None else data.get("margin_m", DEFAULT_MARGIN_M))
@@ -274,21 +232,13 @@ class Planner:
         self.batch_size = int(batch_size)
         self._cache: tuple[OccupancyMap, OccupancyMap] | None = None  # (map given, map at the student's resolution)
 
-    @staticmethod
-    def _image_size(value: Any) -> tuple[int, int] | None:
-        if value is None:
-            raise PlannerConfigError(
-                "the model file does not record its window size (no 'data' entry); pass image_size= (and "
-                "resolution_m=) exactly as the student was trained"
-            )
-        size = [int(v) for v in (value if isinstance(value, (list, tuple)) else [value, value])]
-        if len(size) != 2 or min(size) < 8:
-            raise PlannerConfigError(f"image_size must be S or (H, W) with sides >= 8, got {value!r}")
-        return size[0], size[1]
-
     def __repr__(self) -> str:
         h, w = self.image_size
-        return f"Planner({self.path.name}, {h}x{w} px at {self.resolution} m/px)"
+        return f"Planner({self.path.name}, {h}x{w} px robot-frame windows at {self.resolution} m/px)"
+
+    @property
+    def margin_px(self) -> float:
+        return self.margin_m / self.resolution
 
     # -- network ---------------------------------------------------------------------------------------------
     def predict(self, states: np.ndarray) -> np.ndarray:
@@ -300,61 +250,65 @@ class Planner:
         return _sigmoid(np.concatenate(out)[:, 0]) if out else np.zeros((0, *self.image_size), np.float32)
 
     # -- queries ---------------------------------------------------------------------------------------------
-    def plan(self, map: MapLike, start: Any, goal: Any) -> PlanResult:
-        """Plan from ``start`` (x, y[, yaw]) to ``goal`` (x, y) in map-frame metres on ``map``.
+    def plan(self, map: MapLike, pose: Any, goal: Any) -> PlanResult:
+        """Plan from the robot ``pose`` (x, y, yaw) to ``goal`` (x, y), both in map-frame metres, on ``map``.
 
-        ``map``: an :class:`OccupancyMap` (a whole map, or a local window such as a rolling costmap converted to
-        codes, with its origin in the map frame) or the path of a ROS map yaml.
+        ``map``: an :class:`OccupancyMap` (a whole map, or a local one such as a rolling costmap converted to
+        codes, with its origin in the map frame; cells of the window off it are unknown) or a ROS map yaml path.
         """
-        return self.plan_batch(map, [start], [goal])[0]
+        return self.plan_batch(map, [pose], [goal])[0]
 
-    def plan_batch(self, maps: MapLike | Sequence[MapLike], starts: Any, goals: Any) -> list[PlanResult]:
+    def plan_batch(self, maps: MapLike | Sequence[MapLike], poses: Any, goals: Any) -> list[PlanResult]:
         """:meth:`plan` for N queries in one pass of the network: ``maps`` one map for all or one per query,
-        ``starts`` (N, 2|3) and ``goals`` (N, 2) in map-frame metres."""
-        starts = [_point(s, "start") for s in starts]
-        goals = [_point(g, "goal") for g in goals]
-        if len(starts) != len(goals):
-            raise ValueError(f"plan_batch got {len(starts)} starts and {len(goals)} goals; give one goal per start")
+        ``poses`` (N, 3) robot poses and ``goals`` (N, 2) in map-frame metres."""
+        poses = [robot_pose(p) for p in poses]
+        goals = [goal_point(g) for g in goals]
+        if len(poses) != len(goals):
+            raise ValueError(f"plan_batch got {len(poses)} poses and {len(goals)} goals; give one goal per pose")
         if isinstance(maps, (OccupancyMap, str, Path)):
-            maps = [maps] * len(starts)
+            maps = [maps] * len(poses)
         maps = list(maps)
-        if len(maps) != len(starts):
-            raise ValueError(f"plan_batch got {len(maps)} maps for {len(starts)} queries; give one map or one each")
+        if len(maps) != len(poses):
+            raise ValueError(f"plan_batch got {len(maps)} maps for {len(poses)} queries; give one map or one each")
         loaded: dict[int, OccupancyMap] = {}
         results: list[PlanResult | None] = []
-        pending: list[tuple[int, WindowPlacement, np.ndarray, np.ndarray, np.ndarray, bool]] = []
-        for i, (m, s, g) in enumerate(zip(maps, starts, goals)):
+        pending: list[tuple[int, PlanWindow, np.ndarray, np.ndarray, bool]] = []
+        for i, (m, pose, goal) in enumerate(zip(maps, poses, goals)):
             key = id(m)
             if key not in loaded:
                 loaded[key] = m if isinstance(m, OccupancyMap) else load_ros_map(m)
-            prepared = self._prepare(loaded[key], s, g)
+            prepared = self._prepare(loaded[key], pose, goal)
             if isinstance(prepared, PlanResult):
                 results.append(prepared)
                 continue
-            window, start_px, goal_px, goal_m, subgoal = prepared
+            window, goal_px, goal_m, subgoal = prepared
             results.append(None)
-            pending.append((i, window, start_px, goal_px, goal_m, subgoal))
+            pending.append((i, window, goal_px, goal_m, subgoal))
         if pending:
-            states = np.stack([self.encode(w.occupancy(), s, g) for _, w, s, g, _, _ in pending])
+            robot_px = np.asarray(self.frame.robot_px, dtype=np.float64)
+            states = np.stack([self.encode(w.occupancy(), robot_px, g) for _, w, g, _, _ in pending])
             probs = self.predict(states)
-            for (i, window, start_px, goal_px, goal_m, subgoal), state, prob in zip(pending, states, probs):
-                results[i] = self._extract(window, state, prob, starts[i], start_px, goal_px, goal_m, subgoal)
+            for (i, window, goal_px, goal_m, subgoal), state, prob in zip(pending, states, probs):
+                results[i] = self._extract(window, state, prob, poses[i], goal_px, goal_m, subgoal)
         return results  # type: ignore[return-value]
 
     # -- steps -----------------------------------------------------------------------------------------------
     def encode(self, occupancy: np.ndarray, start_px: np.ndarray, goal_px: np.ndarray) -> np.ndarray:
-        """The (3, H, W) float32 network input of a window: occupancy code * 0.5, start disc, goal disc."""
+        """The (3, S, S) float32 network input of a window: occupancy code * 0.5, start disc, goal disc."""
         occupancy = np.asarray(occupancy, dtype=np.uint8)
-        h, w = occupancy.shape
-        side = max(h, w)
-        square = crop(occupancy, 0, 0, side) if h != w else occupancy
         # The annotation tool's own rasteriser draws the discs, so they are the training discs pixel for pixel.
-        inst = render(square, np.stack([start_px, goal_px]), self.disc_radius_m / self.resolution, 2)
-        state = np.empty((3, h, w), dtype=np.float32)
+        inst = render(occupancy, np.stack([start_px, goal_px]), self.disc_radius_m / self.resolution, 2)
+        state = np.empty((3, *occupancy.shape), dtype=np.float32)
         np.multiply(occupancy, np.float32(0.5), out=state[0])
-        state[1] = inst.start[:h, :w]
-        state[2] = inst.goal[:h, :w]
+        state[1] = inst.start
+        state[2] = inst.goal
         return state
+
+    def window(self, m: OccupancyMap, pose: Any) -> PlanWindow:
+        """The student's window for a robot ``pose`` (x, y, yaw) in map metres on ``m`` (any resolution)."""
+        pose = robot_pose(pose)
+        coarse = self._at_resolution(m)
+        return PlanWindow(coarse, self.frame.place(coarse.world_to_pixel(pose[:2]), heading_from_yaw(pose[2])))
 
     def _at_resolution(self, m: OccupancyMap) -> OccupancyMap:
         if abs(m.resolution - self.resolution) <= 1e-9 * self.resolution:
@@ -379,81 +333,63 @@ class Planner:
                             f"row {row} of map {m.name!r}); give a {name} on a free cell")
         return None
 
-    def _prepare(self, given: OccupancyMap, start: np.ndarray, goal: np.ndarray
-                 ) -> PlanResult | tuple[WindowPlacement, np.ndarray, np.ndarray, np.ndarray, bool]:
-        for xy, name in ((start, "start"), (goal, "goal")):
+    def _prepare(self, given: OccupancyMap, pose: np.ndarray, goal: np.ndarray
+                 ) -> PlanResult | tuple[PlanWindow, np.ndarray, np.ndarray, bool]:
+        for xy, name in ((pose[:2], "start"), (goal, "goal")):
             failed = self._check_endpoint(given, xy, name)
             if failed is not None:
-                failed.start, failed.goal = start, goal
+                failed.pose, failed.start, failed.goal = pose, pose[:2].copy(), goal
                 return failed
-        m = self._at_resolution(given)
-        h, w = self.image_size
-        start_map = m.world_to_pixel(start)
-        goal_map = m.world_to_pixel(goal)
-        if m.grid.shape == (h, w):  # already a window of the student's: use it as it is
-            return WindowPlacement(m, 0, 0, h, w), start_map, goal_map, goal, False
-        placement = self._place(m, start_map, goal_map)
-        subgoal = False
-        if placement is None and self.far_goal == "clip":
-            clipped = self._clip_goal(m, start_map, goal_map)
+        window = self.window(given, pose)
+        goal_px = window.to_window(goal)
+        if self.frame.inside(goal_px[None], self.margin_px):
+            return window, goal_px, goal, False
+        if self.far_goal == "clip":
+            clipped = self._clip_goal(window, goal)
             if clipped is not None:
-                goal_map, subgoal = clipped, True
-                placement = self._place(m, start_map, goal_map)
-        if placement is None:
-            span = np.abs(goal_map - start_map) * self.resolution
-            return _failure(
-                "goal_too_far",
-                f"goal is {span[0]:.2f} m x {span[1]:.2f} m from the start; the student's window covers "
-                f"{w * self.resolution:.2f} m x {h * self.resolution:.2f} m with start and goal {self.margin_m} m "
-                "inside it. Give a nearer goal (a waypoint of a global plan) or use far_goal='clip'",
-                start=start, goal=goal,
-            )
-        offset = np.array([placement.col0, placement.row0], dtype=np.float64)
-        return placement, start_map - offset, goal_map - offset, m.pixel_to_world(goal_map), subgoal
+                return window, window.to_window(clipped), clipped, True
+        s, r = self.frame.size, np.asarray(self.frame.robot_px)
+        ahead, side = (r[1] - goal_px[1]) * self.resolution, (goal_px[0] - r[0]) * self.resolution
+        reach_ahead = (r[1] - self.margin_px) * self.resolution
+        reach_behind = (s - 1 - self.margin_px - r[1]) * self.resolution
+        reach_side = (min(r[0], s - 1 - r[0]) - self.margin_px) * self.resolution
+        return _failure(
+            "goal_too_far",
+            f"the goal lies {abs(ahead):.2f} m {'ahead of' if ahead >= 0 else 'behind'} the robot and {abs(side):.2f} m "
+            f"to its {'right' if side >= 0 else 'left'}; the student's window "
+            f"reaches {reach_ahead:.2f} m ahead, {reach_behind:.2f} m behind and {reach_side:.2f} m to each side "
+            f"(goal {self.margin_m} m inside it). Give a nearer goal (a waypoint of a global plan), turn the robot "
+            "towards it, or use far_goal='clip'",
+            pose=pose, start=pose[:2].copy(), goal=goal, window=window,
+        )
 
-    def _bounds(self, lo_pts: np.ndarray, hi_pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Integer top-left cells keeping the points ``margin_m`` inside (``rasterize.place_window``'s range)."""
-        h, w = self.image_size
-        size = np.array([w, h], dtype=np.float64)
-        margin = self.margin_m / self.resolution
-        lo = np.ceil(hi_pts + margin - (size - 1) - 1e-9).astype(np.int64)
-        hi = np.floor(lo_pts - margin + 1e-9).astype(np.int64)
-        return lo, hi
-
-    def _place(self, m: OccupancyMap, start_px: np.ndarray, goal_px: np.ndarray) -> WindowPlacement | None:
-        pts = np.stack([start_px, goal_px])
-        lo, hi = self._bounds(pts.min(axis=0), pts.max(axis=0))
-        if (lo > hi).any():
-            return None
-        col0, row0 = (np.floor((lo + hi) / 2.0 + 0.5)).astype(np.int64)  # the middle of the allowed placements
-        h, w = self.image_size
-        return WindowPlacement(m, int(col0), int(row0), h, w)
-
-    def _clip_goal(self, m: OccupancyMap, start_px: np.ndarray, goal_px: np.ndarray) -> np.ndarray | None:
-        """The farthest free cell on the segment start -> goal that still fits in one window with the start."""
-        h, w = self.image_size
-        reach = np.array([w, h], dtype=np.float64) - 1 - 2 * self.margin_m / self.resolution - 1.0
+    def _clip_goal(self, window: PlanWindow, goal: np.ndarray) -> np.ndarray | None:
+        """The farthest free cell on the segment robot -> goal that lies ``margin_m`` inside the window (metres)."""
+        m, pose = window.map, window.pose
+        start_px = pose.robot
+        goal_px = m.world_to_pixel(goal)
         direction = goal_px - start_px
         length = float(np.linalg.norm(direction))
-        if length == 0 or (reach <= 0).any():
+        if length == 0:
             return None
         unit = direction / length
-        with np.errstate(divide="ignore"):
-            limit = float(np.min(np.where(np.abs(unit) > 1e-12, reach / np.abs(unit), np.inf)))
-        min_dist = 2.0 * self.margin_m / self.resolution
-        for dist in np.arange(min(limit, length), min_dist, -0.5):
+        min_dist = 2.0 * self.margin_px
+        for dist in np.arange(min(length, math.hypot(*self.image_size)), min_dist, -0.5):
             cand = start_px + unit * dist
+            if not self.frame.inside(pose.to_window(cand)[None], self.margin_px):
+                continue
             col, row = np.rint(cand).astype(np.int64)
             if 0 <= row < m.height and 0 <= col < m.width and m.grid[row, col] == FREE:
-                return cand
+                return m.pixel_to_world(cand)
         return None
 
-    def _extract(self, window: WindowPlacement, state: np.ndarray, prob: np.ndarray, start_m: np.ndarray,
-                 start_px: np.ndarray, goal_px: np.ndarray, goal_m: np.ndarray, subgoal: bool) -> PlanResult:
+    def _extract(self, window: PlanWindow, state: np.ndarray, prob: np.ndarray, pose: np.ndarray,
+                 goal_px: np.ndarray, goal_m: np.ndarray, subgoal: bool) -> PlanResult:
+        start_px = np.asarray(self.frame.robot_px, dtype=np.float64)
         found = extract_path(prob, start_px, goal_px, self.num_waypoints, threshold=self.threshold,
                              max_gap=self.max_gap, goal_tolerance=self.goal_tolerance_px)
-        common = dict(start=start_m, goal=np.asarray(goal_m, dtype=np.float64), subgoal=subgoal, window=window,
-                      state=state, probability=prob, extraction=found)
+        common = dict(pose=pose, start=pose[:2].copy(), goal=np.asarray(goal_m, dtype=np.float64), subgoal=subgoal,
+                      window=window, state=state, probability=prob, extraction=found)
         if not found.ok:
             why = {"empty": f"no pixel of the predicted path reaches probability {self.threshold}",
                    "too_short": "the predicted path near the start is a single pixel"}.get(found.failure, found.failure)

@@ -1,0 +1,69 @@
+"""What ``python -m spade.plan`` does: its command-line shorthands and one query from a composed config."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from spade.deploy.plan_picture import load_map, plan_image
+from spade.deploy.planner import Planner, PlanResult
+
+__all__ = ["rewrite_argv", "run_plan"]
+
+# Hydra options that take a separate value (``--cfg job``): that value is not a positional map.
+_VALUE_FLAGS = {"--cfg", "-c", "--package", "-p", "--config-path", "-cp", "--config-name", "-cn",
+                "--config-dir", "-cd", "--experimental-rerun"}
+_POINT = re.compile(r"^(?P<key>\+?(?:start|goal))=(?P<value>[^\[\]'\"]+,[^\[\]'\"]+)$")
+
+
+def rewrite_argv(args: list[str]) -> list[str]:
+    """The command line as Hydra needs it: ``MAP.yaml`` -> ``map=MAP.yaml``, ``start=X,Y,YAW`` ->
+    ``start=[X,Y,YAW]`` (Hydra would read a bare comma list as a sweep), ``model=PATH`` -> ``model_path=PATH``."""
+    out: list[str] = []
+    skip_next = False
+    for arg in args:
+        if skip_next:
+            out.append(arg)
+            skip_next = False
+            continue
+        if arg in _VALUE_FLAGS:
+            skip_next = True
+            out.append(arg)
+            continue
+        point = _POINT.match(arg)
+        if arg.startswith("model="):  # `model` is a config group of conf/: the key is model_path
+            out.append("model_path=" + arg[len("model="):])
+        elif point:
+            out.append(f"{point['key']}=[{point['value']}]")
+        elif not arg.startswith("-") and "=" not in arg and _looks_like_map(arg):
+            if any(a.startswith("map=") for a in args):
+                raise SystemExit(f"spade.plan: got the map twice ({arg!r} and a map= argument); give one")
+            out.append(f"map={arg}")
+        else:
+            out.append(arg)
+    return out
+
+
+def _looks_like_map(arg: str) -> bool:
+    from spade.annotation.sources import parse_procedural
+
+    return arg.endswith((".yaml", ".yml")) or parse_procedural(arg) is not None
+
+
+def run_plan(cfg: DictConfig) -> tuple[PlanResult, Path]:
+    """Run the config's query (``conf/plan.yaml``); returns the result and the path of the picture written."""
+    if cfg.get("model_path") in (None, ""):
+        raise ValueError("no model: pass model=PATH (a student .ckpt from python -m spade.train or its .onnx "
+                         "export) or set the SPADE_PLANNER_MODEL environment variable")
+    options: dict[str, Any] = OmegaConf.to_container(cfg.planner, resolve=True)  # type: ignore[assignment]
+    planner = Planner(cfg.model_path, device=cfg.device, **options)
+    m = load_map(cfg.map)
+    result = planner.plan(m, list(cfg.start), list(cfg.goal))
+    out = Path(cfg.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    pic = cfg.picture
+    plan_image(m, result, float(pic.context_m), int(pic.width_px), bool(pic.probability)).save(out)
+    return result, out
