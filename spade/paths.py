@@ -9,3 +9,15 @@ PROJECT_ROOT = Path(__file__).resolve().parents[1]
 CONF_DIR = PROJECT_ROOT / "conf"
 
 OmegaConf.register_new_resolver("cwd", os.getcwd, replace=True)
+
+
+def _run_uid() -> str:
+    """A fresh random id (48 bits from os.urandom, unique across processes and hosts sharing a filesystem)."""
+    import uuid
+
+    return uuid.uuid4().hex[:12]
+
+
+# ``${run_uid:}`` in a run folder name (conf/hydra/default.yaml): cached per config like Hydra's ``${now:}`` (and
+# copied to a multirun's jobs with it), so every use within one run gives the same id and no two runs share one.
+OmegaConf.register_new_resolver("run_uid", _run_uid, use_cache=True, replace=True)

@@ -13,23 +13,45 @@ from typing import Any
 
 import hydra
 import lightning as L
-from lightning.pytorch.loggers import MLFlowLogger
 from omegaconf import DictConfig, OmegaConf
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
 from spade.training.instantiate import instantiate_callbacks, instantiate_loggers, run_id_from_checkpoint
+from spade.experiments.lifecycle import install_signal_handlers
+from spade.experiments.validation import exit_on_user_error
 
 log = logging.getLogger(__name__)
 
 
-def train(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Fit (and test) the configured model; returns (metrics, objects)."""
-    from spade.experiments.prerequisites import resolve_prerequisites
-    from spade.experiments.tracking import finish_run, start_run_logging
+def train(cfg: DictConfig, _depth: int = 0) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Fit (and test) the configured model; returns (metrics, objects).
 
-    if cfg.get("seed") is not None:
-        L.seed_everything(cfg.seed, workers=True)
-    resolve_prerequisites(cfg)
+    In order: the config is validated (:mod:`spade.experiments.validation`: a one-line error before any MLflow run
+    or data work), missing prerequisites are trained (each by a nested call), everything is re-seeded, stale
+    RUNNING runs of this row are marked KILLED, and then the run itself is built and fitted. Its MLflow run ends
+    KILLED (signal) or FAILED (exception) when it does not finish.
+    """
+    from spade.experiments.lifecycle import (
+        DeterministicTraining,
+        mark_run_ended,
+        mark_stale_runs,
+        record_process,
+    )
+    from spade.experiments.prerequisites import complete_prerequisite, pending_prerequisites
+    from spade.experiments.tracking import finish_run, start_run_logging
+    from spade.experiments.validation import validate_train_config
+
+    validate_train_config(cfg)
+    for prerequisite in pending_prerequisites(cfg, depth=_depth):
+        log.info("Prerequisite %s (%s) is not registered: training it first (%s)", prerequisite.key,
+                 prerequisite.name, prerequisite.command)
+        train(prerequisite.config, _depth=_depth + 1)
+        complete_prerequisite(cfg, prerequisite)
+    seed = cfg.get("seed")
+    if seed is not None:
+        L.seed_everything(seed, workers=True)  # after the prerequisites: their training moved every generator
+    for message in mark_stale_runs(cfg):
+        print(message, flush=True)
 
     log.info("Instantiating datamodule <%s>", cfg.data._target_)
     datamodule: L.LightningDataModule = hydra.utils.instantiate(cfg.data)
@@ -39,30 +61,37 @@ def train(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
     ckpt_path = cfg.get("ckpt_path")
     loggers = instantiate_loggers(cfg.get("logger"), run_id=run_id_from_checkpoint(ckpt_path))
     callbacks = instantiate_callbacks(cfg.get("callbacks"))
+    if seed is not None:
+        callbacks.append(DeterministicTraining(seed))
     trainer: L.Trainer = hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
-    start_run_logging(cfg, model, loggers)
+    try:
+        start_run_logging(cfg, model, loggers)
+        record_process(loggers, resumed=bool(ckpt_path))
 
-    baseline: dict[str, float] = {}
-    if cfg.get("test_untrained", False):
-        baseline = untrained_test_metrics(cfg, model, datamodule)
-        for logger in loggers:
-            logger.log_metrics(baseline, step=0)
+        baseline: dict[str, float] = {}
+        if cfg.get("test_untrained", False):
+            baseline = untrained_test_metrics(cfg, model, datamodule)
+            for logger in loggers:
+                logger.log_metrics(baseline, step=0)
 
-    if cfg.get("train", True):
-        trainer.fit(model=model, datamodule=datamodule, ckpt_path=ckpt_path)
-    metrics: dict[str, Any] = {k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1}
+        if cfg.get("train", True):
+            trainer.fit(model=model, datamodule=datamodule, ckpt_path=ckpt_path)
+        metrics: dict[str, Any] = {k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1}
 
-    best = None
-    if cfg.get("test", True):
-        best = trainer.checkpoint_callback.best_model_path if trainer.checkpoint_callback else None
-        best = best or None
-        if best is None and cfg.get("train", True):
-            log.warning("No best checkpoint found: testing the last weights")
-        trainer.test(model=model, datamodule=datamodule, ckpt_path=best if best else None)
-        metrics.update({k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1})
-    metrics.update(baseline)
+        best = None
+        if cfg.get("test", True):
+            best = trainer.checkpoint_callback.best_model_path if trainer.checkpoint_callback else None
+            best = best or None
+            if best is None and cfg.get("train", True):
+                log.warning("No best checkpoint found: testing the last weights")
+            trainer.test(model=model, datamodule=datamodule, ckpt_path=best if best else None)
+            metrics.update({k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1})
+        metrics.update(baseline)
 
-    finish_run(cfg, trainer, model, loggers)
+        finish_run(cfg, trainer, model, loggers)
+    except BaseException as exc:
+        mark_run_ended(loggers, exc)
+        raise
     return metrics, {"cfg": cfg, "datamodule": datamodule, "model": model, "trainer": trainer, "loggers": loggers}
 
 
@@ -74,19 +103,11 @@ def untrained_test_metrics(cfg: DictConfig, model: L.LightningModule, datamodule
 
 
 def summary(cfg: DictConfig, metrics: dict[str, Any]) -> str:
-    """The closing lines: test metrics (and the untrained baseline) and how to open the run in the MLflow UI."""
-    keys = ("ape_cm", "fid", "hd19", "failure_rate", "seconds_per_sample")
-    lines = [f"run {cfg.get('run_name')} finished"]
-    for prefix in ("test", "untrained"):
-        vals = [f"{k}={metrics[f'{prefix}/{k}']:.4g}" for k in keys if f"{prefix}/{k}" in metrics]
-        if vals:
-            lines.append(f"  {prefix:9s}: " + "  ".join(vals))
-    uri = cfg.paths.mlflow_tracking_uri
-    if str(uri).startswith(("http://", "https://")):
-        lines.append(f"open the MLflow UI on it at:  {uri}")
-    else:
-        lines.append(f"open the MLflow UI on it with:  mlflow ui --backend-store-uri {uri}")
-    return "\n".join(lines)
+    """The closing lines: test metrics next to the baselines, the ``mlflow ui`` command and URLs to the run and
+    its experiment's runs table (:func:`spade.experiments.tracking.run_summary`)."""
+    from spade.experiments.tracking import run_summary
+
+    return run_summary(cfg, metrics)
 
 
 def optimized_value(cfg: DictConfig, metrics: dict[str, Any]) -> float | None:
@@ -99,12 +120,18 @@ def optimized_value(cfg: DictConfig, metrics: dict[str, Any]) -> float | None:
     return metrics[name]
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="train")
-def main(cfg: DictConfig) -> float | None:
-    log.debug("Config:\n%s", OmegaConf.to_yaml(cfg))
+@exit_on_user_error
+def _run(cfg: DictConfig) -> float | None:
     metrics, _ = train(cfg)
     print(summary(cfg, metrics), flush=True)
     return optimized_value(cfg, metrics)
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="train")
+def main(cfg: DictConfig) -> float | None:
+    log.debug("Config:\n%s", OmegaConf.to_yaml(cfg))
+    install_signal_handlers()
+    return _run(cfg)
 
 
 if __name__ == "__main__":

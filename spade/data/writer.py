@@ -5,7 +5,10 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import shutil
+import socket
+import time
 import uuid
 from pathlib import Path
 from types import TracebackType
@@ -88,7 +91,8 @@ class DatasetWriter:
     # -- context manager -------------------------------------------------------------------------------------
     def __enter__(self) -> "DatasetWriter":
         self.root.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = self.root.parent / f".{self.root.name}.partial-{uuid.uuid4().hex[:8]}"
+        remove_stale_partials(self.root)
+        self._tmp = self.root.parent / f".{self.root.name}.partial-{_owner()}-{uuid.uuid4().hex[:8]}"
         self._tmp.mkdir()
         for name, spec in self.specs.items():
             self._files[name] = open(self._tmp / spec.filename, "wb")
@@ -204,3 +208,54 @@ class DatasetWriter:
         os.replace(self._tmp, self.root)
         if backup is not None:
             shutil.rmtree(backup, ignore_errors=True)
+
+
+# -- leftovers of killed writers ---------------------------------------------------------------------------------------
+LEGACY_PARTIAL_AGE_S = 3600.0  # a partial folder without an owner in its name (older SPADE) counts as stale after this
+
+
+def _owner() -> str:
+    """``<host>-<pid>`` of this process, as a partial folder's name carries it."""
+    return f"{re.sub(r'[^A-Za-z0-9.]', '_', socket.gethostname())}-{os.getpid()}"
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_partials(root: str | Path) -> list[Path]:
+    """Remove what killed writers left beside ``root``; returns the folders removed.
+
+    ``.<name>.partial-<host>-<pid>-<id>`` is removed when ``<host>`` is this host and process ``<pid>`` is gone
+    (a live writer of another process or host is never touched); one without an owner in its name (written by
+    an older SPADE) when it is older than an hour; ``.<name>.old-<id>`` (the replaced dataset, deleted after a
+    completed overwrite) when ``root`` exists.
+    """
+    root = Path(root)
+    removed = []
+    if not root.parent.is_dir():
+        return removed
+    host = _owner().rsplit("-", 1)[0]
+    for path in root.parent.glob(f".{root.name}.partial-*"):
+        parts = path.name[len(f".{root.name}.partial-"):].rsplit("-", 2)
+        if len(parts) == 3 and parts[1].isdigit():
+            stale = parts[0] == host and int(parts[1]) != os.getpid() and not _pid_alive(int(parts[1]))
+        else:
+            try:
+                stale = time.time() - path.stat().st_mtime > LEGACY_PARTIAL_AGE_S
+            except FileNotFoundError:
+                continue
+        if stale:
+            shutil.rmtree(path, ignore_errors=True)
+            removed.append(path)
+    if root.exists():
+        for path in root.parent.glob(f".{root.name}.old-*"):
+            shutil.rmtree(path, ignore_errors=True)
+            removed.append(path)
+    return removed

@@ -10,12 +10,19 @@ An experiment names what it needs in its ``requires`` section::
 When ``target`` is already set (an explicit checkpoint path) nothing happens. Otherwise the requirement's
 config is composed with the parent's scale, paths, trainer and logger overrides, its registry name is derived
 (role, shape, size and data fingerprint), and the newest registered version is used. If none is registered,
-``prerequisites=train`` (default) trains it first, and ``prerequisites=error`` stops with the exact command.
+``prerequisites=train`` (default) has it trained first, and ``prerequisites=error`` stops with the exact command.
+
+This module never trains anything itself (it does not import :mod:`spade.train`): :func:`pending_prerequisites`
+fills what is registered and returns what must be trained; the entry point (``spade.train.train``) trains each
+one, calls :func:`complete_prerequisite`, and then re-seeds, so a run's numbers do not depend on whether its
+prerequisites were trained in the same process.
 """
 
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
+from pathlib import Path
 
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf, open_dict
@@ -31,6 +38,18 @@ INHERITED = ("scale", "paths", "trainer", "logger", "seed", "data.num_workers", 
 
 class PrerequisiteMissing(RuntimeError):
     """A required model is not registered and ``prerequisites=error``."""
+
+
+@dataclass(frozen=True)
+class Prerequisite:
+    """A required model that is not registered yet: what to train, and where its checkpoint goes."""
+
+    key: str  # the entry of ``requires``
+    experiment: str  # the experiment that trains it
+    target: str  # the config key its checkpoint fills
+    name: str  # its registered model name
+    config: DictConfig  # the composed config that trains it
+    command: str  # the command that trains it on its own
 
 
 def _parent_overrides() -> list[str]:
@@ -49,9 +68,18 @@ def compose_experiment(name: str, overrides: list[str]) -> DictConfig:
     return compose_config("train", [f"+experiment={name}", *overrides])
 
 
-def resolve_prerequisites(cfg: DictConfig, depth: int = 0) -> None:
-    """Fill every unset ``requires.*.target`` of ``cfg`` with a registered (or freshly trained) checkpoint."""
+def _fill(cfg: DictConfig, target: str, ckpt: Path) -> None:
+    with open_dict(cfg):
+        OmegaConf.update(cfg, target, str(ckpt), merge=False)
+
+
+def pending_prerequisites(cfg: DictConfig, depth: int = 0) -> list[Prerequisite]:
+    """Fill every unset ``requires.*.target`` of ``cfg`` whose model is registered; return the others.
+
+    With ``prerequisites=error`` a missing one raises :class:`PrerequisiteMissing` with the command to run.
+    """
     requires = cfg.get("requires") or {}
+    pending = []
     for key, req in requires.items():
         target = req.target
         if OmegaConf.select(cfg, target) not in (None, "", "???"):
@@ -67,19 +95,26 @@ def resolve_prerequisites(cfg: DictConfig, depth: int = 0) -> None:
             raise ValueError(f"experiment {req.experiment} registers no model (registry.prefix unset)")
         tracking_uri = cfg.paths.mlflow_tracking_uri
         ckpt = fetch_checkpoint(tracking_uri, name, cfg.paths.registry_cache_dir)
-        if ckpt is None:
-            command = " ".join(["python -m spade.train", f"+experiment={req.experiment}", *overrides])
-            if cfg.get("prerequisites", "train") == "error":
-                raise PrerequisiteMissing(
-                    f"{key}: registered model {name} not found in {tracking_uri}. Train it first with:\n  {command}"
-                )
-            log.info("Prerequisite %s (%s) is not registered: training it first (%s)", key, name, command)
-            from spade.train import train
+        if ckpt is not None:
+            log.info("Prerequisite %s: %s", key, ckpt)
+            _fill(cfg, target, ckpt)
+            continue
+        command = " ".join(["python -m spade.train", f"+experiment={req.experiment}", *overrides])
+        if cfg.get("prerequisites", "train") == "error":
+            raise PrerequisiteMissing(
+                f"{key}: registered model {name} not found in {tracking_uri}. Train it first with:  {command}"
+            )
+        pending.append(Prerequisite(str(key), str(req.experiment), str(target), name, sub, command))
+    return pending
 
-            train(sub)
-            ckpt = fetch_checkpoint(tracking_uri, name, cfg.paths.registry_cache_dir)
-            if ckpt is None:
-                raise PrerequisiteMissing(f"{key}: training {req.experiment} registered no model {name}")
-        log.info("Prerequisite %s: %s", key, ckpt)
-        with open_dict(cfg):
-            OmegaConf.update(cfg, target, str(ckpt), merge=False)
+
+def complete_prerequisite(cfg: DictConfig, prerequisite: Prerequisite) -> Path:
+    """After ``prerequisite`` was trained: fetch its registered checkpoint and fill its target key of ``cfg``."""
+    ckpt = fetch_checkpoint(cfg.paths.mlflow_tracking_uri, prerequisite.name, cfg.paths.registry_cache_dir)
+    if ckpt is None:
+        raise PrerequisiteMissing(
+            f"{prerequisite.key}: training {prerequisite.experiment} registered no model {prerequisite.name}"
+        )
+    log.info("Prerequisite %s: %s", prerequisite.key, ckpt)
+    _fill(cfg, prerequisite.target, ckpt)
+    return ckpt

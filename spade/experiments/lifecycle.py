@@ -1,0 +1,241 @@
+"""A training run's life: seeds that make it reproducible and resumable, and an MLflow status that tells the truth.
+
+* :class:`DeterministicTraining` (a callback ``spade.train`` always adds when a seed is set) draws the training
+  data order from a generator seeded by (seed, epoch) and re-seeds Python's, NumPy's and torch's global generators
+  before every training batch from (seed, epoch, batch index). Augmentation, guidance noise and timesteps and the
+  expert's denoising noise all come from those global generators, so a batch's randomness depends only on where
+  it is in the run: a run resumed from an epoch-end checkpoint repeats the uninterrupted run's numbers exactly,
+  and nothing done before training (a prerequisite trained in the same process, an untrained-baseline test)
+  changes them.
+* :func:`install_signal_handlers`: SIGTERM and SIGINT end the run through an exception, so that ``spade.train``
+  marks its MLflow run KILLED (:func:`mark_run_ended`; any other exception marks it FAILED).
+* :func:`record_process` tags the run with its host, process id and process start time, and
+  :func:`mark_stale_runs` (run by the next ``spade.train`` of the same row) marks RUNNING runs whose process is
+  gone (a ``kill -9``, a power cut) KILLED, with a message.
+"""
+
+from __future__ import annotations
+
+import datetime
+import logging
+import os
+import random
+import signal
+import socket
+import threading
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+from lightning.pytorch.callbacks import Callback
+from lightning.pytorch.loggers import Logger, MLFlowLogger
+from omegaconf import DictConfig, OmegaConf
+from torch.utils.data import DataLoader, RandomSampler
+
+log = logging.getLogger(__name__)
+
+_DATA, _BATCH = 1, 2  # streams of derived_seed
+
+
+def derived_seed(seed: int, *keys: int) -> int:
+    """A 32-bit seed for (seed, keys...): independent streams for independent uses (NumPy's SeedSequence)."""
+    return int(np.random.SeedSequence([int(seed) % 2**32, *[int(k) for k in keys]]).generate_state(1)[0])
+
+
+def reseed_globals(seed: int) -> None:
+    """Seed Python's, NumPy's and torch's (CPU and CUDA) global generators."""
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+class DeterministicTraining(Callback):
+    """Training randomness as a function of (seed, epoch, batch index) only; see the module docstring.
+
+    The data order: the training loader's sampler (a ``RandomSampler``) and its worker seeds draw from a
+    generator seeded by (seed, epoch) when the loader is made and whenever Lightning starts an epoch
+    (``set_epoch``), not from the global generator, whose position depends on everything done before.
+    A run resumed from a checkpoint saved mid-epoch restarts that epoch's data from its beginning (Lightning
+    keeps no position inside a plain ``DataLoader``); ``spade.train`` checkpoints at epoch ends.
+    """
+
+    def __init__(self, seed: int) -> None:
+        self.seed = int(seed)
+
+    # -- data order ------------------------------------------------------------------------------------------
+    def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        dm = trainer.datamodule
+        if dm is None or getattr(dm, "_spade_seeded_loader", False):
+            return
+        make_loader = dm.train_dataloader
+
+        def train_dataloader() -> Any:  # the datamodule's own loader, with the seeded generator attached
+            loader = make_loader()
+            self.seed_loader(loader, trainer.fit_loop.epoch_progress.current.processed)
+            return loader
+
+        dm.train_dataloader = train_dataloader  # instance attribute: Lightning calls it when fitting starts
+        dm._spade_seeded_loader = True
+
+    def seed_loader(self, loader: Any, epoch: int) -> None:
+        if not isinstance(loader, DataLoader):
+            return
+        generator = torch.Generator()
+        generator.manual_seed(derived_seed(self.seed, _DATA, epoch))
+        loader.generator = generator  # worker base seeds
+        sampler = loader.sampler
+        if isinstance(sampler, RandomSampler):
+            sampler.generator = generator
+
+            def set_epoch(e: int) -> None:  # called by Lightning's fit loop at every epoch start
+                generator.manual_seed(derived_seed(self.seed, _DATA, e))
+
+            sampler.set_epoch = set_epoch
+
+    # -- everything else ---------------------------------------------------------------------------------------
+    def _reseed(self, epoch: int, batch_idx: int) -> None:
+        reseed_globals(derived_seed(self.seed, _BATCH, epoch, batch_idx))
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._reseed(trainer.current_epoch, trainer.fit_loop.epoch_loop.batch_progress.current.completed)
+
+    def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._reseed(trainer.current_epoch, 0)
+
+    def on_train_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs: Any, batch: Any,
+                           batch_idx: int) -> None:
+        self._reseed(trainer.current_epoch, batch_idx + 1)  # for the next batch, drawn before its hooks run
+
+
+# -- signals ----------------------------------------------------------------------------------------------------------
+_received: dict[str, int] = {}
+
+
+def signal_received() -> int | None:
+    """The SIGTERM / SIGINT that is ending this process, if any."""
+    return _received.get("signal")
+
+
+def _on_signal(signum: int, frame: Any) -> None:
+    _received.setdefault("signal", signum)
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
+    raise SystemExit(128 + signum)
+
+
+def install_signal_handlers() -> None:
+    """SIGTERM and SIGINT raise in the main thread (SystemExit / KeyboardInterrupt), so runs are closed as KILLED."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, _on_signal)
+
+
+# -- MLflow run status ------------------------------------------------------------------------------------------------
+def _mlflow(loggers: list[Logger]) -> MLFlowLogger | None:
+    return next((lg for lg in loggers if isinstance(lg, MLFlowLogger)), None)
+
+
+def _proc_start(pid: int) -> str | None:
+    """The process's start time in clock ticks since boot (Linux), to tell a reused pid from the original."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        return stat.rsplit(")", 1)[1].split()[19]
+    except (OSError, IndexError):
+        return None
+
+
+def _process_alive(pid: int, start: str | None) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    now = _proc_start(pid)
+    return start is None or now is None or now == start
+
+
+def process_tags() -> dict[str, str]:
+    tags = {"spade.host": socket.gethostname(), "spade.pid": str(os.getpid())}
+    start = _proc_start(os.getpid())
+    if start is not None:
+        tags["spade.proc_start"] = start
+    return tags
+
+
+def record_process(loggers: list[Logger], resumed: bool) -> None:
+    """Tag the MLflow run with this process (for :func:`mark_stale_runs`); a resumed run is RUNNING again."""
+    ml = _mlflow(loggers)
+    if ml is None or ml._run_id is None:
+        return
+    client = ml.experiment
+    for key, value in process_tags().items():
+        client.set_tag(ml.run_id, key, value)
+    if resumed and client.get_run(ml.run_id).info.status != "RUNNING":
+        client.update_run(ml.run_id, status="RUNNING")
+        client.set_tag(ml.run_id, "spade.end_reason", "")
+
+
+def mark_run_ended(loggers: list[Logger], exc: BaseException) -> None:
+    """Close this process's MLflow run after ``exc``: KILLED for a signal or Ctrl+C, FAILED otherwise."""
+    ml = _mlflow(loggers)
+    if ml is None or ml._run_id is None:
+        return
+    sig = signal_received()
+    killed = sig is not None or isinstance(exc, KeyboardInterrupt)
+    status = "KILLED" if killed else "FAILED"
+    reason = f"signal {signal.Signals(sig).name}" if sig is not None else f"{type(exc).__name__}: {exc}"
+    try:
+        ml.experiment.set_tag(ml.run_id, "spade.end_reason", reason[:4000])
+        ml.experiment.set_terminated(ml.run_id, status)
+        log.info("MLflow run %s marked %s (%s)", ml.run_id, status, reason[:200])
+    except Exception as err:  # never hide the original error
+        log.warning("could not mark MLflow run %s %s: %s", ml.run_id, status, err)
+
+
+def mark_stale_runs(cfg: DictConfig) -> list[str]:
+    """Mark KILLED the RUNNING runs of this row (same MLflow experiment and run name) whose process is gone.
+
+    A run's process is known by its ``spade.host`` / ``spade.pid`` / ``spade.proc_start`` tags; runs started on
+    another host are left alone (their process cannot be checked from here) and named in the log. Returns one
+    message per run marked.
+    """
+    logger_cfg = (cfg.get("logger") or {}).get("mlflow")
+    if not logger_cfg or "MLFlowLogger" not in str(logger_cfg.get("_target_", "")):
+        return []
+    from mlflow import MlflowClient
+
+    resolved = OmegaConf.to_container(logger_cfg, resolve=True)
+    client = MlflowClient(tracking_uri=resolved.get("tracking_uri"))
+    experiment = client.get_experiment_by_name(str(resolved.get("experiment_name")))
+    if experiment is None:
+        return []
+    run_name = str(resolved.get("run_name"))
+    host = socket.gethostname()
+    messages = []
+    for run in client.search_runs([experiment.experiment_id], filter_string="attributes.status = 'RUNNING'",
+                                  max_results=1000):
+        if run.info.run_name != run_name:
+            continue
+        tags = run.data.tags
+        pid = tags.get("spade.pid")
+        if pid is None:
+            continue  # not started by this version of spade.train: its process cannot be identified
+        if tags.get("spade.host") != host:
+            log.warning("MLflow run %s (%s) is RUNNING on host %s: left as it is", run.info.run_id, run_name,
+                        tags.get("spade.host"))
+            continue
+        if _process_alive(int(pid), tags.get("spade.proc_start")):
+            continue
+        started = datetime.datetime.fromtimestamp(run.info.start_time / 1000).isoformat(timespec="seconds")
+        message = (f"MLflow run {run.info.run_id} ({experiment.name}/{run_name}, started {started}) was still "
+                   f"RUNNING although its process {pid} on {host} is gone: marked KILLED")
+        client.set_tag(run.info.run_id, "spade.end_reason",
+                       f"process {pid} on {host} ended without closing the run; marked KILLED by a later spade.train")
+        client.set_terminated(run.info.run_id, "KILLED")
+        log.warning(message)
+        messages.append(message)
+    return messages
