@@ -17,7 +17,6 @@ import hashlib
 import json
 import math
 import os
-import pickle
 import sys
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
@@ -115,16 +114,13 @@ def _range_text(low: int | None, high: int | None, extra: tuple[int, ...]) -> st
 def checkpoint_info(path: str | Path) -> dict[str, Any]:
     """The ``spade`` entry of a checkpoint (role, network config, window geometry, MLflow run id).
 
-    Reads only that entry's plain values: the file is opened with ``torch.load(weights_only=True, mmap=True)``, so
-    no tensor data is read and no code is run; a checkpoint whose hyper-parameters hold objects that the
-    weights-only unpickler refuses is read with the full unpickler, as Lightning itself loads checkpoints.
+    Reads only that entry's plain values: the file is opened safely by :func:`spade.models.modelfile.load_checkpoint`
+    (``weights_only=True``, memory-mapped, so no tensor data is read and no code is run; a checkpoint that would
+    run code is refused).
     """
-    import torch
+    from spade.models.modelfile import load_checkpoint
 
-    try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
-    except (pickle.UnpicklingError, RuntimeError):
-        checkpoint = torch.load(path, map_location="cpu", weights_only=False, mmap=True)
+    checkpoint = load_checkpoint(path, mmap=True)
     info = checkpoint.get("spade") if isinstance(checkpoint, dict) else None
     return dict(info) if isinstance(info, Mapping) else {}
 

@@ -191,12 +191,13 @@ def _unsafe(path: Path, err: Exception) -> UnsafeModelFileError:
     )
 
 
-def load_checkpoint(path: str | Path) -> dict[str, Any]:
-    """A checkpoint's contents, read safely (see the module docstring), on the CPU."""
+def load_checkpoint(path: str | Path, mmap: bool = False) -> dict[str, Any]:
+    """A checkpoint's contents, read safely (see the module docstring), on the CPU. ``mmap``: map the tensors
+    instead of reading them (for callers that only need the ``spade`` entry)."""
     p = _existing(path, "checkpoint")
     try:
         with torch.serialization.safe_globals(SAFE_GLOBALS):
-            checkpoint = torch.load(p, map_location="cpu", weights_only=True)
+            checkpoint = torch.load(p, map_location="cpu", weights_only=True, mmap=mmap)
     except __import__("pickle").UnpicklingError as err:
         raise _unsafe(p, err) from None
     except (RuntimeError, EOFError, OSError) as err:
@@ -263,7 +264,7 @@ def read_info(path: str | Path) -> dict[str, Any]:
     """The ``spade`` entry of any model file: a checkpoint's ``checkpoint["spade"]``, an export's metadata."""
     p = _existing(path)
     if file_format(p) == "checkpoint":
-        return _entry(load_checkpoint(p), p)
+        return _entry(load_checkpoint(p, mmap=True), p)
     return read_metadata(p)
 
 
