@@ -28,18 +28,38 @@ def registry_name(cfg: DictConfig) -> str | None:
     return f"{prefix}-{data_fingerprint(cfg)}" if prefix else None
 
 
-def register_checkpoint(ml: MLFlowLogger, name: str, artifact_path: str, tags: dict[str, Any]) -> None:
-    """Register the run's checkpoint artifact (a directory holding one .ckpt) as a new version of ``name``."""
+def register_checkpoint(ml: MLFlowLogger, name: str, artifact_path: str, tags: dict[str, Any],
+                        data_fingerprint: str | None = None, description: str | None = None,
+                        version_description: str | None = None) -> None:
+    """Register the run's checkpoint artifact (a directory holding one .ckpt) as a new version of ``name``.
+
+    The registered model carries ``description`` and the ``data_fingerprint`` tag (its name ends in it); an
+    older registration without them gets them. Each version carries the same tags and ``version_description``.
+    """
     client = ml.experiment
     from mlflow.exceptions import MlflowException
 
+    tags = {k: str(v) for k, v in tags.items()}
+    if data_fingerprint:
+        tags["data_fingerprint"] = str(data_fingerprint)
     try:
-        client.get_registered_model(name)
+        model = client.get_registered_model(name)
     except MlflowException:
-        client.create_registered_model(name, tags={k: str(v) for k, v in tags.items()})
+        try:
+            client.create_registered_model(name, tags=tags, description=description)
+        except MlflowException:  # registered meanwhile by a parallel job
+            model = client.get_registered_model(name)
+        else:
+            model = None
+    if model is not None:
+        if description and not model.description:
+            client.update_registered_model(name, description=description)
+        if data_fingerprint and (model.tags or {}).get("data_fingerprint") != str(data_fingerprint):
+            client.set_registered_model_tag(name, "data_fingerprint", str(data_fingerprint))
     source = f"{client.get_run(ml.run_id).info.artifact_uri}/{artifact_path}"
     version = client.create_model_version(
-        name, source=source, run_id=ml.run_id, tags={"artifact_path": artifact_path, **{k: str(v) for k, v in tags.items()}}
+        name, source=source, run_id=ml.run_id, tags={"artifact_path": artifact_path, **tags},
+        description=version_description,
     )
     log.info("Registered %s version %s from run %s", name, version.version, ml.run_id)
 
