@@ -56,8 +56,11 @@ def student_checkpoint(path: Path, role: str = "student") -> Path:
 
     from spade.models import build_model
 
+    from spade.annotation.frame import RobotFrame
+
     net = build_model("student", "small")
-    info = {"role": role, "config": dict(net.config), "data": {"image_size": [64, 64], "resolution_m": 0.1}}
+    info = {"role": role, "config": dict(net.config),
+            "data": {"image_size": [64, 64], "resolution_m": 0.1, "frame": RobotFrame.for_size(64).to_json()}}
     torch.save({"spade": info, "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}, path)
     return path
 
@@ -311,6 +314,10 @@ def test_plan_with_a_student(setup, tmp_path: Path) -> None:
     wp = np.asarray(res["waypoints"])
     assert np.linalg.norm(wp[0] - query["pose"][:2]) < 0.3 and np.linalg.norm(wp[-1] - query["goal"]) < 0.3
     assert np.abs(wp[:, 1] - 1.0).max() < 0.3  # the straight line, in map metres
+    baselines = {b["name"]: b for b in res["baselines"]}  # spade.metrics.baselines on the same window
+    assert set(baselines) == {"straight", "shortest", "heading"} and baselines["straight"]["success"]
+    np.testing.assert_allclose(baselines["straight"]["waypoints"][-1], query["goal"], atol=0.15)
+    assert len(res["overlay"]["window_m"]) == 4
     print(f"\nplan: {np.median(times):.1f} ms round trip median of 5 ({res['latency_ms']} ms in the planner)")
 
     for body, message in (({"pose": [30.0, 1.0, 0.0], "goal": [1.0, 1.0]}, "robot pose .* lies outside the map"),

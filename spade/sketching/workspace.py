@@ -401,7 +401,7 @@ class SketchWorkspace:
             out["probability"] = "data:image/png;base64," + base64.b64encode(
                 _png(_heat(np.asarray(result.probability)))).decode()
             out["overlay"] = self._probability_overlay(result)
-        out["baselines"] = self._baselines(pose, goal)
+        out["baselines"] = self._baselines(result)
         return out
 
     def _probability_overlay(self, result: Any) -> dict[str, Any] | None:
@@ -426,21 +426,39 @@ class SketchWorkspace:
         win = np.rint(np.asarray(to_window(m.pixel_to_world(np.stack([cols, rows], axis=-1).astype(float))))).astype(int)
         inside = (win[..., 0] >= 0) & (win[..., 0] < w) & (win[..., 1] >= 0) & (win[..., 1] < h)
         rgba = np.zeros((*rows.shape, 4), np.uint8)
+        p = prob[win[..., 1][inside], win[..., 0][inside]]
         rgba[inside, :3] = (230, 0, 200)
-        rgba[inside, 3] = (40 + 200 * prob[win[..., 1][inside], win[..., 0][inside]]).astype(np.uint8)
+        rgba[inside, 3] = np.where(p > 0.02, 40 + 200 * p, 0).astype(np.uint8)
         top_left = m.pixel_to_world(np.array([c0 - 0.5, r0 - 0.5], dtype=np.float64))
         bottom_right = m.pixel_to_world(np.array([c1 + 0.5, r1 + 0.5], dtype=np.float64))
         return {"png": "data:image/png;base64," + base64.b64encode(_png(rgba)).decode(),
+                "window_m": np.round(np.asarray(to_world(np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5],
+                                                                    [-0.5, h - 0.5]]))), 4).tolist(),
                 "x_min": float(top_left[0]), "y_max": float(top_left[1]),
                 "x_max": float(bottom_right[0]), "y_min": float(bottom_right[1])}
 
-    def _baselines(self, pose: np.ndarray, goal: np.ndarray) -> list[dict[str, Any]] | None:
-        """The classical baselines' paths (spade.metrics.baselines), when that module exists."""
+    def _baselines(self, result: Any) -> list[dict[str, Any]] | None:
+        """The classical baselines (:mod:`spade.metrics.baselines`: straight line, Nav2-like shortest path on the
+        inflated costmap, heading template) on the student's own window, in map metres; None when that module or
+        a window is missing."""
         import importlib.util
 
-        if importlib.util.find_spec("spade.metrics.baselines") is None:
+        if importlib.util.find_spec("spade.metrics.baselines") is None or result.state is None or result.window is None:
             return None
-        return None
+        from spade.metrics.baselines import baseline_polylines
+
+        colours = {"straight": "#777777", "shortest": "#00a0a0", "heading": "#e69a00"}
+        t0 = time.perf_counter()
+        out = []
+        for name, poly in baseline_polylines(np.asarray(result.state), float(self.planner.resolution)).items():
+            metres = np.asarray(result.window.to_world(poly)) if poly is not None else np.zeros((0, 2))
+            length = float(np.linalg.norm(np.diff(metres, axis=0), axis=1).sum()) if len(metres) > 1 else 0.0
+            out.append({"name": name, "success": poly is not None, "waypoints": np.round(metres, 4).tolist(),
+                        "length_m": round(length, 3), "colour": colours.get(name, "#00a0a0")})
+        ms = round(1e3 * (time.perf_counter() - t0), 1)
+        for b in out:
+            b["all_ms"] = ms
+        return out
 
 
 def _heat(prob: np.ndarray) -> np.ndarray:

@@ -163,8 +163,9 @@ function draw() {
     const o = state.plan.overlay;
     const [ax, ay] = worldToScreen(o.x_min, o.y_max), [bx, by] = worldToScreen(o.x_max, o.y_min);
     g.drawImage(state.overlayImg, ax, ay, bx - ax, by - ay);
+    polyline([...o.window_m, o.window_m[0]], "#7a2cc9", 1.5, [4, 3]);  // the student's (rotated) window
   }
-  if (state.plan && state.plan.baselines) {
+  if (state.plan && state.plan.baselines && $("show-baselines") && $("show-baselines").checked) {
     state.plan.baselines.forEach((b) => polyline(b.waypoints, b.colour || "#0aa", 2, [3, 3]));
   }
   if (state.plan && state.plan.waypoints.length) polyline(state.plan.waypoints, "#c000c0", 3);
@@ -319,11 +320,13 @@ async function plan() {
                       : `No path (${p.code}): ${p.reason} (${p.latency_ms} ms).`);
   const img = $("plan-probability");
   if (p.probability) { img.src = p.probability; img.hidden = false; } else { img.hidden = true; }
-  $("baselines").innerHTML = "";
+  const hasBaselines = p.baselines && p.baselines.length;
+  $("baselines").innerHTML = hasBaselines ? `<label><input type="checkbox" id="show-baselines" checked> classical baselines (${p.baselines[0].all_ms} ms)</label>` : "";
+  if (hasBaselines) $("show-baselines").onchange = draw;
   (p.baselines || []).forEach((b) => {
     const div = document.createElement("div");
     div.innerHTML = `<span class="swatch" style="background:${b.colour || "#0aa"}"></span>`;
-    div.appendChild(document.createTextNode(`${b.name}: ${b.success ? b.length_m.toFixed(2) + " m" : "no path"}`));
+    div.appendChild(document.createTextNode(`baseline ${b.name}: ${b.success ? b.length_m.toFixed(2) + " m" : "no path"}`));
     $("baselines").appendChild(div);
   });
   draw();
