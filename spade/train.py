@@ -124,7 +124,17 @@ def optimized_value(cfg: DictConfig, metrics: dict[str, Any]) -> float | None:
 def _run(cfg: DictConfig) -> float | None:
     metrics, _ = train(cfg)
     print(summary(cfg, metrics), flush=True)
-    return optimized_value(cfg, metrics)
+    try:
+        return optimized_value(cfg, metrics)
+    except KeyError as exc:
+        from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
+
+        if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
+            raise  # a sweeper needs the value
+        # A single run that never validated (e.g. trainer.max_steps ended it mid-epoch) still succeeded.
+        log.warning("%s", exc.args[0])
+        return None
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="train")

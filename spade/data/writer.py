@@ -201,13 +201,28 @@ class DatasetWriter:
         }
         # The manifest is written last: a directory without one is never taken for a dataset.
         (self._tmp / MANIFEST).write_text(json.dumps(manifest, indent=1, sort_keys=True))
-        backup = None
-        if self.root.exists():
-            backup = self.root.parent / f".{self.root.name}.old-{uuid.uuid4().hex[:8]}"
-            os.replace(self.root, backup)
-        os.replace(self._tmp, self.root)
-        if backup is not None:
-            shutil.rmtree(backup, ignore_errors=True)
+        # Move the old dataset aside, then the new one in. A parallel writer of the same root can swap its own in
+        # between (two runs generating one missing dataset): each step then fails and the swap is tried again, so
+        # every writer ends with a complete dataset at root and nothing of its own left beside it.
+        for attempt in range(20):
+            backup = None
+            try:
+                if self.root.exists():
+                    backup = self.root.parent / f".{self.root.name}.old-{uuid.uuid4().hex[:8]}"
+                    os.replace(self.root, backup)
+                os.replace(self._tmp, self.root)
+            except OSError:  # root vanished or reappeared meanwhile
+                if backup is not None and not self.root.exists():
+                    os.replace(backup, self.root)  # the old dataset back: root is never left without one
+                    backup = None
+                if attempt == 19:
+                    raise
+                time.sleep(0.01 * (attempt + 1))
+                continue
+            finally:
+                if backup is not None:  # superseded by a complete dataset at root
+                    shutil.rmtree(backup, ignore_errors=True)
+            break
 
 
 # -- leftovers of killed writers ---------------------------------------------------------------------------------------

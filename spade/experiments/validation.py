@@ -106,7 +106,7 @@ def _range_text(low: int | None, high: int | None, extra: tuple[int, ...]) -> st
         parts.append(f"<= {high}")
     text = " and ".join(parts)
     if extra:
-        text += " (or " + " / ".join(str(e) for e in extra) + ")"
+        text += " (or " + " / ".join(str(e) for e in extra) + " for no limit)"
     return text
 
 
@@ -138,9 +138,13 @@ def _check_checkpoint(key: str, value: Any, role: str, fix: str) -> dict[str, An
         raise ConfigError(f"{key}={value} is not a readable PyTorch checkpoint ({type(exc).__name__}); {fix}") from None
     have = info.get("role")
     if have != role:
-        what = f"a {have} checkpoint" if have else "not a SPADE checkpoint (no 'spade' entry)"
-        raise ConfigError(f"{key}={value} is {what}, this key takes a {role} checkpoint; {fix}")
+        what = f"{_a(have)} {have} checkpoint" if have else "not a SPADE checkpoint (no 'spade' entry)"
+        raise ConfigError(f"{key}={value} is {what}, this key takes {_a(role)} {role} checkpoint; {fix}")
     return info
+
+
+def _a(word: str) -> str:
+    return "an" if str(word)[:1].lower() in "aeiou" else "a"
 
 
 def _geometry_text(geo: Mapping[str, Any]) -> str:
@@ -293,7 +297,8 @@ def check_window_holds_manoeuvre(settings: Mapping[str, Any], key: str) -> None:
     size, res = window.get("size_px"), window.get("resolution_m")
     wkey = f"{key}.window.size_px"
     if not _is_int(size) or size < 8:
-        raise ConfigError(f"{wkey}={size!r} must be an integer >= 8 (the tiny scale uses 64, the paper 128)")
+        raise ConfigError(f"{wkey}={size!r} is not a window size; set it to an integer >= 8 pixels (the tiny scale "
+                          "uses 64, the paper 128)")
     if not _is_number(res) or res <= 0:
         raise ConfigError(f"{key}.window.resolution_m={res!r} must be a number > 0 metres per pixel (e.g. 0.1)")
     if settings.get("sketches") or (settings.get("rosbag") or {}).get("paths") or (settings.get("skipp") or {}).get("root"):
@@ -327,7 +332,7 @@ def _model_role(cfg: DictConfig) -> str | None:
 
 
 def _check_trainer(cfg: DictConfig) -> None:
-    fix_epochs = " (or -1 for no limit), e.g. trainer.max_epochs=2"
+    fix_epochs = ", e.g. trainer.max_epochs=2"
     _check_int(cfg, "trainer.max_epochs", 1, none_ok=True, extra=(-1,), fix=fix_epochs)
     _check_int(cfg, "trainer.max_steps", 1, none_ok=True, extra=(-1,), fix=", e.g. trainer.max_steps=100")
     if _get(cfg, "trainer.max_epochs") == -1 and _get(cfg, "trainer.max_steps") in (-1, None, _MISSING):

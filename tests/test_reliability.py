@@ -1,0 +1,341 @@
+"""Reliability of training runs (issue 14): own run folders, data that matches its settings, same seed same
+numbers, early one-line config errors, honest MLflow run status, resume that reproduces the uninterrupted run."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import hydra
+import pytest
+import torch
+import yaml
+from omegaconf import open_dict
+
+from spade.experiments.config import compose_config
+from spade.experiments.validation import ConfigError, exit_on_user_error, validate_evaluate_config, validate_train_config
+from spade.data import DatasetError
+from training_helpers import compose_row
+
+REPO = Path(__file__).resolve().parents[1]
+ROW = "t1_small_bc_L"
+# Few, short steps, no prediction pictures and no latency timing: these tests are about the machinery.
+QUICK = ["trainer.enable_progress_bar=false", "model.grid_size=0", "callbacks.model_info.latency_runs=0"]
+
+
+@pytest.fixture(scope="module")
+def data_dir(spade_home: Path) -> Path:
+    """The tiny datasets of the L rows, built once (``paths.data_dir`` of every run here)."""
+    cfg = compose_row(ROW, spade_home)
+    dm = hydra.utils.instantiate(cfg.data)
+    dm.prepare_data()
+    return spade_home / "data"
+
+
+def _env(home: Path) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k not in ("MLFLOW_TRACKING_URI", "HYDRA_FULL_ERROR")}
+    return {**env, "SPADE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
+
+
+def _train(args: list[str], home: Path, *, prefix: list[str] | None = None, **kw) -> subprocess.Popen:
+    """Start ``python -m spade.train ARGS``; its output goes to a file (``proc.output``), never a pipe that fills."""
+    cmd = [sys.executable, *(prefix or ["-m", "spade.train"]), *args]
+    home.mkdir(parents=True, exist_ok=True)
+    output = home / f"output-{time.monotonic_ns()}.txt"
+    with open(output, "w") as sink:
+        proc = subprocess.Popen(cmd, cwd=REPO, env=_env(home), stdout=sink, stderr=subprocess.STDOUT, text=True, **kw)
+    proc.output = output
+    return proc
+
+
+def _finish(proc: subprocess.Popen, timeout: float = 300) -> str:
+    proc.wait(timeout=timeout)
+    out = proc.output.read_text()
+    assert proc.returncode == 0, out[-4000:]
+    return out
+
+
+def _state_dict(path: Path) -> dict[str, torch.Tensor]:
+    return torch.load(path, map_location="cpu", weights_only=False)["state_dict"]
+
+
+def _same_weights(a: Path, b: Path) -> bool:
+    sa, sb = _state_dict(a), _state_dict(b)
+    return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
+
+
+def _client(home: Path):
+    from mlflow import MlflowClient
+
+    return MlflowClient(tracking_uri=f"sqlite:///{home}/logs/mlflow.db")
+
+
+def _history(client, run_id: str, key: str) -> list[tuple[int, float]]:
+    return sorted((m.step, m.value) for m in client.get_metric_history(run_id, key))
+
+
+# -- 1. run folders -------------------------------------------------------------------------------------------------
+# Starts spade.train with Hydra's ${now:} frozen, so that both runs start "in the same second" whatever the load.
+FROZEN_NOW = [
+    "-c",
+    "import datetime, runpy, sys\n"
+    "import hydra.core.utils as hu\n"
+    "class Frozen(datetime.datetime):\n"
+    "    @classmethod\n"
+    "    def now(cls, tz=None):\n"
+    "        return cls(2031, 1, 2, 3, 4, 5)\n"
+    "hu.datetime = Frozen\n"
+    "sys.argv = ['spade.train', *sys.argv[1:]]\n"
+    "runpy.run_module('spade.train', run_name='__main__', alter_sys=True)\n",
+]
+
+
+def test_run_folder_ids_differ_within_one_second_and_stay_fixed_within_a_run(spade_home: Path) -> None:
+    a = compose_config("train", [f"+experiment={ROW}"], return_hydra_config=True)
+    b = compose_config("train", [f"+experiment={ROW}"], return_hydra_config=True)
+    assert a.hydra.run.dir == a.hydra.run.dir and a.hydra.sweep.dir == a.hydra.sweep.dir
+    assert a.hydra.run.dir != b.hydra.run.dir and a.hydra.sweep.dir != b.hydra.sweep.dir
+    assert a.hydra.run.dir.rsplit("_", 1)[1] == a.hydra.sweep.dir.rsplit("_", 1)[1]  # one id per run
+
+
+def test_two_runs_started_in_the_same_second_keep_their_own_folders(tmp_path: Path, data_dir: Path) -> None:
+    args = [f"+experiment={ROW}", "logger=none", "trainer.max_epochs=1", "+trainer.limit_train_batches=2",
+            "+trainer.limit_val_batches=1", "test=false",
+            f"paths.data_dir={data_dir}", *QUICK]
+    procs = {seed: _train([*args, f"seed={seed}", f"run_name=col_seed{seed}"], tmp_path, prefix=FROZEN_NOW)
+             for seed in (1, 2)}
+    for proc in procs.values():
+        _finish(proc)
+    runs = sorted((tmp_path / "logs" / "runs" / "train").iterdir())
+    assert len(runs) == 2 and all(r.name.startswith("2031-01-02_03-04-05_") for r in runs)  # same second
+    seeds = {}
+    for run in runs:
+        cfg = yaml.safe_load((run / ".hydra" / "config.yaml").read_text())
+        seeds[cfg["seed"]] = run
+        assert (run / "checkpoints" / "last.ckpt").is_file()
+    assert sorted(seeds) == [1, 2]
+    assert not _same_weights(seeds[1] / "checkpoints" / "last.ckpt", seeds[2] / "checkpoints" / "last.ckpt")
+
+
+# -- 2, 4, 5. validation before anything starts -------------------------------------------------------------------------
+def _fake_checkpoint(path: Path, role: str, size: int = 64, resolution: float = 0.1) -> str:
+    torch.save({"spade": {"role": role, "config": {}, "data": {"image_size": [size, size], "resolution_m": resolution}},
+                "state_dict": {}}, path)
+    return str(path)
+
+
+def test_changed_data_settings_are_refused_naming_the_keys(spade_home: Path, data_dir: Path) -> None:
+    cfg = compose_row(ROW, spade_home, "scale.train_instances=48", "scale.annotate.window.size_px=32")
+    with pytest.raises(ConfigError, match=r"data.train_dir=.*lshape was generated with other settings") as err:
+        validate_train_config(cfg)
+    assert "num_instances: dataset 192, config 48" in str(err.value)
+    assert "window.size_px: dataset 64, config 32" in str(err.value)
+    dm = hydra.utils.instantiate(cfg.data)
+    with pytest.raises(DatasetError, match="window.size_px"):  # the data module refuses too (spade.evaluate, scripts)
+        dm.prepare_data()
+    validate_train_config(compose_row(ROW, spade_home))  # the settings that made it: accepted
+
+
+def test_folder_without_manifest_names_the_fix(spade_home: Path, tmp_path: Path) -> None:
+    (tmp_path / "lshape").mkdir()
+    cfg = compose_row(ROW, spade_home, f"data.train_dir={tmp_path / 'lshape'}")
+    with pytest.raises(ConfigError, match="holds no manifest.json") as err:
+        validate_train_config(cfg)
+    assert "overwrite" not in str(err.value)
+
+
+@pytest.mark.parametrize("override,message", [
+    ("trainer.max_epochs=abc", "trainer.max_epochs='abc' is not an integer"),
+    ("trainer.max_steps=0", "trainer.max_steps=0 is out of range"),
+    ("data.val_fraction=1.5", "data.val_fraction=1.5 is out of range"),
+    ("data.batch_size=0", "data.batch_size=0 is out of range"),
+    ("model.size=huge", "model.size='huge' is not one of"),
+    ("seed=-3", "seed=-3 is out of range"),
+    ("prerequisites=maybe", "prerequisites='maybe' is not one of"),
+    ("scale.annotate.window.size_px=7", "scale.annotate.window.size_px=7 is not a window size"),
+    ("scale.annotate.window.size_px=12", "scale.annotate.window.size_px=12 is too small for a L manoeuvre"),
+    ("ckpt_path=/nowhere/last.ckpt", "ckpt_path=/nowhere/last.ckpt does not exist"),
+])
+def test_config_errors_are_one_line_naming_key_value_and_fix(spade_home: Path, override: str, message: str) -> None:
+    with pytest.raises(ConfigError) as err:
+        validate_train_config(compose_row(ROW, spade_home, override))
+    text = str(err.value)
+    assert message in text and "\n" not in text
+    assert any(w in text for w in ("set ", "use ", "pass ", "e.g.")), text  # names the fix
+
+
+def test_checkpoint_roles_and_geometry_are_checked(spade_home: Path, tmp_path: Path, data_dir: Path) -> None:
+    student = _fake_checkpoint(tmp_path / "student.ckpt", "student")
+    expert = _fake_checkpoint(tmp_path / "expert.ckpt", "expert")
+    coarse = _fake_checkpoint(tmp_path / "coarse.ckpt", "student", size=32, resolution=0.2)
+    row = "t1_small_conddbc_L"
+    with pytest.raises(ConfigError, match=r"model.guidance.expert_ckpt=.*student.ckpt is a student checkpoint, this "
+                                          r"key takes an expert checkpoint; pass an expert checkpoint"):
+        validate_train_config(compose_row(row, spade_home, f"model.guidance.expert_ckpt={student}"))
+    validate_train_config(compose_row(row, spade_home, f"model.guidance.expert_ckpt={expert}"))
+    with pytest.raises(ConfigError, match="model.init_ckpt=.*is an expert checkpoint"):
+        validate_train_config(compose_row(ROW, spade_home, f"model.init_ckpt={expert}"))
+    with pytest.raises(ConfigError, match=r"ckpt_path=.*coarse.ckpt was trained on 32 x 32 px at 0.2 m/px windows, "
+                                          r"data.train_dir=.*lshape holds 64 x 64 px at 0.1 m/px"):
+        validate_train_config(compose_row(ROW, spade_home, f"ckpt_path={coarse}"))
+    # spade.evaluate: a 64 px / 0.1 m/px checkpoint on data that would be 32 px / 0.2 m/px
+    ev = compose_config("evaluate", [f"ckpt_path={student}", "logger=none", "scale.annotate.window.size_px=32",
+                                     "scale.annotate.window.resolution_m=0.2", f"paths.data_dir={tmp_path}/data",
+                                     f"paths.output_dir={tmp_path}/eval"])
+    with pytest.raises(ConfigError, match=r"was trained on 64 x 64 px at 0.1 m/px windows, data.test_dir=.*holds "
+                                          r"32 x 32 px at 0.2 m/px \(image_size, resolution_m differ\)"):
+        validate_evaluate_config(ev)
+    with pytest.raises(ConfigError, match="not a SPADE student or expert"):
+        torch.save({"state_dict": {}}, tmp_path / "plain.ckpt")
+        validate_evaluate_config(compose_config("evaluate", [f"ckpt_path={tmp_path / 'plain.ckpt'}", "logger=none"]))
+    assert not (tmp_path / "data").exists()  # refused before any data was generated
+
+
+def test_user_errors_end_without_traceback_unless_hydra_full_error(monkeypatch, capsys) -> None:
+    def bad() -> None:
+        raise ConfigError("trainer.max_epochs='abc' is not an integer; set it to an integer >= 1")
+
+    monkeypatch.delenv("HYDRA_FULL_ERROR", raising=False)
+    with pytest.raises(SystemExit) as exit_info:
+        exit_on_user_error(bad)()
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err == "error: trainer.max_epochs='abc' is not an integer; set it to an integer >= 1\n"
+    monkeypatch.setenv("HYDRA_FULL_ERROR", "1")
+    with pytest.raises(ConfigError):
+        exit_on_user_error(bad)()
+    with pytest.raises(ZeroDivisionError):  # a bug keeps its traceback
+        exit_on_user_error(lambda: 1 / 0)()
+
+
+def test_cli_config_error_is_one_line_before_any_run_or_data(tmp_path: Path) -> None:
+    start = time.monotonic()
+    proc = _train([f"+experiment={ROW}", "trainer.max_epochs=abc"], tmp_path)
+    proc.wait(timeout=120)
+    out = proc.output.read_text()
+    assert proc.returncode == 2, out[-3000:]
+    assert "Traceback" not in out
+    errors = [line for line in out.splitlines() if line.startswith("error:")]
+    assert errors == ["error: trainer.max_epochs='abc' is not an integer; set it to an integer >= 1 (or -1 for no "
+                      "limit), e.g. trainer.max_epochs=2"]
+    assert not (tmp_path / "logs" / "mlflow.db").exists() and not (tmp_path / "data").exists()
+    print(f"config error reported after {time.monotonic() - start:.1f} s (process start included)")
+
+
+# -- 3, 6. determinism, resume, run status ---------------------------------------------------------------------------
+def _wait_for(predicate, proc: subprocess.Popen, timeout: float = 240, what: str = "") -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        if proc.poll() is not None:
+            raise AssertionError(f"process ended before {what}: {proc.output.read_text()[-3000:]}")
+        time.sleep(0.2)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def _fitting(run_dir: Path) -> bool:
+    """Whether the run in ``run_dir`` has opened its MLflow run and started fitting (Lightning's model summary)."""
+    log_file = run_dir / "train.log"
+    return log_file.is_file() and "Trainable params" in log_file.read_text()
+
+
+def _runs(home: Path, experiment: str) -> list:
+    client = _client(home)
+    exp = client.get_experiment_by_name(experiment)
+    return [] if exp is None else client.search_runs([exp.experiment_id])
+
+
+def test_kill_9_mid_epoch_then_resume_reproduces_the_uninterrupted_run(tmp_path: Path, data_dir: Path) -> None:
+    """A (uninterrupted) and B (kill -9 in its second epoch, checked alive, then resumed from its last checkpoint)
+    run in separate processes and stores; B must end with A's validation losses and A's weights. A third run is
+    stopped by SIGTERM and must end KILLED."""
+    epoch_batches = 8
+    args = [f"+experiment={ROW}", "trainer.max_epochs=3", f"+trainer.limit_train_batches={epoch_batches}",
+            "+trainer.limit_val_batches=2", "trainer.log_every_n_steps=1", "test=false", "seed=7",
+            f"paths.data_dir={data_dir}", "tags.table=resume", *QUICK]
+    home_a, home_b, home_c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    run_a, run_b, run_b2, run_c = (tmp_path / f"run_{k}" for k in ("a", "b", "b2", "c"))
+    proc_a = _train([*args, f"hydra.run.dir={run_a}"], home_a)
+    proc_b = _train([*args, f"hydra.run.dir={run_b}"], home_b, start_new_session=True)
+    args_c = [a for a in args if not a.startswith("trainer.max_epochs=")]
+    proc_c = _train([*args_c, "trainer.max_epochs=50", "run_name=sigterm", f"hydra.run.dir={run_c}"], home_c,
+                    start_new_session=True)
+    try:
+        # C: SIGTERM once its MLflow run is open -> KILLED, with the reason
+        _wait_for(lambda: _fitting(run_c), proc_c, what="run C to start fitting")
+        assert proc_c.poll() is None
+        os.killpg(proc_c.pid, signal.SIGTERM)
+        proc_c.wait(timeout=120)
+        assert proc_c.returncode != 0
+        (run_c,) = _runs(home_c, "resume")
+        assert run_c.info.status == "KILLED" and run_c.data.tags["spade.end_reason"] == "signal SIGTERM"
+
+        # B: kill -9 a few batches into its second epoch
+        def in_second_epoch() -> bool:
+            if not _fitting(run_b):  # the store exists (no two processes creating one SQLite file)
+                return False
+            runs = _runs(home_b, "resume")
+            if not runs:
+                return False
+            client = _client(home_b)
+            steps = [s for s, _ in _history(client, runs[0].info.run_id, "train/loss_bc")]
+            return len(_history(client, runs[0].info.run_id, "val/loss_bc")) == 1 and max(steps) >= epoch_batches + 2
+
+        client_b = _client(home_b)
+        _wait_for(in_second_epoch, proc_b, what="run B to reach its second epoch")
+        assert proc_b.poll() is None  # alive when killed
+        os.killpg(proc_b.pid, signal.SIGKILL)
+        proc_b.wait()
+        (killed,) = _runs(home_b, "resume")
+        assert killed.info.status == "RUNNING"  # SIGKILL: nothing could close it
+        assert len(_history(client_b, killed.info.run_id, "val/loss_bc")) == 1  # killed mid-epoch 2, after epoch 1
+        resume = tmp_path / "resume.ckpt"
+        resume.write_bytes((run_b / "checkpoints" / "last.ckpt").read_bytes())
+        out_b2 = _finish(_train([*args, f"hydra.run.dir={run_b2}", f"ckpt_path={resume}"], home_b))
+        _finish(proc_a)
+    finally:
+        for proc in (proc_a, proc_b, proc_c):
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+
+    assert f"MLflow run {killed.info.run_id}" in out_b2 and "marked KILLED" in out_b2  # the stale run, on start
+    (run_a_info,) = _runs(home_a, "resume")
+    (resumed,) = _runs(home_b, "resume")
+    assert resumed.info.run_id == killed.info.run_id and resumed.info.status == "FINISHED"
+    client_a = _client(home_a)
+    val_a = _history(client_a, run_a_info.info.run_id, "val/loss_bc")
+    val_b = _history(client_b, resumed.info.run_id, "val/loss_bc")
+    assert len(val_a) == 3 and val_b == val_a  # every epoch's validation loss, bit for bit
+    steps = [s for s, _ in _history(client_b, resumed.info.run_id, "train/loss_bc")]
+    assert max(steps) >= 3 * epoch_batches - 1
+    assert all(steps.count(s) == 1 for s in range(epoch_batches - 1))  # epoch 1 ran once: resumed, not restarted
+    assert _same_weights(run_a / "checkpoints" / "last.ckpt", run_b2 / "checkpoints" / "last.ckpt")
+    for run, client in ((run_a_info, client_a), (resumed, client_b)):  # best and last both archived
+        assert {a.path for a in client.list_artifacts(run.info.run_id, "checkpoints")} == {"checkpoints/best",
+                                                                                        "checkpoints/last"}
+
+
+def test_prerequisite_trained_in_the_same_process_does_not_change_the_numbers(tmp_path: Path, data_dir: Path) -> None:
+    """Probe 3: the first run trains its expert prerequisite in-process, the second finds it registered; both
+    students must come out identical (two processes, same seed)."""
+    args = ["+experiment=t1_small_conddbc_L", "trainer.max_epochs=1", "+trainer.limit_train_batches=3",
+            "+trainer.limit_val_batches=2", "test=false", f"paths.data_dir={data_dir}", *QUICK]
+    first = _finish(_train([*args, f"hydra.run.dir={tmp_path / 'first'}"], tmp_path))
+    assert "is not registered: training it first" in first
+    second = _finish(_train([*args, f"hydra.run.dir={tmp_path / 'second'}"], tmp_path))
+    assert "training it first" not in second
+    assert _same_weights(tmp_path / "first" / "checkpoints" / "last.ckpt", tmp_path / "second" / "checkpoints" / "last.ckpt")
+    client = _client(tmp_path)
+    runs = [r for r in _runs(tmp_path, "table1") if r.info.run_name == "t1_small_conddbc_L"]
+    assert len(runs) == 2
+    vals = [r.data.metrics["val/loss_bc"] for r in runs]
+    assert vals[0] == vals[1]
+    for run in runs:  # a one-epoch run archives best and last
+        assert {a.path for a in client.list_artifacts(run.info.run_id, "checkpoints")} == {"checkpoints/best",
+                                                                                        "checkpoints/last"}
