@@ -53,8 +53,10 @@ def student_checkpoint(path: Path) -> Path:
 def server(maps_dir: Path, tmp_path: Path) -> Iterator[tuple[str, Path]]:
     """``python -m spade.sketch MAP port=... out_dir=... model=...`` on 127.0.0.1: (base url, out_dir)."""
     port, out = free_port(), tmp_path / "sketches"
+    # SPADE_SKETCH_TEST_MODEL: a trained student (64 px x 0.1 m, e.g. scale=tiny) for the README's pictures
+    model = os.environ.get("SPADE_SKETCH_TEST_MODEL") or student_checkpoint(tmp_path / "student.ckpt")
     cmd = [sys.executable, "-m", "spade.sketch", str(maps_dir / MAP), f"port={port}", f"out_dir={out}",
-           f"model={student_checkpoint(tmp_path / 'student.ckpt')}", "annotate.window.size_px=64",
+           f"model={model}", "annotate.window.size_px=64",
            "annotate.window.resolution_m=0.1", "annotate.instances.spacing_m=0.1", "annotate.preview.count=8",
            f"hydra.run.dir={tmp_path / 'hydra'}"]
     log = open(tmp_path / "server.log", "w")
@@ -164,6 +166,17 @@ def test_sketch_execute_save_build_and_plan_in_the_browser(server: tuple[str, Pa
         screenshot(page, "sketch_4_rejected.png")
         page.click("#clear")
         page.check("input[name=shape][value=L]")
+        # freehand: Alt+drag leaves a waypoint every 0.3 m; one undo removes the stroke
+        a, b = screen(page, -4.5, -4.5), screen(page, -4.5, -2.5)
+        page.keyboard.down("Alt")
+        page.mouse.move(*a)
+        page.mouse.down()
+        page.mouse.move(*b, steps=20)
+        page.mouse.up()
+        page.keyboard.up("Alt")
+        assert page.evaluate("window.spade.state.waypoints.length") >= 6
+        page.click("#undo")
+        assert page.inner_text("#waypoint-count") == "0 waypoints"
 
         # two tabs save at the same moment: both land
         tab = page.context.browser.new_page(viewport={"width": 1400, "height": 1000})
@@ -176,8 +189,10 @@ def test_sketch_execute_save_build_and_plan_in_the_browser(server: tuple[str, Pa
         page.evaluate("document.getElementById('save').click()")  # returns at once; the request is in flight
         tab.evaluate("document.getElementById('save').click()")
         for p in (page, tab):
-            p.wait_for_function("document.querySelectorAll('#saved tr').length >= 3")
+            p.wait_for_function("document.getElementById('result').textContent.startsWith('Saved as')")
         assert sorted(saved_names(out)) == ["L000", "L001", "L002"]
+        for p in (page, tab):  # each tab's list catches up with the other's save (it polls the server)
+            p.wait_for_function("document.querySelectorAll('#saved tr').length === 3", timeout=10_000)
         tab.close()
 
         # review and delete in the list

@@ -375,6 +375,8 @@ class SketchWorkspace:
         except Exception as exc:  # not a checkpoint at all (pickle, zip or protobuf errors)
             raise RequestError(f"model {p.name} cannot be read as a student checkpoint or ONNX export: "
                                f"{type(exc).__name__}: {exc}", status=422) from None
+        h, w = planner.image_size
+        planner.predict(np.zeros((1, 3, h, w), np.float32))  # warm-up: the operator's first plan is not the slow one
         self.planner, self.model_path = planner, str(p.resolve())
         return self.model_info()  # type: ignore[return-value]
 

@@ -5,6 +5,7 @@ const $ = (id) => document.getElementById(id);
 const canvas = $("canvas");
 const g = canvas.getContext("2d");
 
+const FREEHAND_STEP_M = 0.3;
 const state = {
   meta: null,              // GET /api/map
   mapImg: null, costImg: null,
@@ -226,6 +227,9 @@ async function save() {
 async function refreshSaved() {
   const r = await api("GET", "/api/sketches");
   if (!r.ok) return;
+  const key = JSON.stringify([r.data.sketches, state.selected]);
+  if (key === state.savedKey) return;  // unchanged: keep the table (and the button under the mouse)
+  state.savedKey = key;
   state.saved = r.data.sketches;
   $("saved-count").textContent = `(${state.saved.length})`;
   $("sketch-file").textContent = r.data.sketch_file;
@@ -353,6 +357,7 @@ canvas.addEventListener("mousedown", (ev) => {
   let kind = "click";
   let index = -1;
   if (pan) kind = "pan";
+  else if (state.mode === "sketch" && ev.altKey) { kind = "freehand"; pushHistory(); state.waypoints.push(screenToWorld(sx, sy)); sketchChanged(); }
   else if (state.mode === "sketch" && (index = hitWaypoint(sx, sy)) >= 0) { kind = "move"; pushHistory(); }
   else if (state.mode === "policy" && (!state.pose || state.placing !== "goal")) kind = "pose";
   state.drag = { kind, index, sx, sy, moved: false, ox: state.view.ox, oy: state.view.oy };
@@ -370,6 +375,10 @@ window.addEventListener("mousemove", (ev) => {
   if (Math.hypot(sx - d.sx, sy - d.sy) > 4) d.moved = true;
   if (d.kind === "click" && d.moved) d.kind = "pan";
   if (d.kind === "pan") { state.view.ox = d.ox + sx - d.sx; state.view.oy = d.oy + sy - d.sy; draw(); }
+  else if (d.kind === "freehand") {  // a waypoint every FREEHAND_STEP_M of the drag
+    const last = state.waypoints[state.waypoints.length - 1];
+    if (Math.hypot(x - last[0], y - last[1]) >= FREEHAND_STEP_M) { state.waypoints.push([x, y]); sketchChanged(); }
+  }
   else if (d.kind === "move") { state.waypoints[d.index] = [x, y]; state.execution = null; $("save").disabled = true; draw(); }
   else if (d.kind === "pose" && d.moved) { state.pose[2] = Math.atan2(-(sy - d.sy), sx - d.sx); poseToInputs(); draw(); }
 });
@@ -382,7 +391,7 @@ window.addEventListener("mouseup", (ev) => {
   if (d.kind === "click" && !d.moved) {
     if (state.mode === "sketch") { pushHistory(); state.waypoints.push([x, y]); sketchChanged(); }
     else { state.goal = [x, y]; state.placing = "pose"; poseToInputs(); draw(); }
-  } else if (d.kind === "move") {
+  } else if (d.kind === "move" || d.kind === "freehand") {
     sketchChanged();
   } else if (d.kind === "pose") {
     state.placing = "goal"; poseToInputs(); draw();
@@ -421,6 +430,7 @@ async function start() {
   resize();
   fit();
   await refreshSaved();
+  setInterval(() => { if (!document.hidden) refreshSaved(); }, 2000);  // other tabs' and scripts' saves
   document.body.dataset.ready = "1";
 }
 
