@@ -282,8 +282,9 @@ class Report:
 
 
 def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None = None, scale: str | None = None,
-                 paper: bool = True, chart: bool = True) -> Report:
-    """Fetch, render and (with ``output_dir``) write one table's report."""
+                 paper: bool = True, chart: bool = True, log_to_runs: bool = False) -> Report:
+    """Fetch, render and (with ``output_dir``) write one table's report; ``log_to_runs`` also logs the chart and
+    markdown into each row's MLflow run (``report/``)."""
     results = fetch_results(table, tracking_uri, scale)
     comparisons = compare(table, results)
     found = sum(r.found for r in results.values())
@@ -313,6 +314,10 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
         files["markdown"] = out / f"{table.key}.md"
         parts += ["", "Written: " + ", ".join(str(p) for p in files.values())]
         files["markdown"].write_text("\n".join(parts) + "\n")
+    from spade.experiments.tracking import publish_report
+
+    links = publish_report(table, results, tracking_uri, files, log_to_runs)  # UI links; chart into the runs
+    parts += ["", *links] if links else []
     return Report(table, results, comparisons, "\n".join(parts), files)
 
 
@@ -322,7 +327,7 @@ def report(cfg: DictConfig) -> list[Report]:
     # `scale` is the config group of conf/scale (so that scale=cpu reads as everywhere else); its name filters runs.
     scale = cfg.scale.name if cfg.get("scale") else None
     return [build_report(t, cfg.tracking_uri, cfg.get("output_dir"), scale, cfg.get("paper", True),
-                         cfg.get("chart", True)) for t in tables]
+                         cfg.get("chart", True), cfg.get("log_to_runs", True)) for t in tables]
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="report")

@@ -9,7 +9,8 @@
   facts as the profile) and a description: row, approach, prerequisites (linked to their runs), test figures
   next to the classical baselines and the untrained model when the run logged them.
 * :func:`ui_lines` gives the ``mlflow ui`` command and URLs that open a run and its experiment's runs table
-  (``?workflowType=machine_learning``), printed at the end of training and by ``spade.report``.
+  (``?workflowType=machine_learning``), printed at the end of training and by ``spade.report``. The runs table
+  opens on a view stored in the experiment (:data:`VIEW_TAG`) that shows the Dataset and metric columns.
 """
 
 from __future__ import annotations
@@ -36,6 +37,10 @@ KIND_TAG = "mlflow.experimentKind"
 KIND_TRAINING = "custom_model_development"  # the MLflow UI's "model training" experiments
 NOTE_TAG = "mlflow.note.content"  # an experiment's or a run's description in the MLflow UI
 WORKFLOW_QUERY = "workflowType=machine_learning"  # MLflow 3 UIs: open on runs, not on GenAI traces
+# A runs-table view stored in the experiment (the MLflow UI's "shared view": tag mlflow.sharedViewState.<key>,
+# opened by ?viewStateShareKey=<key>): the Dataset column and the tables' metric columns, newest run first.
+VIEW_KEY = "spade"
+VIEW_TAG = f"mlflow.sharedViewState.{VIEW_KEY}"
 DEFAULT_UI = "http://127.0.0.1:5000"  # where `mlflow ui` listens unless told otherwise
 UI_URL_ENV = "SPADE_MLFLOW_UI_URL"  # the UI's address when it is not `mlflow ui`'s default (another port, a proxy)
 REPO_CONF = Path(__file__).resolve().parents[2] / "conf"
@@ -73,9 +78,19 @@ def ui_base_url(tracking_uri: str, ui_url: str | None = None) -> str:
     return str(tracking_uri).rstrip("/") if is_server_uri(tracking_uri) else DEFAULT_UI
 
 
-def experiment_url(base: str, experiment_id: str) -> str:
-    """The experiment's runs table (MLflow's hash routes; the query keeps 3.x UIs off the GenAI view)."""
-    return f"{base.rstrip('/')}/#/experiments/{experiment_id}/runs?{WORKFLOW_QUERY}"
+def experiment_url(base: str, experiment_id: str, view: bool = True) -> str:
+    """The experiment's runs table (MLflow's hash routes; the query keeps 3.x UIs off the GenAI view), with
+    SPADE's view of it (:func:`runs_view_state`: metric columns shown) unless ``view=False``."""
+    query = f"viewStateShareKey={VIEW_KEY}&{WORKFLOW_QUERY}" if view else WORKFLOW_QUERY
+    return f"{base.rstrip('/')}/#/experiments/{experiment_id}/runs?{query}"
+
+
+def runs_view_state() -> str:
+    """The runs table as SPADE shows it: Dataset, the paper's test metrics and the parameter count as columns."""
+    from spade.experiments.tables import METRICS
+
+    columns = ["attributes.`Dataset`", *(f"metrics.`{m.mlflow_key}`" for m in METRICS.values())]
+    return json.dumps({"selectedColumns": columns, "orderByKey": "attributes.start_time", "orderByAsc": False})
 
 
 def run_url(base: str, experiment_id: str, run_id: str) -> str:
@@ -173,6 +188,9 @@ def ensure_experiment_tags(client: Any, experiment: Any, cfg: DictConfig | None 
         client.set_experiment_tag(experiment.experiment_id, KIND_TAG, KIND_TRAINING)
     if not tags.get(NOTE_TAG):
         client.set_experiment_tag(experiment.experiment_id, NOTE_TAG, experiment_description(experiment.name, cfg))
+    view = runs_view_state()
+    if tags.get(VIEW_TAG) != view:
+        client.set_experiment_tag(experiment.experiment_id, VIEW_TAG, view)
 
 
 def bind_experiment(ml: MLFlowLogger, cfg: DictConfig | None = None) -> None:
@@ -202,7 +220,7 @@ def bind_experiment(ml: MLFlowLogger, cfg: DictConfig | None = None) -> None:
     try:
         experiment_id = client.create_experiment(
             name, artifact_location=ml._artifact_location,
-            tags={KIND_TAG: KIND_TRAINING, NOTE_TAG: experiment_description(name, cfg)},
+            tags={KIND_TAG: KIND_TRAINING, NOTE_TAG: experiment_description(name, cfg), VIEW_TAG: runs_view_state()},
         )
     except MlflowException:
         found = client.get_experiment_by_name(name)  # created meanwhile by a parallel job
@@ -275,7 +293,6 @@ def dataset_profile(root: str | Path, instances_used: int | None = None) -> dict
 
 def _mlflow_dataset(root: Path, name: str, instances_used: int | None) -> Any:
     """An ``mlflow.data`` meta dataset (metadata only: the arrays stay in ``root``) with a profile."""
-    from mlflow.data import artifact_dataset_sources
     from mlflow.data.meta_dataset import MetaDataset
 
     class SpadeDataset(MetaDataset):
@@ -290,13 +307,11 @@ def _mlflow_dataset(root: Path, name: str, instances_used: int | None) -> Any:
         def to_dict(self) -> dict[str, str]:
             return {**super().to_dict(), "profile": json.dumps(self._profile, sort_keys=True)}
 
-    source_cls = getattr(artifact_dataset_sources, "LocalArtifactDatasetSource", None)
-    if source_cls is not None:
-        source = source_cls(str(root))
-    else:  # another MLflow layout: let MLflow resolve the directory
-        from mlflow.data.dataset_source_registry import resolve_dataset_source
+    from mlflow.data.dataset_source_registry import get_registered_sources, resolve_dataset_source
 
-        source = resolve_dataset_source(str(root))
+    # MLflow registers its local-directory source (source type "local") twice; take the first, else resolve.
+    local = [c for c in get_registered_sources() if c._get_source_type() == "local"]
+    source = local[0](str(root)) if local else resolve_dataset_source(str(root))
     return SpadeDataset(source, name, dataset_fingerprint(root), dataset_profile(root, instances_used))
 
 
@@ -688,3 +703,35 @@ def run_summary(cfg: DictConfig, metrics: dict[str, Any]) -> str:
         ref = None
     lines += ui_lines(uri, ref.experiment_id if ref else None, ref.run_id if ref else None)
     return "\n".join(lines)
+
+
+# -- spade.report ---------------------------------------------------------------------------------------------
+def publish_report(table: Any, results: dict[str, Any], tracking_uri: str, files: dict[str, Path],
+                   log_to_runs: bool = True) -> list[str]:
+    """After ``spade.report`` wrote a table: tag its experiment (:func:`ensure_experiment_tags`), log the chart and
+    the markdown into each shown row's run (``report/<table>.png``, ``report/<table>.md``: the run page's
+    Artifacts tab) and return the lines that open the table in the MLflow UI."""
+    from mlflow import MlflowClient
+
+    client = MlflowClient(tracking_uri=tracking_uri)
+    experiment = client.get_experiment_by_name(table.experiment)
+    if experiment is None:
+        return []
+    ensure_experiment_tags(client, experiment)
+    logged = 0
+    if log_to_runs and files.get("png"):
+        for result in results.values():
+            # Only SPADE training runs (they all hold config/train.yaml), never runs made by other tools.
+            if result.run_id and client.list_artifacts(result.run_id, "config"):
+                for key in ("png", "markdown"):
+                    if files.get(key):
+                        client.log_artifact(result.run_id, str(files[key]), artifact_path="report")
+                logged += 1
+    base = ui_base_url(tracking_uri)
+    command = ui_command(tracking_uri)
+    lines = ["MLflow UI" + (f" (`{command}`)" if command else "") + ":",
+             f"- runs of `{table.experiment}`: {experiment_url(base, experiment.experiment_id)}"]
+    lines += [f"- {row}: {run_url(base, experiment.experiment_id, r.run_id)}" for row, r in results.items() if r.run_id]
+    if logged:
+        lines.append(f"- the chart is in each of those {logged} runs as `report/{table.key}.png` (Artifacts tab)")
+    return lines

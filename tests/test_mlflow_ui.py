@@ -1,0 +1,264 @@
+"""The MLflow UI as a person meets it (issue 15): the smoke run, then Chromium on the URLs the run printed.
+
+The ``smoke`` experiment trains into a temporary SPADE_HOME (SQLite store); ``mlflow server`` serves that store
+on 127.0.0.1 (a free port, which the run is told through ``SPADE_MLFLOW_UI_URL`` so that the URLs it prints point
+there); Debian's chromium, driven by Playwright, opens the experiment URL and must land on the runs table with the
+run, its Dataset and metric columns, then the run URL (metrics, description, datasets) and one of its prediction
+pictures. Screenshots go to ``test-artifacts/`` (kept by CI).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from browser_support import browser_page, chromium_path, screenshot
+
+REPO = Path(__file__).resolve().parents[1]
+# The smoke experiment, cut to a couple of batches per stage (its expert prerequisite inherits the trainer keys).
+FAST = ["trainer.enable_progress_bar=false", "+trainer.limit_train_batches=2", "+trainer.limit_val_batches=1",
+        "+trainer.limit_test_batches=1"]
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def _wait_healthy(url: str, proc: subprocess.Popen, log: Path, timeout: float) -> None:
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if proc.poll() is not None:
+            raise AssertionError(f"mlflow server exited ({proc.returncode}):\n{log.read_text()[-3000:]}")
+        try:
+            with urllib.request.urlopen(f"{url}/health", timeout=2) as response:
+                if response.status == 200:
+                    return
+        except OSError:
+            time.sleep(0.5)
+    raise AssertionError(f"mlflow server not healthy after {timeout:.0f} s:\n{log.read_text()[-3000:]}")
+
+
+def _printed(out: str, label: str) -> str:
+    match = re.search(rf"{label}:\s+(http://\S+)", out)
+    assert match, f"the run printed no {label!r} URL:\n{out[-3000:]}"
+    return match.group(1)
+
+
+def test_mlflow_ui_opens_the_runs_table_then_the_run_with_metrics_and_pictures(tmp_path: Path) -> None:
+    chromium_path()  # skip (or fail in CI) before any training when there is no browser
+    pytest.importorskip("playwright.sync_api")
+    port = _free_port()
+    base = f"http://127.0.0.1:{port}"
+    store = f"sqlite:///{tmp_path}/logs/mlflow.db"
+    (tmp_path / "logs").mkdir()
+    server_log = tmp_path / "server.log"
+    env = {**os.environ, "SPADE_HOME": str(tmp_path), "PYTHONUNBUFFERED": "1", "SPADE_MLFLOW_UI_URL": base}
+    env.pop("MLFLOW_TRACKING_URI", None)
+    # The server starts first (it creates the store) and boots while the run trains.
+    with open(server_log, "w") as log_fh:
+        server = subprocess.Popen(
+            [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", store, "--host", "127.0.0.1",
+             "--port", str(port), "--workers", "1", "--default-artifact-root", str(tmp_path / "server-artifacts")],
+            cwd=tmp_path, env=env, stdout=log_fh, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        train = subprocess.run([sys.executable, "-m", "spade.train", "+experiment=smoke", *FAST], cwd=REPO, env=env,
+                               capture_output=True, text=True, timeout=600)
+        out = train.stdout + train.stderr
+        assert train.returncode == 0, out[-3000:]
+        assert f"mlflow ui --backend-store-uri {store} --port {port}" in out
+        experiment_url, run_url = _printed(out, "experiment's runs"), _printed(out, "this run")
+        assert experiment_url.startswith(base) and "workflowType=machine_learning" in experiment_url
+        assert run_url.startswith(base) and "workflowType=machine_learning" in run_url
+        run_id = re.search(r"/runs/([0-9a-f]{32})\?", run_url).group(1)
+
+        from mlflow import MlflowClient
+
+        client = MlflowClient(tracking_uri=store)
+        pictures = sorted(a.path for a in client.list_artifacts(run_id, "predictions") if a.path.endswith(".png"))
+        assert pictures, "the run logged no prediction picture"
+        _wait_healthy(base, server, server_log, timeout=180)
+
+        with browser_page() as page:
+            page.set_default_timeout(60_000)
+            # 1. The experiment URL lands on the runs table: the run's row, its datasets, the metric columns.
+            page.goto(experiment_url)
+            page.locator(f'a[href*="/runs/{run_id}"]', has_text="smoke").first.wait_for(state="visible")
+            page.get_by_text("tiny/lshape (train split)").first.wait_for(state="visible")
+            page.get_by_role("columnheader", name="test/ape_cm").first.wait_for(state="attached")
+            assert "/runs" in page.url and "/traces" not in page.url and "/overview" not in page.url, page.url
+            screenshot(page, "mlflow_ui_runs.png")
+
+            # 2. The run URL: its description, its test metrics, its dataset inputs.
+            page.goto(run_url)
+            page.get_by_text("Prerequisites: expert from").first.wait_for(state="visible")
+            page.get_by_text("test/ape_cm", exact=True).first.wait_for(state="visible")
+            page.get_by_text("tiny/test").first.wait_for(state="attached")
+            screenshot(page, "mlflow_ui_run.png")
+
+            # 3. A prediction picture, reached as a person would: Artifacts tab, predictions folder, the file.
+            page.get_by_role("tab", name="Artifacts").click()
+            page.get_by_text("predictions", exact=True).first.click()
+            page.get_by_text(Path(pictures[0]).name, exact=True).first.click()
+            page.wait_for_function(
+                "() => [...document.images].some(i => i.src.startsWith('blob:') && i.complete && i.naturalWidth > 64)")
+            screenshot(page, "mlflow_ui_picture.png")
+    finally:
+        os.killpg(server.pid, signal.SIGTERM)  # the server and its uvicorn worker (this test's own process group)
+        try:
+            server.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            os.killpg(server.pid, signal.SIGKILL)
+            server.wait()
+
+
+# -- the pieces, without training or a browser (fast) ---------------------------------------------------------
+def test_printed_urls_open_runs_views(monkeypatch: pytest.MonkeyPatch) -> None:
+    from spade.experiments.tracking import ui_lines
+
+    monkeypatch.delenv("SPADE_MLFLOW_UI_URL", raising=False)
+    command, run, experiment = ui_lines("sqlite:////x/mlflow.db", "3", "ab12")
+    assert command.endswith("mlflow ui --backend-store-uri sqlite:////x/mlflow.db")
+    assert run.split()[-1] == "http://127.0.0.1:5000/#/experiments/3/runs/ab12?workflowType=machine_learning"
+    assert experiment.split()[-1] == ("http://127.0.0.1:5000/#/experiments/3/runs?viewStateShareKey=spade"
+                                      "&workflowType=machine_learning")
+    server = ui_lines("http://tracking:8080/", "3")
+    assert server[0].endswith("at:  http://tracking:8080") and "http://tracking:8080/#/experiments/3/runs?" in server[1]
+    monkeypatch.setenv("SPADE_MLFLOW_UI_URL", "http://127.0.0.1:6001")
+    assert ui_lines("sqlite:////x/mlflow.db", "3")[0].endswith("--port 6001")
+    monkeypatch.setenv("SPADE_MLFLOW_UI_URL", "127.0.0.1:6001")
+    with pytest.raises(ValueError, match="must start with http"):
+        ui_lines("sqlite:////x/mlflow.db", "3")
+
+
+def _logger(tmp_path: Path, experiment: str):
+    from lightning.pytorch.loggers import MLFlowLogger
+
+    return MLFlowLogger(experiment_name=experiment, tracking_uri=f"sqlite:///{tmp_path}/mlflow.db",
+                        artifact_location=str(tmp_path / "artifacts"))
+
+
+def test_experiments_are_tagged_as_training_with_a_description(tmp_path: Path) -> None:
+    import json
+
+    from spade.experiments.tracking import KIND_TAG, NOTE_TAG, VIEW_TAG, bind_experiment
+
+    ml = _logger(tmp_path, "table2")
+    bind_experiment(ml)
+    client = ml._mlflow_client
+    tags = client.get_experiment(ml._experiment_id).tags
+    assert tags[KIND_TAG] == "custom_model_development"
+    assert "Table 2" in tags[NOTE_TAG] and "python -m spade.train +experiment=ablation_finetune" in tags[NOTE_TAG]
+    assert "python -m spade.report table=table2" in tags[NOTE_TAG] and "t2_bc_finetune_U" in tags[NOTE_TAG]
+    assert "metrics.`test/ape_cm`" in json.loads(tags[VIEW_TAG])["selectedColumns"]
+    # Experiments made before SPADE tagged them get the tags; a description a person wrote stays.
+    old = client.create_experiment("quickstart", tags={NOTE_TAG: "my own notes"})
+    bind_experiment(_logger(tmp_path, "quickstart"))
+    tags = client.get_experiment(old).tags
+    assert tags[KIND_TAG] == "custom_model_development" and tags[NOTE_TAG] == "my own notes" and VIEW_TAG in tags
+    bind_experiment(_logger(tmp_path, "sweep_conddbc_lambda"))
+    note = client.get_experiment_by_name("sweep_conddbc_lambda").tags[NOTE_TAG]
+    assert "python -m spade.train --config-dir sweeps +search=conddbc_lambda" in note
+
+
+def test_datasets_are_run_inputs_with_fingerprint_source_context_and_profile(tmp_path: Path) -> None:
+    import json
+    from types import SimpleNamespace
+
+    from factories import write_synthetic
+    from spade.experiments.tracking import dataset_fingerprint, dataset_uses, log_dataset_inputs
+
+    for name, seed in (("lshape", 0), ("test", 1), ("lshape_again", 0)):
+        write_synthetic(tmp_path / "tiny" / name, n=9, seed=seed)
+    train, test = tmp_path / "tiny" / "lshape", tmp_path / "tiny" / "test"
+    assert dataset_fingerprint(train) == dataset_fingerprint(tmp_path / "tiny" / "lshape_again")  # same bytes
+    assert dataset_fingerprint(train) != dataset_fingerprint(test)
+    datamodule = SimpleNamespace(train_dir=train, test_dir=test, train_set=list(range(6)), val_set=list(range(3)),
+                                 test_set=list(range(9)))
+    ml = _logger(tmp_path, "smoke")
+    log_dataset_inputs(ml.experiment, ml.run_id, dataset_uses(datamodule))
+    inputs = ml.experiment.get_run(ml.run_id).inputs.dataset_inputs
+    got = {d.dataset.name: (d.dataset.digest, json.loads(d.dataset.source)["uri"], d.tags[0].value,
+                            json.loads(d.dataset.profile)) for d in inputs}
+    assert set(got) == {"tiny/lshape (train split)", "tiny/lshape (validation split)", "tiny/test"}
+    digest, source, context, profile = got["tiny/lshape (train split)"]
+    assert (digest, source, context) == (dataset_fingerprint(train), str(train), "training")
+    assert profile["instances"] == 9 and profile["instances_used"] == 6 and profile["shapes"] == ["L", "U"]
+    assert got["tiny/lshape (validation split)"][2:4] == ("validation", {**profile, "instances_used": 3})
+    assert got["tiny/test"][0] == dataset_fingerprint(test) and got["tiny/test"][2] == "test"
+    with pytest.raises(FileNotFoundError, match="no dataset manifest"):
+        dataset_fingerprint(tmp_path / "nothing")
+
+
+def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(tmp_path: Path) -> None:
+    from omegaconf import OmegaConf
+
+    from spade.experiments.tracking import DatasetUse, prerequisite_uses, run_description
+
+    ml = _logger(tmp_path, "table1")
+    client = ml.experiment
+    client.set_tag(ml.run_id, "mlflow.runName", "expert_cond_L")
+    client.create_registered_model("spade-cond_expert-L-tiny-abc")
+    client.create_model_version("spade-cond_expert-L-tiny-abc", source="x", run_id=ml.run_id)
+    cache = tmp_path / "registry-cache"
+    cfg = OmegaConf.create({
+        "run_name": "t1_small_conddbc_L", "paths": {"registry_cache_dir": str(cache)},
+        "model": {"guidance": {"expert_ckpt": str(cache / "spade-cond_expert-L-tiny-abc" / "v1" / "best" / "e.ckpt")}},
+        "requires": {"expert": {"experiment": "expert_cond_L", "target": "model.guidance.expert_ckpt"}},
+        "scale": {"name": "tiny"},
+        "tags": {"table": "table1", "role": "student", "approach": "Cond-DBC", "size": "small", "shape": "L",
+                 "scale": "tiny"}})
+    prerequisites = prerequisite_uses(cfg, client)
+    experiment_id = client.get_run(ml.run_id).info.experiment_id
+    assert prerequisites[0].run_link == f"[expert_cond_L](#/experiments/{experiment_id}/runs/{ml.run_id}" \
+                                        "?workflowType=machine_learning)"
+    metrics = {"test/ape_cm": 4.5, "test/hd19": 3.0, "test/failure_rate": 0.02, "model/params": 118165.0,
+               "test/baseline/straight/ape_cm": 30.25, "test/baseline/straight/failure_rate": 0.0,
+               "untrained/ape_cm": 190.0}
+    uses = [DatasetUse(tmp_path / "tiny/lshape", "tiny/lshape (train split)", "training", 160),
+            DatasetUse(tmp_path / "tiny/test", "tiny/test", "test", 43)]
+    text = run_description(cfg, metrics, uses, prerequisites, ["predictions/test_worst.png"])
+    assert text.startswith("**t1_small_conddbc_L**: Cond-DBC student (size small, 118k parameters), L-shape paths")
+    assert "Trained on `tiny/lshape` (160 instances)" in text and "Tested on `tiny/test` (43 instances)" in text
+    assert "registered model `spade-cond_expert-L-tiny-abc v1`, run [expert_cond_L](#/experiments/" in text
+    assert "Regenerate: `python -m spade.train +experiment=t1_small_conddbc_L scale=tiny`" in text
+    assert "| **this model** | 4.50 | n/a | 3 | 0.020 |" in text
+    assert "| baseline: straight | 30.25 | n/a | n/a | 0.000 |" in text and "| untrained | 190.00 |" in text
+    assert "`predictions/test_worst.png`" in text
+    assert "No test figures" in run_description(cfg, {}, [], [])
+
+
+def test_report_logs_its_chart_into_the_rows_runs_and_prints_their_urls(tmp_path: Path) -> None:
+    from mlflow import MlflowClient
+
+    from spade.experiments.tables import TABLES
+    from spade.report import build_report
+
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    client = MlflowClient(tracking_uri=uri)
+    experiment = client.create_experiment("table3", artifact_location=str(tmp_path / "artifacts"))
+    runs = {}
+    for row in TABLES["table3"].rows:
+        run = client.create_run(experiment, run_name=row, tags={"scale": "tiny"})
+        client.log_metric(run.info.run_id, "test/ape_cm", 5.0)
+        if row == "t3_bc_scratch_U":  # a SPADE training run; the other one was made by another tool
+            client.log_text(run.info.run_id, "x: 1", "config/train.yaml")
+        client.set_terminated(run.info.run_id)
+        runs[row] = run.info.run_id
+    text = build_report(TABLES["table3"], uri, tmp_path / "reports", log_to_runs=True).text
+    assert f"#/experiments/{experiment}/runs?viewStateShareKey=spade&workflowType=machine_learning" in text
+    assert f"#/experiments/{experiment}/runs/{runs['t3_bc_scratch_U']}?workflowType=machine_learning" in text
+    logged = {a.path for a in client.list_artifacts(runs["t3_bc_scratch_U"], "report")}
+    assert logged == {"report/table3.png", "report/table3.md"}
+    assert not client.list_artifacts(runs["t3_augbc_pretrained_expert_U"], "report")
+    assert client.get_experiment(experiment).tags["mlflow.experimentKind"] == "custom_model_development"
