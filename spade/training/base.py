@@ -68,7 +68,7 @@ class PathPlanningModule(L.LightningModule):
         if batch_idx == 0 and self.grid_size > 0 and not self.trainer.sanity_checking:
             n = min(self.grid_size, prob.shape[0])
             grid = prediction_grid(batch["state"][:n], batch["path"][:n], prob[:n], batch["waypoints"][:n],
-                                   batch["resolution"])
+                                   batch["resolution"][:n])
             log_image(self.logger, grid, f"predictions/epoch{self.current_epoch:03d}.png", self.trainer.log_dir)
 
     def validation_losses(self, batch: dict) -> dict[str, torch.Tensor]:
