@@ -13,17 +13,19 @@ import numpy as np
 import pytest
 import torch
 
-from spade.deploy.export import (
-    ExportedStudent,
-    ExportError,
-    example_states,
-    export_student,
-    read_metadata,
-)
+from spade.annotation.frame import RobotFrame
+from spade.deploy.export import ExportError, example_states, export_student, read_metadata
 from spade.models import build_model
+from spade.models.modelfile import INPUT_ENCODING, open_model
 
 REPO = Path(__file__).resolve().parents[1]
 PARITY_BOUND = 1e-4  # float32 reorderings in the runtimes stay near 1e-5 for logits of order 1-10
+
+
+def robot_data(size: int = 32, resolution_m: float = 0.2) -> dict:
+    """The ``data`` entry of a student trained on robot-frame windows of ``size`` px."""
+    return {"image_size": [size, size], "resolution_m": resolution_m, "frame": RobotFrame.for_size(size).to_json(),
+            "input_encoding": INPUT_ENCODING}
 
 
 def _hand_made_checkpoint(path: Path, role: str = "student", data: dict | None = None, size: str = "small") -> Path:
@@ -57,7 +59,8 @@ def test_onnx_export_of_a_fitted_student(tiny_checkpoints: dict[str, str], tmp_p
     assert meta == json.loads(json.dumps(report.metadata))
     assert meta["role"] == "student" and meta["config"]["preset"] == "medium" and meta["opset"] == 17
     assert meta["data"]["image_size"] == [64, 64] and meta["data"]["resolution_m"] == pytest.approx(0.1)
-    assert "0.5" in meta["data"]["input_encoding"]
+    assert meta["data"]["input_encoding"] == INPUT_ENCODING
+    assert RobotFrame.from_json(meta["data"]["frame"]) == RobotFrame.for_size(64)  # the training windows' frame
     assert meta["source_checkpoint"] == str(Path(tiny_checkpoints["student"]).resolve())
     assert meta["torch_version"] == torch.__version__
 
@@ -80,7 +83,7 @@ def test_onnx_export_of_a_fitted_student(tiny_checkpoints: dict[str, str], tmp_p
 
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")  # torch.jit.load: TorchScript is deprecated in torch 2.x
 def test_torchscript_export_carries_the_metadata(tmp_path: Path) -> None:
-    data = {"image_size": [32, 32], "resolution_m": 0.2, "input_encoding": "occupancy code * 0.5, start, goal"}
+    data = robot_data()
     ckpt = _hand_made_checkpoint(tmp_path / "s.ckpt", data=data)
     report = export_student(ckpt, None, "torchscript", latency_runs=0, parity_batch=3)
     assert report.out_path == tmp_path / "s.pt" and report.latency_ms == {}
@@ -92,19 +95,17 @@ def test_torchscript_export_carries_the_metadata(tmp_path: Path) -> None:
     state = example_states(2, (32, 32), seed=3)
     with torch.no_grad():
         assert module(state).shape == (2, 1, 32, 32)
-    assert ExportedStudent(report.out_path)(state).shape == (2, 1, 32, 32)
+    assert open_model(report.out_path)(state).shape == (2, 1, 32, 32)
 
 
-def test_a_checkpoint_without_window_needs_it_given(tmp_path: Path) -> None:
-    ckpt = _hand_made_checkpoint(tmp_path / "old.ckpt")
-    with pytest.raises(ExportError, match="image_size.*resolution_m"):
-        export_student(ckpt, tmp_path / "old.onnx", "onnx", latency_runs=0)
-    assert not (tmp_path / "old.onnx").exists()
-    pytest.importorskip("onnxruntime")
-    report = export_student(ckpt, tmp_path / "old.onnx", "onnx", image_size=32, resolution_m=0.2, latency_runs=0)
-    assert report.max_abs_diff < PARITY_BOUND
-    data = read_metadata(report.out_path)["data"]
-    assert data["image_size"] == [32, 32] and data["resolution_m"] == 0.2 and "start, goal" in data["input_encoding"]
+def test_an_axis_aligned_student_is_refused_with_the_fix(tmp_path: Path) -> None:
+    """Students trained before robot-frame windows (no ``data``, or ``data`` without a frame) are not exported:
+    no planner could build their windows."""
+    for name, data in (("none", None), ("axis", {"image_size": [32, 32], "resolution_m": 0.2})):
+        ckpt = _hand_made_checkpoint(tmp_path / f"{name}.ckpt", data=data)
+        with pytest.raises(ExportError, match=f"{name}.ckpt.*axis-aligned.*[Rr]etrain"):
+            export_student(ckpt, tmp_path / f"{name}.onnx", "onnx", latency_runs=0)
+        assert not (tmp_path / f"{name}.onnx").exists()
 
 
 def test_bad_inputs_are_refused_with_the_fix(tmp_path: Path) -> None:
@@ -113,14 +114,12 @@ def test_bad_inputs_are_refused_with_the_fix(tmp_path: Path) -> None:
     expert = _hand_made_checkpoint(tmp_path / "expert.ckpt", role="expert")
     with pytest.raises(ExportError, match="not 'student'"):
         export_student(expert, tmp_path / "e.onnx")
-    good = _hand_made_checkpoint(tmp_path / "s.ckpt", data={"image_size": [32, 32], "resolution_m": 0.2})
+    good = _hand_made_checkpoint(tmp_path / "s.ckpt", data=robot_data())
     with pytest.raises(ExportError, match="format=onnx"):
         export_student(good, tmp_path / "s.tflite", "tflite")
-    with pytest.raises(ExportError, match="trained with resolution_m=0.2"):
-        export_student(good, tmp_path / "s.onnx", resolution_m=0.05)
+    odd = {**robot_data(), "image_size": [30, 30], "frame": RobotFrame.for_size(30).to_json()}
     with pytest.raises(ExportError, match="multiple of 4"):
-        export_student(_hand_made_checkpoint(tmp_path / "odd.ckpt"), tmp_path / "odd.pt", "torchscript",
-                       image_size=[30, 30], resolution_m=0.1)
+        export_student(_hand_made_checkpoint(tmp_path / "odd.ckpt", data=odd), tmp_path / "odd.pt", "torchscript")
 
 
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")  # the legacy ONNX exporter, as spade.deploy.export uses
@@ -143,7 +142,7 @@ def test_read_metadata_refuses_files_that_are_not_spade_exports(tmp_path: Path) 
 
 def test_the_command_line_exports_and_reports(tmp_path: Path) -> None:
     pytest.importorskip("onnxruntime")
-    ckpt = _hand_made_checkpoint(tmp_path / "s.ckpt", data={"image_size": [32, 32], "resolution_m": 0.2})
+    ckpt = _hand_made_checkpoint(tmp_path / "s.ckpt", data=robot_data())
     env = {**os.environ, "SPADE_HOME": str(tmp_path / "home")}
     cmd = [sys.executable, "-m", "spade.export", f"ckpt_path={ckpt}", f"out_path={tmp_path / 'cli.onnx'}",
            "latency_runs=2", f"report_path={tmp_path / 'report.json'}"]

@@ -39,7 +39,7 @@ from spade.annotation.frame import RobotFrame, WindowPose, heading_from_yaw
 from spade.annotation.rasterize import render
 from spade.maps import FREE, OCCUPIED, OccupancyMap, load_ros_map
 from spade.metrics import ExtractedPath, extract_path
-from spade.models.modelfile import ModelFileError, open_model, robot_frame
+from spade.models.modelfile import ModelFileError, UnsafeModelFileError, open_model, robot_frame
 
 __all__ = ["PlanResult", "PlanWindow", "Planner", "PlannerConfigError"]
 
@@ -205,6 +205,8 @@ class Planner:
         try:
             self.backend = open_model(path, device, threads, role="student")
             self.frame = RobotFrame.from_json(robot_frame(self.backend.info, path))
+        except UnsafeModelFileError:
+            raise
         except ModelFileError as err:
             raise PlannerConfigError(str(err)) from None
         data = dict(self.backend.info["data"])
