@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 from typing import Any
 
 import hydra
@@ -11,28 +10,12 @@ import lightning as L
 from omegaconf import DictConfig
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
-from spade.models.modelfile import load_checkpoint, load_lightning
 from spade.training.instantiate import instantiate_loggers
+from spade.training.loading import load_module
+
+__all__ = ["evaluate", "load_module"]
 
 log = logging.getLogger(__name__)
-
-
-def load_module(ckpt_path: str | Path) -> L.LightningModule:
-    """Load a SPADE checkpoint as the LightningModule that wrote it (student or expert), safely
-    (:func:`spade.models.modelfile.load_lightning`)."""
-    path = Path(ckpt_path)
-    if not path.is_file():
-        raise FileNotFoundError(f"ckpt_path={path} does not exist; pass a checkpoint written by python -m spade.train")
-    role = (load_checkpoint(path).get("spade") or {}).get("role")
-    if role == "student":
-        from spade.training.student_module import StudentModule
-
-        return load_lightning(StudentModule, path)
-    if role == "expert":
-        from spade.training.expert_module import ExpertModule
-
-        return load_lightning(ExpertModule, path)
-    raise ValueError(f"{path} is not a SPADE student or expert checkpoint (role {role!r})")
 
 
 def evaluate(cfg: DictConfig) -> dict[str, Any]:

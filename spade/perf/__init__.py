@@ -7,6 +7,7 @@
 - :mod:`spade.perf.training` - training step time of BC, DBC and Cond-DBC with the same student;
 - :mod:`spade.perf.throughput` - metric, dataset-read and generation (annotation) throughput;
 - :mod:`spade.perf.report` - the printed table and the JSON file.
+- :mod:`spade.perf.bench` - the sections run together (``bench(cfg)``), what ``python -m spade.bench`` calls.
 
 Every function returns plain dicts of numbers (JSON-ready) and prints nothing.
 """

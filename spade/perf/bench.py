@@ -1,0 +1,209 @@
+"""The sections of ``python -m spade.bench`` and the run that composes them (:func:`bench`).
+
+``bench(cfg)`` takes the composed ``conf/bench.yaml`` and returns the results dict that
+:func:`spade.perf.report.format_report` prints and :func:`spade.perf.report.write_json` writes. Importing this
+module registers the ``${quick_or:QUICK,FULL}`` resolver the config uses.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from spade.perf.report import check_targets
+from spade.perf.timing import machine_info
+
+log = logging.getLogger(__name__)
+
+SECTIONS = ("student", "experts", "training", "metrics", "data", "quality")
+_KEYS = ("quick", "sections", "out_json", "work_dir", "expert_ckpt", "seed", "threads", *SECTIONS)
+
+
+def _quick_or(quick_value: Any, full_value: Any, *, _root_: DictConfig) -> Any:
+    """``${quick_or:QUICK,FULL}``: the first value when the config's ``quick`` is true, else the second."""
+    return quick_value if _root_.get("quick") else full_value
+
+
+OmegaConf.register_new_resolver("quick_or", _quick_or, replace=True)
+
+
+def _plain(cfg: DictConfig, keys: tuple[str, ...]) -> dict[str, Any]:
+    """The given keys of ``cfg`` resolved in place (interpolations may point elsewhere in the config), as plain data.
+
+    Only these keys: the rest (``paths.output_dir``) may need a running Hydra app, and bench() works without."""
+    return {k: OmegaConf.to_container(cfg[k], resolve=True) if OmegaConf.is_config(cfg[k]) else cfg[k]
+            for k in keys if k in cfg}
+
+
+def bench(cfg: DictConfig) -> dict[str, Any]:
+    """Run the configured sections; returns the results (also what goes into the JSON file)."""
+    c = _plain(cfg, _KEYS)
+    sections = list(c.get("sections") or [])
+    unknown = sorted(set(sections) - set(SECTIONS))
+    if unknown:
+        raise ValueError(f"unknown bench sections {unknown}; choose from {list(SECTIONS)}")
+    if c.get("threads"):
+        import torch
+
+        torch.set_num_threads(int(c["threads"]))
+    results: dict[str, Any] = {"mode": "quick" if c.get("quick") else "full", "machine": machine_info(),
+                               "settings": {k: c.get(k) for k in sections}}
+    temporary = c.get("work_dir") is None
+    work = Path(tempfile.mkdtemp(prefix="spade_bench_")) if temporary else Path(c["work_dir"])
+    work.mkdir(parents=True, exist_ok=True)
+    try:
+        if "student" in sections:
+            results["student"] = _student(c["student"], work, c.get("threads"))
+        if "experts" in sections:
+            results["experts"] = _experts(c["experts"])
+        if "training" in sections:
+            results["training"] = _training(c["training"])
+        if "metrics" in sections:
+            from spade.perf.throughput import metric_throughput
+
+            log.info("metrics: APE + Hd19 and FID throughput")
+            m = c["metrics"]
+            results["metrics"] = metric_throughput(m["instances"], m["image_size"], m["fid_images"], seed=c["seed"])
+        datasets: dict[str, Any] = {}
+        if "data" in sections or ("quality" in sections and not (c["quality"].get("test_dir") and c.get("expert_ckpt"))):
+            datasets = _datasets(c["data"], work)
+        if "data" in sections:
+            from spade.perf.throughput import dataset_read_throughput
+
+            log.info("data: reading %s", datasets["train_dir"])
+            results["data"] = {"generation": datasets["generation"],
+                               "read": dataset_read_throughput(datasets["train_dir"])}
+        if "quality" in sections:
+            results["quality"] = _quality(c["quality"], c.get("expert_ckpt"), datasets, work, c["seed"])
+    finally:
+        if temporary:
+            shutil.rmtree(work, ignore_errors=True)
+    results["targets"] = check_targets(results)
+    return results
+
+
+def _student(s: dict[str, Any], work: Path, threads: int | None) -> list[dict[str, Any]]:
+    from spade.perf.student import student_latency
+
+    rows = []
+    for size in s["image_sizes"]:
+        log.info("student latency at %d px: %s", size, s["sizes"])
+        rows += student_latency(s["sizes"], size, s["batches"], s["runs"], onnx=s["onnx"],
+                                threads=threads, workdir=work)
+    return rows
+
+
+def _experts(e: dict[str, Any]) -> list[dict[str, Any]]:
+    from spade.perf.experts import expert_sampling_costs
+
+    out = []
+    for conditional, preset in ((True, e["cond_preset"]), (False, e["uncond_preset"])):
+        if preset:
+            log.info("expert sampling: %s expert %s at %d px", "cond" if conditional else "uncond", preset,
+                     e["image_size"])
+            out.append(expert_sampling_costs(conditional, preset, e["image_size"], e["ddim_steps"],
+                                             e["max_timed_steps"], e["num_train_timesteps"]))
+    return out
+
+
+def _training(t: dict[str, Any]) -> list[dict[str, Any]]:
+    from spade.perf.training import training_step_times
+
+    rows = []
+    for size in t["image_sizes"]:
+        log.info("training steps at %d px, batch %d", size, t["batch_size"])
+        rows += training_step_times(t["student"], size, t["batch_size"], t["cond_presets"], t.get("uncond_preset"),
+                                    t["runs"], t["warmup"], t.get("batched_terms", True))
+    return rows
+
+
+def _datasets(d: dict[str, Any], work: Path) -> dict[str, Any]:
+    """An L-shape training set and a test set written with the annotation tool (timed: generation throughput)."""
+    from spade.perf.throughput import generation_throughput
+
+    train_dir, test_dir = work / "data" / "lshape", work / "data" / "test"
+    generation = []
+    for root, preset, n, maps in ((train_dir, "lshape", d["train_instances"], d.get("maps")),
+                                  (test_dir, "test", d["test_instances"], None)):
+        if (root / "manifest.json").is_file():  # a kept work_dir: reuse, do not re-time
+            continue
+        log.info("data: annotating %d %s instances", n, preset)
+        generation.append(generation_throughput(root, preset, n, d["window_px"], d["resolution_m"], maps,
+                                                d.get("spacing_m"), d.get("workers", 1)))
+    return {"train_dir": train_dir, "test_dir": test_dir, "generation": generation}
+
+
+def _quality(q: dict[str, Any], expert_ckpt: str | None, datasets: dict[str, Any], work: Path,
+             seed: int) -> dict[str, Any]:
+    import torch
+    from torch.utils.data import default_collate
+
+    from spade.data import PathDataset
+    from spade.perf.experts import sampler_quality
+
+    if expert_ckpt:
+        module, source = _load_expert(expert_ckpt), str(expert_ckpt)
+    else:
+        module = _train_expert(q, datasets, work, seed)
+        source = (f"cond tiny, trained here {q['train_steps']} steps on {datasets['train_dir'].name} "
+                  f"(T={q['num_train_timesteps']})")
+    test_dir = Path(q["test_dir"]) if q.get("test_dir") else datasets["test_dir"]
+    test = PathDataset(test_dir)
+    trained = module.hparams.get("image_size")
+    if trained is not None and tuple(test.image_size) != (trained, trained):
+        raise ValueError(f"quality: the expert was trained on {trained} px windows, {test_dir} holds "
+                         f"{test.image_size[0]} px ones: set quality.test_dir (or data.window_px) to match it")
+    shapes = test.labels("shape")
+    idx = [i for i, s in enumerate(shapes) if q.get("shape") in (None, s)]
+    if not idx:
+        raise ValueError(f"quality: no test instances of shape {q.get('shape')!r} in {test_dir}")
+    chosen = np.unique(np.linspace(0, len(idx) - 1, min(q["samples"], len(idx))).round().astype(int))
+    batch = default_collate([test[idx[i]] for i in chosen])
+    batch = {k: v for k, v in batch.items() if isinstance(v, torch.Tensor)}
+    steps = module.schedule.num_train_timesteps
+    settings = [("ddim", int(k)) for k in q["ddim_steps"] if int(k) < steps] + [("ddpm", steps)]
+    log.info("quality: %s on %d test instances", [f"{s}-{k}" for s, k in settings], len(chosen))
+    module.eval()
+    rows = sampler_quality(module, batch, settings, seed=seed)
+    return {"expert": source, "test_dir": str(test_dir), "num_train_timesteps": steps, "rows": rows}
+
+
+def _load_expert(path: str | Path) -> Any:
+    from spade.models.modelfile import load_checkpoint, load_lightning
+    from spade.training.expert_module import ExpertModule
+
+    path = Path(path).expanduser()
+    if not path.is_file():
+        raise FileNotFoundError(f"expert_ckpt={path} does not exist; pass an expert checkpoint from "
+                                "python -m spade.train +experiment=expert_cond_L, or leave it out to train a tiny one")
+    role = (load_checkpoint(path).get("spade") or {}).get("role")
+    if role != "expert":
+        raise ValueError(f"expert_ckpt={path} has role {role!r}, not 'expert': pass a diffusion expert checkpoint")
+    return load_lightning(ExpertModule, path)
+
+
+def _train_expert(q: dict[str, Any], datasets: dict[str, Any], work: Path, seed: int) -> Any:
+    """A tiny conditional expert trained on the bench's training set (``+experiment=expert_cond_L``)."""
+    from spade.experiments.config import compose_config
+    from spade.train import train
+
+    out = work / "expert"
+    overrides = [
+        "+experiment=expert_cond_L", f"scale={q['train_scale']}", "model.preset=tiny", "logger=none",
+        "callbacks=none", "test=false", f"seed={seed}", f"paths.output_dir={out}",
+        f"data.train_dir={datasets['train_dir']}", f"data.test_dir={datasets['test_dir']}",
+        "data.train_generate=null", "data.test_generate=null", f"trainer.max_steps={q['train_steps']}",
+        "trainer.max_epochs=-1", "trainer.enable_progress_bar=false", "+trainer.enable_model_summary=false",
+        "+trainer.limit_val_batches=0",
+        f"model.num_train_timesteps={q['num_train_timesteps']}",
+    ]
+    log.info("quality: training a tiny conditional expert for %d steps", q["train_steps"])
+    _, objects = train(compose_config("train", overrides))
+    objects["trainer"].save_checkpoint(work / "expert.ckpt")
+    return objects["model"]

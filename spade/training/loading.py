@@ -1,0 +1,27 @@
+"""A SPADE checkpoint back as the LightningModule that wrote it (student or expert), loaded safely."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import lightning as L
+
+from spade.models.modelfile import load_checkpoint, load_lightning
+
+
+def load_module(ckpt_path: str | Path) -> L.LightningModule:
+    """The :class:`StudentModule` or :class:`ExpertModule` of a checkpoint, by the role its ``spade`` entry
+    records (:func:`spade.models.modelfile.load_lightning`: ``weights_only=True``)."""
+    path = Path(ckpt_path)
+    if not path.is_file():
+        raise FileNotFoundError(f"ckpt_path={path} does not exist; pass a checkpoint written by python -m spade.train")
+    role = (load_checkpoint(path, mmap=True).get("spade") or {}).get("role")
+    if role == "student":
+        from spade.training.student_module import StudentModule
+
+        return load_lightning(StudentModule, path)
+    if role == "expert":
+        from spade.training.expert_module import ExpertModule
+
+        return load_lightning(ExpertModule, path)
+    raise ValueError(f"{path} is not a SPADE student or expert checkpoint (role {role!r})")
