@@ -225,7 +225,7 @@ def test_sketch_execute_save_build_and_plan_in_the_browser(server: tuple[str, Pa
         page.mouse.down()
         page.mouse.move(rx, ry - 40, steps=4)
         page.mouse.up()
-        click_world(page, [[-2.0, -3.0]])
+        click_world(page, [[-2.0, -3.5]])
         pose = page.evaluate("window.spade.state.pose")
         assert np.allclose(pose[:2], [-3.0, -5.0], atol=0.1) and abs(pose[2] - np.pi / 2) < 0.05
         t0 = time.perf_counter()

@@ -323,10 +323,12 @@ async function plan() {
             p.success ? `Path of ${p.length_m.toFixed(2)} m, ${p.waypoints.length} waypoints, ${p.latency_ms} ms.`
                       : `No path (${p.code}): ${p.reason} (${p.latency_ms} ms).`);
   const img = $("plan-probability");
-  if (p.probability) { img.src = p.probability; img.hidden = false; } else { img.hidden = true; }
+  const reveal = () => $("policy-section").scrollIntoView({ block: "end" });
+  if (p.probability) { img.onload = reveal; img.src = p.probability; img.hidden = false; } else { img.hidden = true; }
   const hasBaselines = p.baselines && p.baselines.length;
   $("baselines").innerHTML = hasBaselines ? `<label><input type="checkbox" id="show-baselines" checked> classical baselines (${p.baselines[0].all_ms} ms)</label>` : "";
   if (hasBaselines) $("show-baselines").onchange = draw;
+  reveal();
   (p.baselines || []).forEach((b) => {
     const div = document.createElement("div");
     div.innerHTML = `<span class="swatch" style="background:${b.colour || "#0aa"}"></span>`;
