@@ -20,7 +20,16 @@ import hydra
 from omegaconf import DictConfig
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
-from spade.experiments.tables import CELL_METRICS, METRICS, TABLES, Table, get_table, relative_change
+from spade.experiments.tables import (
+    BASELINE_LABELS,
+    CELL_METRICS,
+    METRICS,
+    TABLES,
+    Table,
+    baseline_metric,
+    get_table,
+    relative_change,
+)
 
 log = logging.getLogger(__name__)
 
@@ -101,6 +110,11 @@ def fetch_results(table: Table, tracking_uri: str, scale: str | None = None) -> 
         result.scale = run.data.tags.get("scale")
         result.metrics = {k: float(run.data.metrics[m.mlflow_key]) for k, m in METRICS.items()
                           if m.mlflow_key in run.data.metrics}
+        for name in BASELINE_LABELS:  # the classical baselines on this row's test set, as "<name>/<metric>"
+            for key in CELL_METRICS:
+                mlflow_key = baseline_metric(name, key)
+                if mlflow_key in run.data.metrics:
+                    result.metrics[f"{name}/{key}"] = float(run.data.metrics[mlflow_key])
     return results
 
 
@@ -116,10 +130,32 @@ def compare(table: Table, results: dict[str, RowResult]) -> list[ComparisonResul
     return out
 
 
-def _cell(result: RowResult) -> str:
+def _cell(result: RowResult, prefix: str = "") -> str:
     if not result.found:
         return MISSING
-    return " / ".join(METRICS[k].format(result.value(k)) for k in CELL_METRICS)
+    return " / ".join(METRICS[k].format(result.value(prefix + k)) for k in CELL_METRICS)
+
+
+def _baseline_source(table: Table, results: dict[str, RowResult], shape: str) -> RowResult | None:
+    """A found row of ``shape`` that logged the baselines (every row of a shape shares its test set)."""
+    for line in table.lines:
+        row = line.cells.get(shape)
+        if row and results[row].found and any(k.startswith("straight/") for k in results[row].metrics):
+            return results[row]
+    return None
+
+
+def losses_to_baselines(result: RowResult) -> list[str]:
+    """The baselines whose test APE (failures aside) or failure rate this row does not beat."""
+    lost = []
+    ape, fail = result.value("ape_cm"), result.value("failure_rate")
+    for name, label in BASELINE_LABELS.items():
+        b_ape, b_fail = result.value(f"{name}/ape_cm"), result.value(f"{name}/failure_rate")
+        if b_ape is None:
+            continue
+        if ape is None or ape >= b_ape or (fail is not None and b_fail is not None and fail > b_fail + 0.02):
+            lost.append(label)
+    return lost
 
 
 def _paper_cell(figures: dict[str, float]) -> str:
@@ -149,6 +185,15 @@ def render_table(table: Table, results: dict[str, RowResult]) -> str:
         cells = [_cell(results[line.cells[s]]) if s in line.cells else "" for s in table.shapes]
         params = [results[line.cells[s]].value("params") for s in table.shapes if s in line.cells]
         body.append([*line.labels, *cells, _params_cell(params)])
+    for name, label in BASELINE_LABELS.items():
+        sources = {s: _baseline_source(table, results, s) for s in table.shapes}
+        if not any(sources.values()):
+            continue
+        labels = ["reference", label, *[""] * (len(table.label_columns) - 2)][: len(table.label_columns)]
+        if len(table.label_columns) == 1:
+            labels = [f"reference: {label}"]
+        cells = [_cell(src, f"{name}/") if src else "n/a" for src in sources.values()]
+        body.append([*labels, *cells, "0 (no learning)"])
     return _markdown_table(_header(table), body)
 
 
@@ -198,6 +243,11 @@ def render_notes(table: Table, results: dict[str, RowResult]) -> list[str]:
     if failed:
         notes.append(f"APE n/a: no path could be extracted from any test prediction of {', '.join(failed)} "
                      "(see test/failure_rate in the CSV)")
+    for row in table.rows:
+        r = results[row]
+        if r.found and (lost := losses_to_baselines(r)):
+            notes.append(f"{row} LOSES to the {', '.join(lost)} on its own test set (APE or failure rate): "
+                         "it has not learned a preference worth deploying")
     if any(r.found and "fid" not in r.metrics for r in results.values()):
         notes.append("FID n/a: the run logged no test/fid (its test set is smaller than the FID extractor needs)")
     return notes

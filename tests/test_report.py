@@ -163,3 +163,23 @@ def test_cli_scale_override_filters_runs(store: dict, tmp_path: Path) -> None:
     (tiny,) = report(compose_config("report", [*overrides, "scale=tiny"]))
     assert everything.results["t1_small_bc_L"].found and cpu.results["t1_small_bc_L"].found
     assert not tiny.results["t1_small_bc_L"].found and "scale cpu" in cpu.text
+
+
+def test_baselines_are_reference_rows_and_losing_rows_are_named(tmp_path: Path) -> None:
+    """Every table shows the classical baselines of its test set, and says plainly which rows lose to them."""
+    from mlflow import MlflowClient
+
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    client = MlflowClient(tracking_uri=uri)
+    t3 = client.create_experiment("table3")
+    baselines = {"test/baseline/straight/ape_cm": 24.0, "test/baseline/straight/failure_rate": 0.0,
+                 "test/baseline/shortest/ape_cm": 29.0, "test/baseline/heading/ape_cm": 12.5,
+                 "test/baseline/heading/hd19": 3.0}
+    _log_run(client, t3, "t3_bc_scratch_U", {"test/ape_cm": 30.0, "test/failure_rate": 0.01, **baselines})
+    _log_run(client, t3, "t3_augbc_pretrained_expert_U", {"test/ape_cm": 6.0, "test/failure_rate": 0.005, **baselines})
+    rep = build_report(TABLES["table3"], uri)
+    table = render_table(TABLES["table3"], rep.results)
+    assert "reference: straight line | n/a / 24.00 / n/a / 0.0% | 0 (no learning)" in table
+    assert "reference: heading template | n/a / 12.50 / 3 / n/a |" in table
+    assert "t3_bc_scratch_U LOSES to the straight line, shortest path (Nav2-like), heading template" in rep.text
+    assert "t3_augbc_pretrained_expert_U LOSES" not in rep.text

@@ -56,11 +56,24 @@ METRICS: dict[str, Metric] = {
         Metric("fid", "test/fid", "FID", ".2f"),
         Metric("ape_cm", "test/ape_cm", "APE (cm)", ".2f"),
         Metric("hd19", "test/hd19", "Hd19", ".0f"),
-        Metric("failure_rate", "test/failure_rate", "failure rate", ".3f"),
+        Metric("failure_rate", "test/failure_rate", "failures", ".1%"),
         Metric("params", "model/params", "params", "params"),
     )
 }
-CELL_METRICS = ("fid", "ape_cm", "hd19")  # the paper's cell: FID / APE / Hd19
+CELL_METRICS = ("fid", "ape_cm", "hd19", "failure_rate")  # the paper's cell FID / APE / Hd19, plus failures
+
+BASELINE_LABELS: dict[str, str] = {
+    "straight": "straight line",
+    "shortest": "shortest path (Nav2-like)",
+    "heading": "heading template",
+}
+"""The classical predictors (spade.metrics.baselines) every table shows as reference rows, on the same test sets:
+a learned row that does not beat them has learned nothing worth deploying."""
+
+
+def baseline_metric(name: str, key: str) -> str:
+    """The MLflow key of a baseline's metric, e.g. ``test/baseline/straight/ape_cm``."""
+    return f"test/baseline/{name}/{METRICS[key].mlflow_key.split('/', 1)[1]}"
 
 
 @dataclass(frozen=True)
