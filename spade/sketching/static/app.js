@@ -140,9 +140,10 @@ function draw() {
   if (state.mapImg) g.drawImage(state.mapImg, v.ox, v.oy, m.width_px * v.scale, m.height_px * v.scale);
   if (state.showCostmap && state.costImg) g.drawImage(state.costImg, v.ox, v.oy, m.width_px * v.scale, m.height_px * v.scale);
 
-  // a saved sketch picked in the list
+  // the saved sketches, thin; the one picked in the list, bold
+  state.saved.forEach((s) => { if (s.name !== state.selected) polyline(s.waypoints, "rgba(59,108,240,.55)", 1.5, [4, 4]); });
   const sel = state.saved.find((s) => s.name === state.selected);
-  if (sel) { polyline(sel.waypoints, "#3b6cf0", 2, [6, 4]); sel.waypoints.forEach(([x, y]) => dot(x, y, 3, "#3b6cf0")); }
+  if (sel) { polyline(sel.waypoints, "#3b6cf0", 2.5, [6, 4]); sel.waypoints.forEach(([x, y]) => dot(x, y, 3, "#3b6cf0")); }
 
   // the current sketch and its execution
   const ex = state.execution;
