@@ -130,7 +130,8 @@ def test_save_list_delete_round_trip_and_restart(setup) -> None:
     assert r.status_code == 201, r.text
     first = r.json()
     assert first["saved"]["name"] == "L000" and first["count"] == 1
-    print(f"\nsave: {1e3 * save_s:.1f} ms round trip ({first['save_ms']} ms in the server: execute + locked atomic write)")
+    print(f"\nsave: {1e3 * save_s:.1f} ms round trip ({first['save_ms']} ms in the server: execute + locked "
+          "atomic write)")
     r = client.post("/api/sketches", json={"shape": "L", "waypoints": L_SECOND, "name": "dock_b"})
     assert r.status_code == 201, r.text
     listed = client.get("/api/sketches").json()["sketches"]
@@ -168,7 +169,8 @@ BAD = [
      r"waypoint #1 \(15.00, 1.00\) m lies outside map 'site'.*x \[-2.00, 10.00\]"),
     ("POST", "/api/sketches", {"shape": "L", "waypoints": [[0.0, -3.0], [1.0, 1.0]]}, 422, "lies outside map"),
     ("POST", "/api/execute", {"shape": "L", "waypoints": [[0.0, 1.0]]}, 422, "at least 2"),
-    ("POST", "/api/execute", {"shape": "L", "waypoints": [[0.0, 1.0, 2.0], [1.0, 1.0, 2.0]]}, 422, "at least 2 \\[x, y\\]"),
+    ("POST", "/api/execute", {"shape": "L", "waypoints": [[0.0, 1.0, 2.0], [1.0, 1.0, 2.0]]}, 422,
+     "at least 2 \\[x, y\\]"),
     ("POST", "/api/execute", {"shape": "L", "waypoints": "0,1 2,3"}, 422, "waypoints"),
     ("POST", "/api/execute", {"shape": "L"}, 422, "waypoints: missing"),
     ("POST", "/api/execute", {"shape": "L", "waypoints": L_WAYPOINTS, "speed": 3}, 422, "speed: unknown field"),

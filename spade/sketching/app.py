@@ -3,7 +3,6 @@ from anywhere else (no CDN: robots and CI have no internet)."""
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -16,7 +15,6 @@ from spade.sketching.api import request_error, router, validation_error
 from spade.sketching.workspace import RequestError, SketchWorkspace, annotation_config
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
-log = logging.getLogger(__name__)
 
 
 def create_app(workspace: SketchWorkspace) -> FastAPI:

@@ -52,8 +52,8 @@ class SketchStore:
         if self.path.exists():
             doc = self._read()
             if doc["map"] != self.map_ref and _resolved(doc["map"], self.path) != self.map_ref:
-                raise StorageError(f"sketch file {self.path} holds sketches of map {doc['map']!r}, not {self.map_ref!r}; "
-                                   "pass another out_dir= (one sketch file per map)", status=409)
+                raise StorageError(f"sketch file {self.path} holds sketches of map {doc['map']!r}, not "
+                                   f"{self.map_ref!r}; pass another out_dir= (one sketch file per map)", status=409)
             if doc["scenarios"]:
                 load_sketch_file(self.path)  # a hand-edited file must still be one spade.annotate reads
 

@@ -157,6 +157,7 @@ class SketchWorkspace:
         if model:
             self.load_model(model)
         self._exec_lock = threading.Lock()
+        self._plan_lock = threading.Lock()
         self._build_lock = threading.Lock()
         self.build = BuildJob()
         self._map_png: bytes | None = None
@@ -170,8 +171,7 @@ class SketchWorkspace:
             "map": self.map_ref, "map_id": self.source.map_id, "name": m.name,
             "width_px": m.width, "height_px": m.height, "resolution": m.resolution, "origin": list(m.origin),
             "size_m": list(m.size_m),
-            "bounds_m": {"x_min": m.origin[0], "y_min": m.origin[1], "x_max": m.origin[0] + m.size_m[0],
-                         "y_max": m.origin[1] + m.size_m[1]},
+            "bounds_m": self.bounds_m(),
             "shapes": sorted(SHAPES), "shape_turn_deg": dict(SHAPES),
             "robot": {"radius_m": float(robot["radius_m"]), "inflation_radius_m": float(robot["inflation_radius_m"])},
             "window": {"size_px": int(self.cfg["window"]["size_px"]), "resolution_m": self.resolution,
@@ -181,6 +181,12 @@ class SketchWorkspace:
             "build_command": self.build_command,
             "model": self.model_info(),
         }
+
+    def bounds_m(self) -> dict[str, float]:
+        """The map's extent in map-frame metres."""
+        m = self.map
+        return {"x_min": m.origin[0], "y_min": m.origin[1], "x_max": m.origin[0] + m.size_m[0],
+                "y_max": m.origin[1] + m.size_m[1]}
 
     def map_png(self) -> bytes:
         """The map as a greyscale PNG (free white, obstacles black, unknown grey), one pixel per cell."""
@@ -216,7 +222,7 @@ class SketchWorkspace:
             raise RequestError(str(exc).replace("sketch 'sketch': ", "")) from None
 
     def _inside(self, xy: np.ndarray, what: str) -> None:
-        b = self.metadata()["bounds_m"]
+        b = self.bounds_m()
         if not (b["x_min"] <= xy[0] <= b["x_max"] and b["y_min"] <= xy[1] <= b["y_max"]):
             raise RequestError(f"{what} ({xy[0]:.2f}, {xy[1]:.2f}) m lies outside the map, which spans "
                                f"x [{b['x_min']:.2f}, {b['x_max']:.2f}] m, y [{b['y_min']:.2f}, {b['y_max']:.2f}] m")
@@ -389,9 +395,10 @@ class SketchWorkspace:
         goal = _finite_points(goal, "goal (x, y)", 2)
         self._inside(pose[:2], "robot pose")
         self._inside(goal, "goal")
-        t0 = time.perf_counter()
-        result = self.planner.plan(self.map, pose, goal)
-        latency = 1e3 * (time.perf_counter() - t0)
+        with self._plan_lock:  # one query at a time on the planner's network and map cache
+            t0 = time.perf_counter()
+            result = self.planner.plan(self.map, pose, goal)
+            latency = 1e3 * (time.perf_counter() - t0)
         out: dict[str, Any] = {
             "success": bool(result.success), "code": result.code, "reason": result.reason,
             "waypoints": np.round(np.asarray(result.waypoints, dtype=np.float64), 4).tolist(),
@@ -425,7 +432,8 @@ class SketchWorkspace:
         c0, r0 = np.floor(px.min(axis=0)).astype(int) - 1
         c1, r1 = np.ceil(px.max(axis=0)).astype(int) + 1
         rows, cols = np.mgrid[r0:r1 + 1, c0:c1 + 1]
-        win = np.rint(np.asarray(to_window(m.pixel_to_world(np.stack([cols, rows], axis=-1).astype(float))))).astype(int)
+        cells_m = m.pixel_to_world(np.stack([cols, rows], axis=-1).astype(np.float64))
+        win = np.rint(np.asarray(to_window(cells_m))).astype(int)
         inside = (win[..., 0] >= 0) & (win[..., 0] < w) & (win[..., 1] >= 0) & (win[..., 1] < h)
         rgba = np.zeros((*rows.shape, 4), np.uint8)
         p = prob[win[..., 1][inside], win[..., 0][inside]]
