@@ -264,6 +264,24 @@ def test_no_path_is_a_failure_result_with_the_probabilities(ckpt: Path, warehous
     assert result.waypoints.shape == (0, 2) and result.probability is not None and result.probability.max() < 0.5
 
 
+def test_a_path_away_from_the_robot_is_a_failure(ckpt: Path, warehouse: OccupancyMap) -> None:
+    class Elsewhere:
+        """Predicts a line from 1 m ahead of the robot to the goal: it never touches the robot."""
+
+        def logits(self, states: np.ndarray) -> np.ndarray:
+            out = np.full((len(states), 1, SIZE, SIZE), -10.0, dtype=np.float32)
+            (r1, c1) = np.rint(ndimage.center_of_mass(states[0, 2])).astype(int)
+            rr, cc = line(int(FRAME.robot_px[1]) - 10, int(FRAME.robot_px[0]) + 8, r1, c1)
+            out[0, 0, rr, cc] = 10.0
+            return out
+
+    start, goal = open_segment(warehouse, 3.0, seed=5)
+    planner = Planner(ckpt)
+    planner.backend = Elsewhere()
+    result = planner.plan(warehouse, facing(start, goal), goal)
+    assert result.code == "start_not_reached" and "from the robot" in result.reason and result.waypoints.shape == (0, 2)
+
+
 def test_batch_equals_single_queries_and_keeps_order(ckpt: Path, warehouse: OccupancyMap) -> None:
     planner = oracle_planner(ckpt, batch_size=2)
     pairs = [open_segment(warehouse, 2.5, seed=s) for s in range(3)]

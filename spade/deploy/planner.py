@@ -98,7 +98,8 @@ class PlanResult:
     ``waypoints``: (K, 2) float64 map-frame metres from the robot to the goal, evenly spaced by arc length; an
     empty (0, 2) array when ``success`` is False. ``code``: None on success, else one of ``start_outside_map``,
     ``start_not_free``, ``goal_outside_map``, ``goal_not_free``, ``goal_too_far``, ``empty`` (no pixel above the
-    threshold), ``too_short``, ``goal_not_reached``, ``collision``; ``reason`` says it in words. ``pose``: the
+    threshold), ``too_short``, ``start_not_reached`` (the path begins away from the robot), ``goal_not_reached``,
+    ``collision``; ``reason`` says it in words. ``pose``: the
     robot pose (x, y, yaw) planned from; ``start`` its (x, y). ``goal``: the goal planned to (the sub-goal when
     ``far_goal="clip"`` moved it; then ``subgoal`` is True). ``window``: where the student's window lies
     (:class:`PlanWindow`). ``probability``: the (S, S) path probabilities of the window and ``state`` the
@@ -142,7 +143,7 @@ def robot_pose(value: Any, name: str = "start") -> np.ndarray:
     arr = np.asarray(value, dtype=np.float64).reshape(-1)
     if arr.shape == (2,):
         raise ValueError(
-            f"{name}={list(arr)} is a position (x, y); the planner needs the robot's pose (x, y, yaw): the student "
+            f"{name}=({arr[0]:g}, {arr[1]:g}) is a position (x, y); the planner needs the robot's pose (x, y, yaw): the student "
             "sees the map in the robot's frame, rotated with its heading. Pass (x, y, yaw) in map-frame metres and "
             "radians (ROS yaw: counter-clockwise from the map's +x axis), e.g. start=X,Y,YAW on the command line"
         )
@@ -396,6 +397,10 @@ class Planner:
             why = {"empty": f"no pixel of the predicted path reaches probability {self.threshold}",
                    "too_short": "the predicted path near the start is a single pixel"}.get(found.failure, found.failure)
             return _failure(found.failure or "empty", f"no path extracted: {why}", **common)
+        away = float(np.linalg.norm(found.points[0] - start_px))
+        if away > self.goal_tolerance_px:  # the predicted path lies elsewhere: not a path the robot can drive
+            return _failure("start_not_reached", f"the predicted path begins {away * self.resolution:.2f} m from the "
+                            "robot", **common)
         if self.require_goal and not found.reached_goal:
             end = found.pixels[-1]
             gap = float(np.linalg.norm(end - goal_px)) * self.resolution
