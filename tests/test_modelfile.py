@@ -154,6 +154,8 @@ def test_real_checkpoints_of_a_tiny_fit_load_safely(tiny_checkpoints: dict[str, 
         info = checkpoint["spade"]
         assert info["role"] == ("student" if key == "student" else "expert")
         assert info["data"]["input_encoding"] == INPUT_ENCODING and info["data"]["resolution_m"] == pytest.approx(0.1)
+        # The annotation settings of the training set (its manifest), for the planner's discs and goal margin.
+        assert info["data"]["disc_radius_m"] == pytest.approx(0.1) and info["data"]["margin_m"] == pytest.approx(0.3)
         assert RobotFrame.from_json(robot_frame(info, path)) == RobotFrame.for_size(info["data"]["image_size"][0])
         module = load_module(path)
         assert isinstance(module, StudentModule if key == "student" else ExpertModule)

@@ -127,11 +127,33 @@ def checkpoint_entry(role: str, net: nn.Module, datamodule: Any = None, loggers:
         fingerprint = getattr(datamodule, "fingerprint", None)
         if fingerprint is not None and not callable(fingerprint):
             data["fingerprint"] = str(fingerprint)
+        data.update(_annotation_geometry(datamodule))
         info["data"] = data
     for logger in loggers:
         if type(logger).__name__ == "MLFlowLogger" and getattr(logger, "run_id", None):
             info["mlflow_run_id"] = str(logger.run_id)
     return info
+
+
+def _annotation_geometry(datamodule: Any) -> dict[str, float]:
+    """``disc_radius_m`` and ``margin_m`` of the training windows, from the training set's manifest (the
+    annotation settings it was generated with), so that a planner draws the same start/goal discs and keeps
+    goals as far inside the window; empty when the datamodule has no readable manifest."""
+    root = getattr(datamodule, "train_dir", None)
+    if not root:
+        return {}
+    try:
+        from spade.data.format import read_manifest
+
+        generator = read_manifest(root).generator or {}
+    except Exception:  # no manifest yet, or not a SPADE dataset: the planner falls back to the annotation defaults
+        return {}
+    out = {}
+    for key, section, name in (("disc_radius_m", "instances", "disc_radius_m"), ("margin_m", "window", "margin_m")):
+        value = (generator.get(section) or {}).get(name)
+        if isinstance(value, (int, float)):
+            out[key] = float(value)
+    return out
 
 
 def write_checkpoint_entry(checkpoint: dict[str, Any], role: str, net: nn.Module, datamodule: Any = None,
