@@ -59,19 +59,12 @@ class RequestError(ValueError):
 def annotation_config(overrides: Sequence[str] = ()) -> dict[str, Any]:
     """conf/annotate.yaml composed with ``overrides`` (``key=value`` as on spade.annotate's command line,
     ``preset=NAME`` included), as a plain dict."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
     from omegaconf import OmegaConf
 
     from spade.annotate import _alias_preset
-    from spade.paths import CONF_DIR
+    from spade.experiments.config import compose_config
 
-    overrides = _alias_preset(list(overrides))
-    if GlobalHydra.instance().is_initialized():  # inside python -m spade.sketch's @hydra.main: same conf/ path
-        cfg = compose("annotate", overrides=overrides)
-    else:
-        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-            cfg = compose("annotate", overrides=overrides)
+    cfg = compose_config("annotate", _alias_preset(list(overrides)))  # inside spade.sketch's Hydra app too
     out: dict[str, Any] = OmegaConf.to_container(cfg, resolve=True)  # type: ignore[assignment]
     out.pop("hydra", None)
     return out
