@@ -63,7 +63,7 @@ def server(maps_dir: Path, tmp_path: Path) -> Iterator[tuple[str, Path]]:
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env={**os.environ})
     url = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + 90
+        deadline = time.monotonic() + 150  # a loaded 2-core machine takes ~35 s (torch, hydra, costmap)
         while True:
             try:
                 with urllib.request.urlopen(f"{url}/api/map", timeout=2) as r:
