@@ -25,7 +25,8 @@ from training_helpers import compose_row
 REPO = Path(__file__).resolve().parents[1]
 ROW = "t1_small_bc_L"
 # Few, short steps, no prediction pictures and no latency timing: these tests are about the machinery.
-QUICK = ["trainer.enable_progress_bar=false", "model.grid_size=0", "callbacks.model_info.latency_runs=0"]
+QUICK = ["trainer.enable_progress_bar=false", "model.grid_size=0", "callbacks.model_info.latency_runs=0",
+         "model.val_metric_batches=0", "optimized_metric=val/loss_bc", "+trainer.num_sanity_val_steps=0"]
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +106,7 @@ def test_run_folder_ids_differ_within_one_second_and_stay_fixed_within_a_run(spa
 
 def test_two_runs_started_in_the_same_second_keep_their_own_folders(tmp_path: Path, data_dir: Path) -> None:
     args = [f"+experiment={ROW}", "logger=none", "trainer.max_epochs=1", "+trainer.limit_train_batches=2",
-            "+trainer.limit_val_batches=1", "test=false",
+            "+trainer.limit_val_batches=0", "test=false",
             f"paths.data_dir={data_dir}", *QUICK]
     procs = {seed: _train([*args, f"seed={seed}", f"run_name=col_seed{seed}"], tmp_path, prefix=FROZEN_NOW)
              for seed in (1, 2)}
@@ -238,10 +239,9 @@ def _wait_for(predicate, proc: subprocess.Popen, timeout: float = 240, what: str
     raise AssertionError(f"timed out waiting for {what}")
 
 
-def _fitting(run_dir: Path) -> bool:
-    """Whether the run in ``run_dir`` has opened its MLflow run and started fitting (Lightning's model summary)."""
-    log_file = run_dir / "train.log"
-    return log_file.is_file() and "Trainable params" in log_file.read_text()
+def _fitting(proc: subprocess.Popen) -> bool:
+    """Whether the run has opened its MLflow run and started fitting (Lightning printed the model summary)."""
+    return "Trainable params" in proc.output.read_text()
 
 
 def _runs(home: Path, experiment: str) -> list:
@@ -254,9 +254,9 @@ def test_kill_9_mid_epoch_then_resume_reproduces_the_uninterrupted_run(tmp_path:
     """A (uninterrupted) and B (kill -9 in its second epoch, checked alive, then resumed from its last checkpoint)
     run in separate processes and stores; B must end with A's validation losses and A's weights. A third run is
     stopped by SIGTERM and must end KILLED."""
-    epoch_batches = 8
+    epoch_batches = 6
     args = [f"+experiment={ROW}", "trainer.max_epochs=3", f"+trainer.limit_train_batches={epoch_batches}",
-            "+trainer.limit_val_batches=2", "trainer.log_every_n_steps=1", "test=false", "seed=7",
+            "+trainer.limit_val_batches=2", "trainer.log_every_n_steps=1", "test=false", "seed=7", "data.augment=mirror",
             f"paths.data_dir={data_dir}", "tags.table=resume", *QUICK]
     home_a, home_b, home_c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
     run_a, run_b, run_b2, run_c = (tmp_path / f"run_{k}" for k in ("a", "b", "b2", "c"))
@@ -267,7 +267,7 @@ def test_kill_9_mid_epoch_then_resume_reproduces_the_uninterrupted_run(tmp_path:
                     start_new_session=True)
     try:
         # C: SIGTERM once its MLflow run is open -> KILLED, with the reason
-        _wait_for(lambda: _fitting(run_c), proc_c, what="run C to start fitting")
+        _wait_for(lambda: _fitting(proc_c), proc_c, what="run C to start fitting")
         assert proc_c.poll() is None
         os.killpg(proc_c.pid, signal.SIGTERM)
         proc_c.wait(timeout=120)
@@ -277,7 +277,7 @@ def test_kill_9_mid_epoch_then_resume_reproduces_the_uninterrupted_run(tmp_path:
 
         # B: kill -9 a few batches into its second epoch
         def in_second_epoch() -> bool:
-            if not _fitting(run_b):  # the store exists (no two processes creating one SQLite file)
+            if not _fitting(proc_b):  # the store exists (no two processes creating one SQLite file)
                 return False
             runs = _runs(home_b, "resume")
             if not runs:
@@ -321,21 +321,27 @@ def test_kill_9_mid_epoch_then_resume_reproduces_the_uninterrupted_run(tmp_path:
                                                                                         "checkpoints/last"}
 
 
-def test_prerequisite_trained_in_the_same_process_does_not_change_the_numbers(tmp_path: Path, data_dir: Path) -> None:
-    """Probe 3: the first run trains its expert prerequisite in-process, the second finds it registered; both
-    students must come out identical (two processes, same seed)."""
+def test_prerequisite_trained_in_the_same_process_does_not_change_the_numbers(tmp_path: Path, data_dir: Path,
+                                                                             monkeypatch) -> None:
+    """Probe 3: a first process trains the expert prerequisite and then the student; a second run (this test's
+    process, after other tests ran in it) finds the expert registered. Both students must come out identical."""
     args = ["+experiment=t1_small_conddbc_L", "trainer.max_epochs=1", "+trainer.limit_train_batches=3",
             "+trainer.limit_val_batches=2", "test=false", f"paths.data_dir={data_dir}", *QUICK]
     first = _finish(_train([*args, f"hydra.run.dir={tmp_path / 'first'}"], tmp_path))
     assert "is not registered: training it first" in first
-    second = _finish(_train([*args, f"hydra.run.dir={tmp_path / 'second'}"], tmp_path))
-    assert "training it first" not in second
-    assert _same_weights(tmp_path / "first" / "checkpoints" / "last.ckpt", tmp_path / "second" / "checkpoints" / "last.ckpt")
+    monkeypatch.setenv("SPADE_HOME", str(tmp_path))
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    cfg = compose_config("train", ["scale=tiny", *args, f"paths.output_dir={tmp_path / 'second'}"])
+    torch.manual_seed(12345)  # whatever state the process is in
+    from spade.train import train
+
+    train(cfg)
+    assert "prerequisites" not in [p.name for p in (tmp_path / "second").iterdir()]  # found, not trained again
+    assert _same_weights(tmp_path / "first" / "checkpoints" / "last.ckpt",
+                         tmp_path / "second" / "checkpoints" / "last.ckpt")
     client = _client(tmp_path)
     runs = [r for r in _runs(tmp_path, "table1") if r.info.run_name == "t1_small_conddbc_L"]
-    assert len(runs) == 2
-    vals = [r.data.metrics["val/loss_bc"] for r in runs]
-    assert vals[0] == vals[1]
+    assert len(runs) == 2 and runs[0].data.metrics["val/loss_bc"] == runs[1].data.metrics["val/loss_bc"]
     for run in runs:  # a one-epoch run archives best and last
         assert {a.path for a in client.list_artifacts(run.info.run_id, "checkpoints")} == {"checkpoints/best",
                                                                                         "checkpoints/last"}

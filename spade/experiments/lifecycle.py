@@ -80,18 +80,25 @@ class DeterministicTraining(Callback):
         dm._spade_seeded_loader = True
 
     def seed_loader(self, loader: Any, epoch: int) -> None:
+        """Attach (seed, epoch)-seeded generators: one for the sampler's order, one for the workers' base seed.
+
+        Two generators, because Lightning creates the first iterator of a fit (which draws the base seed) before
+        it calls ``set_epoch`` and draws the order after it, and later iterators after it: with one generator
+        the order would depend on which of the two came first.
+        """
         if not isinstance(loader, DataLoader):
             return
-        generator = torch.Generator()
-        generator.manual_seed(derived_seed(self.seed, _DATA, epoch))
-        loader.generator = generator  # worker base seeds
+        order, workers = torch.Generator(), torch.Generator()
+
+        def set_epoch(e: int) -> None:  # called by Lightning's fit loop at every epoch start
+            order.manual_seed(derived_seed(self.seed, _DATA, e, 0))
+            workers.manual_seed(derived_seed(self.seed, _DATA, e, 1))
+
+        set_epoch(epoch)
+        loader.generator = workers  # the worker processes' base seed
         sampler = loader.sampler
         if isinstance(sampler, RandomSampler):
-            sampler.generator = generator
-
-            def set_epoch(e: int) -> None:  # called by Lightning's fit loop at every epoch start
-                generator.manual_seed(derived_seed(self.seed, _DATA, e))
-
+            sampler.generator = order
             sampler.set_epoch = set_epoch
 
     # -- everything else ---------------------------------------------------------------------------------------
