@@ -17,6 +17,8 @@ import subprocess
 import sys
 import time
 import urllib.request
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -55,64 +57,18 @@ def _printed(out: str, label: str) -> str:
     return match.group(1)
 
 
-def test_mlflow_ui_opens_the_runs_table_then_the_run_with_metrics_and_pictures(tmp_path: Path) -> None:
-    chromium_path()  # skip (or fail in CI) before any training when there is no browser
-    pytest.importorskip("playwright.sync_api")
-    port = _free_port()
-    base = f"http://127.0.0.1:{port}"
-    store = f"sqlite:///{tmp_path}/logs/mlflow.db"
-    (tmp_path / "logs").mkdir()
-    server_log = tmp_path / "server.log"
-    env = {**os.environ, "SPADE_HOME": str(tmp_path), "PYTHONUNBUFFERED": "1", "SPADE_MLFLOW_UI_URL": base}
-    env.pop("MLFLOW_TRACKING_URI", None)
-    # The server starts first (it creates the store) and boots while the run trains.
-    with open(server_log, "w") as log_fh:
+@contextmanager
+def _mlflow_server(store: str, port: int, workdir: Path) -> Iterator[subprocess.Popen]:
+    """``mlflow server`` on 127.0.0.1:``port`` in front of ``store`` (one worker); stopped on exit."""
+    log = workdir / "server.log"
+    env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"}
+    with open(log, "w") as log_fh:
         server = subprocess.Popen(
             [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", store, "--host", "127.0.0.1",
-             "--port", str(port), "--workers", "1", "--default-artifact-root", str(tmp_path / "server-artifacts")],
-            cwd=tmp_path, env=env, stdout=log_fh, stderr=subprocess.STDOUT, start_new_session=True)
+             "--port", str(port), "--workers", "1", "--default-artifact-root", str(workdir / "server-artifacts")],
+            cwd=workdir, env=env, stdout=log_fh, stderr=subprocess.STDOUT, start_new_session=True)
     try:
-        train = subprocess.run([sys.executable, "-m", "spade.train", "+experiment=smoke", *FAST], cwd=REPO, env=env,
-                               capture_output=True, text=True, timeout=600)
-        out = train.stdout + train.stderr
-        assert train.returncode == 0, out[-3000:]
-        assert f"mlflow ui --backend-store-uri {store} --port {port}" in out
-        experiment_url, run_url = _printed(out, "experiment's runs"), _printed(out, "this run")
-        assert experiment_url.startswith(base) and "workflowType=machine_learning" in experiment_url
-        assert run_url.startswith(base) and "workflowType=machine_learning" in run_url
-        run_id = re.search(r"/runs/([0-9a-f]{32})\?", run_url).group(1)
-
-        from mlflow import MlflowClient
-
-        client = MlflowClient(tracking_uri=store)
-        pictures = sorted(a.path for a in client.list_artifacts(run_id, "predictions") if a.path.endswith(".png"))
-        assert pictures, "the run logged no prediction picture"
-        _wait_healthy(base, server, server_log, timeout=180)
-
-        with browser_page() as page:
-            page.set_default_timeout(60_000)
-            # 1. The experiment URL lands on the runs table: the run's row, its datasets, the metric columns.
-            page.goto(experiment_url)
-            page.locator(f'a[href*="/runs/{run_id}"]', has_text="smoke").first.wait_for(state="visible")
-            page.get_by_text("tiny/lshape (train split)").first.wait_for(state="visible")
-            page.get_by_role("columnheader", name="test/ape_cm").first.wait_for(state="attached")
-            assert "/runs" in page.url and "/traces" not in page.url and "/overview" not in page.url, page.url
-            screenshot(page, "mlflow_ui_runs.png")
-
-            # 2. The run URL: its description, its test metrics, its dataset inputs.
-            page.goto(run_url)
-            page.get_by_text("Prerequisites: expert from").first.wait_for(state="visible")
-            page.get_by_text("test/ape_cm", exact=True).first.wait_for(state="visible")
-            page.get_by_text("tiny/test").first.wait_for(state="attached")
-            screenshot(page, "mlflow_ui_run.png")
-
-            # 3. A prediction picture, reached as a person would: Artifacts tab, predictions folder, the file.
-            page.get_by_role("tab", name="Artifacts").click()
-            page.get_by_text("predictions", exact=True).first.click()
-            page.get_by_text(Path(pictures[0]).name, exact=True).first.click()
-            page.wait_for_function(
-                "() => [...document.images].some(i => i.src.startsWith('blob:') && i.complete && i.naturalWidth > 64)")
-            screenshot(page, "mlflow_ui_picture.png")
+        yield server
     finally:
         os.killpg(server.pid, signal.SIGTERM)  # the server and its uvicorn worker (this test's own process group)
         try:
@@ -120,6 +76,108 @@ def test_mlflow_ui_opens_the_runs_table_then_the_run_with_metrics_and_pictures(t
         except subprocess.TimeoutExpired:
             os.killpg(server.pid, signal.SIGKILL)
             server.wait()
+
+
+def _check_ui(experiment_url: str, run_url: str, run_name: str, dataset: str, described: str, picture: str,
+              shots: str) -> None:
+    """What a person must see: the runs table with the run, its dataset and the metric columns; the run page with
+    its description (holding ``described``), metrics and datasets; a prediction picture through the Artifacts tab."""
+    run_id = re.search(r"/runs/([0-9a-f]{32})\?", run_url).group(1)
+    with browser_page() as page:
+        page.set_default_timeout(90_000)
+        # 1. The experiment URL lands on the runs table (not MLflow 3's GenAI overview).
+        page.goto(experiment_url)
+        page.locator(f'a[href*="/runs/{run_id}"]', has_text=run_name).first.wait_for(state="visible")
+        page.get_by_text(f"{dataset} (train split)").first.wait_for(state="visible")
+        page.get_by_role("columnheader", name="test/ape_cm").first.wait_for(state="attached")
+        assert "/runs" in page.url and "/traces" not in page.url and "/overview" not in page.url, page.url
+        screenshot(page, f"{shots}_runs.png")
+        # 2. The run URL: its description, its test metrics, its dataset inputs.
+        page.goto(run_url)
+        page.get_by_text(described).first.wait_for(state="visible")
+        page.get_by_text("test/ape_cm", exact=True).first.wait_for(state="visible")
+        page.get_by_text(f"{dataset} (train split)").first.wait_for(state="attached")
+        screenshot(page, f"{shots}_run.png")
+        # 3. A prediction picture, reached as a person would: Artifacts tab, predictions folder, the file.
+        page.get_by_role("tab", name="Artifacts").click()
+        page.get_by_text("predictions", exact=True).first.click()
+        page.get_by_text(Path(picture).name, exact=True).first.click()
+        page.wait_for_function(
+            "() => [...document.images].some(i => i.src.startsWith('blob:') && i.complete && i.naturalWidth > 64)")
+        screenshot(page, f"{shots}_picture.png")
+
+
+def test_mlflow_ui_shows_a_spade_run_from_the_printed_urls(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A run recorded by SPADE's tracking code (no training: seconds), then the browser on the URLs it prints."""
+    chromium_path()
+    pytest.importorskip("playwright.sync_api")
+    import numpy as np
+    from omegaconf import OmegaConf
+
+    from factories import write_synthetic
+    from spade.experiments.tracking import (
+        DatasetUse, bind_experiment, log_dataset_inputs, run_description, ui_lines,
+    )
+
+    port = _free_port()
+    base = f"http://127.0.0.1:{port}"
+    monkeypatch.setenv("SPADE_MLFLOW_UI_URL", base)
+    store = f"sqlite:///{tmp_path}/mlflow.db"
+    for name, seed in (("lshape", 0), ("test", 1)):
+        write_synthetic(tmp_path / "tiny" / name, n=9, seed=seed)
+    ml = _logger(tmp_path, "smoke")
+    bind_experiment(ml)  # creates the store before the server opens it
+    with _mlflow_server(store, port, tmp_path) as server:  # boots while the run is recorded
+        client, run_id = ml.experiment, ml.run_id
+        client.set_tag(run_id, "mlflow.runName", "ui_check")
+        metrics = {"test/ape_cm": 12.5, "test/hd19": 2.0, "test/failure_rate": 0.1, "model/params": 118165.0,
+                   "test/baseline/straight/ape_cm": 30.0}
+        ml.log_metrics(metrics)
+        uses = [DatasetUse(tmp_path / "tiny/lshape", "tiny/lshape (train split)", "training", 6),
+                DatasetUse(tmp_path / "tiny/test", "tiny/test", "test", 9)]
+        log_dataset_inputs(client, run_id, uses)
+        picture = "predictions/test_worst.png"
+        client.log_image(run_id, np.full((96, 160, 3), (40, 200, 60), dtype=np.uint8), artifact_file=picture)
+        cfg = OmegaConf.create({"run_name": "ui_check", "tags": {"table": "smoke", "role": "student"}})
+        client.set_tag(run_id, "mlflow.note.content", run_description(cfg, metrics, uses, []))
+        client.set_terminated(run_id)
+        experiment_id = client.get_run(run_id).info.experiment_id
+        _, run_line, experiment_line = ui_lines(store, experiment_id, run_id)
+        _wait_healthy(base, server, tmp_path / "server.log", timeout=180)
+        _check_ui(experiment_line.split()[-1], run_line.split()[-1], "ui_check", "tiny/lshape", "Tested on", picture,
+                  "mlflow_ui_recorded")
+
+
+@pytest.mark.slow  # trains the smoke experiment: about a minute on a quiet 2-core machine, several when shared
+def test_mlflow_ui_opens_the_smoke_run_from_the_urls_it_printed(tmp_path: Path) -> None:
+    chromium_path()  # skip (or fail in CI) before any training when there is no browser
+    pytest.importorskip("playwright.sync_api")
+    port = _free_port()
+    base = f"http://127.0.0.1:{port}"
+    store = f"sqlite:///{tmp_path}/logs/mlflow.db"
+    (tmp_path / "logs").mkdir()
+    env = {**os.environ, "SPADE_HOME": str(tmp_path), "PYTHONUNBUFFERED": "1", "SPADE_MLFLOW_UI_URL": base}
+    env.pop("MLFLOW_TRACKING_URI", None)
+    from mlflow import MlflowClient
+
+    client = MlflowClient(tracking_uri=store)
+    client.search_experiments()  # creates the store before the server and the run open it
+    with _mlflow_server(store, port, tmp_path) as server:  # boots while the run trains
+        train = subprocess.run([sys.executable, "-m", "spade.train", "+experiment=smoke", *FAST], cwd=REPO, env=env,
+                               capture_output=True, text=True, timeout=900)
+        out = train.stdout + train.stderr
+        assert train.returncode == 0, out[-3000:]
+        assert f"mlflow ui --backend-store-uri {store} --port {port}" in out
+        experiment_url, run_url = _printed(out, "experiment's runs"), _printed(out, "this run")
+        assert experiment_url.startswith(base) and "workflowType=machine_learning" in experiment_url
+        assert run_url.startswith(base) and "workflowType=machine_learning" in run_url
+        run_id = re.search(r"/runs/([0-9a-f]{32})\?", run_url).group(1)
+        pictures = sorted(a.path for a in client.list_artifacts(run_id, "predictions") if a.path.endswith(".png"))
+        assert pictures, "the run logged no prediction picture"
+        assert client.get_run(run_id).info.run_name == "smoke"
+        _wait_healthy(base, server, tmp_path / "server.log", timeout=180)
+        _check_ui(experiment_url, run_url, "smoke", "tiny/lshape", "Prerequisites: expert from", pictures[0],
+                  "mlflow_ui_smoke")
 
 
 # -- the pieces, without training or a browser (fast) ---------------------------------------------------------
@@ -203,6 +261,7 @@ def test_datasets_are_run_inputs_with_fingerprint_source_context_and_profile(tmp
 def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(tmp_path: Path) -> None:
     from omegaconf import OmegaConf
 
+    from spade.experiments.tables import METRICS
     from spade.experiments.tracking import DatasetUse, prerequisite_uses, run_description
 
     ml = _logger(tmp_path, "table1")
@@ -232,8 +291,9 @@ def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(
     assert "Trained on `tiny/lshape` (160 instances)" in text and "Tested on `tiny/test` (43 instances)" in text
     assert "registered model `spade-cond_expert-L-tiny-abc v1`, run [expert_cond_L](#/experiments/" in text
     assert "Regenerate: `python -m spade.train +experiment=t1_small_conddbc_L scale=tiny`" in text
-    assert "| **this model** | 4.50 | n/a | 3 | 0.020 |" in text
-    assert "| baseline: straight | 30.25 | n/a | n/a | 0.000 |" in text and "| untrained | 190.00 |" in text
+    rate = METRICS["failure_rate"].format  # the tables' own number formats
+    assert f"| **this model** | 4.50 | n/a | 3 | {rate(0.02)} |" in text
+    assert f"| baseline: straight | 30.25 | n/a | n/a | {rate(0.0)} |" in text and "| untrained | 190.00 |" in text
     assert "`predictions/test_worst.png`" in text
     assert "No test figures" in run_description(cfg, {}, [], [])
 
