@@ -84,6 +84,7 @@ def test_map_metadata_images_and_a_self_contained_page(setup) -> None:
     assert overlay.size == (120, 100) and overlay.mode == "RGBA"
     alpha = np.asarray(overlay)[..., 3]
     assert alpha[50, 30] == 0 and alpha[50, 54] > 0  # open floor clear, the band around the block tinted
+    assert client.get("/api/openapi.json").json()["paths"]["/api/execute"]["post"]
     page = client.get("/")
     assert page.status_code == 200 and "/static/app.js" in page.text
     for name in ("app.js", "style.css"):

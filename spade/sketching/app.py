@@ -20,7 +20,7 @@ STATIC_DIR = Path(__file__).resolve().parent / "static"
 def create_app(workspace: SketchWorkspace) -> FastAPI:
     """The app around one workspace (map, sketch file, dataset, planner)."""
     app = FastAPI(title="SPADE sketching", summary="Draw demonstrations on a map, execute, save, build, plan",
-                  docs_url="/api/docs", redoc_url=None, openapi_url="/api/openapi.json")
+                  docs_url=None, redoc_url=None, openapi_url="/api/openapi.json")  # Swagger UI would need a CDN
     app.state.workspace = workspace
     app.add_exception_handler(RequestValidationError, validation_error)  # type: ignore[arg-type]
     app.add_exception_handler(RequestError, request_error)  # type: ignore[arg-type]
