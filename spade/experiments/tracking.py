@@ -457,7 +457,8 @@ def relative_run_link(experiment_id: str, run_id: str) -> str:
 
 
 def regenerate_command(cfg: DictConfig) -> str | None:
-    """The command that makes this run again: the row's experiment at its scale, else the Hydra overrides."""
+    """The command that makes this run again: the row's experiment at its scale, else the entry point
+    (``task_name``: train, evaluate) with the command line's overrides."""
     run_name = str(cfg.get("run_name") or "")
     scale = OmegaConf.select(cfg, "scale.name", default=None)
     if run_name and (REPO_CONF / "experiment" / f"{run_name}.yaml").is_file():
@@ -466,7 +467,7 @@ def regenerate_command(cfg: DictConfig) -> str | None:
 
     if HydraConfig.initialized():
         overrides = list(HydraConfig.get().overrides.task)
-        return " ".join(["python -m spade.train", *overrides])
+        return " ".join([f"python -m spade.{cfg.get('task_name') or 'train'}", *overrides])  # train, evaluate
     return None
 
 
