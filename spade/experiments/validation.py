@@ -208,7 +208,9 @@ def _read_manifest_json(root: Path) -> dict[str, Any]:
     try:
         return json.loads((root / MANIFEST).read_text())
     except (OSError, ValueError) as exc:
-        raise DatasetSettingsError(f"{root / MANIFEST} cannot be read ({exc}); delete {root} to regenerate it") from None
+        raise DatasetSettingsError(
+            f"{root / MANIFEST} cannot be read ({exc}); delete {root} to regenerate it"
+        ) from None
 
 
 def check_dataset(root: str | Path | None, generate: Any, key: str = "data.train_dir") -> None:
@@ -260,7 +262,8 @@ def data_geometry(root: str | Path | None, generate: Any) -> dict[str, Any] | No
             "source": f"{root} (to be generated)"}
 
 
-def _check_geometry(key: str, value: Any, info: Mapping[str, Any] | None, cfg: DictConfig, data_keys: tuple[str, ...]) -> None:
+def _check_geometry(key: str, value: Any, info: Mapping[str, Any] | None, cfg: DictConfig,
+                    data_keys: tuple[str, ...]) -> None:
     if not info or not info.get("data"):
         return
     ckpt = info["data"]
@@ -301,7 +304,8 @@ def check_window_holds_manoeuvre(settings: Mapping[str, Any], key: str) -> None:
                           "uses 64, the paper 128)")
     if not _is_number(res) or res <= 0:
         raise ConfigError(f"{key}.window.resolution_m={res!r} must be a number > 0 metres per pixel (e.g. 0.1)")
-    if settings.get("sketches") or (settings.get("rosbag") or {}).get("paths") or (settings.get("skipp") or {}).get("root"):
+    imported = (settings.get("rosbag") or {}).get("paths") or (settings.get("skipp") or {}).get("root")
+    if settings.get("sketches") or imported:
         return  # demonstrations from outside the templates: their sizes are not known here
     margin = float(window.get("margin_m") or 0.0)
     shapes = settings.get("shape") or "L"
@@ -368,11 +372,12 @@ def _check_data(cfg: DictConfig) -> None:
             continue
         root = _get(cfg, f"data.{name}_dir")
         settings = _annotation_settings(Path(str(root)), generate)
-        uses_scale = "scale.annotate" if _get(cfg, "scale.annotate") not in (_MISSING, None) else f"data.{name}_generate"
-        check_window_holds_manoeuvre(settings, uses_scale)
+        scaled = _get(cfg, "scale.annotate") not in (_MISSING, None)
+        check_window_holds_manoeuvre(settings, "scale.annotate" if scaled else f"data.{name}_generate")
         num = settings.get("num_instances")
         if num is not None and (not _is_int(num) or num < 1):
-            raise ConfigError(f"data.{name}_generate num_instances={num!r} must be an integer >= 1 (scale.{name}_instances)")
+            raise ConfigError(f"data.{name}_generate num_instances={num!r} must be an integer >= 1; set "
+                              f"scale.{name}_instances")
 
 
 def _check_model(cfg: DictConfig) -> None:
@@ -451,7 +456,8 @@ def validate_evaluate_config(cfg: DictConfig) -> None:
         raise ConfigError(f"ckpt_path={ckpt} does not exist; {fix}")
     info = checkpoint_info(path)
     if info.get("role") not in ("student", "expert"):
-        raise ConfigError(f"ckpt_path={ckpt} is not a SPADE student or expert checkpoint (role {info.get('role')!r}); {fix}")
+        raise ConfigError(f"ckpt_path={ckpt} is not a SPADE student or expert checkpoint (role "
+                          f"{info.get('role')!r}); {fix}")
     _check_data(cfg)
     for name in ("train", "test"):
         check_dataset(_dir(cfg, f"data.{name}_dir"), _opt(cfg, f"data.{name}_generate"), f"data.{name}_dir")
