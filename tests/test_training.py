@@ -169,6 +169,7 @@ def test_killed_run_resumes_into_the_same_mlflow_run(tmp_path: Path) -> None:
         time.sleep(0.2)
     assert last.exists(), proc.communicate()[0][-3000:]
     time.sleep(0.5)  # into the next epoch
+    assert proc.poll() is None, "the run ended before it was killed: " + proc.communicate()[0][-2000:]
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
     resumed = run_dir / "resume.ckpt"
@@ -183,6 +184,10 @@ def test_killed_run_resumes_into_the_same_mlflow_run(tmp_path: Path) -> None:
     assert len(runs) == 1
     epochs = [m.value for m in client.get_metric_history(runs[0].info.run_id, "epoch")]
     assert max(epochs) == 5
+    # Continued, not restarted: the steps before the checkpoint were logged once (by the killed process only).
+    ckpt_step = torch.load(resumed, map_location="cpu", weights_only=False)["global_step"]
+    steps = [m.step for m in client.get_metric_history(runs[0].info.run_id, "train/loss_bc")]
+    assert ckpt_step > 0 and all(steps.count(s) == 1 for s in steps if s < ckpt_step)
 
 
 def test_evaluate_entry_point_tests_a_checkpoint(spade_home: Path, tiny_checkpoints: dict) -> None:
