@@ -181,8 +181,8 @@ def experiment_description(name: str, cfg: DictConfig | None = None) -> str:
 
 
 def ensure_experiment_tags(client: Any, experiment: Any, cfg: DictConfig | None = None) -> None:
-    """Tag ``experiment`` as model training and give it its description, where it lacks them (a person's own
-    edits in the UI are kept)."""
+    """Tag ``experiment`` as model training, store SPADE's runs view (:func:`runs_view_state`) and add the
+    description where there is none (a description a person wrote in the UI is kept)."""
     tags = dict(experiment.tags or {})
     if tags.get(KIND_TAG) != KIND_TRAINING:
         client.set_experiment_tag(experiment.experiment_id, KIND_TAG, KIND_TRAINING)
@@ -233,12 +233,19 @@ def bind_experiment(ml: MLFlowLogger, cfg: DictConfig | None = None) -> None:
 
 # -- datasets as run inputs -------------------------------------------------------------------------------------
 def dataset_fingerprint(root: str | Path) -> str:
-    """A dataset's fingerprint: the manifest's own ``fingerprint`` when it records one, else a digest of its
-    geometry and of the sha256 of every array file (so it changes exactly when the data does)."""
+    """A dataset's fingerprint: the manifest's own ``fingerprint`` when it records one; else the hash of the
+    generator settings that shaped its bytes (:func:`spade.experiments.validation.settings_fingerprint`, what
+    ``spade.train`` checks existing data against); else, for a manifest without them, a digest of its geometry and
+    of every array file's sha256."""
     raw = _manifest(root)
     stated = raw.get("fingerprint") or (raw.get("extra") or {}).get("fingerprint")
     if stated:
         return str(stated)[:36]  # MLflow's digest column holds 36 characters
+    generator = raw.get("generator")
+    if isinstance(generator, dict) and generator:
+        from spade.experiments.validation import settings_fingerprint
+
+        return settings_fingerprint(generator)
     files = raw.get("files") or {}
     content = {
         "image_size": raw.get("image_size"), "resolution": raw.get("resolution"),
