@@ -9,7 +9,7 @@ when no path was found (the PNG is written all the same, for debugging).
 
 Examples::
 
-    python -m spade.plan ../shared/maps/turtlebot3/turtlebot3_world.yaml start=-2.0,-0.5,1.57 goal=-1.5,1.0 model=student.ckpt
+    python -m spade.plan ../shared/maps/turtlebot3/turtlebot3_world.yaml start=-2,-0.5,1.57 goal=-1.5,1 model=s.ckpt
     python -m spade.plan warehouse:101 start=3,4,0 goal=6,6 model=student.onnx out=plan.png planner.far_goal=clip
 
 A leading positional map becomes ``map=...`` and ``start=X,Y,YAW`` becomes ``start=[X,Y,YAW]``

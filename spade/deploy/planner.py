@@ -143,9 +143,10 @@ def robot_pose(value: Any, name: str = "start") -> np.ndarray:
     arr = np.asarray(value, dtype=np.float64).reshape(-1)
     if arr.shape == (2,):
         raise ValueError(
-            f"{name}=({arr[0]:g}, {arr[1]:g}) is a position (x, y); the planner needs the robot's pose (x, y, yaw): the student "
-            "sees the map in the robot's frame, rotated with its heading. Pass (x, y, yaw) in map-frame metres and "
-            "radians (ROS yaw: counter-clockwise from the map's +x axis), e.g. start=X,Y,YAW on the command line"
+            f"{name}=({arr[0]:g}, {arr[1]:g}) is a position (x, y); the planner needs the robot's pose (x, y, yaw): "
+            "the student sees the map in the robot's frame, rotated with its heading. Pass (x, y, yaw) in map-frame "
+            "metres and radians (ROS yaw: counter-clockwise from the map's +x axis), e.g. start=X,Y,YAW on the "
+            "command line"
         )
     if arr.shape != (3,) or not np.isfinite(arr).all():
         raise ValueError(f"{name} must be a robot pose (x, y, yaw) in map-frame metres and radians, got {value!r}")
@@ -358,8 +359,8 @@ class Planner:
         reach_side = (min(r[0], s - 1 - r[0]) - self.margin_px) * self.resolution
         return _failure(
             "goal_too_far",
-            f"the goal lies {abs(ahead):.2f} m {'ahead of' if ahead >= 0 else 'behind'} the robot and {abs(side):.2f} m "
-            f"to its {'right' if side >= 0 else 'left'}; the student's window "
+            f"the goal lies {abs(ahead):.2f} m {'ahead of' if ahead >= 0 else 'behind'} the robot and "
+            f"{abs(side):.2f} m to its {'right' if side >= 0 else 'left'}; the student's window "
             f"reaches {reach_ahead:.2f} m ahead, {reach_behind:.2f} m behind and {reach_side:.2f} m to each side "
             f"(goal {self.margin_m} m inside it). Give a nearer goal (a waypoint of a global plan), turn the robot "
             "towards it, or use far_goal='clip'",

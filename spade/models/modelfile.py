@@ -334,7 +334,8 @@ def build_network(info: Mapping[str, Any], state_dict: Mapping[str, torch.Tensor
     try:
         net = model_from_config(dict(info["config"]))
     except (KeyError, TypeError, ValueError) as err:
-        raise ModelFileError(f"{path}: its network config {info.get('config')!r} is not one SPADE builds ({err})") from None
+        raise ModelFileError(f"{path}: its network config {info.get('config')!r} is not one SPADE builds "
+                             f"({err})") from None
     weights = {k[len("net."):]: v for k, v in state_dict.items() if k.startswith("net.")} or dict(state_dict)
     try:
         net.load_state_dict(weights)
