@@ -117,8 +117,9 @@ def test_omegaconf_hyper_parameters_load_and_are_written_plain(tmp_path: Path) -
 def test_not_a_checkpoint(tmp_path: Path) -> None:
     junk = tmp_path / "junk.ckpt"
     junk.write_bytes(b"\x80\x02garbage")
-    with pytest.raises(ModelFileError, match="junk.ckpt"):
+    with pytest.raises(ModelFileError, match="junk.ckpt is not a readable PyTorch checkpoint") as info:
         load_checkpoint(junk)
+    assert not isinstance(info.value, UnsafeModelFileError)  # damaged, not dangerous
     with pytest.raises(FileNotFoundError, match="spade.train"):
         load_checkpoint(tmp_path / "absent.ckpt")
     torch.save({"state_dict": {}}, tmp_path / "plain.ckpt")

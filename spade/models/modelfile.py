@@ -201,9 +201,15 @@ def _existing(path: str | Path, what: str = "model file") -> Path:
     return p
 
 
-def _unsafe(path: Path, err: Exception) -> UnsafeModelFileError:
+def _unsafe(path: Path, err: Exception) -> ModelFileError:
     found = re.search(r"GLOBAL (\S+)", str(err))
-    what = f"the Python object {found.group(1)}" if found else "Python objects beyond tensors and plain data"
+    if found is None:  # not a pickle of anything: a damaged file, or another format
+        detail = re.search(r"WeightsUnpickler error:\s*(.*?)(?:\s+Check the documentation|$)", str(err), re.S)
+        return ModelFileError(
+            f"{path} is not a readable PyTorch checkpoint (the weights-only unpickler stopped: "
+            f"{(detail.group(1) if detail else str(err)[-200:]).strip()}); pass a checkpoint written by python -m "
+            "spade.train, or an export from python -m spade.export")
+    what = f"the Python object {found.group(1)}"
     return UnsafeModelFileError(
         f"refused to load {path}: its pickle names {what}, which loading would construct or call (a checkpoint "
         "can run code this way). SPADE loads checkpoints with torch.load(weights_only=True): tensors, plain "
