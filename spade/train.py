@@ -50,8 +50,11 @@ def train(cfg: DictConfig, _depth: int = 0) -> tuple[dict[str, Any], dict[str, A
     seed = cfg.get("seed")
     if seed is not None:
         L.seed_everything(seed, workers=True)  # after the prerequisites: their training moved every generator
-    for message in mark_stale_runs(cfg):
-        print(message, flush=True)
+    try:
+        for message in mark_stale_runs(cfg):
+            print(message, flush=True)
+    except Exception as exc:  # the check must not stop a run; the logger reports an unreachable store itself
+        log.warning("could not check for stale RUNNING runs: %s", exc)
 
     log.info("Instantiating datamodule <%s>", cfg.data._target_)
     datamodule: L.LightningDataModule = hydra.utils.instantiate(cfg.data)
