@@ -295,6 +295,9 @@ def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(
     assert f"| **this model** | 4.50 | n/a | 3 | {rate(0.02)} |" in text
     assert f"| baseline: straight | 30.25 | n/a | n/a | {rate(0.0)} |" in text and "| untrained | 190.00 |" in text
     assert "`predictions/test_worst.png`" in text
+    linked = run_description(cfg, metrics, uses, prerequisites, ["predictions/test_worst.png"], ("5", "ab12"))
+    assert ("[predictions/test_worst.png](#/experiments/5/runs/ab12/artifacts/predictions/test_worst.png"
+            "?workflowType=machine_learning)") in linked
     assert "No test figures" in run_description(cfg, {}, [], [])
 
 

@@ -98,8 +98,10 @@ def run_url(base: str, experiment_id: str, run_id: str) -> str:
 
 
 def artifact_url(base: str, experiment_id: str, run_id: str, path: str) -> str:
-    """A run's Artifacts tab with ``path`` selected (PNG files are shown as pictures)."""
-    return f"{base.rstrip('/')}/#/experiments/{experiment_id}/runs/{run_id}/artifacts/{quote(path)}?{WORKFLOW_QUERY}"
+    """A run's Artifacts tab with ``path`` selected (PNG files are shown as pictures); ``base=''`` gives a link
+    relative to the UI's page, for descriptions."""
+    prefix = f"{base.rstrip('/')}/" if base else ""
+    return f"{prefix}#/experiments/{experiment_id}/runs/{run_id}/artifacts/{quote(path)}?{WORKFLOW_QUERY}"
 
 
 def ui_command(tracking_uri: str, ui_url: str | None = None) -> str | None:
@@ -487,7 +489,8 @@ def _what(tags: dict[str, Any]) -> str:
 
 
 def run_description(cfg: DictConfig, metrics: dict[str, float], uses: list[DatasetUse],
-                    prerequisites: list[PrerequisiteUse], pictures: list[str] | None = None) -> str:
+                    prerequisites: list[PrerequisiteUse], pictures: list[str] | None = None,
+                    run: tuple[str, str] | None = None) -> str:
     """A run's one-paragraph summary (markdown): row, approach, data, prerequisites, test figures and baselines."""
     tags = dict(cfg.get("tags") or {})
     row = cfg.get("run_name") or tags.get("row") or "run"
@@ -531,7 +534,8 @@ def run_description(cfg: DictConfig, metrics: dict[str, float], uses: list[Datas
     table = figures_table(metrics)
     text += ("\n\n" + table) if table else "\n\nNo test figures (the run was not tested)."
     if pictures:
-        text += "\n\nPictures (Artifacts tab): " + ", ".join(f"`{p}`" for p in pictures) + "."
+        shown = [f"[{p}]({artifact_url('', *run, p)})" if run else f"`{p}`" for p in pictures]
+        text += "\n\nPictures (Artifacts tab): " + ", ".join(shown) + "."
     return text
 
 
@@ -601,7 +605,8 @@ def describe_run(cfg: DictConfig, ml: MLFlowLogger, datamodule: Any, contexts: t
         log.warning("datasets not logged as MLflow inputs: %s", exc)
     run = client.get_run(run_id)
     metrics = dict(run.data.metrics)
-    description = run_description(cfg, metrics, uses, prerequisite_uses(cfg, client), _picture_paths(client, run_id))
+    description = run_description(cfg, metrics, uses, prerequisite_uses(cfg, client), _picture_paths(client, run_id),
+                                  (str(run.info.experiment_id), run_id))
     client.set_tag(run_id, NOTE_TAG, description)
     global _last_run
     _last_run = RunRef(str(ml._tracking_uri), str(run.info.experiment_id), run_id, str(run.info.run_name))
