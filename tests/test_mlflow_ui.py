@@ -79,7 +79,7 @@ def _mlflow_server(store: str, port: int, workdir: Path) -> Iterator[subprocess.
 
 
 def _check_ui(experiment_url: str, run_url: str, run_name: str, dataset: str, described: str, picture: str,
-              shots: str) -> None:
+              shots: str, prerequisite: str | None = None) -> None:
     """What a person must see: the runs table with the run, its dataset and the metric columns; the run page with
     its description (holding ``described``), metrics and datasets; a prediction picture through the Artifacts tab."""
     run_id = re.search(r"/runs/([0-9a-f]{32})\?", run_url).group(1)
@@ -98,6 +98,15 @@ def _check_ui(experiment_url: str, run_url: str, run_name: str, dataset: str, de
         page.get_by_text("test/ape_cm", exact=True).first.wait_for(state="visible")
         page.get_by_text(f"{dataset} (train split)").first.wait_for(state="attached")
         screenshot(page, f"{shots}_run.png")
+        if prerequisite:  # the description links the prerequisite's run (the UI opens it in a new tab)
+            if page.get_by_text("Show more").count():
+                page.get_by_text("Show more").first.click()
+            with page.context.expect_page() as opened:
+                page.get_by_role("link", name=prerequisite).first.click()
+            opened.value.get_by_text("Description").first.wait_for(state="visible")
+            assert re.search(r"/runs/[0-9a-f]{32}\?", opened.value.url) and run_id not in opened.value.url
+            opened.value.get_by_text(prerequisite, exact=True).first.wait_for(state="visible")
+            opened.value.close()
         # 3. A prediction picture, reached as a person would: Artifacts tab, predictions folder, the file.
         page.get_by_role("tab", name="Artifacts").click()
         page.get_by_text("predictions", exact=True).first.click()
@@ -177,7 +186,7 @@ def test_mlflow_ui_opens_the_smoke_run_from_the_urls_it_printed(tmp_path: Path) 
         assert client.get_run(run_id).info.run_name == "smoke"
         _wait_healthy(base, server, tmp_path / "server.log", timeout=180)
         _check_ui(experiment_url, run_url, "smoke", "tiny/lshape", "Prerequisites: expert from", pictures[0],
-                  "mlflow_ui_smoke")
+                  "mlflow_ui_smoke", prerequisite="expert_cond_L")
 
 
 # -- the pieces, without training or a browser (fast) ---------------------------------------------------------
