@@ -61,7 +61,7 @@ def annotate(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
 
         sketch_file = load_sketch_file(cfg["sketches"])
         source = load_map_sources([sketch_file.map], res)[0]
-        ctx = costmap_context(source.map_id, source.map.grid, source.map.resolution, cfg)
+        ctx = costmap_context(source.map_id, source.map.grid, source.map.resolution, cfg, source.map.origin)
         sketches = [(s.name, s.shape, sketch_to_pixels(s, source.map)) for s in sketch_file.sketches]
         bar.total = None
         items = sketch_instances(ctx, sketches, cfg, stats, bar.update)
