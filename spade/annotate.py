@@ -14,113 +14,21 @@ Examples::
 
 from __future__ import annotations
 
-import logging
 import sys
-import time
-from pathlib import Path
-from typing import Any, Mapping
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
-from tqdm import tqdm
 
-from spade.annotation.pipeline import (
-    RunStats,
-    build_contexts,
-    shapes_of,
-    sketch_instances,
-    template_instances,
-    write_dataset,
-)
-from spade.annotation.preview import write_preview
-from spade.annotation.scenarios import costmap_context
-from spade.annotation.sources import load_map_sources
+from spade.annotation.run import alias_preset as _alias_preset
+from spade.annotation.run import annotate
 
-log = logging.getLogger("spade.annotate")
-
-
-def _plain(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
-    if isinstance(cfg, DictConfig):
-        return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
-    return dict(cfg)
-
-
-def annotate(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
-    """Run the tool with a resolved config; returns a summary (instances, seconds, rates, rejections)."""
-    cfg = _plain(cfg)
-    cfg.pop("hydra", None)
-    out_dir = Path(cfg["out_dir"])
-    res = float(cfg["window"]["resolution_m"])
-    stats = RunStats()
-    t0 = time.perf_counter()
-    bar = tqdm(total=cfg.get("num_instances"), unit="inst", disable=not cfg.get("progress", True),
-               desc=f"annotate -> {out_dir}")
-    extra: dict[str, Any] = {"seed": int(cfg["seed"])}
-    if cfg.get("sketches"):
-        from spade.annotation.sketch_file import load_sketch_file, sketch_to_pixels
-
-        sketch_file = load_sketch_file(cfg["sketches"])
-        source = load_map_sources([sketch_file.map], res)[0]
-        ctx = costmap_context(source.map_id, source.map.grid, source.map.resolution, cfg, source.map.origin)
-        sketches = [(s.name, s.shape, sketch_to_pixels(s, source.map)) for s in sketch_file.sketches]
-        bar.total = None
-        items = sketch_instances(ctx, sketches, cfg, stats, bar.update)
-        extra.update(source="sketches", sketch_file=str(sketch_file.path), maps=[_map_info(source)])
-    elif (cfg.get("rosbag") or {}).get("paths"):
-        from spade.annotation.importers.rosbag import rosbag_instances
-
-        bar.total = None
-        items = rosbag_instances(cfg, stats, bar.update)
-        extra.update(source="rosbag")
-    elif (cfg.get("skipp") or {}).get("root"):
-        from spade.annotation.importers.skipp import skipp_instances
-
-        bar.total = None
-        items = skipp_instances(cfg, stats, bar.update)
-        res = float(cfg["skipp"]["resolution_m"]) * 256 / int(cfg["window"]["size_px"])
-        extra.update(source="skipp")
-    else:
-        shapes_of(cfg)  # fail fast on an unknown shape, before loading maps
-        sources = load_map_sources(cfg["maps"], res)
-        contexts = build_contexts(sources, cfg)
-        items = template_instances(contexts, cfg, stats, bar.update)
-        extra.update(source="templates", maps=[_map_info(s) for s in sources])
-
-    count = write_dataset(out_dir, items, cfg, lambda: {**extra, **stats.to_json()}, res)
-    bar.close()
-    seconds = time.perf_counter() - t0
-    preview = None
-    if cfg["preview"]["enabled"]:
-        preview = write_preview(out_dir, int(cfg["preview"]["count"]), int(cfg["seed"]), int(cfg["preview"]["scale"]))
-    summary = {
-        "out_dir": str(out_dir),
-        "instances": count,
-        "seconds": round(seconds, 2),
-        "instances_per_second": round(count / max(seconds, 1e-9), 1),
-        "scenarios_accepted": len(stats.scenarios),
-        "scenarios_tried": stats.scenarios_tried,
-        "rejections": dict(sorted(stats.rejections.items())),
-        "preview": str(preview) if preview else None,
-    }
-    log.info("annotation done: %s", summary)
-    return summary
-
-
-def _map_info(source: Any) -> dict[str, Any]:
-    m = source.map
-    return {"map_id": source.map_id, "source": source.source, "size_px": [int(m.grid.shape[1]), int(m.grid.shape[0])],
-            "resolution": m.resolution, "origin": list(m.origin)}
+__all__ = ["annotate", "main"]
 
 
 @hydra.main(config_path="../conf", config_name="annotate", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     summary = annotate(cfg)
     print(OmegaConf.to_yaml(OmegaConf.create(summary)))
-
-
-def _alias_preset(argv: list[str]) -> list[str]:
-    """``preset=X`` -> ``annotate/preset@_global_=X`` (the group lives under conf/annotate/ next to other tools')."""
-    return [f"annotate/preset@_global_={a[len('preset='):]}" if a.startswith("preset=") else a for a in argv]
 
 
 if __name__ == "__main__":

@@ -76,7 +76,7 @@ def generation_throughput(out_dir: str | Path, preset: str, num_instances: int, 
                           maps: list[str] | None = None, spacing_m: float | None = None,
                           workers: int = 1) -> dict[str, Any]:
     """Write a dataset with the annotation tool (``preset``, a window, a number of instances) and time it."""
-    from spade.annotate import annotate
+    from spade.annotation.run import annotate
     from spade.training.datamodule import annotation_config
 
     layer: dict[str, Any] = {"window": {"size_px": window_px, "resolution_m": resolution_m}, "workers": workers,

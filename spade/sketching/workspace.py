@@ -61,7 +61,7 @@ def annotation_config(overrides: Sequence[str] = ()) -> dict[str, Any]:
     ``preset=NAME`` included), as a plain dict."""
     from omegaconf import OmegaConf
 
-    from spade.annotate import _alias_preset
+    from spade.annotation.run import alias_preset as _alias_preset
     from spade.experiments.config import compose_config
 
     cfg = compose_config("annotate", _alias_preset(list(overrides)))  # inside spade.sketch's Hydra app too
@@ -326,7 +326,7 @@ class SketchWorkspace:
     def _build(self, job: BuildJob) -> None:
         from tqdm import tqdm
 
-        from spade.annotate import annotate
+        from spade.annotation.run import annotate
 
         cfg = {**self.cfg, "sketches": str(self.store.path), "out_dir": str(self.dataset_dir), "overwrite": True,
                "progress": True}

@@ -58,7 +58,7 @@ def annotation_config(root: Path, config: Any) -> Any:
 
 
 def _default_generator(root: Path, config: Any) -> None:
-    from spade.annotate import annotate
+    from spade.annotation.run import annotate
 
     annotate(annotation_config(root, config))
 
