@@ -21,8 +21,8 @@ import numpy as np
 from scipy import interpolate
 
 from spade.annotation.pipeline import RunStats
-from spade.annotation.frame import RobotFrame, path_heading, yaw_from_heading
-from spade.annotation.rasterize import Instance, render
+from spade.annotation.frame import RobotFrame, yaw_from_heading
+from spade.annotation.rasterize import Instance, robot_instance
 from spade.annotation.scenarios import ScenarioResult
 from spade.annotation.templates import check_shape
 from spade.data.polyline import polyline_length, resample_polyline
@@ -198,16 +198,12 @@ def _instance(cm: _Costmap, remaining_m: np.ndarray, size: int, disc_px: float, 
     row = (h - 1) - ((remaining_m[:, 1] - cm.origin[1]) / res - 0.5)
     pts = np.stack([col, row], axis=1)
     pts = resample_polyline(pts, max(2, int(np.ceil(polyline_length(pts) / 0.5)) + 1))  # every half pixel
-    frame = RobotFrame.for_size(size)
-    heading = path_heading(pts)
-    pose = frame.place(pts[0], heading)
-    local = pose.to_window(pts)
-    if not frame.inside(local, 0.0):
+    start = (float(remaining_m[0, 0]), float(remaining_m[0, 1]))
+    inst = robot_instance(codes_from_values(cm.codes, threshold), pts, RobotFrame.for_size(size), 0.0, disc_px, k_wp,
+                          to_world=lambda x, y, h: (*start, yaw_from_heading(h)))
+    if inst is None:
         result.rejections["path_outside_window"] += 1
         return None
-    occupancy = pose.occupancy(codes_from_values(cm.codes, threshold))
-    world = (float(remaining_m[0, 0]), float(remaining_m[0, 1]), yaw_from_heading(heading))
-    inst = render(occupancy, local, disc_px, k_wp, world)
     if (inst.occupancy[inst.path] != 1).any():
         result.rejections["path_non_free"] += 1
         return None

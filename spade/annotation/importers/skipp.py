@@ -27,8 +27,8 @@ from skimage.measure import block_reduce
 from skimage.morphology import skeletonize
 
 from spade.annotation.pipeline import RunStats
-from spade.annotation.frame import RobotFrame, path_heading, yaw_from_heading
-from spade.annotation.rasterize import Instance, render
+from spade.annotation.frame import RobotFrame, yaw_from_heading
+from spade.annotation.rasterize import Instance, robot_instance
 from spade.annotation.scenarios import ScenarioResult
 from spade.annotation.templates import check_shape
 
@@ -130,15 +130,11 @@ def skipp_instances(cfg: Mapping[str, Any], stats: RunStats,
                 ordered = np.concatenate([ordered, goal_xy[None]])
             local = (ordered + 0.5) / factor - 0.5
             occupancy = block_reduce(egm_codes(grey), (factor, factor), np.max).astype(np.uint8)
-            frame = RobotFrame.for_size(size)
-            heading = path_heading(local)
-            pose = frame.place(local[0], heading)
-            window = pose.to_window(local)
-            if not frame.inside(window, 0.0):
+            inst = robot_instance(occupancy, local, RobotFrame.for_size(size), 0.0, disc, k_wp,
+                                  to_world=lambda x, y, h: ((x + 0.5) * res, -(y + 0.5) * res, yaw_from_heading(h)))
+            if inst is None:
                 result.rejections["path_outside_window"] += 1
                 continue
-            world = (float(local[0, 0] + 0.5) * res, -float(local[0, 1] + 0.5) * res, yaw_from_heading(heading))
-            inst = render(pose.occupancy(occupancy), window, disc, k_wp, world)
             if (inst.occupancy[inst.path] != 1).any():
                 result.rejections["path_non_free"] += 1
                 continue
