@@ -54,3 +54,20 @@ def tiny_checkpoints(spade_home: Path) -> dict[str, str]:
         out[key] = str(path)
     del hydra
     return out
+
+
+@pytest.fixture(autouse=True)
+def _isolated_mlflow_tracking_uri():
+    """Each test starts without ``MLFLOW_TRACKING_URI`` and leaves none behind.
+
+    ``mlflow.set_tracking_uri`` (called by in-process training) exports the URI into ``os.environ`` so that
+    child processes inherit it; without this a later test's ``spade.train`` subprocess would log into an
+    earlier test's store instead of the one its ``SPADE_HOME`` names.
+    """
+    old = os.environ.pop("MLFLOW_TRACKING_URI", None)
+    try:
+        yield
+    finally:
+        os.environ.pop("MLFLOW_TRACKING_URI", None)
+        if old is not None:
+            os.environ["MLFLOW_TRACKING_URI"] = old
