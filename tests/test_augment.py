@@ -8,7 +8,7 @@ import torch
 
 from spade.annotation.frame import RobotFrame
 from spade.annotation.rasterize import robot_instance
-from spade.training.augment import augment_batch, check_augmentation, mirror_images, mirror_points, widen_path
+from spade.data.augment import augment_batch, check_augmentation, mirror_images, mirror_points, widen_path
 
 
 def _instance(turn: float):

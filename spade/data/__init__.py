@@ -1,4 +1,8 @@
-"""Dataset storage: the on-disk format, its atomic writer and the torch Dataset that reads it."""
+"""Dataset storage (on-disk format, atomic writer, torch Dataset) and the Lightning DataModule that serves it.
+
+``PathDataModule`` (:mod:`spade.data.datamodule`, the target of ``conf/data/*.yaml``) and the augmentation
+(:mod:`spade.data.augment`) are not imported here, so that readers of the format do not pull in Lightning.
+"""
 
 from spade.data.dataset import PathDataset, check_files
 from spade.data.format import DatasetError, Manifest, read_manifest

@@ -173,7 +173,7 @@ def geometry_mismatch(ckpt: Mapping[str, Any], data: Mapping[str, Any]) -> list[
 
 # -- datasets -------------------------------------------------------------------------------------------------------
 def _annotation_settings(root: Path, generate: Any) -> dict[str, Any]:
-    from spade.training.datamodule import annotation_config
+    from spade.data.datamodule import annotation_config
 
     return OmegaConf.to_container(annotation_config(root, generate), resolve=True)
 
@@ -393,6 +393,7 @@ def _check_model(cfg: DictConfig) -> None:
         if guidance not in (_MISSING, None):
             _check_number(cfg, "model.guidance.weight", 0, fix=" (lambda; 0 turns the guidance off)")
             _check_choice(cfg, "model.guidance.clip", ["sample", "batch"])
+            _check_choice(cfg, "model.guidance.expert", ["conditional", "unconditional"], none_ok=True)
             _check_int(cfg, "model.guidance.num_noise", 1)
             _check_int(cfg, "model.guidance.t_min", 0)
             _check_int(cfg, "model.guidance.t_max", 1, none_ok=True)
@@ -424,6 +425,23 @@ def _check_checkpoints(cfg: DictConfig) -> None:
                                  "pass an expert checkpoint (from an expert_* experiment), or leave it null so that "
                                  "the experiment's requires.expert finds or trains one")
         _check_geometry("model.guidance.expert_ckpt", expert, info, cfg, train_data)
+        _check_expert_kind(cfg, expert, info)
+
+
+def _check_expert_kind(cfg: DictConfig, expert: Any, info: dict[str, Any] | None) -> None:
+    """DBC needs an unconditional expert, Cond-DBC a conditional one (``model.guidance.expert``)."""
+    from spade.training.errors import ExpertMismatchError
+    from spade.training.guidance import check_expert_kind
+
+    net_role = ((info or {}).get("config") or {}).get("role")
+    if net_role not in ("cond_expert", "uncond_expert"):
+        return
+    wanted = _get(cfg, "model.guidance.expert")
+    try:
+        check_expert_kind(None if wanted is _MISSING else wanted, net_role == "cond_expert",
+                          f"model.guidance.expert_ckpt={expert}")
+    except ExpertMismatchError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def validate_train_config(cfg: DictConfig) -> None:

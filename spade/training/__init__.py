@@ -1,1 +1,1 @@
-"""Training: the DataModule, the student and expert LightningModules, the diffusion margin, callbacks."""
+"""Training: the student and expert LightningModules, the diffusion margin, callbacks, checkpoint loading."""

@@ -23,6 +23,11 @@ import torch
 from torch import nn
 
 from spade.models.diffusion import sample_timesteps, to_model_range
+from spade.training.errors import ExpertMismatchError
+
+
+#: ``GuidanceConfig.expert`` -> whether that method's expert is conditional (None: either).
+EXPERT_KINDS: dict[str | None, bool | None] = {"conditional": True, "unconditional": False, None: None}
 
 
 @dataclass(frozen=True)
@@ -36,6 +41,8 @@ class GuidanceConfig:
     t_min: int = 0
     t_max: int | None = None  # exclusive; None = the schedule's T
     batch_terms: bool = False  # one expert forward over [agent; expert] (see the module docstring for when it pays)
+    # Which expert the method needs: "conditional" (Cond-DBC), "unconditional" (DBC); None accepts either.
+    expert: str | None = None
 
     def __post_init__(self) -> None:
         if self.weight < 0:
@@ -44,8 +51,27 @@ class GuidanceConfig:
             raise ValueError(f"guidance clip must be 'sample' or 'batch', got {self.clip!r}")
         if self.num_noise < 1:
             raise ValueError(f"guidance num_noise must be >= 1, got {self.num_noise}")
+        if self.expert not in EXPERT_KINDS:
+            kinds = sorted(k for k in EXPERT_KINDS if k)
+            raise ValueError(f"guidance expert must be one of {kinds} (or null for either), got {self.expert!r}")
         if self.t_min < 0 or (self.t_max is not None and self.t_max <= self.t_min):
             raise ValueError(f"guidance timestep range [{self.t_min}, {self.t_max}) is empty or negative")
+
+
+def check_expert_kind(wanted: str | None, conditional: bool, source: str) -> None:
+    """Refuse an expert of the other kind than the guidance method needs (DBC: unconditional, Cond-DBC:
+    conditional), with the fix; ``wanted`` None accepts either."""
+    need = EXPERT_KINDS.get(wanted)
+    if need is None or need == conditional:
+        return
+    have = "conditional" if conditional else "unconditional"
+    method, other = ("Cond-DBC (guidance=cond_dbc)", "guidance=dbc") if need else \
+        ("DBC (guidance=dbc)", "guidance=cond_dbc")
+    have_a, want_a = ("a" if conditional else "an"), ("a" if need else "an")
+    raise ExpertMismatchError(
+        f"{source} is {have_a} {have} expert, but {method} needs {want_a} {wanted} one; pass {want_a} {wanted} expert "
+        f"(an expert_{'cond' if need else 'uncond'}_* experiment) or use {other} for this expert"
+    )
 
 
 class DiffusionMargin(nn.Module):

@@ -11,7 +11,7 @@ from spade.models import build_model
 from spade.models.modelfile import load_checkpoint, load_lightning
 from spade.training.base import PathPlanningModule
 from spade.training.errors import ExpertMismatchError  # noqa: F401  (raised by ExpertModule.check_compatible)
-from spade.training.guidance import DiffusionMargin, GuidanceConfig
+from spade.training.guidance import DiffusionMargin, GuidanceConfig, check_expert_kind
 
 
 class StudentModule(PathPlanningModule):
@@ -97,6 +97,7 @@ class StudentModule(PathPlanningModule):
         ckpt = self.hparams.guidance["expert_ckpt"]
         expert = load_lightning(ExpertModule, ckpt)
         expert.check_compatible(in_channels=self.net.in_channels, image_size=image_size, source=str(ckpt))
+        check_expert_kind(self.guidance_cfg.expert, expert.conditional, str(ckpt))
         margin = DiffusionMargin(
             expert.ema_net(), expert.schedule.add_noise, expert.schedule.num_train_timesteps,
             expert.conditional, self.guidance_cfg,

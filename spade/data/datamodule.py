@@ -14,7 +14,7 @@ from lightning.pytorch.overrides.distributed import UnrepeatedDistributedSampler
 from torch.utils.data import DataLoader, Subset
 
 from spade.data import DatasetError, PathDataset, read_manifest
-from spade.training.augment import augment_batch, check_augmentation, widen_path
+from spade.data.augment import augment_batch, check_augmentation, widen_path
 
 # (dataset directory, annotation config) -> None; builds the dataset when it is missing.
 Generator = Callable[[Path, Any], None]
