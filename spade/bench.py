@@ -8,7 +8,11 @@ One command measures, prints as Markdown tables, and writes as JSON (``out_json`
 - APE of DDIM-k against DDPM on a *trained* conditional expert, same initial noise (``quality``; ``expert_ckpt=``
   or a tiny expert trained here for ``quality.train_steps`` steps);
 - training step time of BC, DBC and Cond-DBC with the same student (``training``);
-- metric throughput (``metrics``), dataset generation and read throughput (``data``);
+- metric throughput and a per-instance reference pipeline on the same predictions (``metrics``; with
+  ``metrics.sensitivity=true`` also how FID follows degradations), dataset generation and read throughput
+  (``data``);
+- when named in ``sections``: the annotation tool's training presets (``annotation``), a large dataset read in a
+  fresh process with its memory (``dataset``), real and procedural maps (``maps``);
 
 then checks the targets of the deployment issue. ``quick=true`` runs everything at tiny sizes (CI);
 ``conf/bench.yaml`` lists every setting; the sections live in :mod:`spade.perf.bench`.

@@ -1,4 +1,5 @@
-"""``python -m spade.bench``: quick mode runs every section end to end; the targets are judged as stated."""
+"""``python -m spade.bench``: quick mode runs every section end to end (the default ones, then the components'
+sections); the targets are judged as stated."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from spade.perf.report import check_targets, format_report
 REPO = Path(__file__).resolve().parents[1]
 
 
-def test_quick_bench_measures_every_section(tmp_path: Path) -> None:
+def test_quick_bench_measures_the_default_sections(tmp_path: Path) -> None:
     pytest.importorskip("onnxruntime")
     out = tmp_path / "bench.json"
     env = {**os.environ, "SPADE_HOME": str(tmp_path / "home")}
@@ -36,6 +37,7 @@ def test_quick_bench_measures_every_section(tmp_path: Path) -> None:
     assert approaches == ["BC", "DBC", "Cond-DBC", "Cond-DBC (batch_terms)"]
     assert results["training"][0]["ratio_to_bc"] == 1.0 and all(r["step_ms"] > 0 for r in results["training"])
     assert results["metrics"]["ape_hd_instances_per_s"] > 0 and results["metrics"]["fid_images_per_s"] > 0
+    assert not {"annotation", "dataset", "maps"} & set(results)  # the components' sections run when named
     assert [g["preset"] for g in results["data"]["generation"]] == ["lshape", "test"]
     assert results["data"]["read"]["instances"] == results["data"]["generation"][0]["instances"] > 0
     rows = results["quality"]["rows"]
@@ -45,6 +47,50 @@ def test_quick_bench_measures_every_section(tmp_path: Path) -> None:
 
     for heading in ("Student latency", "Expert sampling", "DDIM vs DDPM", "Training step", "Metrics", "Data", "Targets"):
         assert f"### {heading}" in proc.stdout
+
+
+def test_component_sections_run_at_tiny_sizes(tmp_path: Path) -> None:
+    """annotation, dataset and maps (named in ``sections``) and the metrics section's reference pipeline and FID
+    sensitivity run at tiny sizes, print their tables and write their numbers."""
+    from spade.maps import generate_map, save_ros_map
+
+    maps_dir = tmp_path / "maps"
+    maps_dir.mkdir()
+    save_ros_map(generate_map("warehouse", 1), maps_dir / "warehouse_1.yaml")
+    out = tmp_path / "bench.json"
+    env = {**os.environ, "SPADE_HOME": str(tmp_path / "home")}
+    cmd = [sys.executable, "-m", "spade.bench", "quick=true", f"out_json={out}",
+           "sections=[metrics,annotation,dataset,maps]", "metrics.sensitivity=true",
+           "metrics.sensitivity_images=250", "metrics.sensitivity_image_size=32", f"maps.dir={maps_dir}"]
+    proc = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    results = json.loads(out.read_text())
+    assert set(results) >= {"metrics", "annotation", "dataset", "maps"} and "student" not in results
+
+    m = results["metrics"]
+    assert m["ape_hd_instances"] == 32 and m["ape_hd_instances_per_s"] > 0 and m["fid_images_per_s"] > 0
+    if "skipped" not in m["reference"]:  # evo (the dev extra) present
+        assert m["reference"]["instances"] == 4 and m["reference"]["speedup"] > 0
+        assert m["reference_loops"]["instances"] == 2 and m["reference_loops"]["ms_per_instance"] > 0
+    sens = m["sensitivity"]
+    assert len(sens["rows"]) == 4 * 4 and all(len(r["fid"]) == len(r["levels"]) == 5 for r in sens["rows"])
+
+    (preset,) = results["annotation"]["presets"]
+    assert preset["preset"] == "lshape" and preset["instances"] == 8 and preset["instances_per_s"] > 0
+    assert preset["scenarios_accepted"] > 0 and all(0 <= v <= 1 for v in preset["rejection_rates"].values())
+
+    d = results["dataset"]
+    assert d["instances"] == 64 and d["image_size"] == [32, 32] and d["write_s"] > 0 and d["items_per_s"] > 0
+    assert d["rss_peak_mb"] >= d["rss_baseline_mb"] > 0
+
+    (real,) = results["maps"]["real"]
+    assert real["map"] and real["load_ms"] > 0 and real["resample_ms"] >= 0 and real["clear_square_m"] > 0
+    procedural = results["maps"]["procedural"]
+    assert procedural and all(r["seeds"] == 1 and r["generate_ms"] > 0 for r in procedural)
+
+    for heading in ("Metrics", "FID sensitivity", "Annotation", "Dataset read", "Real maps", "Procedural maps"):
+        assert f"### {heading}" in proc.stdout
+    assert "Same 4 instances" in proc.stdout or "Reference pipeline skipped" in proc.stdout
 
 
 def _results(onnx_ms: float, cond_ratio: float, ddim: list[tuple[int, float, float]]) -> dict:
@@ -84,6 +130,7 @@ def test_quick_and_full_settings_come_from_one_config() -> None:
     quick = compose_config("bench", ["quick=true", "student.runs=7"])
     assert list(full.student.sizes) == ["small", "medium", "large"] and full.experts.cond_preset == "paper"
     assert list(quick.student.sizes) == ["small"] and quick.experts.cond_preset == "tiny"
+    assert full.annotation.num_instances is None and quick.dataset.instances == 64 and full.maps.seeds == 10
     assert quick.student.runs == 7 and quick.threads == 1 and full.threads is None
 
 

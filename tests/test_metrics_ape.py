@@ -8,7 +8,7 @@ import torch
 
 from spade.data.polyline import resample_polyline
 from spade.metrics import APE, extract_path, polyline_ape
-from spade.metrics.testing import rasterise_polyline, synthetic_batch
+from spade.metrics.synthetic import rasterise_polyline, synthetic_batch
 
 evo_metrics = pytest.importorskip("evo.core.metrics")
 evo_trajectory = pytest.importorskip("evo.core.trajectory")

@@ -11,7 +11,7 @@ import torch.distributed as dist
 import torch.multiprocessing as mp
 
 from spade.metrics import APE, FID, HausdorffCount
-from spade.metrics.testing import degrade, synthetic_batch
+from spade.metrics.synthetic import degrade, synthetic_batch
 
 N = 260  # FID needs > 240 samples per set
 SPLIT = 97  # uneven on purpose: rank 0 gets 97 instances, rank 1 the other 163

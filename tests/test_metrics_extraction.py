@@ -7,7 +7,7 @@ import pytest
 from skimage.draw import disk
 
 from spade.metrics import extract_path, polyline_ape
-from spade.metrics.testing import rasterise_polyline
+from spade.metrics.synthetic import rasterise_polyline
 
 # '#' path, 'S' start (on the path), 'G' goal (on the path), '*' a blob or spur pixel (also predicted).
 L_ART = [

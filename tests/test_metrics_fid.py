@@ -9,7 +9,7 @@ from scipy import linalg
 
 from spade.metrics import FID, RandomConvFeatures, build_feature_extractor, frechet_distance
 from spade.metrics.features import DEFAULT_RANDCONV_SHA256
-from spade.metrics.testing import degrade, synthetic_batch
+from spade.metrics.synthetic import degrade, synthetic_batch
 
 N = 300  # > 240 features + 1
 SIZE = 32

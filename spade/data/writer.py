@@ -18,6 +18,7 @@ import numpy as np
 
 from spade.data.format import FORMAT_NAME, FORMAT_VERSION, LABEL_KEYS, MANIFEST, ArraySpec, array_specs
 from spade.data.packing import pack_bits, pack_two_bit
+from spade.utils.processes import pid_alive
 
 
 class _LabelTable:
@@ -234,16 +235,6 @@ def _owner() -> str:
     return f"{re.sub(r'[^A-Za-z0-9.]', '_', socket.gethostname())}-{os.getpid()}"
 
 
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 def remove_stale_partials(root: str | Path) -> list[Path]:
     """Remove what killed writers left beside ``root``; returns the folders removed.
 
@@ -260,7 +251,7 @@ def remove_stale_partials(root: str | Path) -> list[Path]:
     for path in root.parent.glob(f".{root.name}.partial-*"):
         parts = path.name[len(f".{root.name}.partial-"):].rsplit("-", 2)
         if len(parts) == 3 and parts[1].isdigit():
-            stale = parts[0] == host and int(parts[1]) != os.getpid() and not _pid_alive(int(parts[1]))
+            stale = parts[0] == host and int(parts[1]) != os.getpid() and not pid_alive(int(parts[1]))
         else:
             try:
                 stale = time.time() - path.stat().st_mtime > LEGACY_PARTIAL_AGE_S

@@ -180,7 +180,7 @@ def max_abs_diff(net: nn.Module, exported: ModelRunner, image_size: Sequence[int
 def latency_ms(net: nn.Module, exported: ModelRunner, image_size: Sequence[int], batches: Sequence[int] = (1,),
                runs: int = 20, warmup: int = 3) -> dict[str, float]:
     """Median ms per forward pass, eager PyTorch and the export's runtime, for each batch size."""
-    from spade.perf.timing import measure
+    from spade.utils.timing import measure
 
     out: dict[str, float] = {}
     for b in batches:

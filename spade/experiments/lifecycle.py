@@ -23,7 +23,6 @@ import random
 import signal
 import socket
 import threading
-from pathlib import Path
 from typing import Any
 
 import lightning as L
@@ -33,6 +32,8 @@ from lightning.pytorch.callbacks import Callback
 from lightning.pytorch.loggers import Logger, MLFlowLogger
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.data import DataLoader, RandomSampler
+
+from spade.utils.processes import pid_alive, process_start
 
 log = logging.getLogger(__name__)
 
@@ -145,29 +146,9 @@ def _mlflow(loggers: list[Logger]) -> MLFlowLogger | None:
     return next((lg for lg in loggers if isinstance(lg, MLFlowLogger)), None)
 
 
-def _proc_start(pid: int) -> str | None:
-    """The process's start time in clock ticks since boot (Linux), to tell a reused pid from the original."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-        return stat.rsplit(")", 1)[1].split()[19]
-    except (OSError, IndexError):
-        return None
-
-
-def _process_alive(pid: int, start: str | None) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    now = _proc_start(pid)
-    return start is None or now is None or now == start
-
-
 def process_tags() -> dict[str, str]:
     tags = {"spade.host": socket.gethostname(), "spade.pid": str(os.getpid())}
-    start = _proc_start(os.getpid())
+    start = process_start(os.getpid())
     if start is not None:
         tags["spade.proc_start"] = start
     return tags
@@ -235,7 +216,7 @@ def mark_stale_runs(cfg: DictConfig) -> list[str]:
             log.warning("MLflow run %s (%s) is RUNNING on host %s: left as it is", run.info.run_id, run_name,
                         tags.get("spade.host"))
             continue
-        if _process_alive(int(pid), tags.get("spade.proc_start")):
+        if pid_alive(int(pid), tags.get("spade.proc_start")):
             continue
         started = datetime.datetime.fromtimestamp(run.info.start_time / 1000).isoformat(timespec="seconds")
         message = (f"MLflow run {run.info.run_id} ({experiment.name}/{run_name}, started {started}) was still "

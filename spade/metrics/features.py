@@ -9,8 +9,9 @@ would itself have to be trained, versioned and shipped with every dataset. Rando
 known, workable FID embedding (Naeem et al., ICML 2020, "Reliable fidelity and diversity metrics"), cost
 nothing to obtain, and are bit-identical everywhere: the weights come from NumPy's legacy ``RandomState``
 stream, whose output NumPy guarantees never to change, and their sha256 is pinned so that a drift would raise
-instead of silently changing every FID. The measured sensitivity (FID rising monotonically with shift, blur,
-dropout and stray blobs) is in ``benchmarks/bench_metrics.py`` and the tests.
+instead of silently changing every FID. Its sensitivity (FID rising monotonically with shift, blur,
+dropout and stray blobs) is measured by ``python -m spade.bench sections=[metrics] metrics.sensitivity=true``
+and the tests.
 """
 
 from __future__ import annotations

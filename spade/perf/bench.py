@@ -8,6 +8,7 @@ module registers the ``${quick_or:QUICK,FULL}`` resolver the config uses.
 from __future__ import annotations
 
 import logging
+import os
 import shutil
 import tempfile
 from pathlib import Path
@@ -17,11 +18,11 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from spade.perf.report import check_targets
-from spade.perf.timing import machine_info
+from spade.utils.timing import machine_info
 
 log = logging.getLogger(__name__)
 
-SECTIONS = ("student", "experts", "training", "metrics", "data", "quality")
+SECTIONS = ("student", "experts", "training", "metrics", "data", "quality", "annotation", "dataset", "maps")
 _KEYS = ("quick", "sections", "out_json", "work_dir", "expert_ckpt", "seed", "threads", *SECTIONS)
 
 
@@ -65,11 +66,7 @@ def bench(cfg: DictConfig) -> dict[str, Any]:
         if "training" in sections:
             results["training"] = _training(c["training"])
         if "metrics" in sections:
-            from spade.perf.throughput import metric_throughput
-
-            log.info("metrics: APE + Hd19 and FID throughput")
-            m = c["metrics"]
-            results["metrics"] = metric_throughput(m["instances"], m["image_size"], m["fid_images"], seed=c["seed"])
+            results["metrics"] = _metrics(c["metrics"], c["seed"])
         datasets: dict[str, Any] = {}
         if "data" in sections or ("quality" in sections and not (c["quality"].get("test_dir") and c.get("expert_ckpt"))):
             datasets = _datasets(c["data"], work)
@@ -81,6 +78,12 @@ def bench(cfg: DictConfig) -> dict[str, Any]:
                                "read": dataset_read_throughput(datasets["train_dir"])}
         if "quality" in sections:
             results["quality"] = _quality(c["quality"], c.get("expert_ckpt"), datasets, work, c["seed"])
+        if "annotation" in sections:
+            results["annotation"] = _annotation(c["annotation"], work)
+        if "dataset" in sections:
+            results["dataset"] = _dataset(c["dataset"], work, c["seed"])
+        if "maps" in sections:
+            results["maps"] = _maps(c["maps"])
     finally:
         if temporary:
             shutil.rmtree(work, ignore_errors=True)
@@ -121,6 +124,54 @@ def _training(t: dict[str, Any]) -> list[dict[str, Any]]:
         rows += training_step_times(t["student"], size, t["batch_size"], t["cond_presets"], t.get("uncond_preset"),
                                     t["runs"], t["warmup"], t.get("batched_terms", True))
     return rows
+
+
+def _metrics(m: dict[str, Any], seed: int) -> dict[str, Any]:
+    from spade.perf.metrics import fid_sensitivity, metric_throughput
+
+    log.info("metrics: APE + Hd19 and FID throughput")
+    out = metric_throughput(m["instances"], m["image_size"], m["fid_images"], m.get("batch", 64), seed,
+                            m.get("reference_instances", 0), m.get("loops_instances", 0))
+    if m.get("sensitivity"):
+        log.info("metrics: FID sensitivity")
+        out["sensitivity"] = fid_sensitivity(m["sensitivity_images"], m["sensitivity_image_size"], seed)
+    return out
+
+
+def _annotation(a: dict[str, Any], work: Path) -> dict[str, Any]:
+    """Each preset written by the annotation tool at its own size (or ``num_instances``), timed."""
+    from spade.perf.throughput import generation_throughput
+
+    rows = []
+    for preset in a["presets"]:
+        out = work / "annotation" / preset
+        shutil.rmtree(out, ignore_errors=True)
+        log.info("annotation: preset %s", preset)
+        rows.append(generation_throughput(out, preset, a.get("num_instances"), maps=a.get("maps"),
+                                          workers=a.get("workers") or os.cpu_count() or 1))
+        shutil.rmtree(out, ignore_errors=True)
+    instances, seconds = sum(r["instances"] for r in rows), sum(r["seconds"] for r in rows)
+    return {"maps": a.get("maps") or "the presets' procedural maps", "presets": rows, "instances": instances,
+            "seconds": seconds, "instances_per_s": instances / seconds if seconds else 0.0}
+
+
+def _dataset(d: dict[str, Any], work: Path, seed: int) -> dict[str, Any]:
+    from spade.perf.dataset import dataset_read_at_scale
+
+    log.info("dataset: reading %s", d.get("path") or f"{d['instances']} synthetic instances")
+    return dataset_read_at_scale(work, d["instances"], d["image_size"], d["waypoints"], d.get("path"), seed)
+
+
+def _maps(m: dict[str, Any]) -> dict[str, Any]:
+    from spade.perf.maps import procedural_map_costs, real_map_costs
+
+    maps_dir = m.get("dir")
+    real = None
+    if maps_dir and Path(maps_dir).expanduser().is_dir():
+        log.info("maps: real maps in %s", maps_dir)
+        real = real_map_costs(maps_dir, m["resolution_m"], m["robot_radius_m"], m.get("max_real"))
+    log.info("maps: procedural, %d seeds", m["seeds"])
+    return {"dir": maps_dir, "real": real, "procedural": procedural_map_costs(m["seeds"], m["robot_radius_m"])}
 
 
 def _datasets(d: dict[str, Any], work: Path) -> dict[str, Any]:

@@ -108,12 +108,7 @@ def format_report(results: dict[str, Any]) -> str:
         parts.append("### Training step\n\n" + _table(
             ["approach", "student", "expert", "px", "batch", "ms / step", "x BC"], table))
     if results.get("metrics"):
-        r = results["metrics"]
-        table = [["APE + Hd19 (update + compute)", r["image_size"], r["ape_hd_instances"],
-                  f"{r['ape_hd_instances_per_s']:,.0f} instances/s"],
-                 [f"FID ({r['fid_extractor']}){'' if r['fid_computed'] else ', update only'}", r["image_size"],
-                  r["fid_images"], f"{r['fid_images_per_s']:,.0f} images/s"]]
-        parts.append("### Metrics\n\n" + _table(["metric", "px", "n", "throughput"], table))
+        parts.append(_metrics(results["metrics"]))
     if results.get("data"):
         d = results["data"]
         table = [[f"generation (annotation, preset {g['preset']}, {g['workers']} worker(s))", g["window_px"],
@@ -125,10 +120,101 @@ def format_report(results: dict[str, Any]) -> str:
             table.append([f"read: DataLoader, batch {r['loader_batch_size']}", r["image_size"][0], r["instances"],
                           f"{r['loader_instances_per_s']:,.0f} instances/s"])
         parts.append("### Data\n\n" + _table(["what", "px", "instances", "throughput"], table))
+    if results.get("annotation"):
+        parts.append(_annotation(results["annotation"]))
+    if results.get("dataset"):
+        parts.append(_dataset(results["dataset"]))
+    if results.get("maps"):
+        parts.append(_maps(results["maps"]))
     targets = results.get("targets") or check_targets(results)
     if targets:
         table = [[t["target"], t["setting"], t["value"], "met" if t["met"] else "MISSED"] for t in targets]
         parts.append("### Targets\n\n" + _table(["target", "setting", "measured", ""], table))
+    return "\n\n".join(parts)
+
+
+def _metrics(r: dict[str, Any]) -> str:
+    px = r["image_size"]
+    table = [["APE + Hd19 (update + compute)", px, r["ape_hd_instances"],
+              f"{r['ape_hd_instances_per_s']:,.0f} instances/s"]]
+    ref, loops = r.get("reference") or {}, r.get("reference_loops")
+    if ref.get("instances"):
+        table.append(["reference: thin, dense adjacency, all-pairs shortest paths, evo; directed_hausdorff", px,
+                      ref["instances"], f"{1e3 / ref['ms_per_instance']:,.0f} instances/s "
+                                        f"(spade.metrics {ref['speedup']:.1f}x faster)"])
+    if loops:
+        table.append(["reference with SKIPP's Python adjacency loops", px, loops["instances"],
+                      f"{1e3 / loops['ms_per_instance']:,.1f} instances/s "
+                      f"(spade.metrics {loops['slowdown']:.0f}x faster)"])
+    table.append([f"FID ({r['fid_extractor']}){'' if r['fid_computed'] else ', update only'}", px, r["fid_images"],
+                  f"{r['fid_images_per_s']:,.0f} images/s"])
+    out = "### Metrics\n\n" + _table(["metric", "px", "n", "throughput"], table)
+    if ref.get("instances"):
+        out += (f"\n\nSame {ref['instances']} instances: APE mean {ref['ours_ape_mean_cm']:.3f} cm (median "
+                f"{ref['ours_ape_median_cm']:.3f}, failures {ref['ours_failures']}) vs the reference's "
+                f"{ref['ape_mean_cm']:.3f} cm (median {ref['ape_median_cm']:.3f}, failures {ref['failures']}); "
+                f"Hausdorff max |diff| {ref['hd_max_abs_diff_px']:.2e} px, empty flags equal: "
+                f"{ref['hd_empty_flags_equal']}.")
+    elif ref.get("skipped"):
+        out += f"\n\nReference pipeline skipped: {ref['skipped']}."
+    if r.get("sensitivity"):
+        sens = r["sensitivity"]
+        rows = [[f"{row['extractor']} (D={row['feature_dim']})", row["kind"],
+                 ", ".join(f"{v:g}" for v in row["levels"]),
+                 " ".join(f"{v:.4g}" for v in row["fid"]), f"{row['ratio']:.1f}",
+                 "yes" if row["monotonic"] else "NO"] for row in sens["rows"]]
+        out += (f"\n\n### FID sensitivity ({sens['images']} real vs {sens['images']} generated {sens['image_size']} px "
+                f"paths, degraded)\n\n" + _table(["extractor", "degradation", "levels", "FID", "last / first",
+                                                  "monotonic"], rows))
+    return out
+
+
+def _annotation(a: dict[str, Any]) -> str:
+    table = []
+    for r in a["presets"]:
+        rates = ", ".join(f"{k} {v:.1%}" for k, v in r["rejection_rates"].items()) or "-"
+        table.append([r["preset"], r["window_px"], r["workers"], r["instances"], r["seconds"],
+                      f"{r['instances_per_s']:.1f}", f"{r['scenarios_accepted']} / {r['scenarios_tried']}", rates,
+                      r["failed_scenarios"]])
+    table.append(["total", "", "", a["instances"], a["seconds"], f"{a['instances_per_s']:.1f}", "", "", ""])
+    return (f"### Annotation ({a['maps']})\n\n"
+            + _table(["preset", "px", "workers", "instances", "s", "instances/s", "scenarios accepted / tried",
+                      "rejections (of attempts)", "failed scenarios"], table))
+
+
+def _dataset(d: dict[str, Any]) -> str:
+    n, px = d["instances"], d["image_size"][0]
+    table = [["open: manifest + sha256", f"{d['open_s'] * 1000:,.0f} ms"],
+             ["one pass, item by item", f"{d['items_per_s']:,.0f} instances/s"],
+             [f"one pass, DataLoader batch {d['loader_batch_size']}",
+              f"{d['loader_instances_per_s']:,.0f} instances/s"],
+             ["resident memory: after the imports / peak / for the dataset",
+              f"{d['rss_baseline_mb']:,.0f} / {d['rss_peak_mb']:,.0f} / +{d['rss_dataset_mb']:,.0f} MB"]]
+    if "write_s" in d:
+        table.insert(0, ["written (synthetic)", f"{d['write_s']:.1f} s"])
+    return (f"### Dataset read ({n:,} instances of {px} px, {d['disk_mib']:,.1f} MiB, one fresh process)\n\n"
+            + _table(["what", "figure"], table))
+
+
+def _maps(m: dict[str, Any]) -> str:
+    parts = []
+    if m.get("real"):
+        to = m["real"][0]["resample_to_m"]
+        table = [[r["map"], f"{r['width']} x {r['height']}", r["resolution_m"], r["occupied"], r["free"],
+                  r["unknown"], r["load_ms"], r["resample_ms"], r["clear_square_m"]] for r in m["real"]]
+        parts.append(f"### Real maps ({m['dir']})\n\n" + _table(
+            ["map", "W x H", "m/px", "occupied", "free", "unknown", "load ms", f"-> {to:g} m/px ms",
+             "clear square m"], table))
+    else:
+        parts.append(f"Real maps: none ({'no folder given' if not m.get('dir') else m['dir'] + ' is not a folder'}; "
+                     "set maps.dir or SPADE_MAPS_DIR)")
+    rows = m["procedural"]
+    table = [[r["kind"], f"{r['width']} x {r['height']}", r["generate_ms"], r["occupied"], r["free"], r["unknown"],
+              r["min_clear_square_m"], r["min_reach"]] for r in rows]
+    seeds = rows[0]["seeds"] if rows else 0
+    parts.append(f"### Procedural maps (0.05 m/px, seeds 0-{seeds - 1}, means; worst case of the last two)\n\n"
+                 + _table(["kind", "W x H", "generate ms", "occupied", "free", "unknown", "clear square m",
+                           "reach"], table))
     return "\n\n".join(parts)
 
 

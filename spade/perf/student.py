@@ -12,7 +12,7 @@ from torch import nn
 from torch.utils.flop_counter import FlopCounterMode
 
 from spade.models import build_model, count_parameters
-from spade.perf.timing import measure
+from spade.utils.timing import measure
 
 
 def forward_gflop(net: nn.Module, *inputs: torch.Tensor) -> float:

@@ -12,7 +12,7 @@ from typing import Any
 
 import torch
 
-from spade.perf.timing import measure
+from spade.utils.timing import measure
 
 
 def guided_student(size: str, expert: str | None = None, preset: str = "tiny", **guidance: Any) -> Any:

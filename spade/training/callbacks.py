@@ -7,7 +7,7 @@ import torch
 from lightning.pytorch.callbacks import Callback
 
 from spade.models import count_parameters
-from spade.perf.timing import measure
+from spade.utils.timing import measure
 
 
 @torch.inference_mode()

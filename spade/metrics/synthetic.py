@@ -1,7 +1,8 @@
-"""Synthetic L/U path rasters and controlled degradations, for the metrics' tests, sensitivity study and benchmark.
+"""Synthetic L/U path rasters, plausible predictions of them and controlled degradations: the one synthetic-data
+recipe of the metrics' tests and of ``python -m spade.bench`` (metrics, FID sensitivity, a large dataset to read).
 
-Not a dataset generator (that is ``spade.data``): just enough geometry to exercise the metrics on any image
-size without files, deterministically by seed.
+Not a dataset generator (that is the annotation tool): just enough geometry to exercise the metrics and the
+storage on any image size without files, deterministically by seed.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from skimage.draw import disk
 
 from spade.data.polyline import resample_polyline
 
-__all__ = ["rasterise_polyline", "synthetic_batch", "degrade"]
+__all__ = ["rasterise_polyline", "synthetic_batch", "synthetic_predictions", "degrade"]
 
 
 def rasterise_polyline(points: np.ndarray, shape: tuple[int, int], width: int = 1) -> np.ndarray:
@@ -83,6 +84,29 @@ def synthetic_batch(
             rr, cc = disk((y, x), marker_radius + 0.5, shape=(size, size))
             state[i, ch, rr, cc] = 1.0
     return {"state": state, "path": path, "waypoints": waypoints, "resolution": np.full(n, resolution)}
+
+
+def synthetic_predictions(paths: np.ndarray, seed: int = 0) -> np.ndarray:
+    """Plausible soft predictions of (n, 1, H, W) ground-truth path images, as a trained student's look.
+
+    Each is blurred (sigma 0.8), shifted by a random sub-pixel offset (sigma 0.7 px), scaled to a peak of 0.95 with
+    Gaussian noise (sigma 0.03) and clipped to [0, 1]; then 10 % get stray blobs, 5 % lose a tenth of their path
+    pixels, and 2 % are empty (nothing predicted). Float32, deterministic by ``seed``.
+    """
+    paths = np.asarray(paths, dtype=np.float32)
+    n = len(paths)
+    rng = np.random.default_rng(seed)
+    pred = np.empty_like(paths)
+    for i in range(n):
+        img = ndimage.gaussian_filter(paths[i, 0], 0.8)
+        img = ndimage.shift(img, rng.normal(0, 0.7, 2), order=1)
+        pred[i, 0] = np.clip(img / max(img.max(), 1e-6) * 0.95 + rng.normal(0, 0.03, img.shape), 0, 1)
+    blobs = rng.random(n) < 0.10
+    pred[blobs] = np.maximum(pred[blobs], degrade(np.zeros_like(pred[blobs]), "blobs", 1, seed=seed + 1))
+    gaps = rng.random(n) < 0.05
+    pred[gaps] = degrade(pred[gaps], "dropout", 0.1, seed=seed + 2)
+    pred[rng.random(n) < 0.02] = 0.0
+    return pred
 
 
 def degrade(paths: np.ndarray, kind: str, level: float, seed: int = 0) -> np.ndarray:

@@ -1,0 +1,214 @@
+"""The metrics: APE + Hd19 and FID throughput, a per-instance reference pipeline timed on the same predictions,
+and how FID follows controlled degradations (the ``metrics`` section of ``python -m spade.bench``).
+
+Every measurement runs on :mod:`spade.metrics.synthetic`: L/U ground-truth paths (``synthetic_batch``) and
+plausible soft predictions of them (``synthetic_predictions``: blurred, shifted, noisy, some with stray blobs, gaps
+or nothing predicted).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from spade.metrics import APE, FID, HausdorffCount, RandomConvFeatures, marker_centre
+from spade.metrics.synthetic import degrade, synthetic_batch, synthetic_predictions
+
+SENSITIVITY_LEVELS = {"shift": [0, 1, 2, 4, 8], "blur": [0, 0.5, 1, 2, 3], "dropout": [0, 0.1, 0.2, 0.4, 0.6],
+                      "blobs": [0, 1, 2, 4, 8]}
+
+
+def predicted_paths(instances: int, image_size: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """Ground truth (state, path, waypoints, resolution at 0.05 m/px) and soft predictions (``pred``) of it."""
+    data = synthetic_batch(instances, size=image_size, num_points=64, seed=seed, width=2, resolution=0.05)
+    data["pred"] = synthetic_predictions(data["path"], seed=seed + 1)
+    return data
+
+
+def _ape_hd(data: dict[str, np.ndarray], batch: int) -> tuple[float, dict[str, float], HausdorffCount]:
+    """Seconds of APE + Hd19 update and compute over ``data``, their values, and the Hd19 metric (per instance)."""
+    t = {k: torch.from_numpy(np.asarray(v)) for k, v in data.items()}
+    ape, hd = APE(), HausdorffCount()
+    t0 = time.perf_counter()
+    for i in range(0, len(t["pred"]), batch):
+        sl = slice(i, i + batch)
+        ape.update(t["pred"][sl], t["state"][sl], t["waypoints"][sl], t["resolution"][sl])
+        hd.update(t["pred"][sl], t["path"][sl])
+    values = {**ape.compute(), **hd.compute()}
+    return time.perf_counter() - t0, {k: float(v) for k, v in values.items()}, hd
+
+
+def metric_throughput(instances: int, image_size: int, fid_images: int, batch: int = 64, seed: int = 0,
+                      reference_instances: int = 0, loops_instances: int = 0) -> dict[str, Any]:
+    """APE + Hd19 (update and compute) in instances/s and FID (update of real and generated, compute) in images/s.
+
+    With ``reference_instances``, the first that many predictions also go through :func:`reference_instance`
+    (timed: ``reference``, with the speed-up and the agreement of the values); with ``loops_instances``, through
+    its variant with SKIPP's literal Python adjacency loops (``reference_loops``). The reference needs ``evo``
+    (the dev extra); without it ``reference`` says it was skipped.
+    """
+    data = predicted_paths(instances, image_size, seed)
+    seconds, values, hd = _ape_hd(data, batch)
+    out: dict[str, Any] = {"image_size": image_size, "ape_hd_instances": instances, "ape_hd_seconds": seconds,
+                           "ape_hd_instances_per_s": instances / seconds, "ape_cm": values["ape_cm"],
+                           "failures": int(values["failures"]), "values": values}
+    per_ours = seconds / instances
+    m = min(int(reference_instances), instances)
+    if m > 0 or loops_instances > 0:
+        try:
+            import evo  # noqa: F401
+        except ImportError:
+            out["reference"] = {"skipped": "evo is not installed (pip install evo, or the dev extra)"}
+            m, loops_instances = 0, 0
+    if m > 0:
+        ref_s, ref_ape, ref_hd = reference(data, m)
+        ours_hd = hd.per_instance().numpy()[:m]
+        ref_hd = np.array(ref_hd)
+        both = np.isfinite(ours_hd) & np.isfinite(ref_hd)
+        _, sub, _ = _ape_hd({k: v[:m] for k, v in data.items()}, batch)
+        ok = np.array([v is not None for v in ref_ape])
+        ref_vals = np.array([v for v in ref_ape if v is not None], dtype=float)
+        out["reference"] = {
+            "instances": m, "seconds": ref_s, "ms_per_instance": ref_s / m * 1e3, "speedup": ref_s / m / per_ours,
+            "hd_max_abs_diff_px": float(np.abs(ours_hd[both] - ref_hd[both]).max()) if both.any() else 0.0,
+            "hd_empty_flags_equal": bool((np.isinf(ours_hd) == np.isinf(ref_hd)).all()),
+            "ape_mean_cm": float(ref_vals.mean()) if ref_vals.size else float("nan"),
+            "ape_median_cm": float(np.median(ref_vals)) if ref_vals.size else float("nan"),
+            "failures": int(m - ok.sum()), "ours_ape_mean_cm": sub["ape_cm"],
+            "ours_ape_median_cm": sub["ape_median_cm"], "ours_failures": int(sub["failures"])}
+    n_loops = min(int(loops_instances), instances)
+    if n_loops > 0:
+        loop_s, _, _ = reference(data, n_loops, loops=True)
+        out["reference_loops"] = {"instances": n_loops, "ms_per_instance": loop_s / n_loops * 1e3,
+                                  "slowdown": loop_s / n_loops / per_ours}
+    out.update(fid_throughput(fid_images, image_size, batch, seed))
+    return out
+
+
+def fid_throughput(images: int, image_size: int, batch: int = 64, seed: int = 0) -> dict[str, Any]:
+    """FID of ``images`` synthetic paths against as many independently drawn ones blurred (sigma 0.7): update and
+    compute times; computed only with more images than the extractor has features."""
+    real = torch.from_numpy(synthetic_batch(images, size=image_size, seed=seed + 11, width=2)["path"])
+    fake = torch.from_numpy(degrade(synthetic_batch(images, size=image_size, seed=seed + 12, width=2)["path"],
+                                    "blur", 0.7))
+    fid = FID()
+    t0 = time.perf_counter()
+    for i in range(0, images, batch):
+        fid.update(real[i : i + batch], real=True)
+        fid.update(fake[i : i + batch], real=False)
+    update_s = time.perf_counter() - t0
+    out: dict[str, Any] = {"fid_images": images, "fid_update_s": update_s, "fid_extractor": fid.identity,
+                           "fid_feature_dim": fid.feature_dim, "fid_computed": images > fid.feature_dim}
+    if out["fid_computed"]:
+        out["fid"] = float(fid.compute()["fid"])
+    out["fid_compute_s"] = time.perf_counter() - t0 - update_s
+    out["fid_images_per_s"] = 2 * images / (time.perf_counter() - t0)
+    return out
+
+
+def reference_instance(pred: np.ndarray, truth_mask: np.ndarray, start: np.ndarray, goal: np.ndarray,
+                       waypoints: np.ndarray, resolution: float, loops: bool = False) -> tuple[float | None, float]:
+    """One instance the straightforward way: thin, dense pixel adjacency matrix, all-pairs shortest paths,
+    resample, evo's APE (cm; None when no path is found); scipy's directed_hausdorff both ways (px).
+
+    ``loops``: fill the adjacency matrix with a Python double loop over pixel pairs, literally as SKIPP's
+    ``find_longest_path`` does (otherwise numpy broadcasting, which is kinder to the reference).
+    """
+    from evo.core import metrics as evo_metrics
+    from evo.core.trajectory import PosePath3D
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import shortest_path
+    from scipy.spatial.distance import directed_hausdorff
+    from skimage.morphology import thin
+
+    from spade.data.polyline import resample_polyline
+
+    mask = pred >= 0.5
+    hd = float("inf")
+    if mask.any():
+        a, b = np.argwhere(mask).astype(float), np.argwhere(truth_mask > 0.5).astype(float)
+        hd = max(directed_hausdorff(a, b)[0], directed_hausdorff(b, a)[0])
+    pts = np.argwhere(thin(mask))[:, ::-1].astype(float)  # (x, y)
+    if len(pts) < 2:
+        return None, hd
+    if loops:
+        adj = np.zeros((len(pts), len(pts)))
+        for i, (x1, y1) in enumerate(pts):
+            for j, (x2, y2) in enumerate(pts):
+                if i != j and abs(x1 - x2) <= 1 and abs(y1 - y2) <= 1:
+                    adj[i, j] = np.hypot(x1 - x2, y1 - y2)
+    else:
+        diff = np.abs(pts[:, None, :] - pts[None, :, :]).max(axis=2)
+        adj = np.where(diff == 1, np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=2), 0.0)
+    dist, pred_idx = shortest_path(csr_matrix(adj), directed=False, return_predecessors=True)
+    s = int(np.argmin(np.linalg.norm(pts - start, axis=1)))
+    reachable = np.flatnonzero(np.isfinite(dist[s]))
+    g = int(reachable[np.argmin(np.linalg.norm(pts[reachable] - goal, axis=1))])
+    if g == s:
+        return None, hd
+    order = [g]
+    while order[-1] != s:
+        order.append(int(pred_idx[s, order[-1]]))
+    chain = pts[order[::-1]]
+    k = len(waypoints)
+
+    def path(p: np.ndarray) -> PosePath3D:
+        xyz = np.column_stack([resample_polyline(p, k), np.zeros(k)])
+        return PosePath3D(positions_xyz=xyz, orientations_quat_wxyz=np.tile([1.0, 0, 0, 0], (k, 1)))
+
+    metric = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
+    metric.process_data((path(waypoints), path(chain)))
+    return metric.get_statistic(evo_metrics.StatisticsType.mean) * resolution * 100, hd
+
+
+def reference(data: dict[str, np.ndarray], n: int, loops: bool = False) -> tuple[float, list, list]:
+    """Seconds, APEs and Hausdorff distances of :func:`reference_instance` over the first ``n`` predictions."""
+    apes, hds = [], []
+    t0 = time.perf_counter()
+    for i in range(n):
+        a, h = reference_instance(data["pred"][i, 0], data["path"][i, 0], marker_centre(data["state"][i, 1]),
+                                  marker_centre(data["state"][i, 2]), data["waypoints"][i],
+                                  float(data["resolution"][i]), loops)
+        apes.append(a)
+        hds.append(h)
+    return time.perf_counter() - t0, apes, hds
+
+
+class _Pixels(torch.nn.Module):
+    """Baseline extractor: the image average-pooled to 8 x 8 (64 features)."""
+
+    in_channels, feature_dim, identity = 1, 64, "pixels-8x8"
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return F.adaptive_avg_pool2d(x.float(), 8).flatten(1)
+
+
+def fid_sensitivity(images: int, image_size: int, seed: int = 0) -> dict[str, Any]:
+    """FID of ``images`` real vs as many independently drawn generated L/U paths, degraded at increasing levels
+    (shift, blur, dropout, blobs: :data:`SENSITIVITY_LEVELS`), for the default random conv extractor, two other
+    seeds of it and a raw-pixel baseline: does FID rise monotonically with the degradation?"""
+    real = torch.from_numpy(synthetic_batch(images, size=image_size, seed=seed + 1)["path"])
+    gen = synthetic_batch(images, size=image_size, seed=seed + 2)["path"]
+    degraded = {(k, lv): torch.from_numpy(degrade(gen, k, lv, seed=seed + 3))
+                for k, lvs in SENSITIVITY_LEVELS.items() for lv in lvs}
+    rows = []
+    for ext in (RandomConvFeatures(seed=0), RandomConvFeatures(seed=1), RandomConvFeatures(seed=2), _Pixels()):
+        fid = FID(ext)
+        fid.update(real, real=True)
+        saved = {k: getattr(fid, k).clone() for k in ("real_n", "real_sum", "real_outer")}
+        for kind, levels in SENSITIVITY_LEVELS.items():
+            values = []
+            for lv in levels:
+                fid.reset()
+                for k, v in saved.items():
+                    setattr(fid, k, v.clone())
+                fid.update(degraded[(kind, lv)], real=False)
+                values.append(float(fid.compute()["fid"]))
+            rows.append({"extractor": ext.identity, "feature_dim": ext.feature_dim, "kind": kind, "levels": levels,
+                         "fid": values, "ratio": values[-1] / values[0],
+                         "monotonic": all(b > a for a, b in zip(values, values[1:]))})
+    return {"images": images, "image_size": image_size, "rows": rows}
