@@ -314,7 +314,7 @@ def test_report_logs_its_chart_into_the_rows_runs_and_prints_their_urls(tmp_path
     from mlflow import MlflowClient
 
     from spade.experiments.tables import TABLES
-    from spade.report import build_report
+    from spade.experiments.reporting import build_report
 
     uri = f"sqlite:///{tmp_path}/mlflow.db"
     client = MlflowClient(tracking_uri=uri)

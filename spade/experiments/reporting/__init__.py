@@ -1,0 +1,39 @@
+"""A paper table's report from its MLflow runs (what ``python -m spade.report`` prints and writes).
+
+Modules, one job each: ``results`` (the run chosen for each row, :func:`fetch_results`, and the headline
+comparisons, :func:`compare`), ``render`` (the markdown), ``files`` (the CSV files), ``chart`` (the PNG) and
+``build`` (:func:`build_report` puts one table's report together, :func:`report` those a config asks for). The
+tables themselves are :mod:`spade.experiments.tables`; publishing into MLflow is
+:func:`spade.experiments.tracking.publish_report`.
+"""
+
+from spade.experiments.reporting.build import Report, build_report, report
+from spade.experiments.reporting.chart import plot_table
+from spade.experiments.reporting.files import write_comparisons_csv, write_csv
+from spade.experiments.reporting.render import (
+    losses_to_baselines,
+    render_comparisons,
+    render_notes,
+    render_paper_table,
+    render_table,
+)
+from spade.experiments.reporting.results import MISSING, ComparisonResult, RowResult, compare, fetch_results
+
+__all__ = [
+    "MISSING",
+    "ComparisonResult",
+    "Report",
+    "RowResult",
+    "build_report",
+    "compare",
+    "fetch_results",
+    "losses_to_baselines",
+    "plot_table",
+    "render_comparisons",
+    "render_notes",
+    "render_paper_table",
+    "render_table",
+    "report",
+    "write_comparisons_csv",
+    "write_csv",
+]

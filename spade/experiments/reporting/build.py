@@ -1,0 +1,74 @@
+"""One table's report put together: fetch the results, render the markdown, write the CSV, chart and markdown
+files, publish into MLflow (:func:`spade.experiments.tracking.publish_report`); and the reports a
+``conf/report.yaml`` config asks for (:func:`report`, what ``python -m spade.report`` runs)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from spade.experiments.reporting.chart import plot_table
+from spade.experiments.reporting.files import write_comparisons_csv, write_csv
+from spade.experiments.reporting.render import render_comparisons, render_notes, render_paper_table, render_table
+from spade.experiments.reporting.results import ComparisonResult, RowResult, compare, fetch_results
+from spade.experiments.tables import TABLES, Table, get_table
+
+
+@dataclass
+class Report:
+    table: Table
+    results: dict[str, RowResult]
+    comparisons: list[ComparisonResult]
+    text: str
+    files: dict[str, Path]
+
+
+def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None = None, scale: str | None = None,
+                 paper: bool = True, chart: bool = True, log_to_runs: bool = False) -> Report:
+    """Fetch, render and (with ``output_dir``) write one table's report; ``log_to_runs`` also logs the chart and
+    markdown into each row's MLflow run (``report/``)."""
+    results = fetch_results(table, tracking_uri, scale)
+    comparisons = compare(table, results)
+    found = sum(r.found for r in results.values())
+    parts = [f"## {table.title}", "",
+             f"MLflow experiment `{table.experiment}` in {tracking_uri}" + (f", scale {scale}" if scale else "")
+             + f": {found} of {len(results)} rows have a finished run.", "", render_table(table, results)]
+    notes = render_notes(table, results)
+    if notes:
+        parts += ["", "Notes:", *(f"- {n}" for n in notes)]
+    if comparisons:
+        parts += ["", "Relative changes (negative = lower):", "", render_comparisons(comparisons)]
+    if paper:
+        parts += ["", "The paper's figures (its dataset; compare orderings and ratios, not values):", "",
+                  render_paper_table(table)]
+    files: dict[str, Path] = {}
+    if output_dir is not None:
+        out = Path(output_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        files["csv"] = out / f"{table.key}.csv"
+        write_csv(table, results, files["csv"])
+        if comparisons:
+            files["comparisons_csv"] = out / f"{table.key}_comparisons.csv"
+            write_comparisons_csv(comparisons, files["comparisons_csv"])
+        if chart:
+            files["png"] = out / f"{table.key}.png"
+            plot_table(table, results, files["png"], paper=paper)
+        files["markdown"] = out / f"{table.key}.md"
+        parts += ["", "Written: " + ", ".join(str(p) for p in files.values())]
+        files["markdown"].write_text("\n".join(parts) + "\n")
+    from spade.experiments.tracking import publish_report  # imports Lightning: only once a report is built
+
+    links = publish_report(table, results, tracking_uri, files, log_to_runs)  # UI links; chart into the runs
+    parts += ["", *links] if links else []
+    return Report(table, results, comparisons, "\n".join(parts), files)
+
+
+def report(cfg: DictConfig) -> list[Report]:
+    """The reports of ``cfg.table`` (one table, or every table with ``table=all``)."""
+    tables = list(TABLES.values()) if str(cfg.table) == "all" else [get_table(cfg.table)]
+    # `scale` is the config group of conf/scale (so that scale=cpu reads as everywhere else); its name filters runs.
+    scale = cfg.scale.name if cfg.get("scale") else None
+    return [build_report(t, cfg.tracking_uri, cfg.get("output_dir"), scale, cfg.get("paper", True),
+                         cfg.get("chart", True), cfg.get("log_to_runs", True)) for t in tables]

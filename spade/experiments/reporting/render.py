@@ -1,0 +1,130 @@
+"""Markdown for a table's report: the measured table in the paper's layout (with the classical baselines as
+reference rows), the paper's own figures, the headline relative changes and the notes on missing or odd rows."""
+
+from __future__ import annotations
+
+from spade.experiments.reporting.results import MISSING, ComparisonResult, RowResult
+from spade.experiments.tables import BASELINE_LABELS, CELL_METRICS, METRICS, Table
+
+
+def _cell(result: RowResult, prefix: str = "") -> str:
+    if not result.found:
+        return MISSING
+    return " / ".join(METRICS[k].format(result.value(prefix + k)) for k in CELL_METRICS)
+
+
+def _baseline_source(table: Table, results: dict[str, RowResult], shape: str) -> RowResult | None:
+    """A found row of ``shape`` that logged the baselines (every row of a shape shares its test set)."""
+    for line in table.lines:
+        row = line.cells.get(shape)
+        if row and results[row].found and any(k.startswith("straight/") for k in results[row].metrics):
+            return results[row]
+    return None
+
+
+def losses_to_baselines(result: RowResult) -> list[str]:
+    """The baselines whose test APE (failures aside) or failure rate this row does not beat."""
+    lost = []
+    ape, fail = result.value("ape_cm"), result.value("failure_rate")
+    for name, label in BASELINE_LABELS.items():
+        b_ape, b_fail = result.value(f"{name}/ape_cm"), result.value(f"{name}/failure_rate")
+        if b_ape is None:
+            continue
+        if ape is None or ape >= b_ape or (fail is not None and b_fail is not None and fail > b_fail + 0.02):
+            lost.append(label)
+    return lost
+
+
+def _paper_cell(figures: dict[str, float]) -> str:
+    return " / ".join(METRICS[k].format(figures.get(k)) for k in CELL_METRICS)
+
+
+def _params_cell(values: list[float | None]) -> str:
+    shown = sorted({METRICS["params"].format(v) for v in values if v is not None})
+    return " / ".join(shown) if shown else "n/a"
+
+
+def _markdown_table(header: list[str], body: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in body]
+    return "\n".join(lines)
+
+
+def _header(table: Table) -> list[str]:
+    cell = " / ".join(METRICS[k].label for k in CELL_METRICS)
+    return [*table.label_columns, *(f"{s}-shape: {cell}" for s in table.shapes), "params"]
+
+
+def render_table(table: Table, results: dict[str, RowResult]) -> str:
+    """The measured table in the paper's layout (markdown); missing rows read ``missing``."""
+    body = []
+    for line in table.lines:
+        cells = [_cell(results[line.cells[s]]) if s in line.cells else "" for s in table.shapes]
+        params = [results[line.cells[s]].value("params") for s in table.shapes if s in line.cells]
+        body.append([*line.labels, *cells, _params_cell(params)])
+    for name, label in BASELINE_LABELS.items():
+        sources = {s: _baseline_source(table, results, s) for s in table.shapes}
+        if not any(sources.values()):
+            continue
+        labels = ["reference", label, *[""] * (len(table.label_columns) - 2)][: len(table.label_columns)]
+        if len(table.label_columns) == 1:
+            labels = [f"reference: {label}"]
+        cells = [_cell(src, f"{name}/") if src else "n/a" for src in sources.values()]
+        body.append([*labels, *cells, "0 (no learning)"])
+    return _markdown_table(_header(table), body)
+
+
+def render_paper_table(table: Table) -> str:
+    """The paper's figures in the same layout (n/a where the paper gives none)."""
+    body = []
+    for line in table.lines:
+        cells = [_paper_cell(line.paper.get(s, {})) if s in line.cells else "" for s in table.shapes]
+        params = [line.paper.get(s, {}).get("params") for s in table.shapes]
+        body.append([*line.labels, *cells, _params_cell(params)])
+    return _markdown_table(_header(table), body)
+
+
+def _pct(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:+.1f}%"
+
+
+def render_comparisons(comparisons: list[ComparisonResult]) -> str:
+    body = []
+    for c in comparisons:
+        m = METRICS[c.metric]
+        change = _pct(c.change)
+        if c.change is None and c.baseline_value == 0:
+            change = "n/a (baseline 0)"
+        body.append([c.title, m.label, m.format(c.value), m.format(c.baseline_value), change,
+                     _pct(c.paper) + ("" if c.paper is None else f" ({c.paper_source})")])
+    return _markdown_table(["comparison", "metric", "row", "baseline", "change", "paper"], body)
+
+
+def render_notes(table: Table, results: dict[str, RowResult]) -> list[str]:
+    """Which rows are missing, which have several runs (and which one is used), which scales are mixed."""
+    notes = []
+    never = [row for row in table.rows if results[row].n_runs == 0]
+    if never:
+        notes.append(f"missing, no run: {', '.join(never)} (launch a row with `python -m spade.train "
+                     f"+experiment=ROW`, the table with `+experiment={table.composition}`)")
+    for row in table.rows:
+        r = results[row]
+        if not r.found and r.n_runs:
+            notes.append(f"{row}: missing, {r.n_runs} run(s), none finished ({', '.join(r.statuses)})")
+        elif r.n_runs > 1:
+            notes.append(f"{row}: {r.n_runs} runs ({r.n_finished} finished); using the latest finished, run {r.run_id}")
+    scales = sorted({r.scale for r in results.values() if r.found and r.scale})
+    if len(scales) > 1:
+        notes.append(f"rows come from different scales ({', '.join(scales)}); pass scale=NAME to keep one")
+    failed = [row for row in table.rows if results[row].found and results[row].value("ape_cm") is None]
+    if failed:
+        notes.append(f"APE n/a: no path could be extracted from any test prediction of {', '.join(failed)} "
+                     "(see test/failure_rate in the CSV)")
+    for row in table.rows:
+        r = results[row]
+        if r.found and (lost := losses_to_baselines(r)):
+            notes.append(f"{row} LOSES to the {', '.join(lost)} on its own test set (APE or failure rate): "
+                         "it has not learned a preference worth deploying")
+    if any(r.found and "fid" not in r.metrics for r in results.values()):
+        notes.append("FID n/a: the run logged no test/fid (its test set is smaller than the FID extractor needs)")
+    return notes
