@@ -41,7 +41,7 @@ def tiny_checkpoints(spade_home: Path) -> dict[str, str]:
     """Checkpoints of a tiny conditional expert, a tiny unconditional expert and a medium student (L shape)."""
     import hydra
 
-    from spade.train import train
+    from spade.experiments.run import train
     from training_helpers import compose_row
 
     out = {}

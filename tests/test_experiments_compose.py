@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from spade.paths import CONF_DIR
-from spade.train import train
+from spade.experiments.run import train
 from training_helpers import compose_row
 
 TABLES = {"table1": 22, "ablation_finetune": 3, "ablation_scratch": 2}

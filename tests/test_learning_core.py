@@ -211,7 +211,7 @@ def test_trained_student_beats_untrained_and_the_straight_line(spade_home) -> No
     """A quickstart-like BC student (small, pos_weight 4, 3 px target), trained briefly on robot-frame L instances,
     beats the untrained student and the straight line on the held-out map (APE with failures scored as the
     straight line, i.e. ``score_cm``)."""
-    from spade.train import train
+    from spade.experiments.run import train
     from training_helpers import compose_row
 
     cfg = compose_row("t1_small_bc_L", spade_home, "logger=none", "scale.train_instances=800", "trainer.max_epochs=8",

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -87,6 +88,47 @@ def test_a_checkpoint_that_would_run_code_is_refused_and_nothing_runs(tmp_path: 
     # The test can fail: the same file loaded the unsafe way does run the payload.
     torch.load(evil, weights_only=False)
     assert marker.read_text() == "code ran"
+
+
+def _boring_trainer(root: Path, steps: int):
+    import lightning as L
+
+    return L.Trainer(default_root_dir=root, max_steps=steps, accelerator="cpu", logger=False,
+                     enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False)
+
+
+def test_lightning_resume_and_test_checkpoints_are_loaded_safely(tmp_path: Path, spade_home: Path) -> None:
+    """The checkpoints Lightning opens itself (``ckpt_path`` to resume a fit, the best one to test) go through
+    weights_only=True with the allow-list: a pickle that would run code is refused before it runs, a genuine
+    checkpoint still resumes."""
+    from lightning.pytorch.demos.boring_classes import BoringModel
+
+    from spade.experiments.run import from_checkpoint, train
+    from spade.experiments.validation import ConfigError
+    from training_helpers import compose_row
+
+    marker = tmp_path / "marker.txt"
+    evil = student_checkpoint(tmp_path / "evil.ckpt", extra_entry=Payload(marker))
+    for step in ("fit", "test"):
+        trainer = _boring_trainer(tmp_path, 1)
+        with pytest.raises(UnsafeModelFileError) as info:
+            from_checkpoint(getattr(trainer, step), evil, model=BoringModel())
+        assert str(evil) in str(info.value) and "_write_marker" in str(info.value)
+        assert not marker.exists(), f"trainer.{step}(ckpt_path=...) ran the checkpoint's code"
+    # The resume path of a run (python -m spade.train ... ckpt_path=PATH) refuses it before anything starts.
+    with pytest.raises(ConfigError, match=r"ckpt_path=.*evil\.ckpt.*UnsafeModelFileError"):
+        train(compose_row("t1_small_bc_L", spade_home, f"ckpt_path={evil}"))
+    assert not marker.exists()
+
+    # A genuine Lightning checkpoint (loops, optimiser and scheduler states) resumes and tests under the same rule.
+    trainer = _boring_trainer(tmp_path, 2)
+    trainer.fit(BoringModel())
+    genuine = tmp_path / "genuine.ckpt"
+    trainer.save_checkpoint(genuine)
+    resumed = _boring_trainer(tmp_path, 4)
+    from_checkpoint(resumed.fit, genuine, model=BoringModel())
+    assert resumed.global_step == 4
+    assert from_checkpoint(resumed.test, genuine, model=BoringModel(), verbose=False)
 
 
 def test_optimiser_factories_and_arbitrary_objects_are_refused(tmp_path: Path) -> None:
@@ -222,3 +264,7 @@ def test_no_other_checkpoint_loading_in_spade() -> None:
     found = [str(p.relative_to(root)) for p in root.rglob("*.py") if p not in owners
              and ("torch.load(" in p.read_text() or ".load_from_checkpoint(" in p.read_text())]
     assert found == [], f"checkpoints read outside spade.models.modelfile: {found}"
+    # Lightning's own loads (a Trainer method given a ckpt_path) go through spade.experiments.run.from_checkpoint.
+    direct = [str(p.relative_to(root)) for p in root.rglob("*.py")
+              if re.search(r"\.(fit|validate|test|predict)\([^)]*ckpt_path=", p.read_text())]
+    assert direct == [], f"Trainer loads a checkpoint without weights_only=True and the allow-list in: {direct}"

@@ -365,7 +365,7 @@ def annotation_queries(m: OccupancyMap, scenarios: int, per_scenario: int = 3, s
 @pytest.fixture(scope="module")
 def trained_student(spade_home: Path) -> str:
     """A small BC student trained briefly at scale tiny (L shape), path pixels weighted 4x in the BCE."""
-    from spade.train import train
+    from spade.experiments.run import train
     from training_helpers import compose_row
 
     cfg = compose_row("t1_small_bc_L", spade_home, "logger=none", "callbacks=none", "test=false",

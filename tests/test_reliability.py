@@ -345,7 +345,7 @@ def test_numbers_do_not_depend_on_what_the_process_did_before(spade_home: Path, 
 
     import numpy as np
 
-    from spade.train import train
+    from spade.experiments.run import train
 
     out = []
     for k in range(2):

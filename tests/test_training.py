@@ -13,7 +13,7 @@ import hydra
 import pytest
 import torch
 
-from spade.train import train
+from spade.experiments.run import train
 from spade.training.expert_module import ExpertModule
 from spade.training.student_module import ExpertMismatchError, StudentModule
 from training_helpers import compose_row

@@ -12,10 +12,10 @@ config is composed with the parent's scale, paths, trainer and logger overrides,
 (role, shape, size and data fingerprint), and the newest registered version is used. If none is registered,
 ``prerequisites=train`` (default) has it trained first, and ``prerequisites=error`` stops with the exact command.
 
-This module never trains anything itself (it does not import :mod:`spade.train`): :func:`pending_prerequisites`
-fills what is registered and returns what must be trained; the entry point (``spade.train.train``) trains each
-one, calls :func:`complete_prerequisite`, and then re-seeds, so a run's numbers do not depend on whether its
-prerequisites were trained in the same process.
+This module never trains anything itself (it imports neither :mod:`spade.train` nor :mod:`spade.experiments.run`):
+:func:`pending_prerequisites` fills what is registered and returns what must be trained;
+:func:`spade.experiments.run.train` trains each one, calls :func:`complete_prerequisite`, and then re-seeds, so a
+run's numbers do not depend on whether its prerequisites were trained in the same process.
 """
 
 from __future__ import annotations

@@ -15,7 +15,8 @@ file ``spade.json``) carries the same entry as JSON plus the export's own fields
 Reading is safe: checkpoints are opened with ``torch.load(..., weights_only=True)``, which unpickles only
 tensors, plain Python data and the types in :data:`SAFE_GLOBALS`; a file whose pickle names anything else (a
 checkpoint that would run code when loaded) is refused with :class:`UnsafeModelFileError`, before any of it
-runs. :func:`load_lightning` applies the same rule to Lightning's ``load_from_checkpoint``.
+runs. :func:`load_lightning` applies the same rule to Lightning's ``load_from_checkpoint``, and
+:func:`safe_loading` to loads made inside other code (``Trainer.fit`` / ``Trainer.test`` with a ``ckpt_path``).
 
 :func:`open_model` opens any of the three kinds of file (checkpoint, ONNX, TorchScript) as one callable,
 ``ModelRunner(states) -> logits``, with one device policy (:func:`resolve_device`).
@@ -28,13 +29,15 @@ planner and the benchmarks can all import it.
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import pathlib
+import pickle
 import re
 import typing
 import warnings
 import zipfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +49,7 @@ __all__ = [
     "INPUT_ENCODING", "SAFE_GLOBALS", "ModelFileError", "ModelRunner", "UnsafeModelFileError", "build_network",
     "checkpoint_entry", "export_metadata", "file_format", "load_checkpoint", "load_lightning", "load_network",
     "open_model", "plain", "read_info", "read_metadata", "require_role", "resolve_device", "robot_frame",
+    "safe_loading",
 ]
 
 INPUT_ENCODING = "occupancy code * 0.5 (unknown 0, free 0.5, occupied 1), start, goal"
@@ -219,15 +223,28 @@ def _unsafe(path: Path, err: Exception) -> ModelFileError:
     )
 
 
+@contextlib.contextmanager
+def safe_loading(path: str | Path) -> Iterator[None]:
+    """Within the block, ``torch.load(..., weights_only=True)`` also accepts :data:`SAFE_GLOBALS`, and a pickle
+    naming anything else raises :class:`UnsafeModelFileError` about ``path`` (not a bare ``UnpicklingError``).
+
+    For checkpoints that other code opens: wrap ``Trainer.fit`` / ``Trainer.test`` called with ``ckpt_path=path``
+    and ``weights_only=True``. The caller must pass ``weights_only=True`` itself.
+    """
+    try:
+        with torch.serialization.safe_globals(SAFE_GLOBALS):
+            yield
+    except pickle.UnpicklingError as err:
+        raise _unsafe(Path(path), err) from None
+
+
 def load_checkpoint(path: str | Path, mmap: bool = False) -> dict[str, Any]:
     """A checkpoint's contents, read safely (see the module docstring), on the CPU. ``mmap``: map the tensors
     instead of reading them (for callers that only need the ``spade`` entry)."""
     p = _existing(path, "checkpoint")
     try:
-        with torch.serialization.safe_globals(SAFE_GLOBALS):
+        with safe_loading(p):
             checkpoint = torch.load(p, map_location="cpu", weights_only=True, mmap=mmap)
-    except __import__("pickle").UnpicklingError as err:
-        raise _unsafe(p, err) from None
     except (RuntimeError, EOFError, OSError) as err:
         raise ModelFileError(f"{p} is not a readable PyTorch checkpoint ({type(err).__name__}: {err}); pass a "
                              "checkpoint written by python -m spade.train") from None
@@ -240,11 +257,8 @@ def load_checkpoint(path: str | Path, mmap: bool = False) -> dict[str, Any]:
 def load_lightning(cls: type, path: str | Path, **kwargs: Any) -> Any:
     """``cls.load_from_checkpoint(path)`` on the CPU with the same safe loading as :func:`load_checkpoint`."""
     p = _existing(path, "checkpoint")
-    try:
-        with torch.serialization.safe_globals(SAFE_GLOBALS):
-            return cls.load_from_checkpoint(p, map_location="cpu", weights_only=True, **kwargs)
-    except __import__("pickle").UnpicklingError as err:
-        raise _unsafe(p, err) from None
+    with safe_loading(p):
+        return cls.load_from_checkpoint(p, map_location="cpu", weights_only=True, **kwargs)
 
 
 def file_format(path: str | Path) -> str:

@@ -1,0 +1,147 @@
+"""One training run of an experiment: what ``python -m spade.train`` does between its config and its result.
+
+:func:`run` trains, validates and tests the configured model (:func:`train`), prints the closing lines and
+returns the metric a sweeper optimises (:func:`optimized_value`). :func:`train` resolves the run's prerequisites
+(a guidance expert, a pretrained student: :mod:`spade.experiments.prerequisites` returns what is missing, this
+module trains it) and returns the metrics with the objects it built.
+
+Checkpoints that Lightning itself opens (``ckpt_path`` to resume a fit, the best checkpoint to test) are loaded
+with ``weights_only=True`` and SPADE's allow-list (:func:`spade.models.modelfile.safe_loading`): one whose pickle
+would run code is refused with :class:`~spade.models.modelfile.UnsafeModelFileError` before any of it runs.
+
+Nothing else in ``spade/`` imports this module; it sits above :mod:`spade.experiments.prerequisites`,
+``lifecycle``, ``tracking`` and ``validation`` and the training package, so no import circle runs through it.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import hydra
+import lightning as L
+from omegaconf import DictConfig
+
+from spade.experiments.lifecycle import DeterministicTraining, mark_run_ended, mark_stale_runs, record_process
+from spade.experiments.prerequisites import complete_prerequisite, pending_prerequisites
+from spade.experiments.tracking import finish_run, run_summary, start_run_logging
+from spade.experiments.validation import validate_train_config
+from spade.models.modelfile import safe_loading
+from spade.training.instantiate import instantiate_callbacks, instantiate_loggers, run_id_from_checkpoint
+
+__all__ = ["from_checkpoint", "optimized_value", "run", "train", "untrained_test_metrics"]
+
+log = logging.getLogger(__name__)
+
+
+def run(cfg: DictConfig) -> float | None:
+    """Train (:func:`train`), print the closing lines (test metrics next to the baselines, the ``mlflow ui``
+    command and URLs to the run: :func:`spade.experiments.tracking.run_summary`), and return
+    ``optimized_metric``'s value (:func:`optimized_value`).
+
+    A single run that never logged that metric (e.g. ``trainer.max_steps`` ended it before a validation) still
+    succeeded: the missing metric is a warning and the result ``None``; under a Hydra multirun it is an error,
+    since the sweeper needs the value.
+    """
+    metrics, _ = train(cfg)
+    print(run_summary(cfg, metrics), flush=True)
+    try:
+        return optimized_value(cfg, metrics)
+    except KeyError as exc:
+        from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
+
+        if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
+            raise  # a sweeper needs the value
+        log.warning("%s", exc.args[0])
+        return None
+
+
+def train(cfg: DictConfig, _depth: int = 0) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Fit (and test) the configured model; returns (metrics, objects).
+
+    In order: the config is validated (:mod:`spade.experiments.validation`: a one-line error before any MLflow run
+    or data work), missing prerequisites are trained (each by a nested call), everything is re-seeded, stale
+    RUNNING runs of this row are marked KILLED, and then the run itself is built and fitted. Its MLflow run ends
+    KILLED (signal) or FAILED (exception) when it does not finish.
+    """
+    validate_train_config(cfg)
+    for prerequisite in pending_prerequisites(cfg, depth=_depth):
+        log.info("Prerequisite %s (%s) is not registered: training it first (%s)", prerequisite.key,
+                 prerequisite.name, prerequisite.command)
+        train(prerequisite.config, _depth=_depth + 1)
+        complete_prerequisite(cfg, prerequisite)
+    seed = cfg.get("seed")
+    if seed is not None:
+        L.seed_everything(seed, workers=True)  # after the prerequisites: their training moved every generator
+    try:
+        for message in mark_stale_runs(cfg):
+            print(message, flush=True)
+    except Exception as exc:  # the check must not stop a run; the logger reports an unreachable store itself
+        log.warning("could not check for stale RUNNING runs: %s", exc)
+
+    log.info("Instantiating datamodule <%s>", cfg.data._target_)
+    datamodule: L.LightningDataModule = hydra.utils.instantiate(cfg.data)
+    log.info("Instantiating model <%s>", cfg.model._target_)
+    model: L.LightningModule = hydra.utils.instantiate(cfg.model)
+
+    ckpt_path = cfg.get("ckpt_path")
+    loggers = instantiate_loggers(cfg.get("logger"), run_id=run_id_from_checkpoint(ckpt_path))
+    callbacks = instantiate_callbacks(cfg.get("callbacks"))
+    if seed is not None:
+        callbacks.append(DeterministicTraining(seed))
+    trainer: L.Trainer = hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
+    try:
+        start_run_logging(cfg, model, loggers)
+        record_process(loggers, resumed=bool(ckpt_path))
+
+        baseline: dict[str, float] = {}
+        if cfg.get("test_untrained", False):
+            baseline = untrained_test_metrics(cfg, model, datamodule)
+            for logger in loggers:
+                logger.log_metrics(baseline, step=0)
+
+        if cfg.get("train", True):
+            from_checkpoint(trainer.fit, ckpt_path, model=model, datamodule=datamodule)
+        metrics: dict[str, Any] = {k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1}
+
+        if cfg.get("test", True):
+            best = (trainer.checkpoint_callback.best_model_path if trainer.checkpoint_callback else None) or None
+            if best is None and cfg.get("train", True):
+                log.warning("No best checkpoint found: testing the last weights")
+            from_checkpoint(trainer.test, best, model=model, datamodule=datamodule)
+            metrics.update({k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1})
+        metrics.update(baseline)
+
+        finish_run(cfg, trainer, model, loggers)
+    except BaseException as exc:
+        mark_run_ended(loggers, exc)
+        raise
+    return metrics, {"cfg": cfg, "datamodule": datamodule, "model": model, "trainer": trainer, "loggers": loggers}
+
+
+def from_checkpoint(step: Callable[..., Any], ckpt_path: str | Path | None, **kwargs: Any) -> Any:
+    """``step(ckpt_path=ckpt_path, **kwargs)``, a ``Trainer``'s ``fit`` (resume) or ``test`` (those weights), with
+    Lightning's load of the checkpoint made safe: ``weights_only=True`` and SPADE's allow-list
+    (:func:`spade.models.modelfile.safe_loading`; a pickle that would run code raises ``UnsafeModelFileError``)."""
+    with safe_loading(ckpt_path or ""):
+        return step(ckpt_path=ckpt_path, weights_only=True, **kwargs)
+
+
+def untrained_test_metrics(cfg: DictConfig, model: L.LightningModule, datamodule: L.LightningDataModule) -> dict:
+    """Test metrics of the model before any training, as ``untrained/...`` (the baseline learning must beat)."""
+    tester = hydra.utils.instantiate(cfg.trainer, logger=False, callbacks=[], enable_progress_bar=False)
+    results = tester.test(model=model, datamodule=datamodule, verbose=False)[0]
+    return {k.replace("test/", "untrained/"): float(v) for k, v in results.items()}
+
+
+def optimized_value(cfg: DictConfig, metrics: dict[str, Any]) -> float | None:
+    """The metric a sweeper optimises, with a clear error when the run never logged it."""
+    name = cfg.get("optimized_metric")
+    if not name:
+        return None
+    if name not in metrics:
+        raise KeyError(f"optimized_metric={name!r} was not logged; logged metrics: {sorted(metrics)}")
+    return metrics[name]
