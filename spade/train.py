@@ -17,7 +17,6 @@ from omegaconf import DictConfig, OmegaConf
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
 from spade.experiments.lifecycle import install_signal_handlers
 from spade.experiments.run import run
-from spade.experiments.run import train  # noqa: F401  (spade.perf.bench still imports it from here)
 from spade.experiments.validation import exit_on_user_error
 
 log = logging.getLogger(__name__)

@@ -130,8 +130,10 @@ def test_two_runs_started_in_the_same_second_keep_their_own_folders(tmp_path: Pa
 
 
 # -- 2, 4, 5. validation before anything starts ---------------------------------------------------------------------
-def _fake_checkpoint(path: Path, role: str, size: int = 64, resolution: float = 0.1) -> str:
-    torch.save({"spade": {"role": role, "config": {}, "data": {"image_size": [size, size], "resolution_m": resolution}},
+def _fake_checkpoint(path: Path, role: str, size: int = 64, resolution: float = 0.1, net: str | None = None) -> str:
+    config = {"role": net} if net else {}
+    torch.save({"spade": {"role": role, "config": config,
+                          "data": {"image_size": [size, size], "resolution_m": resolution}},
                 "state_dict": {}}, path)
     return str(path)
 
@@ -185,6 +187,19 @@ def test_checkpoint_roles_and_geometry_are_checked(spade_home: Path, tmp_path: P
                                           r"key takes an expert checkpoint; pass an expert checkpoint"):
         validate_train_config(compose_row(row, spade_home, f"model.guidance.expert_ckpt={student}"))
     validate_train_config(compose_row(row, spade_home, f"model.guidance.expert_ckpt={expert}"))
+    # the guidance group says which expert its method needs: DBC unconditional, Cond-DBC conditional
+    cond = _fake_checkpoint(tmp_path / "cond.ckpt", "expert", net="cond_expert")
+    uncond = _fake_checkpoint(tmp_path / "uncond.ckpt", "expert", net="uncond_expert")
+    validate_train_config(compose_row(row, spade_home, f"model.guidance.expert_ckpt={cond}"))
+    validate_train_config(compose_row("t1_small_dbc_L", spade_home, f"model.guidance.expert_ckpt={uncond}"))
+    with pytest.raises(ConfigError, match=r"cond.ckpt is a conditional expert, but DBC \(guidance=dbc\) needs an "
+                                          r"unconditional one; pass an unconditional expert \(an expert_uncond_\* "):
+        validate_train_config(compose_row("t1_small_dbc_L", spade_home, f"model.guidance.expert_ckpt={cond}"))
+    with pytest.raises(ConfigError, match=r"uncond.ckpt is an unconditional expert, but Cond-DBC \(guidance=cond_dbc\) "
+                                          r"needs a conditional one"):
+        validate_train_config(compose_row(row, spade_home, f"model.guidance.expert_ckpt={uncond}"))
+    with pytest.raises(ConfigError, match=r"model.guidance.expert='film' is not one of"):
+        validate_train_config(compose_row(row, spade_home, "model.guidance.expert=film"))
     with pytest.raises(ConfigError, match="model.init_ckpt=.*is an expert checkpoint"):
         validate_train_config(compose_row(ROW, spade_home, f"model.init_ckpt={expert}"))
     with pytest.raises(ConfigError, match=r"ckpt_path=.*coarse.ckpt was trained on 32 x 32 px at 0.2 m/px windows, "
@@ -261,7 +276,7 @@ def test_kill_9_mid_epoch_then_resume_reproduces_the_uninterrupted_run(tmp_path:
     checkpoint)
     run in separate processes and stores; B must end with A's validation losses and A's weights. A third run is
     stopped by SIGTERM and must end KILLED."""
-    epoch_batches = 10
+    epoch_batches = 25  # a wide mid-epoch window (2 to 22 batches): a loaded machine polls MLflow slowly
     args = [f"+experiment={ROW}", "trainer.max_epochs=2", f"+trainer.limit_train_batches={epoch_batches}",
             "+trainer.limit_val_batches=2", "trainer.log_every_n_steps=1", "test=false", "seed=7",
             "data.augment=mirror", f"paths.data_dir={data_dir}", "tags.table=resume", *QUICK]
@@ -269,31 +284,32 @@ def test_kill_9_mid_epoch_then_resume_reproduces_the_uninterrupted_run(tmp_path:
     run_a, run_b, run_b2, run_c = (tmp_path / f"run_{k}" for k in ("a", "b", "b2", "c"))
     proc_a = _train([*args, f"hydra.run.dir={run_a}"], home_a)
     proc_b = _train([*args, f"hydra.run.dir={run_b}"], home_b, start_new_session=True)
-    args_c = [a for a in args if not a.startswith("trainer.max_epochs=")]
-    proc_c = _train([*args_c, "trainer.max_epochs=50", "run_name=sigterm", f"hydra.run.dir={run_c}"], home_c,
-                    start_new_session=True)
+    proc_c = None
     try:
-        # C: SIGTERM once its MLflow run is open -> KILLED, with the reason
-        _wait_for(lambda: _fitting(proc_c), proc_c, what="run C to start fitting")
-        assert proc_c.poll() is None
-        os.killpg(proc_c.pid, signal.SIGTERM)
-        proc_c.wait(timeout=120)
-        assert proc_c.returncode != 0
-        (run_c,) = _runs(home_c, "resume")
-        assert run_c.info.status == "KILLED" and run_c.data.tags["spade.end_reason"] == "signal SIGTERM"
-
-        # B: kill -9 a few batches into an epoch after the first (its checkpoint exists)
+        # B: kill -9 a few batches into an epoch after the first (its checkpoint exists). B is watched from its
+        # start: it trains its two epochs in seconds, so nothing else may be waited for in between.
         def position() -> tuple[int, int]:
-            """(completed epochs, batches done in the current one) as run B has logged them."""
-            runs = _runs(home_b, "resume")
-            if not runs:
+            """(completed epochs, batches done in the current one) as run B has logged them.
+
+            Read with one read-only SQLite query (milliseconds): an MlflowClient per poll costs about a second of
+            CPU, and on a loaded machine run B finished whole epochs between two such polls."""
+            import sqlite3
+
+            db = sqlite3.connect(f"file:{home_b / 'logs' / 'mlflow.db'}?mode=ro", uri=True, timeout=30)
+            try:
+                rows = db.execute(
+                    "SELECT m.key, m.step FROM metrics m JOIN runs r ON m.run_uuid = r.run_uuid "
+                    "JOIN experiments e ON r.experiment_id = e.experiment_id "
+                    "WHERE e.name = 'resume' AND m.key IN ('train/loss_bc', 'val/loss_bc')").fetchall()
+            except sqlite3.OperationalError:  # the store's tables are not there yet
                 return 0, 0
-            client = _client(home_b)
-            steps = [s for s, _ in _history(client, runs[0].info.run_id, "train/loss_bc")]
-            epochs = len(_history(client, runs[0].info.run_id, "val/loss_bc"))
+            finally:
+                db.close()
+            steps = [step for key, step in rows if key == "train/loss_bc"]
+            epochs = sum(key == "val/loss_bc" for key, _ in rows)
             return epochs, (max(steps) + 1 - epochs * epoch_batches) if steps else 0
 
-        def mid_epoch() -> bool:  # after the first epoch's checkpoint, 2 to 7 batches into an epoch
+        def mid_epoch() -> bool:  # after the first epoch's checkpoint, 2 to epoch_batches - 3 batches into an epoch
             if not _fitting(proc_b):  # the store exists (no two processes creating one SQLite file)
                 return False
             epochs, done = position()
@@ -308,13 +324,26 @@ def test_kill_9_mid_epoch_then_resume_reproduces_the_uninterrupted_run(tmp_path:
         client_b = _client(home_b)
         epochs, done = position()
         assert epochs >= 1 and 0 < done < epoch_batches  # it died inside an epoch, after a checkpoint
+
+        # C: SIGTERM once its MLflow run is open -> KILLED, with the reason
+        args_c = [a for a in args if not a.startswith("trainer.max_epochs=")]
+        proc_c = _train([*args_c, "trainer.max_epochs=50", "run_name=sigterm", f"hydra.run.dir={run_c}"], home_c,
+                        start_new_session=True)
+        _wait_for(lambda: _fitting(proc_c), proc_c, what="run C to start fitting")
+        assert proc_c.poll() is None
+        os.killpg(proc_c.pid, signal.SIGTERM)
+        proc_c.wait(timeout=120)
+        assert proc_c.returncode != 0
+        (run_c,) = _runs(home_c, "resume")
+        assert run_c.info.status == "KILLED" and run_c.data.tags["spade.end_reason"] == "signal SIGTERM"
+
         resume = tmp_path / "resume.ckpt"
         resume.write_bytes((run_b / "checkpoints" / "last.ckpt").read_bytes())
         out_b2 = _finish(_train([*args, f"hydra.run.dir={run_b2}", f"ckpt_path={resume}"], home_b))
         _finish(proc_a)
     finally:
         for proc in (proc_a, proc_b, proc_c):
-            if proc.poll() is None:
+            if proc is not None and proc.poll() is None:
                 proc.kill()
                 proc.wait()
 

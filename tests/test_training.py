@@ -126,6 +126,11 @@ def test_bad_inputs_fail_before_training(spade_home: Path, tiny_checkpoints: dic
     guided = StudentModule(size="small", guidance={"expert_ckpt": tiny_checkpoints["cond"]})
     with pytest.raises(ExpertMismatchError, match="64 x 64"):
         guided.load_guidance((32, 32))
+    dbc = StudentModule(size="small", guidance={"expert_ckpt": tiny_checkpoints["cond"], "expert": "unconditional"})
+    with pytest.raises(ExpertMismatchError, match="conditional expert, but DBC"):
+        dbc.load_guidance((64, 64))
+    with pytest.raises(ValueError, match="guidance expert must be one of"):
+        StudentModule(size="small", guidance={"expert_ckpt": tiny_checkpoints["cond"], "expert": "film"})
     expert = ExpertModule.load_from_checkpoint(tiny_checkpoints["uncond"], map_location="cpu")
     with pytest.raises(ExpertMismatchError, match="channels"):
         expert.check_compatible(in_channels=2, image_size=None, source="x")

@@ -106,3 +106,23 @@ def _map_info(source: Any) -> dict[str, Any]:
 def alias_preset(argv: list[str]) -> list[str]:
     """``preset=X`` -> ``annotate/preset@_global_=X`` (the group lives under conf/annotate/ next to other tools')."""
     return [f"annotate/preset@_global_={a[len('preset='):]}" if a.startswith("preset=") else a for a in argv]
+
+
+def annotation_config(root: Path, config: Any) -> Any:
+    """The annotation tool's config for a data config's ``*_generate`` entry.
+
+    ``config`` holds ``preset`` (a ``conf/annotate/preset`` name), optional ``overrides`` (command-line style
+    strings, e.g. ``split=test``) and ``set`` (a dict, or a list of dicts merged in order, e.g. the scale's
+    window and instance counts; null values are skipped, keeping the preset's).
+    """
+    from spade.experiments.config import compose_config
+
+    config = OmegaConf.to_container(OmegaConf.create(config), resolve=True) if config is not None else {}
+    overrides = [f"annotate/preset@_global_={config['preset']}"] if config.get("preset") else []
+    overrides += list(config.get("overrides") or [])
+    cfg = compose_config("annotate", overrides)
+    layers = config.get("set") or []
+    for layer in layers if isinstance(layers, list) else [layers]:
+        layer = {k: v for k, v in (layer or {}).items() if v is not None}
+        cfg = OmegaConf.merge(cfg, layer)
+    return OmegaConf.merge(cfg, {"out_dir": str(root), "overwrite": False})

@@ -173,7 +173,7 @@ def geometry_mismatch(ckpt: Mapping[str, Any], data: Mapping[str, Any]) -> list[
 
 # -- datasets -------------------------------------------------------------------------------------------------------
 def _annotation_settings(root: Path, generate: Any) -> dict[str, Any]:
-    from spade.data.datamodule import annotation_config
+    from spade.annotation.run import annotation_config
 
     return OmegaConf.to_container(annotation_config(root, generate), resolve=True)
 

@@ -39,7 +39,7 @@ def generation_throughput(out_dir: str | Path, preset: str, num_instances: int |
     placement attempts (accepted scenarios plus every rejection but ``scenario_failed``).
     """
     from spade.annotation.run import annotate
-    from spade.data.datamodule import annotation_config
+    from spade.annotation.run import annotation_config
 
     layer: dict[str, Any] = {"workers": workers, "progress": False, "preview": {"enabled": False},
                              "num_instances": num_instances,
