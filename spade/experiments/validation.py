@@ -132,8 +132,12 @@ def _check_checkpoint(key: str, value: Any, role: str, fix: str) -> dict[str, An
     path = Path(str(value))
     if not path.is_file():
         raise ConfigError(f"{key}={value} does not exist; {fix}")
+    from spade.models.modelfile import UnsafeModelFileError
+
     try:
         info = checkpoint_info(path)
+    except UnsafeModelFileError as exc:  # dangerous, not damaged: say so, with what it would have run
+        raise ConfigError(f"{key}={value} was refused as unsafe (UnsafeModelFileError): {exc}") from None
     except Exception as exc:
         raise ConfigError(f"{key}={value} is not a readable PyTorch checkpoint ({type(exc).__name__}); {fix}") from None
     have = info.get("role")
