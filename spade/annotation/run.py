@@ -105,7 +105,11 @@ def _map_info(source: Any) -> dict[str, Any]:
 
 def alias_preset(argv: list[str]) -> list[str]:
     """``preset=X`` -> ``annotate/preset@_global_=X`` (the group lives under conf/annotate/ next to other tools')."""
-    return [f"annotate/preset@_global_={a[len('preset='):]}" if a.startswith("preset=") else a for a in argv]
+    return [_preset_override(a[len("preset="):]) if a.startswith("preset=") else a for a in argv]
+
+
+def _preset_override(name: str) -> str:
+    return f"annotate/preset@_global_={name}"
 
 
 def annotation_config(root: Path, config: Any) -> Any:
@@ -118,7 +122,7 @@ def annotation_config(root: Path, config: Any) -> Any:
     from spade.experiments.config import compose_config
 
     config = OmegaConf.to_container(OmegaConf.create(config), resolve=True) if config is not None else {}
-    overrides = [f"annotate/preset@_global_={config['preset']}"] if config.get("preset") else []
+    overrides = [_preset_override(config["preset"])] if config.get("preset") else []
     overrides += list(config.get("overrides") or [])
     cfg = compose_config("annotate", overrides)
     layers = config.get("set") or []

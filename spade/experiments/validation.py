@@ -397,7 +397,9 @@ def _check_model(cfg: DictConfig) -> None:
         if guidance not in (_MISSING, None):
             _check_number(cfg, "model.guidance.weight", 0, fix=" (lambda; 0 turns the guidance off)")
             _check_choice(cfg, "model.guidance.clip", ["sample", "batch"])
-            _check_choice(cfg, "model.guidance.expert", ["conditional", "unconditional"], none_ok=True)
+            from spade.training.guidance import EXPERT_KINDS
+
+            _check_choice(cfg, "model.guidance.expert", [k for k in EXPERT_KINDS if k], none_ok=True)
             _check_int(cfg, "model.guidance.num_noise", 1)
             _check_int(cfg, "model.guidance.t_min", 0)
             _check_int(cfg, "model.guidance.t_max", 1, none_ok=True)
