@@ -25,9 +25,19 @@ from spade.annotation.run import annotate
 __all__ = ["annotate", "main"]
 
 
+def _checked_annotate(cfg: DictConfig) -> dict:
+    """The config and inputs checked first (one ``error:`` line, exit 2), then the run."""
+    from spade.experiments.validation import validate_annotate_config
+
+    validate_annotate_config(cfg)
+    return annotate(cfg)
+
+
 @hydra.main(config_path="../conf", config_name="annotate", version_base="1.3")
 def main(cfg: DictConfig) -> None:
-    summary = annotate(cfg)
+    from spade.experiments.validation import exit_on_user_error
+
+    summary = exit_on_user_error(_checked_annotate)(cfg)
     print(OmegaConf.to_yaml(OmegaConf.create(summary)))
 
 

@@ -2,8 +2,8 @@
 
 Writes the student with its metadata (window size, metres per pixel, robot frame, input encoding, network config),
 checks that the file reproduces PyTorch's logits (prints the max absolute difference) and prints eager and exported
-latency. See ``conf/export.yaml`` for the options and :mod:`spade.deploy.export` for the file format.
-"""
+latency. See ``conf/export.yaml`` for the options and :mod:`spade.deploy.export` for the file format. Inputs are
+checked first; a user error is one ``error:`` line, exit 2."""
 
 from __future__ import annotations
 
@@ -16,16 +16,17 @@ from omegaconf import DictConfig, OmegaConf
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
 from spade.deploy.export import ExportReport, export_student
+from spade.experiments.validation import exit_on_user_error, validate_export_config
 
 log = logging.getLogger(__name__)
-
-
 OPTIONS = ("ckpt_path", "out_path", "format", "opset", "parity_batch", "tolerance", "latency_runs", "latency_batches",
            "threads", "report_path")
 
 
 def export(cfg: DictConfig) -> ExportReport:
-    """Run :func:`~spade.deploy.export.export_student` with a composed ``export`` config."""
+    """Check the config (:func:`~spade.experiments.validation.validate_export_config`: a student checkpoint in, an
+    output that is neither it nor a folder), then run :func:`~spade.deploy.export.export_student` with it."""
+    validate_export_config(cfg)
     # Only this task's keys are resolved: paths.output_dir needs a running Hydra app, and export() works without.
     options = {k: OmegaConf.to_container(cfg[k], resolve=True) if OmegaConf.is_config(cfg[k]) else cfg[k]
                for k in OPTIONS if k in cfg}
@@ -50,7 +51,7 @@ def export(cfg: DictConfig) -> ExportReport:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="export")
 def main(cfg: DictConfig) -> None:
-    print(export(cfg).summary())
+    print(exit_on_user_error(export)(cfg).summary())  # a user error: one `error:` line, exit 2
 
 
 if __name__ == "__main__":

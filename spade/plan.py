@@ -28,9 +28,19 @@ from spade.deploy.plan_command import rewrite_argv, run_plan
 from spade.deploy.plan_picture import plan_text
 
 
+def _checked_plan(cfg: DictConfig):  # noqa: ANN202
+    """The config and inputs checked first (one ``error:`` line, exit 2), then the query."""
+    from spade.experiments.validation import validate_plan_config
+
+    validate_plan_config(cfg)  # map and model files, pose and goal, a picture that is none of the inputs
+    return run_plan(cfg)
+
+
 @hydra.main(version_base="1.3", config_path="../conf", config_name="plan")
 def main(cfg: DictConfig) -> None:
-    result, png = run_plan(cfg)
+    from spade.experiments.validation import exit_on_user_error
+
+    result, png = exit_on_user_error(_checked_plan)(cfg)
     print(plan_text(result, str(cfg.map), png), flush=True)
     if not result.success:
         raise SystemExit(1)

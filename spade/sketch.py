@@ -33,12 +33,23 @@ def rewrite_argv(args: list[str]) -> list[str]:
     return out
 
 
+def _checked_app(cfg: DictConfig):  # noqa: ANN202
+    """The config and inputs checked first (one ``error:`` line, exit 2), then the app."""
+    from spade.experiments.validation import validate_sketch_config
+    from spade.sketching import build_app
+
+    validate_sketch_config(cfg)
+    annotate = OmegaConf.to_container(cfg.annotate, resolve=True)
+    return build_app(str(cfg.map), cfg.out_dir, annotate, cfg.model_path, cfg.device,  # type: ignore[arg-type]
+                     hosts=[str(cfg.host), *(cfg.get("allowed_hosts") or [])], models=cfg.get("models"))
+
+
 @hydra.main(version_base="1.3", config_path="../conf", config_name="sketch")
 def main(cfg: DictConfig) -> None:
-    from spade.sketching import build_app, serve
+    from spade.experiments.validation import exit_on_user_error
+    from spade.sketching import serve
 
-    annotate = OmegaConf.to_container(cfg.annotate, resolve=True)
-    app = build_app(str(cfg.map), cfg.out_dir, annotate, cfg.model_path, cfg.device)  # type: ignore[arg-type]
+    app = exit_on_user_error(_checked_app)(cfg)
     serve(app, cfg.host, int(cfg.port))
 
 

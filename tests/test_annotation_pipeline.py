@@ -137,6 +137,7 @@ def test_map_too_cluttered_for_a_goal(tmp_path: Path) -> None:
         annotate(small_cfg(tmp_path / "ds", maps=[str(yaml_path)]))
 
 
+@pytest.mark.slow  # a python -m spade.annotate process; annotation runs in-process: the tests above
 def test_cli_with_overrides_and_preview(tmp_path: Path) -> None:
     out = tmp_path / "cli"
     proc = subprocess.run(
@@ -167,6 +168,7 @@ def test_every_real_map_of_the_folder(tmp_path: Path, maps_dir: Path) -> None:
     assert len(manifest["extra"]["maps"]) == len(list(maps_dir.rglob("*.yaml")))
 
 
+@pytest.mark.slow  # 128 px, two workers; at 64 px: test_worker_count_never_changes_the_bytes
 def test_same_seed_same_bytes_on_real_maps_at_full_size(tmp_path: Path, maps_dir: Path) -> None:
     yamls = [str(next(maps_dir.rglob("bookstore.yaml")))]
     for name, workers in (("a", 1), ("b", 2)):

@@ -16,6 +16,7 @@ from spade.perf.report import check_targets, format_report
 REPO = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow  # a python -m spade.bench process; targets and config: the fast tests below
 def test_quick_bench_measures_the_default_sections(tmp_path: Path) -> None:
     pytest.importorskip("onnxruntime")
     out = tmp_path / "bench.json"
@@ -49,6 +50,7 @@ def test_quick_bench_measures_the_default_sections(tmp_path: Path) -> None:
         assert f"### {heading}" in proc.stdout
 
 
+@pytest.mark.slow  # a python -m spade.bench process
 def test_component_sections_run_at_tiny_sizes(tmp_path: Path) -> None:
     """annotation, dataset and maps (named in ``sections``) and the metrics section's reference pipeline and FID
     sensitivity run at tiny sizes, print their tables and write their numbers."""
@@ -73,7 +75,10 @@ def test_component_sections_run_at_tiny_sizes(tmp_path: Path) -> None:
         assert m["reference"]["instances"] == 4 and m["reference"]["speedup"] > 0
         assert m["reference_loops"]["instances"] == 2 and m["reference_loops"]["ms_per_instance"] > 0
     sens = m["sensitivity"]
-    assert len(sens["rows"]) == 4 * 4 and all(len(r["fid"]) == len(r["levels"]) == 5 for r in sens["rows"])
+    assert len(sens["rows"]) == 5 * 4 and all(len(r["fid"]) == len(r["levels"]) == 5 for r in sens["rows"])
+    shape_rows = m["shape_validity"]["rows"]
+    assert [r["extractor"].split("_")[0] for r in shape_rows] == ["shape-v1", "randconv-v2"]
+    assert all(len(r["sets"]) == 6 and len(r["growing"]) == 3 for r in shape_rows)
 
     (preset,) = results["annotation"]["presets"]
     assert preset["preset"] == "lshape" and preset["instances"] == 8 and preset["instances_per_s"] > 0
@@ -88,7 +93,7 @@ def test_component_sections_run_at_tiny_sizes(tmp_path: Path) -> None:
     procedural = results["maps"]["procedural"]
     assert procedural and all(r["seeds"] == 1 and r["generate_ms"] > 0 for r in procedural)
 
-    for heading in ("Metrics", "FID sensitivity", "Annotation", "Dataset read", "Real maps", "Procedural maps"):
+    for heading in ("Metrics", "FID sensitivity", "FID shape validity", "Annotation", "Dataset read", "Real maps", "Procedural maps"):
         assert f"### {heading}" in proc.stdout
     assert "Same 4 instances" in proc.stdout or "Reference pipeline skipped" in proc.stdout
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import hydra
 import numpy as np
+import pytest
 import torch
 
 from spade.experiments.config import compose_config
@@ -30,6 +31,7 @@ def _mlflow_metrics(tracking_uri: str) -> dict[str, float]:
     return dict(runs[0].data.metrics)
 
 
+@pytest.mark.slow  # DDP: two spade.train processes; the configs compose in test_gpu_trainer_configs_compose
 def test_ddp_two_cpu_processes_sync_metrics_through_the_entry_point(spade_home: Path, tmp_path: Path) -> None:
     # The datasets (built once per session); an odd test set: a padding sampler would repeat one instance.
     dm = hydra.utils.instantiate(compose_row(ROW, spade_home).data)

@@ -105,3 +105,43 @@ def test_range_mapping_round_trips() -> None:
 def test_config_rebuilds_schedule() -> None:
     sched = NoiseSchedule(num_train_timesteps=50, beta_schedule="linear", clip_sample=False)
     torch.testing.assert_close(NoiseSchedule(**sched.config).betas, sched.betas)
+
+
+@pytest.mark.parametrize("prediction_type", ["epsilon", "sample", "v_prediction"])
+def test_sampler_recovers_known_clean_image_in_every_parameterisation(prediction_type: str) -> None:
+    """An oracle that outputs prediction_target(x0, eps_hat, t) for a fixed x0 makes DDIM return that x0."""
+    sched = NoiseSchedule(num_train_timesteps=1000, prediction_type=prediction_type)
+    target = to_model_range((torch.rand(1, 1, 8, 8, generator=torch.Generator().manual_seed(1)) > 0.5).float())
+    abar = sched.alphas_cumprod
+
+    def oracle(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        a = abar[t].view(-1, 1, 1, 1)
+        eps = (x - a.sqrt() * target) / (1 - a).sqrt()
+        return sched.prediction_target(target.expand_as(x), eps, t)
+
+    x = sched.sample(oracle, (1, 1, 8, 8), torch.Generator().manual_seed(0), "ddim", num_inference_steps=5)
+    torch.testing.assert_close(x, target, atol=1e-4, rtol=0)
+
+
+def test_prediction_targets_agree_with_diffusers_and_each_other() -> None:
+    """sample -> x0, epsilon -> noise, v -> diffusers' get_velocity; each error is the epsilon error times a factor."""
+    x0 = torch.randn(3, 1, 4, 4, generator=torch.Generator().manual_seed(0))
+    noise = torch.randn(3, 1, 4, 4, generator=torch.Generator().manual_seed(1))
+    t = torch.tensor([10, 500, 900])
+    eps_s = NoiseSchedule(prediction_type="epsilon")
+    x0_s = NoiseSchedule(prediction_type="sample")
+    v_s = NoiseSchedule(prediction_type="v_prediction")
+    torch.testing.assert_close(eps_s.prediction_target(x0, noise, t), noise)
+    torch.testing.assert_close(x0_s.prediction_target(x0, noise, t), x0)
+    torch.testing.assert_close(v_s.prediction_target(x0, noise, t), v_s._train.get_velocity(x0, noise, t))
+    # A network output o for x_t: its implied x0 estimates agree whatever the parameterisation, so the errors
+    # are multiples of one another: |x0_hat - x0|^2 = (1 - abar) / abar |eps_hat - eps|^2.
+    x_t = eps_s.add_noise(x0, noise, t)
+    abar = eps_s.alphas_cumprod[t].view(-1, 1, 1, 1)
+    eps_hat = torch.randn(x0.shape, generator=torch.Generator().manual_seed(2))
+    x0_hat = (x_t - (1 - abar).sqrt() * eps_hat) / abar.sqrt()
+    e_eps = eps_s.denoising_error(eps_hat, x0, noise, t)
+    e_x0 = x0_s.denoising_error(x0_hat, x0, noise, t)
+    torch.testing.assert_close(e_x0, e_eps * ((1 - abar) / abar).view(-1), rtol=1e-4, atol=1e-6)
+    v_hat = abar.sqrt() * eps_hat - (1 - abar).sqrt() * x0_hat
+    torch.testing.assert_close(v_s.denoising_error(v_hat, x0, noise, t), e_eps / abar.view(-1), rtol=1e-4, atol=1e-6)

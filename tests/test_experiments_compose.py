@@ -18,6 +18,7 @@ ROWS = sorted(p.stem for p in (CONF_DIR / "experiment").glob("*.yaml") if p.stem
 
 def test_there_is_one_experiment_per_row() -> None:
     assert len(ROWS) == 27  # 18 students + 4 experts + 3 (Table 2) + 2 (Table 3)
+    assert FAST_ROWS <= set(ROWS)
 
 
 @pytest.mark.parametrize("table,count", sorted(TABLES.items()))
@@ -39,10 +40,19 @@ def _fill_requirements(cfg, ckpts: dict[str, str]) -> list[str]:
     return out
 
 
-@pytest.mark.parametrize("row", ROWS)
+# One row per code path runs in the default selection (an expert through its test stage, the conditional one is
+# fitted by the tiny_checkpoints fixture; BC, DBC and Cond-DBC students; a fine-tuned ablation row with guidance);
+# the others, the large students among them, are slow.
+FAST_ROWS = {"expert_uncond_U", "t1_small_bc_L", "t1_small_dbc_U", "t1_medium_conddbc_L", "t2_augbc_finetune_conddbc_U"}
+# One batch of each stage, small batches, two prediction pictures, two latency runs: every code path, in seconds.
+FDR = ["debug=fdr", "logger=none", "data.batch_size=4", "data.eval_batch_size=8", "model.grid_size=2",
+       "callbacks.model_info.latency_runs=2"]
+
+
+@pytest.mark.parametrize("row", [r if r in FAST_ROWS else pytest.param(r, marks=pytest.mark.slow) for r in ROWS])
 def test_row_composes_instantiates_and_runs_fast_dev_run(row: str, spade_home: Path, tiny_checkpoints: dict) -> None:
     cfg = compose_row(row, spade_home)
-    cfg = compose_row(row, spade_home, "debug=fdr", "logger=none", *_fill_requirements(cfg, tiny_checkpoints))
+    cfg = compose_row(row, spade_home, *FDR, *_fill_requirements(cfg, tiny_checkpoints))
     assert cfg.tags.table in ("table1", "table2", "table3")
     metrics, objects = train(cfg)
     assert "test/ape_cm" in metrics and "test/hd19" in metrics
@@ -61,3 +71,81 @@ def test_scale_presets_compose(spade_home: Path) -> None:
     with torch.device("meta"):
         model = hydra.utils.instantiate(cfg.model)
     assert sum(p.numel() for p in model.net.parameters()) > 9e8
+
+
+# -- a table is rows x seeds in one multirun, at scale=cpu unless told, announced at its start (issue 24) ---------
+def _table_config(table: str, home: Path, *overrides: str):
+    """The table's composition as `python -m spade.train +experiment=TABLE ...` sees it (no scale forced)."""
+    import os
+
+    import spade.experiments.multirun  # noqa: F401  (registers ${spade_sweep:}, as the table's Hydra callback does)
+    from spade.experiments.config import compose_config
+
+    os.environ["SPADE_HOME"] = str(home)
+    return compose_config("train", [f"+experiment={table}", *overrides], return_hydra_config=True)
+
+
+def _jobs(cfg) -> list[list[str]]:
+    """The job overrides Hydra's basic sweeper launches for ``cfg`` (its params, then the command line's)."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    params = [f"{k}={v}" for k, v in cfg.hydra.sweeper.params.items()]
+    overrides = OverridesParser.create().parse_overrides([*params, *cfg.hydra.overrides.task])
+    return [job for batch in BasicSweeper.split_arguments(overrides, None) for job in batch]
+
+
+@pytest.mark.parametrize("table,count", sorted(TABLES.items()))
+def test_seed_list_composes_into_rows_times_seeds(table: str, count: int, spade_home: Path) -> None:
+    cfg = _table_config(table, spade_home)
+    assert list(cfg.seeds) == [42, 1, 2] and cfg.scale.name == "cpu"  # the defaults: 3 seeds at scale=cpu
+    assert cfg.hydra.sweeper.params.seed == "42,1,2" and cfg.hydra.sweeper.params.scale == "cpu"
+    jobs = _jobs(cfg)
+    assert len(jobs) == 3 * count
+    first_row = cfg.hydra.sweeper.params.experiment.split(",")[0]
+    assert [j[:3] for j in jobs[:3]] == [[f"experiment={first_row}", f"seed={s}", "scale=cpu"] for s in (42, 1, 2)]
+    chosen = _table_config(table, spade_home, "seeds=[7,8]", "scale=tiny")
+    jobs = _jobs(chosen)
+    assert len(jobs) == 2 * count and {j[1] for j in jobs} == {"seed=7", "seed=8"}
+    assert all("scale=tiny" in j for j in jobs)  # the command line's scale reaches every job
+    one = _jobs(_table_config(table, spade_home, "seed=5"))
+    assert len(one) == count and all("seed=5" in j for j in one)
+
+
+def test_seed_list_is_checked() -> None:
+    from spade.experiments.multirun import seed_sweep
+
+    assert seed_sweep([42, 1, 2]) == "42,1,2" and seed_sweep(7) == "7"
+    for bad in ([], [1, 1], ["a"]):
+        with pytest.raises(ValueError, match="seed"):
+            seed_sweep(bad)
+
+
+def test_table_prints_scale_rows_seeds_instances_and_estimate(spade_home: Path) -> None:
+    from spade.experiments.multirun import STEP_SECONDS, estimate_row, start_message
+    from spade.experiments.tables import TINY_NOTICE
+
+    text = start_message(_table_config("ablation_scratch", spade_home))
+    assert text.startswith("SPADE table run: scale=cpu, 2 rows x 3 seed(s) (42, 1, 2) = 6 runs")
+    assert "rows: t3_bc_scratch_U, t3_augbc_pretrained_expert_U" in text
+    assert "instances: 1,000 training, 15 % of it validation in" in text and "instances: 1,000 test in" in text
+    assert "prerequisites to train first, once for all seeds" in text and "expert_cond_L" in text
+    assert "estimated wall time: about" in text and TINY_NOTICE not in text
+    # The cost model, by hand: ceil(1000 * 0.85 / 32) = 27 steps, 6 epochs, a medium BC step.
+    row = compose_row("t3_bc_scratch_U", spade_home, "scale=cpu")
+    cost = estimate_row(row)
+    n_train = row.data.train_generate.set[-1].num_instances
+    steps = -(-int(n_train * (1 - row.data.val_fraction)) // row.data.batch_size)
+    assert (cost.kind, cost.steps_per_epoch, cost.epochs) == ("bc/medium", steps, row.trainer.max_epochs)
+    assert cost.seconds > steps * row.trainer.max_epochs * STEP_SECONDS["bc/medium"]
+    tiny = start_message(_table_config("ablation_scratch", spade_home, "scale=tiny", "seeds=[1]"))
+    assert "scale=tiny, 2 rows x 1 seed(s) (1) = 2 runs" in tiny and TINY_NOTICE in tiny
+
+
+def test_tiny_run_summary_says_pipeline_check(spade_home: Path) -> None:
+    from spade.experiments.tables import TINY_NOTICE
+    from spade.experiments.tracking import run_summary
+
+    metrics = {"test/ape_cm": 12.0}
+    assert TINY_NOTICE in run_summary(compose_row("smoke", spade_home, "logger=none"), metrics)
+    assert TINY_NOTICE not in run_summary(compose_row("smoke", spade_home, "logger=none", "scale=cpu"), metrics)

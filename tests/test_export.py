@@ -140,6 +140,7 @@ def test_read_metadata_refuses_files_that_are_not_spade_exports(tmp_path: Path) 
         read_metadata(tmp_path / "absent.onnx")
 
 
+@pytest.mark.slow  # a python -m spade.export process; the export in-process: test_onnx_export_of_a_fitted_student
 def test_the_command_line_exports_and_reports(tmp_path: Path) -> None:
     pytest.importorskip("onnxruntime")
     ckpt = _hand_made_checkpoint(tmp_path / "s.ckpt", data=robot_data())

@@ -156,3 +156,35 @@ def test_batched_terms_keep_the_expert_frozen_and_its_term_gradient_free() -> No
     assert loss.item() > 0 and logits.grad.abs().sum() > 0
     assert demo.grad is None or demo.grad.abs().sum() == 0
     assert all(p.grad is None for p in expert.parameters())
+
+
+@pytest.mark.parametrize("prediction_type", ["epsilon", "sample", "v_prediction"])
+def test_margin_is_the_denoising_error_in_the_experts_parameterisation(prediction_type: str) -> None:
+    """With a NoiseSchedule's add_noise the margin compares errors against what the expert predicts (noise, x0 or
+    v), zero for the demonstration itself; with sample / v prediction the agent's target carries gradient too."""
+    from spade.models.diffusion import NoiseSchedule, to_model_range
+
+    schedule = NoiseSchedule(prediction_type=prediction_type)
+    state, target = _batch()
+    expert = TinyDenoiser()
+    margin = DiffusionMargin(expert, schedule.add_noise, 1000, True, GuidanceConfig(antithetic=False))
+    loss, active = margin(target.clone(), target, state, generator=torch.Generator().manual_seed(3))
+    assert loss.item() == 0.0 and active.item() == 0.0
+
+    student = (1 - target).requires_grad_(True)  # the inverted path: far from the demonstration
+    gen = torch.Generator().manual_seed(5)
+    loss, _ = margin(student, target, state, generator=gen)
+    gen = torch.Generator().manual_seed(5)
+    t = sample_timesteps(target.shape[0], 0, 1000, False, None, gen)
+    noise = torch.randn(target.shape, generator=gen)
+    a, d, c = to_model_range(student), to_model_range(target), to_model_range(state)
+
+    def err(x0: torch.Tensor) -> torch.Tensor:
+        out = expert(schedule.add_noise(x0, noise, t), t, c)
+        return (out - schedule.prediction_target(x0, noise, t)).pow(2).flatten(1).mean(1)
+
+    expected = (err(a) - err(d).detach()).clamp_min(0).mean()
+    torch.testing.assert_close(loss, expected)
+    assert loss.item() > 0
+    loss.backward()
+    assert student.grad is not None and student.grad.abs().sum() > 0

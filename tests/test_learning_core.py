@@ -221,3 +221,34 @@ def test_trained_student_beats_untrained_and_the_straight_line(spade_home) -> No
     assert metrics["test/score_cm"] < 0.5 * metrics["untrained/score_cm"], metrics
     assert metrics["test/score_cm"] < metrics["test/baseline/straight/ape_cm"], metrics
     assert metrics["test/failure_rate"] <= 0.1, metrics
+
+
+def test_warmup_cosine_schedule_and_configure_optimizers() -> None:
+    """Linear warm-up to the base rate, cosine down to min_lr_ratio at the last step; an ExpertModule with a
+    schedule hands Lightning the scheduler, stepped every optimisation step."""
+    from functools import partial
+    from types import SimpleNamespace
+
+    from spade.training.expert_module import ExpertModule
+    from spade.training.schedules import warmup_cosine, warmup_cosine_factor
+
+    f = [warmup_cosine_factor(s, 100, 10, 0.01) for s in range(100)]
+    assert f[0] == pytest.approx(0.1) and f[9] == pytest.approx(1.0)
+    assert all(a >= b for a, b in zip(f[9:], f[10:]))
+    assert f[-1] == pytest.approx(0.01 + 0.99 * 0.5 * (1 + np.cos(np.pi * 89 / 90)))
+    assert warmup_cosine_factor(100, 100, 10, 0.01) == pytest.approx(0.01)
+
+    module = ExpertModule(preset="tiny", optimizer=partial(torch.optim.AdamW, lr=1e-2),
+                          lr_scheduler=partial(warmup_cosine, warmup_fraction=0.1, min_lr_ratio=0.0))
+    module._trainer = SimpleNamespace(estimated_stepping_batches=20)
+    out = module.configure_optimizers()
+    opt, sched = out["optimizer"], out["lr_scheduler"]["scheduler"]
+    assert out["lr_scheduler"]["interval"] == "step"
+    lrs = []
+    for _ in range(20):
+        lrs.append(opt.param_groups[0]["lr"])
+        opt.step()
+        sched.step()
+    assert lrs[0] == pytest.approx(5e-3) and lrs[1] == pytest.approx(1e-2) and max(lrs) == pytest.approx(1e-2)
+    assert lrs[-1] < 1e-3
+    assert not isinstance(ExpertModule(preset="tiny").configure_optimizers(), dict)  # no schedule: the optimiser

@@ -116,6 +116,7 @@ def _check_ui(experiment_url: str, run_url: str, run_name: str, dataset: str, de
         screenshot(page, f"{shots}_picture.png")
 
 
+@pytest.mark.slow  # an mlflow server and a browser; the URLs, tags, inputs and descriptions in-process: below
 def test_mlflow_ui_shows_a_spade_run_from_the_printed_urls(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A run recorded by SPADE's tracking code (no training: seconds), then the browser on the URLs it prints."""
     chromium_path()
@@ -300,9 +301,9 @@ def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(
     assert "Trained on `tiny/lshape` (160 instances)" in text and "Tested on `tiny/test` (43 instances)" in text
     assert "registered model `spade-cond_expert-L-tiny-abc v1`, run [expert_cond_L](#/experiments/" in text
     assert "Regenerate: `python -m spade.train +experiment=t1_small_conddbc_L scale=tiny`" in text
-    rate = METRICS["failure_rate"].format  # the tables' own number formats
-    assert f"| **this model** | 4.50 | n/a | 3 | {rate(0.02)} |" in text
-    assert f"| baseline: straight | 30.25 | n/a | n/a | {rate(0.0)} |" in text and "| untrained | 190.00 |" in text
+    rate = METRICS["failure_rate"].format  # the tables' own number formats; centimetres to 0.1 cm (issue 22)
+    assert f"| **this model** | 4.5 | n/a | 3 | {rate(0.02)} |" in text
+    assert f"| baseline: straight | 30.2 | n/a | n/a | {rate(0.0)} |" in text and "| untrained | 190.0 |" in text
     assert "`predictions/test_worst.png`" in text
     linked = run_description(cfg, metrics, uses, prerequisites, ["predictions/test_worst.png"], ("5", "ab12"))
     assert ("[predictions/test_worst.png](#/experiments/5/runs/ab12/artifacts/predictions/test_worst.png"

@@ -45,6 +45,7 @@ def tiny_home(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return home
 
 
+@pytest.mark.slow  # a spade.train process and two Jupyter kernels; the stripped check stays fast
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
 def test_notebook_executes(path: Path, tiny_home: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from nbclient import NotebookClient

@@ -256,12 +256,37 @@ def test_far_goal_clip_plans_to_a_subgoal(ckpt: Path, warehouse: OccupancyMap) -
 
 
 def test_no_path_is_a_failure_result_with_the_probabilities(ckpt: Path, warehouse: OccupancyMap) -> None:
+    """The paper's extraction finds nothing in an empty prediction: a failure result that keeps the image."""
     start, goal = open_segment(warehouse, 2.0)
-    planner = Planner(ckpt)
+    planner = Planner(ckpt, decode="skeleton")
     planner.backend = Silent()
     result = planner.plan(warehouse, facing(start, goal), goal)
     assert (result.success, result.code) == (False, "empty") and "no path" in result.reason
     assert result.waypoints.shape == (0, 2) and result.probability is not None and result.probability.max() < 0.5
+
+
+def test_search_decoding_reaches_the_goal_and_flags_what_it_did_not_see(ckpt: Path, warehouse: OccupancyMap) -> None:
+    """An empty prediction: the search still plans from the robot to the goal over free cells, flagged as low
+    confidence (all of it through p < 0.5); fallback='shortest' swaps in the Nav2-like path, flagged."""
+    start, goal = open_segment(warehouse, 2.0)
+    pose = facing(start, goal, turn=0.3)
+    planner = Planner(ckpt)
+    planner.backend = Silent()
+    result = planner.plan(warehouse, pose, goal)
+    assert result.success and result.decode == "search" and result.code is None
+    assert result.low_confidence and result.low_share == 1.0 and result.min_probability < 0.5 and not result.fallback
+    assert_good_plan(result, warehouse, pose, goal, atol=1e-6)
+    fallback = Planner(ckpt, fallback="shortest")
+    fallback.backend = Silent()
+    swapped = fallback.plan(warehouse, pose, goal)
+    assert swapped.success and swapped.fallback and swapped.low_confidence
+    assert_good_plan(swapped, warehouse, pose, goal, atol=1e-6)
+    oracle = oracle_planner(ckpt, fallback="shortest").plan(warehouse, pose, goal)
+    assert oracle.success and not oracle.low_confidence and not oracle.fallback and oracle.low_share < 0.1
+    with pytest.raises(PlannerConfigError, match="decode"):
+        Planner(ckpt, decode="threshold")
+    with pytest.raises(PlannerConfigError, match="fallback"):
+        Planner(ckpt, fallback="straight")
 
 
 def test_a_path_away_from_the_robot_is_a_failure(ckpt: Path, warehouse: OccupancyMap) -> None:
@@ -276,10 +301,17 @@ def test_a_path_away_from_the_robot_is_a_failure(ckpt: Path, warehouse: Occupanc
             return out
 
     start, goal = open_segment(warehouse, 3.0, seed=5)
-    planner = Planner(ckpt)
+    planner = Planner(ckpt, decode="skeleton")
     planner.backend = Elsewhere()
     result = planner.plan(warehouse, facing(start, goal), goal)
     assert result.code == "start_not_reached" and "from the robot" in result.reason and result.waypoints.shape == (0, 2)
+    # decoded by search, the same prediction gives a path from the robot that joins the predicted line
+    searched = Planner(ckpt)
+    searched.backend = Elsewhere()
+    pose = facing(start, goal)
+    result = searched.plan(warehouse, pose, goal)
+    assert result.success and 0 < result.low_share < 0.6
+    assert_good_plan(result, warehouse, pose, goal, atol=1e-6)
 
 
 def test_batch_equals_single_queries_and_keeps_order(ckpt: Path, warehouse: OccupancyMap) -> None:
@@ -392,18 +424,21 @@ def _round_trip(ckpt: str, m: OccupancyMap, scenarios: int) -> tuple[list[PlanRe
     return results, len(queries)
 
 
+@pytest.mark.slow  # trains a student 30 epochs; the window, frame and failures with stand-in networks: above
 def test_trained_student_round_trip_on_a_procedural_map(trained_student: str) -> None:
     results, n = _round_trip(trained_student, generate_map("warehouse", 101), scenarios=6)
     codes = Counter(r.code for r in results)
     assert codes[None] >= n // 2, codes
 
 
+@pytest.mark.slow
 def test_trained_student_round_trip_on_a_real_map(trained_student: str, real_map: OccupancyMap) -> None:
     results, n = _round_trip(trained_student, real_map, scenarios=6)
     codes = Counter(r.code for r in results)
     assert codes[None] >= n // 2, codes  # a real map it never saw
 
 
+@pytest.mark.slow  # python -m spade.plan processes
 def test_plan_command_prints_waypoints_and_writes_the_picture(trained_student: str, tmp_path: Path) -> None:
     import subprocess
     import sys

@@ -25,6 +25,7 @@ from spade.experiments.validation import (
     validate_train_config,
 )
 from spade.data import DatasetError
+from fault_injection import env_with_tests, kill_at
 from training_helpers import compose_row
 
 REPO = Path(__file__).resolve().parents[1]
@@ -46,7 +47,7 @@ def data_dir(spade_home: Path) -> Path:
 
 def _env(home: Path) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if k not in ("MLFLOW_TRACKING_URI", "HYDRA_FULL_ERROR")}
-    return {**env, "SPADE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
+    return env_with_tests({**env, "SPADE_HOME": str(home), "PYTHONUNBUFFERED": "1"})
 
 
 def _train(args: list[str], home: Path, *, prefix: list[str] | None = None, **kw) -> subprocess.Popen:
@@ -110,6 +111,7 @@ def test_run_folder_ids_differ_within_one_second_and_stay_fixed_within_a_run(spa
     assert a.hydra.run.dir.rsplit("_", 1)[1] == a.hydra.sweep.dir.rsplit("_", 1)[1]  # one id per run
 
 
+@pytest.mark.slow  # two spade.train processes; the folder ids in-process: the test above
 def test_two_runs_started_in_the_same_second_keep_their_own_folders(tmp_path: Path, data_dir: Path) -> None:
     args = [f"+experiment={ROW}", "logger=none", "trainer.max_epochs=1", "+trainer.limit_train_batches=2",
             "+trainer.limit_val_batches=0", "test=false",
@@ -139,7 +141,8 @@ def _fake_checkpoint(path: Path, role: str, size: int = 64, resolution: float = 
 
 
 def test_changed_data_settings_are_refused_naming_the_keys(spade_home: Path, data_dir: Path) -> None:
-    cfg = compose_row(ROW, spade_home, "scale.train_instances=48", "scale.annotate.window.size_px=32")
+    cfg = compose_row(ROW, spade_home, "scale.train_instances=48", "scale.annotate.window.size_px=32",
+                      "scale.image_size=32")  # the two must agree (issue 22)
     with pytest.raises(ConfigError, match=r"data.train_dir=.*lshape was generated with other settings") as err:
         validate_train_config(cfg)
     assert "num_instances: dataset 192, config 48" in str(err.value)
@@ -207,7 +210,8 @@ def test_checkpoint_roles_and_geometry_are_checked(spade_home: Path, tmp_path: P
         validate_train_config(compose_row(ROW, spade_home, f"ckpt_path={coarse}"))
     # spade.evaluate: a 64 px / 0.1 m/px checkpoint on data that would be 32 px / 0.2 m/px
     ev = compose_config("evaluate", [f"ckpt_path={student}", "logger=none", "scale.annotate.window.size_px=32",
-                                     "scale.annotate.window.resolution_m=0.2", f"paths.data_dir={tmp_path}/data",
+                                     "scale.annotate.window.resolution_m=0.2", "scale.image_size=32",
+                                     "scale.resolution_m=0.2", f"paths.data_dir={tmp_path}/data",
                                      f"paths.output_dir={tmp_path}/eval"])
     with pytest.raises(ConfigError, match=r"was trained on 64 x 64 px at 0.1 m/px windows, data.test_dir=.*holds "
                                           r"32 x 32 px at 0.2 m/px \(image_size, resolution_m differ\)"):
@@ -234,6 +238,7 @@ def test_user_errors_end_without_traceback_unless_hydra_full_error(monkeypatch, 
         exit_on_user_error(lambda: 1 / 0)()
 
 
+@pytest.mark.slow  # a spade.train process; the one-line errors in-process: the two tests above
 def test_cli_config_error_is_one_line_before_any_run_or_data(tmp_path: Path) -> None:
     start = time.monotonic()
     proc = _train([f"+experiment={ROW}", "trainer.max_epochs=abc"], tmp_path)
@@ -249,50 +254,31 @@ def test_cli_config_error_is_one_line_before_any_run_or_data(tmp_path: Path) -> 
 
 
 # -- 3, 6. determinism, resume, run status ---------------------------------------------------------------------------
-def _wait_for(predicate, proc: subprocess.Popen, timeout: float = 240, what: str = "") -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        if proc.poll() is not None:
-            raise AssertionError(f"process ended before {what}: {proc.output.read_text()[-3000:]}")
-        time.sleep(0.2)
-    raise AssertionError(f"timed out waiting for {what}")
-
-
-def _fitting(proc: subprocess.Popen) -> bool:
-    """Whether the run has opened its MLflow run and started fitting (Lightning printed the model summary)."""
-    return "Trainable params" in proc.output.read_text()
-
-
 def _runs(home: Path, experiment: str) -> list:
     client = _client(home)
     exp = client.get_experiment_by_name(experiment)
     return [] if exp is None else client.search_runs([exp.experiment_id])
 
 
+@pytest.mark.slow  # four spade.train processes; test_resume_continues_the_run_with_the_uninterrupted_numbers in-process
 def test_kill_9_mid_epoch_then_resume_reproduces_the_uninterrupted_run(tmp_path: Path, data_dir: Path) -> None:
-    """A (uninterrupted) and B (kill -9 mid-epoch after its first epoch, checked alive, then resumed from its last
-    checkpoint)
-    run in separate processes and stores; B must end with A's validation losses and A's weights. A third run is
-    stopped by SIGTERM and must end KILLED."""
-    epoch_batches = 25  # a wide mid-epoch window (2 to 22 batches): a loaded machine polls MLflow slowly
+    """A (uninterrupted) and B (kill -9 by its own callback when batch 3 of its second epoch starts, after the first
+    epoch's checkpoint, then resumed from its last checkpoint) run in separate processes and stores; B must end
+    with A's validation losses and A's weights. A third run sends itself SIGTERM at its second batch and must end
+    KILLED."""
+    epoch_batches, kill_batch = 6, 3
     args = [f"+experiment={ROW}", "trainer.max_epochs=2", f"+trainer.limit_train_batches={epoch_batches}",
             "+trainer.limit_val_batches=2", "trainer.log_every_n_steps=1", "test=false", "seed=7",
             "data.augment=mirror", f"paths.data_dir={data_dir}", "tags.table=resume", *QUICK]
     home_a, home_b, home_c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
     run_a, run_b, run_b2, run_c = (tmp_path / f"run_{k}" for k in ("a", "b", "b2", "c"))
     proc_a = _train([*args, f"hydra.run.dir={run_a}"], home_a)
-    proc_b = _train([*args, f"hydra.run.dir={run_b}"], home_b, start_new_session=True)
+    proc_b = _train([*args, f"hydra.run.dir={run_b}", *kill_at(epoch=1, batch=kill_batch)], home_b,
+                    start_new_session=True)
     proc_c = None
     try:
-        # B: kill -9 a few batches into an epoch after the first (its checkpoint exists). B is watched from its
-        # start: it trains its two epochs in seconds, so nothing else may be waited for in between.
         def position() -> tuple[int, int]:
-            """(completed epochs, batches done in the current one) as run B has logged them.
-
-            Read with one read-only SQLite query (milliseconds): an MlflowClient per poll costs about a second of
-            CPU, and on a loaded machine run B finished whole epochs between two such polls."""
+            """(completed epochs, batches done in the current one) as run B has logged them (one read-only query)."""
             import sqlite3
 
             db = sqlite3.connect(f"file:{home_b / 'logs' / 'mlflow.db'}?mode=ro", uri=True, timeout=30)
@@ -301,38 +287,23 @@ def test_kill_9_mid_epoch_then_resume_reproduces_the_uninterrupted_run(tmp_path:
                     "SELECT m.key, m.step FROM metrics m JOIN runs r ON m.run_uuid = r.run_uuid "
                     "JOIN experiments e ON r.experiment_id = e.experiment_id "
                     "WHERE e.name = 'resume' AND m.key IN ('train/loss_bc', 'val/loss_bc')").fetchall()
-            except sqlite3.OperationalError:  # the store's tables are not there yet
-                return 0, 0
             finally:
                 db.close()
             steps = [step for key, step in rows if key == "train/loss_bc"]
             epochs = sum(key == "val/loss_bc" for key, _ in rows)
             return epochs, (max(steps) + 1 - epochs * epoch_batches) if steps else 0
 
-        def mid_epoch() -> bool:  # after the first epoch's checkpoint, 2 to epoch_batches - 3 batches into an epoch
-            if not _fitting(proc_b):  # the store exists (no two processes creating one SQLite file)
-                return False
-            epochs, done = position()
-            return epochs >= 1 and 2 <= done <= epoch_batches - 3
-
-        _wait_for(mid_epoch, proc_b, what="run B to be in the middle of an epoch after its first")
-        assert proc_b.poll() is None  # alive when killed
-        os.killpg(proc_b.pid, signal.SIGKILL)
-        proc_b.wait()
+        proc_b.wait(timeout=600)
+        assert proc_b.returncode == -signal.SIGKILL, proc_b.output.read_text()[-3000:]
         (killed,) = _runs(home_b, "resume")
         assert killed.info.status == "RUNNING"  # SIGKILL: nothing could close it
         client_b = _client(home_b)
-        epochs, done = position()
-        assert epochs >= 1 and 0 < done < epoch_batches  # it died inside an epoch, after a checkpoint
+        assert position() == (1, kill_batch)  # it died inside its second epoch, after the first one's checkpoint
 
-        # C: SIGTERM once its MLflow run is open -> KILLED, with the reason
-        args_c = [a for a in args if not a.startswith("trainer.max_epochs=")]
-        proc_c = _train([*args_c, "trainer.max_epochs=50", "run_name=sigterm", f"hydra.run.dir={run_c}"], home_c,
+        # C: SIGTERM once its MLflow run is open and it is fitting -> KILLED, with the reason
+        proc_c = _train([*args, "run_name=sigterm", f"hydra.run.dir={run_c}", *kill_at(0, 1, "SIGTERM")], home_c,
                         start_new_session=True)
-        _wait_for(lambda: _fitting(proc_c), proc_c, what="run C to start fitting")
-        assert proc_c.poll() is None
-        os.killpg(proc_c.pid, signal.SIGTERM)
-        proc_c.wait(timeout=120)
+        proc_c.wait(timeout=600)
         assert proc_c.returncode != 0
         (run_c,) = _runs(home_c, "resume")
         assert run_c.info.status == "KILLED" and run_c.data.tags["spade.end_reason"] == "signal SIGTERM"
@@ -362,6 +333,41 @@ def test_kill_9_mid_epoch_then_resume_reproduces_the_uninterrupted_run(tmp_path:
     for run, client in ((run_a_info, client_a), (resumed, client_b)):  # best and last both archived
         assert {a.path for a in client.list_artifacts(run.info.run_id, "checkpoints")} == {"checkpoints/best",
                                                                                         "checkpoints/last"}
+
+
+def test_resume_continues_the_run_with_the_uninterrupted_numbers(data_dir: Path, tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """In-process, the default selection's resume check: a run stopped after its first epoch and resumed from its
+    last checkpoint continues its MLflow run (not a new one, no step logged twice) and ends with the uninterrupted
+    run's validation losses and weights. (A kill -9 in the middle of an epoch, in a subprocess: the slow test above.)"""
+    from mlflow import MlflowClient
+
+    from spade.experiments.run import train
+
+    monkeypatch.setenv("SPADE_HOME", str(tmp_path))
+    common = ["trainer.max_epochs=2", "+trainer.limit_train_batches=3", "+trainer.limit_val_batches=1",
+              "trainer.log_every_n_steps=1", "test=false", "seed=7", "data.augment=mirror",
+              f"paths.data_dir={data_dir}", "tags.table=resume", "registry.prefix=null", *QUICK]
+
+    def run(name: str, out: str, *extra: str) -> None:
+        train(compose_row(ROW, tmp_path, *common, f"run_name={name}", f"paths.output_dir={tmp_path / out}", *extra))
+
+    run("whole", "whole")
+    run("part", "part", "trainer.max_epochs=1")
+    resume = tmp_path / "resume.ckpt"
+    resume.write_bytes((tmp_path / "part" / "checkpoints" / "last.ckpt").read_bytes())
+    run("part", "part2", f"ckpt_path={resume}")
+
+    client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path}/mlflow.db")
+    runs = {r.info.run_name: r for r in client.search_runs([client.get_experiment_by_name("resume").experiment_id])}
+    assert sorted(runs) == ["part", "whole"]  # resumed into its own run, not a third one
+    assert runs["part"].info.status == "FINISHED"
+    val = {k: _history(client, r.info.run_id, "val/loss_bc") for k, r in runs.items()}
+    assert len(val["whole"]) == 2 and val["part"] == val["whole"]  # every epoch's validation loss, bit for bit
+    steps = [s for s, _ in _history(client, runs["part"].info.run_id, "train/loss_bc")]
+    assert len(steps) == 6 and len(set(steps)) == 6  # continued, not restarted
+    last = "checkpoints/last.ckpt"
+    assert _same_weights(tmp_path / "whole" / last, tmp_path / "part2" / last)
 
 
 def test_numbers_do_not_depend_on_what_the_process_did_before(spade_home: Path, data_dir: Path,

@@ -36,23 +36,25 @@ def _leftovers(parent: Path) -> list[str]:
     return sorted(p.name for p in parent.iterdir() if ".partial-" in p.name or ".old-" in p.name)
 
 
-def test_two_writers_racing_for_one_missing_dataset_both_complete(tmp_path: Path, monkeypatch) -> None:
-    """Forced race: both writers start while the dataset is missing (what two runs' prepare_data do), the first
-    finishes, and the second finishes after the dataset appeared; then one swaps while the other is mid-swap."""
+def test_two_writers_racing_for_one_missing_dataset_the_second_fails_and_the_first_is_kept(tmp_path: Path,
+                                                                                            monkeypatch) -> None:
+    """Forced race: both writers start while the dataset is missing (two spade.annotate into one out_dir), the
+    first finishes, and the second, without overwrite, fails instead of replacing it (issue 22, case 4); then,
+    with overwrite, one swaps while the other is mid-swap."""
+    from spade.data.writer import DatasetExistsError
+
     root = tmp_path / "ds"
     a, b = _writer(root, 1), _writer(root, 2)  # both pass the "does it exist" check
-    with a:
-        with b:
-            assert len(_leftovers(tmp_path)) == 2
-            _fill(a, 1)
-            _fill(b, 2)
-            # a's cleanup of stale leftovers must not touch b's live partial folder (same host, live pid)
-            assert remove_stale_partials(root) == []
-        assert read_manifest(root).generator == {"seed": 2} and verify(root) == []
-        reader = PathDataset(root)  # opened on b's dataset, which a is about to replace
-        first = reader[0]["path"].clone()
-    assert read_manifest(root).generator == {"seed": 1} and verify(root) == []
-    assert (reader[0]["path"] == first).all()  # an open reader keeps reading the files it opened
+    with pytest.raises(DatasetExistsError, match="another writer created a dataset there"):
+        with a:
+            with b:
+                assert len(_leftovers(tmp_path)) == 2
+                _fill(a, 1)
+                _fill(b, 2)
+                # a's cleanup of stale leftovers must not touch b's live partial folder (same host, live pid)
+                assert remove_stale_partials(root) == []
+            assert read_manifest(root).generator == {"seed": 2} and verify(root) == []
+    assert read_manifest(root).generator == {"seed": 2} and verify(root) == []  # the first complete one stays
     assert _leftovers(tmp_path) == []
 
     # The swap itself raced: a parallel writer's dataset lands at root between our two renames.

@@ -55,8 +55,10 @@ def test_relative_change_against_hand_computed_values() -> None:
 
 
 def _log_run(client, experiment_id: str, name: str, metrics: dict[str, float], status: str = "FINISHED",
-             scale: str = "tiny") -> str:
+             scale: str = "tiny", seed: int | None = None) -> str:
     run = client.create_run(experiment_id, run_name=name, tags={"scale": scale, "row": name})
+    if seed is not None:
+        client.log_param(run.info.run_id, "cfg/seed", seed)  # as spade.train logs the composed config
     for key, value in metrics.items():
         client.log_metric(run.info.run_id, key, value)
     if status != "RUNNING":
@@ -180,7 +182,104 @@ def test_baselines_are_reference_rows_and_losing_rows_are_named(tmp_path: Path) 
     _log_run(client, t3, "t3_augbc_pretrained_expert_U", {"test/ape_cm": 6.0, "test/failure_rate": 0.005, **baselines})
     rep = build_report(TABLES["table3"], uri)
     table = render_table(TABLES["table3"], rep.results)
-    assert "reference: straight line | n/a / 24.00 / n/a / 0.0% | 0 (no learning)" in table
-    assert "reference: heading template | n/a / 12.50 / 3 / n/a |" in table
+    assert "reference: straight line | n/a / 24.00 / n/a / 0.0% / n/a / n/a / n/a | 0 (no learning)" in table
+    assert "reference: heading template | n/a / 12.50 / 3 / n/a / n/a / n/a / n/a |" in table
     assert "t3_bc_scratch_U LOSES to the straight line, shortest path (Nav2-like), heading template" in rep.text
     assert "t3_augbc_pretrained_expert_U LOSES" not in rep.text
+
+
+# -- seeds: mean +/- sd per cell, Welch's t-test between compared rows (issue 24) --------------------------------
+# Hand-computed: SKIPP BC APE 10, 12, 14 (mean 12, sd 2); Cond-DBC 6, 7, 8 (mean 7, sd 1). Welch: t = -5 /
+# sqrt(4/3 + 1/3) = -3.873, df = (5/3)^2 / ((4/3)^2/2 + (1/3)^2/2) = 50/17 = 2.941, two-sided p = 0.03156.
+# Hd19 30, 34, 32 (mean 32, sd 2) against 28, 33, 32 (mean 31, sd sqrt(7) = 2.6458): t = -0.522, df = 3.723,
+# p = 0.6310 (not significant).
+SKIPP = {42: (10.0, 30.0, 0.1), 1: (12.0, 34.0, 0.2), 2: (14.0, 32.0, 0.3)}
+CONDDBC = {42: (6.0, 28.0, 0.0), 1: (7.0, 33.0, 0.0), 2: (8.0, 32.0, 0.0)}
+
+
+def _cell_metrics(ape: float, hd19: float, failures: float) -> dict[str, float]:
+    return {"test/ape_cm": ape, "test/hd19": hd19, "test/failure_rate": failures, "model/params": 1_926_209.0}
+
+
+@pytest.fixture(scope="module")
+def seeded(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """Table 2 with three seeds of two rows and one seed of the third, plus runs that must not count: an older run
+    of a seed (replaced by its rerun), a FAILED run and a finished run at another scale."""
+    from mlflow import MlflowClient
+
+    uri = f"sqlite:///{tmp_path_factory.mktemp('seeded')}/mlflow.db"
+    client = MlflowClient(tracking_uri=uri)
+    t2 = client.create_experiment("table2")
+    _log_run(client, t2, "t2_bc_finetune_U", _cell_metrics(50.0, 90.0, 0.9), scale="cpu", seed=42)
+    _log_run(client, t2, "t2_bc_finetune_U", _cell_metrics(99.0, 99.0, 0.9), seed=42)  # rerun below replaces it
+    for seed, figures in SKIPP.items():
+        _log_run(client, t2, "t2_bc_finetune_U", _cell_metrics(*figures), seed=seed)
+    _log_run(client, t2, "t2_bc_finetune_U", {}, status="FAILED", seed=3)
+    for seed, figures in CONDDBC.items():
+        _log_run(client, t2, "t2_augbc_finetune_conddbc_U", _cell_metrics(*figures), seed=seed)
+    _log_run(client, t2, "t2_augbc_finetune_bc_U", _cell_metrics(9.0, 20.0, 0.05), seed=42)
+    return {"uri": uri}
+
+
+def test_rows_aggregate_their_seeds_mean_and_sd(seeded: dict) -> None:
+    results = fetch_results(TABLES["table2"], seeded["uri"])
+    skipp = results["t2_bc_finetune_U"]
+    assert skipp.seeds == [1, 2, 42] and skipp.n == 3 and skipp.scale == "tiny"
+    assert (skipp.n_runs, skipp.n_finished, skipp.n_other_scales) == (6, 5, 1)
+    assert skipp.value("ape_cm") == pytest.approx(12.0) and skipp.sd("ape_cm") == pytest.approx(2.0)
+    assert skipp.value("failure_rate") == pytest.approx(0.2) and skipp.sd("failure_rate") == pytest.approx(0.1)
+    conddbc = results["t2_augbc_finetune_conddbc_U"]
+    assert conddbc.value("hd19") == pytest.approx(31.0) and conddbc.sd("hd19") == pytest.approx(7 ** 0.5)
+    one = results["t2_augbc_finetune_bc_U"]
+    assert one.n == 1 and one.value("ape_cm") == 9.0 and one.sd("ape_cm") is None
+    cpu = fetch_results(TABLES["table2"], seeded["uri"], scale="cpu")["t2_bc_finetune_U"]
+    assert cpu.n == 1 and cpu.value("ape_cm") == 50.0  # scale= picks the other scale's runs alone
+
+
+def test_comparison_uses_means_and_welch_test(seeded: dict) -> None:
+    table = TABLES["table2"]
+    changes = {c.metric: c for c in compare(table, fetch_results(table, seeded["uri"]))}
+    ape, hd19 = changes["ape_cm"], changes["hd19"]
+    assert ape.change == pytest.approx(100 * (7.0 - 12.0) / 12.0) and (ape.n, ape.baseline_n) == (3, 3)
+    assert ape.p_value == pytest.approx(0.031562, abs=1e-5) and ape.significant is True
+    assert hd19.p_value == pytest.approx(0.631028, abs=1e-5) and hd19.significant is False
+    assert changes["fid"].p_value is None and changes["fid"].test == "no test (missing)"
+
+
+def test_report_text_marks_seeds_sd_and_significance(seeded: dict, tmp_path: Path) -> None:
+    rep = build_report(TABLES["table2"], seeded["uri"], tmp_path, chart=False)
+    text = rep.text
+    assert "12.00 ± 2.00" in text and "20.0 ± 10.0%" in text and "7.00 ± 1.00" in text
+    skipp_line = next(ln for ln in text.splitlines() if ln.startswith("| SKIPP BC, fine-tuned (BC) |"))
+    assert skipp_line.rstrip().endswith("| 3 |")  # the seeds column
+    one_line = next(ln for ln in text.splitlines() if ln.startswith("| Aug. BC, fine-tuned (BC) |"))
+    assert "9.00 /" in one_line and "±" not in one_line and one_line.rstrip().endswith("| 1 |")
+    assert "-41.7%" in text and "p = 0.0316" in text
+    assert "-3.1% (not significant)" in text and "p = 0.631, not significant" in text
+    assert "n=1, no test" in text  # the pairwise tests against the one-seed row
+    assert "Welch's t-test (two-sided, unequal variances, alpha 0.05)" in text
+    assert "t2_bc_finetune_U: 3 seeds (1, 2, 42) at scale tiny, from 6 runs (5 finished)" in text
+    assert "1 finished run(s) at other scales left out" in text
+    with open(rep.files["csv"]) as fh:
+        row = next(r for r in csv.DictReader(fh) if r["row"] == "t2_bc_finetune_U")
+    assert float(row["ape_cm"]) == pytest.approx(12.0) and float(row["ape_cm_sd"]) == pytest.approx(2.0)
+    assert row["n_seeds"] == "3" and row["seeds"] == "1 2 42" and len(row["run_ids"].split()) == 3
+    with open(rep.files["comparisons_csv"]) as fh:
+        rows = list(csv.DictReader(fh))
+    ape = next(r for r in rows if r["kind"] == "headline" and r["metric"] == "ape_cm")
+    assert float(ape["p_value"]) == pytest.approx(0.031562, abs=1e-5) and ape["significant"] == "True"
+    assert float(ape["value"]) == pytest.approx(7.0) and float(ape["baseline_value"]) == pytest.approx(12.0)
+    assert {r["test"] for r in rows if r["kind"] == "pairwise"} >= {"n=1, no test"}
+
+
+def test_one_seed_says_no_test(store: dict) -> None:
+    text = build_report(TABLES["table2"], store["uri"]).text
+    assert "| n=1, no test |" in text and "% (not significant)" not in text and ", not significant |" not in text
+
+
+def test_tiny_scale_report_says_pipeline_check(seeded: dict) -> None:
+    from spade.experiments.tables import TINY_NOTICE
+
+    assert TINY_NOTICE in build_report(TABLES["table2"], seeded["uri"]).text
+    assert "pipeline check, not a result" in TINY_NOTICE
+    assert TINY_NOTICE not in build_report(TABLES["table2"], seeded["uri"], scale="cpu").text

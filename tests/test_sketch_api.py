@@ -27,6 +27,7 @@ TINY = ["window.size_px=64", "window.resolution_m=0.1", "instances.spacing_m=0.1
 L_WAYPOINTS = [[0.0, 1.0], [1.5, 1.0], [2.5, 1.0], [3.1, 1.3], [3.4, 2.0], [3.4, 3.0]]
 L_SECOND = [[0.0, 6.0], [1.5, 6.0], [2.3, 6.0], [2.9, 6.3], [3.2, 7.0], [3.2, 8.0]]
 BLOCK = [4.0, 4.0]  # the middle of the site's obstacle
+LOCAL = "http://127.0.0.1:8765"  # the server answers only to its own host names (spade.sketching.app)
 
 
 def site(root: Path) -> Path:
@@ -43,7 +44,7 @@ def setup(tmp_path: Path) -> tuple[TestClient, Path, Path]:
     """(client, map yaml, out_dir) of an app on the site map."""
     yaml_path = site(tmp_path)
     out = tmp_path / "out"
-    return TestClient(build_app(str(yaml_path), out, TINY)), yaml_path, out
+    return TestClient(build_app(str(yaml_path), out, TINY), base_url=LOCAL), yaml_path, out
 
 
 def digest(path: Path) -> str:
@@ -147,7 +148,7 @@ def test_save_list_delete_round_trip_and_restart(setup) -> None:
 
     assert client.delete("/api/sketches/L000").json()["count"] == 1
     assert client.delete("/api/sketches/L000").status_code == 404
-    restarted = TestClient(build_app(str(yaml_path), out, TINY))  # a new server on the same out_dir
+    restarted = TestClient(build_app(str(yaml_path), out, TINY), base_url=LOCAL)  # a new server on the same out_dir
     assert [s["name"] for s in restarted.get("/api/sketches").json()["sketches"]] == ["dock_b"]
     r = restarted.post("/api/sketches", json={"shape": "L", "waypoints": L_WAYPOINTS})
     assert r.json()["saved"]["name"] == "L001"  # the first free default name after dock_b
@@ -223,7 +224,7 @@ def test_models_of_the_wrong_role_or_no_model_at_all_are_refused(setup, tmp_path
 def test_concurrent_saves_from_two_servers_lose_nothing(setup) -> None:
     """Eight saves at once, half through a second server on the same sketch file: all land, the file stays valid."""
     client, yaml_path, out = setup
-    other = TestClient(build_app(str(yaml_path), out, TINY))
+    other = TestClient(build_app(str(yaml_path), out, TINY), base_url=LOCAL)
     barrier = threading.Barrier(8)
     answers: list[int] = []
 
@@ -296,16 +297,27 @@ class LineOracle:
 
 
 def test_plan_with_a_student(setup, tmp_path: Path) -> None:
-    client, _, _ = setup
+    from spade.maps import load_ros_map
+    from spade.planner import Planner
+
+    client, yaml_path, _ = setup
     ckpt = student_checkpoint(tmp_path / "student.ckpt")
     r = client.post("/api/model", json={"path": str(ckpt)})
     assert r.status_code == 200 and r.json()["model"]["image_size"] == [64, 64], r.text
     query = {"pose": [0.0, 1.0, 0.0], "goal": [2.0, 1.0]}
-    r = client.post("/api/plan", json=query)  # untrained weights: any answer, but a well-formed one
+    r = client.post("/api/plan", json=query)  # untrained weights: the answer the planner gives for this file
     assert r.status_code == 200, r.text
     res = r.json()
-    assert res["success"] or (res["code"] and res["reason"])
+    expected = Planner(ckpt).plan(load_ros_map(yaml_path), query["pose"], query["goal"])
+    assert (res["success"], res["code"], res["reason"]) == (expected.success, expected.code, expected.reason)
+    np.testing.assert_allclose(np.asarray(res["waypoints"]).reshape(-1, 2), expected.waypoints, atol=1e-4)
     assert res["probability"].startswith("data:image/png;base64,") and res["latency_ms"] > 0
+
+    # A goal inside the site's block: no plan can reach it, a failure answer with its code, reason and picture.
+    r = client.post("/api/plan", json={"pose": [2.5, 4.0, 0.0], "goal": BLOCK})
+    assert r.status_code == 200, r.text
+    res = r.json()
+    assert res["success"] is False and res["code"] and res["reason"] and res["waypoints"] == [], res
 
     client.app.state.workspace.planner.backend = LineOracle()  # a network whose answer is known
     times = []

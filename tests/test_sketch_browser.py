@@ -21,6 +21,8 @@ import pytest
 from browser_support import browser_page, screenshot
 from spade.annotation.sketch_file import load_sketch_file
 
+pytestmark = pytest.mark.slow  # a spade.sketch server and a browser; the API in-process: test_sketch_api.py
+
 ROOT = Path(__file__).resolve().parents[1]
 MAP = "aws-robomaker-small-warehouse-world/small_warehouse_005.yaml"
 # L sketches on that map (map-frame metres), accepted by the annotation tool's execution with 64 px x 0.1 m windows.

@@ -113,6 +113,7 @@ def _finish(proc: subprocess.Popen) -> str:
     return out
 
 
+@pytest.mark.slow  # an mlflow server and parallel spade.train processes; the configs compose in the tests above
 def test_two_parallel_jobs_into_one_server_both_complete(server: dict) -> None:
     """Two trainings start together into an empty store (both create the `table1` experiment) and both finish."""
     from mlflow import MlflowClient
@@ -129,6 +130,7 @@ def test_two_parallel_jobs_into_one_server_both_complete(server: dict) -> None:
     assert len(client.search_model_versions("name LIKE 'spade-student-bc-%-small-%'")) == 2
 
 
+@pytest.mark.slow
 def test_optuna_search_with_joblib_runs_two_trials_in_parallel(server: dict) -> None:
     """The lambda search, two trials at once (joblib, n_jobs=2), reporting to the server; its prerequisite (the
     conditional expert) is registered first, so that the parallel trials find it rather than train it twice."""

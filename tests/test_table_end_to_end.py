@@ -64,6 +64,7 @@ def _table2_end_to_end(home: Path, *train_overrides: str) -> None:
     assert sorted(r.info.run_name for r in prerequisites) == ["expert_cond_L", "t1_medium_bc_L", "t1_medium_conddbc_L"]
 
 
+@pytest.mark.slow  # whole tables in spade.train processes; every row in-process: test_experiments_compose.py
 def test_table2_from_an_empty_store_capped_steps(tmp_path: Path) -> None:
     """The default-run variant: every training (prerequisites included) capped at one epoch of 2 batches."""
     _table2_end_to_end(tmp_path, *CAPPED)
@@ -75,6 +76,7 @@ def test_table2_from_an_empty_store_full_tiny_scale(tmp_path: Path) -> None:
     _table2_end_to_end(tmp_path)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("composition,key", [("ablation_scratch", "table3"), ("table1", "table1")])
 def test_whole_table_composition_from_an_empty_store(composition: str, key: str, tmp_path: Path) -> None:
     """The other two table compositions, capped steps: every row (and prerequisite) runs, the report fills them."""

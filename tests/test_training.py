@@ -6,16 +6,17 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import hydra
+import numpy as np
 import pytest
 import torch
 
 from spade.experiments.run import train
 from spade.training.expert_module import ExpertModule
 from spade.training.student_module import ExpertMismatchError, StudentModule
+from fault_injection import env_with_tests, kill_at
 from training_helpers import compose_row
 
 REPO = Path(__file__).resolve().parents[1]
@@ -48,6 +49,9 @@ def _fit_steps(module, loss_fn, batches, steps: int, lr: float) -> list[float]:
     return out
 
 
+# Slow: 140 training steps on the tiny data, minutes on 2 cores. Fast: test_models' student_learns_one_instance,
+# test_learning_core's briefly_trained_conditional_expert_uses_its_state, one_margin_step_moves_the_student_...
+@pytest.mark.slow
 def test_bc_expert_and_cond_dbc_losses_fall(spade_home: Path, tiny_checkpoints: dict) -> None:
     torch.manual_seed(0)
     batches = list(_data(spade_home).train_dataloader())[:4]
@@ -92,7 +96,8 @@ def test_same_seed_gives_identical_metrics(spade_home: Path) -> None:
                           "callbacks=none")
         metrics, _ = train(cfg)
         runs.append({k: v for k, v in metrics.items() if k.startswith("test/")})
-    assert runs[0] and runs[0] == runs[1]
+    assert runs[0]
+    np.testing.assert_equal(runs[0], runs[1])  # NaN-aware: a 3-step student may extract no path (APE NaN)
 
 
 def test_nan_loss_stops_with_the_step(spade_home: Path) -> None:
@@ -139,11 +144,12 @@ def test_bad_inputs_fail_before_training(spade_home: Path, tiny_checkpoints: dic
 
 
 def _run(args: list[str], home: Path, **kw) -> subprocess.Popen:
-    env = {**os.environ, "SPADE_HOME": str(home), "PYTHONUNBUFFERED": "1"}
+    env = env_with_tests({**os.environ, "SPADE_HOME": str(home), "PYTHONUNBUFFERED": "1"})
     return subprocess.Popen([sys.executable, "-m", "spade.train", *args], cwd=REPO, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **kw)
 
 
+@pytest.mark.slow  # a spade.train process
 def test_smoke_experiment_logs_a_run_with_test_metrics(tmp_path: Path) -> None:
     proc = _run(["+experiment=smoke", "trainer.enable_progress_bar=false"], tmp_path)
     out, _ = proc.communicate(timeout=600)
@@ -163,20 +169,17 @@ def test_smoke_experiment_logs_a_run_with_test_metrics(tmp_path: Path) -> None:
     assert client.search_model_versions("name LIKE 'spade-cond_expert-L-tiny-%'")
 
 
+@pytest.mark.slow  # two spade.train processes; resume in-process: test_reliability's resume_continues_the_run test
 def test_killed_run_resumes_into_the_same_mlflow_run(tmp_path: Path) -> None:
     run_dir = tmp_path / "run"
-    args = ["+experiment=t1_small_bc_L", "trainer.max_epochs=6", "trainer.enable_progress_bar=false",
-            f"hydra.run.dir={run_dir}", "test=false"]
-    proc = _run(args, tmp_path, start_new_session=True)
+    args = ["+experiment=t1_small_bc_L", "trainer.max_epochs=3", "+trainer.limit_train_batches=4",
+            "trainer.enable_progress_bar=false", f"hydra.run.dir={run_dir}", "test=false"]
+    # kill -9 by the run itself when batch 2 of epoch 1 starts: after epoch 0's checkpoint, in the middle of epoch 1
+    proc = _run([*args, *kill_at(epoch=1, batch=2)], tmp_path, start_new_session=True)
+    out, _ = proc.communicate(timeout=600)
+    assert proc.returncode == -signal.SIGKILL, out[-3000:]
     last = run_dir / "checkpoints" / "last.ckpt"
-    deadline = time.time() + 300
-    while not last.exists() and time.time() < deadline and proc.poll() is None:
-        time.sleep(0.2)
-    assert last.exists(), proc.communicate()[0][-3000:]
-    time.sleep(0.5)  # into the next epoch
-    assert proc.poll() is None, "the run ended before it was killed: " + proc.communicate()[0][-2000:]
-    os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait()
+    assert last.exists(), out[-3000:]
     resumed = run_dir / "resume.ckpt"
     resumed.write_bytes(last.read_bytes())
     proc = _run([*args, f"ckpt_path={resumed}"], tmp_path)
@@ -188,7 +191,7 @@ def test_killed_run_resumes_into_the_same_mlflow_run(tmp_path: Path) -> None:
     runs = client.search_runs([client.get_experiment_by_name("table1").experiment_id])
     assert len(runs) == 1
     epochs = [m.value for m in client.get_metric_history(runs[0].info.run_id, "epoch")]
-    assert max(epochs) == 5
+    assert max(epochs) == 2
     # Continued, not restarted: the steps before the checkpoint were logged once (by the killed process only).
     ckpt_step = torch.load(resumed, map_location="cpu", weights_only=False)["global_step"]
     steps = [m.step for m in client.get_metric_history(runs[0].info.run_id, "train/loss_bc")]

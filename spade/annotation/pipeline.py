@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 from collections import Counter, deque
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -76,9 +77,35 @@ def shapes_of(cfg: Mapping[str, Any]) -> list[str]:
 _WORKER: dict[str, Any] = {}
 
 
-def _init_worker(contexts: list[MapContext], cfg: Mapping[str, Any]) -> None:
+def _init_worker(contexts: list[MapContext], cfg: Mapping[str, Any], parent: int | None = None) -> None:
     _WORKER["contexts"] = contexts
     _WORKER["cfg"] = cfg
+    if parent is not None:
+        exit_with_parent(parent)
+
+
+def exit_with_parent(parent: int, interval_s: float = 0.5) -> None:
+    """End this (worker) process as soon as ``parent`` is gone, e.g. after a ``kill -9`` or SIGTERM of the
+    annotation run: a watchdog thread polls the parent (a pool worker would otherwise keep running, orphaned,
+    and keep multiprocessing's resource tracker alive). Linux's parent-death signal is not used: it fires when
+    the parent *thread* that started the worker ends, which a pool does not promise to outlive."""
+    import threading
+    import time
+
+    from spade.utils.processes import pid_alive, process_start
+
+    start = process_start(parent)  # a reused pid is not taken for the parent (start method fork, spawn or forkserver)
+    if start is None and not pid_alive(parent):  # gone already
+        os._exit(1)
+
+    ppid = os.getppid()  # the parent itself (fork, spawn) or the forkserver: reparented when it dies
+
+    def watch() -> None:
+        while os.getppid() == ppid and pid_alive(parent, start):
+            time.sleep(interval_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="spade-parent-watchdog", daemon=True).start()
 
 
 def _run_scenario(map_index: int, shape: str, index: int) -> ScenarioResult:
@@ -102,7 +129,7 @@ def _executor(workers: int, start_method: str, contexts: list[MapContext], cfg: 
         _init_worker(contexts, cfg)
         return _InlineExecutor()
     return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(start_method),
-                               initializer=_init_worker, initargs=(contexts, cfg))
+                               initializer=_init_worker, initargs=(contexts, cfg, os.getpid()))
 
 
 def ordered_results(executor: Executor, tasks: Iterable[tuple[int, str, int]], window: int
@@ -249,7 +276,8 @@ def write_dataset(out_dir: str | Path, items: Iterable[tuple[Instance, str, str,
 
     size = int(cfg["window"]["size_px"])
     with DatasetWriter(out_dir, image_size=(size, size), resolution=resolution, num_waypoints=int(cfg["num_waypoints"]),
-                       generator_config=dict(cfg), overwrite=bool(cfg.get("overwrite", False))) as writer:
+                       generator_config=dict(cfg), overwrite=bool(cfg.get("overwrite", False)),
+                       expected_instances=_expected(cfg)) as writer:
         for inst, shape, map_id, scenario_id in items:
             writer.add(inst.occupancy, inst.start, inst.goal, inst.path, inst.waypoints, shape, map_id, scenario_id,
                        inst.pose)
@@ -260,6 +288,16 @@ def write_dataset(out_dir: str | Path, items: Iterable[tuple[Instance, str, str,
             writer.set_extra(key, value)
         count = writer.count
     return count
+
+
+def _expected(cfg: Mapping[str, Any]) -> int | None:
+    """The instances a template run will write (None for sketches and imports, whose count is not known ahead)."""
+    if cfg.get("sketches") or (cfg.get("rosbag") or {}).get("paths") or (cfg.get("skipp") or {}).get("root"):
+        return None
+    try:
+        return int(cfg["num_instances"])
+    except (KeyError, TypeError, ValueError):
+        return None
 
 
 def build_contexts(sources: list[Any], cfg: Mapping[str, Any]) -> list[MapContext]:

@@ -12,8 +12,6 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-AUGMENTATIONS = ("none", "mirror")
-
 
 def check_augmentation(name: str | bool | None) -> str:
     """Normalise ``data.augment`` (``none`` / ``mirror``; false/null mean none)."""

@@ -105,7 +105,16 @@ class PathDataModule(L.LightningDataModule):
                     f"{root}: dataset missing and no generator config given. Build it with "
                     f"`python -m spade.annotate out_dir={root}` or set the data config's *_generate."
                 )
-            self.generator(root, config)
+            from spade.data.writer import DatasetExistsError
+
+            try:
+                self.generator(root, config)
+            except DatasetExistsError:
+                # Another run generated the same missing dataset first (two runs' prepare_data at once): its
+                # dataset is kept. It is used only when it was made with these settings; otherwise this refuses it.
+                if not (root / "manifest.json").is_file():
+                    raise
+                check_dataset(root, config, key)
 
     def setup(self, stage: str | None = None) -> None:
         if self.train_set is None:

@@ -40,6 +40,14 @@ class DatasetError(RuntimeError):
     """A dataset directory that is missing, incomplete, corrupt or of another format."""
 
 
+class ManifestMissingError(DatasetError, FileNotFoundError):
+    """A dataset path without ``manifest.json`` (a writer publishes it last: an interrupted write leaves none)."""
+
+
+class ManifestFormatError(DatasetError, ValueError):
+    """A ``manifest.json`` that cannot be read as a JSON object."""
+
+
 @dataclass(frozen=True)
 class ArraySpec:
     """One array file: its name, element type and the shape of one instance's row."""
@@ -97,6 +105,29 @@ def _require(cond: bool, path: Path, what: str) -> None:
         raise DatasetError(f"{path}: {what}. Re-generate the dataset (python -m spade.annotate ...) or restore it.")
 
 
+def read_manifest_json(root: str | Path) -> dict[str, Any]:
+    """The JSON object of ``root/manifest.json``, not validated: the one place a manifest file is parsed.
+
+    :func:`read_manifest` validates it; the config checks and the MLflow tracking read single fields of it
+    (``generator``, ``image_size``, ``labels`` ...). Raises :class:`ManifestMissingError` (also a
+    ``FileNotFoundError``) or :class:`ManifestFormatError` (also a ``ValueError``), naming the file.
+    """
+    path = Path(root) / MANIFEST
+    try:
+        raw = json.loads(path.read_text())
+    except FileNotFoundError as exc:
+        raise ManifestMissingError(
+            f"{path}: no dataset manifest (manifest.json is missing; an interrupted write leaves none). Re-generate "
+            "the dataset (python -m spade.annotate ...) or restore it."
+        ) from exc
+    except (OSError, ValueError) as exc:
+        raise ManifestFormatError(f"{path}: cannot be parsed as JSON ({exc}). Re-generate the dataset.") from exc
+    if not isinstance(raw, dict):
+        raise ManifestFormatError(f"{path}: not a {FORMAT_NAME} manifest (not a JSON object). Re-generate the dataset "
+                                  "(python -m spade.annotate ...) or restore it.")
+    return raw
+
+
 def read_manifest(root: str | Path) -> Manifest:
     """Read and validate ``root/manifest.json``; raise :class:`DatasetError` naming the problem."""
     root = Path(root)
@@ -106,11 +137,8 @@ def read_manifest(root: str | Path) -> Manifest:
             f"{root}: no such dataset directory. Create one with `python -m spade.annotate out_dir={root}`."
         )
     _require(path.is_file(), path, "manifest.json is missing (an interrupted write leaves no manifest)")
-    try:
-        raw = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise DatasetError(f"{path}: cannot be parsed as JSON ({exc}). Re-generate the dataset.") from exc
-    _require(isinstance(raw, dict) and raw.get("format") == FORMAT_NAME, path, f"not a {FORMAT_NAME} manifest")
+    raw = read_manifest_json(root)
+    _require(raw.get("format") == FORMAT_NAME, path, f"not a {FORMAT_NAME} manifest")
     version = raw.get("format_version")
     if version == 1:
         raise DatasetError(

@@ -1,6 +1,7 @@
 """``python -m spade.data.verify DIR``: recompute a dataset's checksums and check shapes and value domains.
 
-Exit status 0 when the dataset is sound, 1 with a list of problems otherwise.
+Exit status 0 when the dataset is sound, 1 with a list of problems otherwise; 2 with one ``error:`` line when
+``DIR`` is no dataset at all (missing, a file, a folder without ``manifest.json``), as every entry point.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from spade.data.dataset import check_files
-from spade.data.format import DatasetError, Manifest, read_manifest
+from spade.data.format import MANIFEST, DatasetError, Manifest, read_manifest
 from spade.data.packing import unpack_bits, unpack_two_bit
 
 _CHUNK = 1024
@@ -78,10 +79,24 @@ def verify(root: str | Path) -> list[str]:
     return check_domains(manifest)
 
 
+def check_target(root: Path) -> None:
+    """The argument is an existing folder that holds a dataset manifest (else :class:`DatasetError`, one line)."""
+    fix = "give a dataset folder written by python -m spade.annotate"
+    if not root.exists():
+        raise DatasetError(f"{root} does not exist; {fix}")
+    if not root.is_dir():
+        raise DatasetError(f"{root} is a file, not a dataset folder; {fix}")
+    if not (root / MANIFEST).is_file():
+        raise DatasetError(f"{root} holds no {MANIFEST}: it is not a SPADE dataset; {fix}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m spade.data.verify", description=__doc__.splitlines()[0])
     parser.add_argument("root", type=Path, help="dataset directory (holds manifest.json)")
     args = parser.parse_args(argv)
+    from spade.experiments.validation import exit_on_user_error  # the entry points' one-line errors
+
+    exit_on_user_error(check_target)(args.root)
     problems = verify(args.root)
     if problems:
         print(f"{args.root}: {len(problems)} problem(s)")

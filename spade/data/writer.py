@@ -16,7 +16,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from spade.data.format import FORMAT_NAME, FORMAT_VERSION, LABEL_KEYS, MANIFEST, ArraySpec, array_specs
+from spade.data.format import FORMAT_NAME, FORMAT_VERSION, LABEL_KEYS, MANIFEST, ArraySpec, DatasetError, array_specs
 from spade.data.packing import pack_bits, pack_two_bit
 from spade.utils.processes import pid_alive
 
@@ -40,13 +40,53 @@ class _LabelTable:
         return {"values": self.values, "index": self.index}
 
 
+class DatasetExistsError(DatasetError, FileExistsError):
+    """The output is taken: a dataset appeared there (another writer finished first), or the path holds something
+    that is not a SPADE dataset (which is never replaced, not even with ``overwrite=True``)."""
+
+
+class DiskFullError(DatasetError, OSError):
+    """The disk filled while a dataset was written; its partial folder is removed and the message says how much
+    space the dataset needs."""
+
+
+def check_output_dir(root: str | Path, overwrite: bool, key: str = "out_dir") -> None:
+    """Refuse an output folder that must not be written: an existing path that is not a SPADE dataset (a file, a
+    folder without ``manifest.json``: nothing of the user's is ever replaced), or an existing dataset without
+    ``overwrite``. Raises :class:`DatasetExistsError` naming ``key``, the path and the fix."""
+    root = Path(root)
+    if not (root.exists() or root.is_symlink()):
+        return
+    if not root.is_dir():
+        raise DatasetExistsError(f"{key}={root} is an existing file, not a dataset folder: it is never replaced "
+                                 f"(not even with overwrite=true); choose another {key}")
+    if not (root / MANIFEST).is_file():
+        what = "an empty folder" if not any(root.iterdir()) else "a folder that is not a SPADE dataset"
+        raise DatasetExistsError(f"{key}={root} is {what} (no {MANIFEST}): overwrite=true replaces only a SPADE "
+                                 f"dataset, never other files; choose another {key} (a new or dataset folder)")
+    if not overwrite:
+        raise DatasetExistsError(f"{key}={root} already holds a dataset; choose another {key} or pass "
+                                 "overwrite=true to replace it (the old dataset is kept until the new one is complete)")
+
+
+def _free_mib(path: Path) -> str:
+    try:
+        st = os.statvfs(path)
+        return f"{st.f_bavail * st.f_frsize / 2**20:.1f} MiB"
+    except OSError:
+        return "unknown"
+
+
 class DatasetWriter:
     """Write a dataset into a temporary directory and rename it into place only when complete.
 
     Use as a context manager; call :meth:`add` once per instance. An exception inside the ``with`` block (or a
     killed process) leaves ``root`` untouched: the temporary directory never holds a manifest until every array
     file is complete, and it is renamed onto ``root`` in one step. An existing ``root`` is replaced only with
-    ``overwrite=True``, and then only after the new dataset is complete.
+    ``overwrite=True``, only when it is a SPADE dataset (a file or any other folder is refused:
+    :func:`check_output_dir`), and then only after the new dataset is complete. Without ``overwrite`` a dataset
+    that another writer completed at ``root`` meanwhile is kept and this writer fails (:class:`DatasetExistsError`).
+    A full disk removes the partial folder and raises :class:`DiskFullError` with the space the dataset needs.
     """
 
     def __init__(
@@ -58,6 +98,7 @@ class DatasetWriter:
         generator_config: dict[str, Any] | None = None,
         overwrite: bool = False,
         frame: dict[str, Any] | None = None,
+        expected_instances: int | None = None,
     ) -> None:
         self.root = Path(root)
         height, width = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
@@ -67,11 +108,9 @@ class DatasetWriter:
             raise ValueError(f"resolution must be > 0 metres per pixel, got {resolution}")
         if num_waypoints < 2:
             raise ValueError(f"num_waypoints must be >= 2, got {num_waypoints}")
-        if self.root.exists() and not overwrite:
-            raise FileExistsError(
-                f"{self.root} already exists; choose another out_dir or pass overwrite=True to replace it "
-                "(the old dataset is kept until the new one is complete)"
-            )
+        check_output_dir(self.root, overwrite)  # a file or a non-dataset folder is never replaced
+        self.overwrite = bool(overwrite)
+        self.expected_instances = int(expected_instances) if expected_instances else None
         self.height, self.width = int(height), int(width)
         self.resolution = float(resolution)
         self.num_waypoints = int(num_waypoints)
@@ -94,29 +133,69 @@ class DatasetWriter:
         self.root.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_partials(self.root)
         self._tmp = self.root.parent / f".{self.root.name}.partial-{_owner()}-{uuid.uuid4().hex[:8]}"
-        self._tmp.mkdir()
-        for name, spec in self.specs.items():
-            self._files[name] = open(self._tmp / spec.filename, "wb")
-            self._hashes[name] = hashlib.sha256()
+        try:
+            self._tmp.mkdir()
+            for name, spec in self.specs.items():
+                self._files[name] = open(self._tmp / spec.filename, "wb")
+                self._hashes[name] = hashlib.sha256()
+        except OSError as err:
+            for handle in self._files.values():
+                handle.close()
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._raise_disk_full(err)
+            raise
         return self
 
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
-        for handle in self._files.values():
-            if exc_type is None:
-                handle.flush()
-                os.fsync(handle.fileno())
-            handle.close()
         assert self._tmp is not None
-        if exc_type is not None:
-            shutil.rmtree(self._tmp, ignore_errors=True)
-            return
         try:
-            self._finish()
-        except BaseException:
+            closing_error: BaseException | None = None
+            for handle in self._files.values():
+                try:
+                    if exc_type is None and closing_error is None:
+                        handle.flush()
+                        os.fsync(handle.fileno())
+                    handle.close()
+                except OSError as err:  # a full disk fails again on close: the folder is removed all the same
+                    closing_error = closing_error or err
+                    try:
+                        handle.close()
+                    except OSError:
+                        pass
+            if exc_type is None and closing_error is not None:
+                raise closing_error
+            if exc_type is None:
+                self._finish()
+        except BaseException as err:
             shutil.rmtree(self._tmp, ignore_errors=True)
+            self._raise_disk_full(err)
             raise
+        finally:
+            if exc_type is not None:
+                shutil.rmtree(self._tmp, ignore_errors=True)
+        if exc is not None:
+            self._raise_disk_full(exc)
+
+    def _raise_disk_full(self, err: BaseException) -> None:
+        """Re-raise a full disk (ENOSPC, EDQUOT) as :class:`DiskFullError` naming the path and the space needed."""
+        import errno
+
+        if isinstance(err, DiskFullError) or getattr(err, "errno", None) not in (errno.ENOSPC, errno.EDQUOT):
+            return
+        per = sum(spec.row_nbytes for spec in self.specs.values())
+        written = self.count * per / 2**20
+        if self.expected_instances:
+            n = self.expected_instances
+            need = f"the dataset needs about {n * per / 2**20:.1f} MiB ({n} instances x {per} bytes)"
+        else:
+            need = f"it needs {per} bytes per instance"
+        raise DiskFullError(
+            f"disk full while writing the dataset {self.root}: {written:.1f} MiB ({self.count} instances) were written "
+            f"before the disk filled; {need}, {_free_mib(self.root.parent)} free on that filesystem. The partial "
+            f"folder {self._tmp} was removed; free some space or choose another out_dir"
+        ) from None
 
     # -- writing ---------------------------------------------------------------------------------------------
     def add(
@@ -202,13 +281,28 @@ class DatasetWriter:
         }
         # The manifest is written last: a directory without one is never taken for a dataset.
         (self._tmp / MANIFEST).write_text(json.dumps(manifest, indent=1, sort_keys=True))
-        # Move the old dataset aside, then the new one in. A parallel writer of the same root can swap its own in
-        # between (two runs generating one missing dataset): each step then fails and the swap is tried again, so
-        # every writer ends with a complete dataset at root and nothing of its own left beside it.
+        if not self.overwrite:
+            # No overwrite: one atomic rename that cannot replace a dataset another writer put there after this one
+            # started (rename(2) never replaces a non-empty folder), so the first complete dataset stays.
+            try:
+                os.rename(self._tmp, self.root)
+            except OSError as err:
+                if self.root.exists():
+                    raise DatasetExistsError(
+                        f"out_dir={self.root}: another writer created a dataset there while this one was writing; it "
+                        "is kept and this one discarded. Choose another out_dir, or pass overwrite=true to replace it"
+                    ) from None
+                raise err
+            return
+        # Overwrite: move the old dataset aside, then the new one in. A parallel writer of the same root can swap its
+        # own in between: each step then fails and the swap is tried again, so every writer ends with a complete
+        # dataset at root and nothing of its own left beside it.
         for attempt in range(20):
             backup = None
             try:
                 if self.root.exists():
+                    if not (self.root / MANIFEST).is_file():  # replaced meanwhile by something of the user's
+                        check_output_dir(self.root, True)
                     backup = self.root.parent / f".{self.root.name}.old-{uuid.uuid4().hex[:8]}"
                     os.replace(self.root, backup)
                 os.replace(self._tmp, self.root)

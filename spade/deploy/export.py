@@ -222,6 +222,9 @@ def export_student(
     metadata = export_metadata(info, fmt, source=ckpt_path, opset=opset, in_channels=int(net.in_channels))
     image_size = metadata["data"]["image_size"]
     out = Path(out_path) if out_path else Path(ckpt_path).with_suffix(SUFFIXES[fmt])
+    if out.expanduser().resolve() == Path(ckpt_path).expanduser().resolve():  # never the user's checkpoint
+        raise ExportError(f"the export would overwrite the checkpoint {ckpt_path} itself; pass another out_path "
+                          f"(e.g. {Path(ckpt_path).with_name(Path(ckpt_path).stem + '.' + fmt + SUFFIXES[fmt])})")
     export_net(net, out, fmt, image_size, metadata, opset)
     exported = open_model(out, threads=threads)
     diff = max_abs_diff(net, exported, image_size, parity_batch)

@@ -69,10 +69,13 @@ def plan_image(m: OccupancyMap, result: PlanResult, context_m: float = 1.0, widt
         outline = [tuple(p) for p in screen(result.window.corners_m)]
         draw.line([*outline, outline[0]], fill=(40, 90, 255), width=max(1, scale // 2))
     if len(result.waypoints) >= 2:
+        # green: a confident plan; orange: low confidence (or the Nav2-like fallback that replaced it)
+        low = bool(getattr(result, "low_confidence", False))
+        colour, dots = ((255, 140, 0), (200, 100, 0)) if low else ((0, 170, 0), (0, 120, 0))
         line = [tuple(p) for p in screen(result.waypoints)]
-        draw.line(line, fill=(0, 170, 0), width=max(2, scale // 2))
+        draw.line(line, fill=colour, width=max(2, scale // 2))
         for x, y in line:
-            draw.ellipse([x - scale / 2, y - scale / 2, x + scale / 2, y + scale / 2], fill=(0, 120, 0))
+            draw.ellipse([x - scale / 2, y - scale / 2, x + scale / 2, y + scale / 2], fill=dots)
     radius = max(3, scale * 1.5)
     if result.pose is not None:
         x, y, yaw = result.pose
@@ -92,7 +95,14 @@ def plan_text(result: PlanResult, map_name: str, png: Path | None = None) -> str
     if result.success:
         sub = " (sub-goal towards the requested goal)" if result.subgoal else ""
         lines = [f"# plan on {map_name}: robot ({pose}) -> goal ({goal}){sub}: {len(result.waypoints)} waypoints, "
-                 f"{result.length_m:.2f} m", "# x_m y_m"]
+                 f"{result.length_m:.2f} m"]
+        share = getattr(result, "low_share", float("nan"))
+        if share == share:  # decoded by search: its confidence
+            flag = ("; LOW CONFIDENCE, replaced by the Nav2-like shortest path (fallback=shortest)" if result.fallback
+                    else "; LOW CONFIDENCE" if result.low_confidence else "")
+            lines.append(f"# decoded by search: {100 * share:.0f} % of its length through p < 0.5, lowest p "
+                         f"{result.min_probability:.2f}{flag}")
+        lines.append("# x_m y_m")
         lines += [f"{x:.3f} {y:.3f}" for x, y in result.waypoints]
     else:
         lines = [f"# no plan on {map_name}: robot ({pose}) -> goal ({goal}): {result.code}: {result.reason}"]

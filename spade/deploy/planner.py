@@ -16,8 +16,14 @@ A query is turned into exactly such a window:
   failure (``far_goal="fail"``) or, with ``far_goal="clip"``, replaced by the farthest free point towards it
   that fits (a sub-goal: plan again from nearer the goal).
 
-The path is extracted with :func:`spade.metrics.extract_path` (the evaluation's extraction) and mapped back to
-map-frame metres (``WindowPose.to_map`` then ``pixel_to_world``). Every way a query can fail gives a
+The path is decoded by search (``decode="search"``, the default; :class:`spade.metrics.decoding.PathDecoder`):
+the minimum-cost path over ``-log p`` plus the window costmap's inflation from the robot's pixel to the goal's
+centre, never through a non-free cell, smoothed with the annotation tool's smoother. It always reaches the goal
+when a free path exists in the window, and carries its confidence (the share of its length through pixels with
+``p < 0.5``, the lowest ``p`` along it); ``fallback="shortest"`` returns the Nav2-like shortest path, flagged,
+when that share exceeds ``low_confidence_share``. ``decode="skeleton"`` keeps the paper's extraction
+(:func:`spade.metrics.extract_path`: threshold, skeleton, longest chain from the start). The path is mapped back
+to map-frame metres (``WindowPose.to_map`` then ``pixel_to_world``). Every way a query can fail gives a
 :class:`PlanResult` with ``success=False``, a short ``code`` and a readable ``reason``, keeping whatever was
 computed (window, probabilities) for debugging.
 
@@ -39,6 +45,9 @@ from spade.annotation.frame import RobotFrame, WindowPose, heading_from_yaw
 from spade.annotation.rasterize import render
 from spade.maps import FREE, OCCUPIED, OccupancyMap, load_ros_map
 from spade.metrics import ExtractedPath, extract_path
+from spade.metrics.baselines import shortest_path
+from spade.data.polyline import resample_polyline
+from spade.metrics.decoding import DecodedPath, PathDecoder
 from spade.models.modelfile import ModelFileError, UnsafeModelFileError, open_model, robot_frame
 
 __all__ = ["PlanResult", "PlanWindow", "Planner", "PlannerConfigError"]
@@ -97,9 +106,14 @@ class PlanResult:
 
     ``waypoints``: (K, 2) float64 map-frame metres from the robot to the goal, evenly spaced by arc length; an
     empty (0, 2) array when ``success`` is False. ``code``: None on success, else one of ``start_outside_map``,
-    ``start_not_free``, ``goal_outside_map``, ``goal_not_free``, ``goal_too_far``, ``empty`` (no pixel above the
-    threshold), ``too_short``, ``start_not_reached`` (the path begins away from the robot), ``goal_not_reached``,
-    ``collision``; ``reason`` says it in words. ``pose``: the
+    ``start_not_free``, ``goal_outside_map``, ``goal_not_free``, ``goal_too_far``, ``no_free_path`` (no
+    collision-free path joins robot and goal inside the window); with ``decode="skeleton"`` also ``empty`` (no
+    pixel above the threshold), ``too_short``, ``start_not_reached`` (the path begins away from the robot),
+    ``goal_not_reached``, ``collision``; ``reason`` says it in words. ``decode``: how the path was read from the
+    probabilities (``search`` or ``skeleton``). ``low_share``: the share of the path's length through pixels the
+    network gave ``p < 0.5``, ``min_probability`` the lowest ``p`` along it (search decoding; NaN otherwise);
+    ``low_confidence``: ``low_share`` above the planner's ``low_confidence_share``; ``fallback``: the waypoints are
+    the Nav2-like shortest path that ``fallback="shortest"`` put in place of a low-confidence plan. ``pose``: the
     robot pose (x, y, yaw) planned from; ``start`` its (x, y). ``goal``: the goal planned to (the sub-goal when
     ``far_goal="clip"`` moved it; then ``subgoal`` is True). ``window``: where the student's window lies
     (:class:`PlanWindow`). ``probability``: the (S, S) path probabilities of the window and ``state`` the
@@ -120,8 +134,13 @@ class PlanResult:
     state: np.ndarray | None = field(default=None, repr=False)
     probability: np.ndarray | None = field(default=None, repr=False)
     pixels: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
-    extraction: ExtractedPath | None = field(default=None, repr=False)
+    extraction: ExtractedPath | DecodedPath | None = field(default=None, repr=False)
     blocked: int = 0
+    decode: str = "search"
+    low_share: float = float("nan")
+    min_probability: float = float("nan")
+    low_confidence: bool = False
+    fallback: bool = False
 
     def __bool__(self) -> bool:
         return self.success
@@ -132,6 +151,15 @@ class PlanResult:
         if len(self.waypoints) < 2:
             return 0.0
         return float(np.linalg.norm(np.diff(self.waypoints, axis=0), axis=1).sum())
+
+
+def _blocked(codes: np.ndarray, points: np.ndarray, start_px: np.ndarray, goal_px: np.ndarray) -> int:
+    """Points of a window path on non-free cells, other than the robot's and the goal's own cells."""
+    cells = np.rint(np.asarray(points, np.float64)).astype(np.int64)
+    cells[:, 0] = np.clip(cells[:, 0], 0, codes.shape[1] - 1)
+    cells[:, 1] = np.clip(cells[:, 1], 0, codes.shape[0] - 1)
+    ends = {tuple(np.rint(start_px).astype(np.int64)), tuple(np.rint(goal_px).astype(np.int64))}
+    return int(sum(codes[r, c] != FREE and (c, r) not in ends for c, r in cells))
 
 
 def _failure(code: str, reason: str, **kwargs: Any) -> PlanResult:
@@ -172,7 +200,14 @@ class Planner:
         model: a student checkpoint (``.ckpt``, from ``python -m spade.train``) or its export (``.onnx``, ``.pt``).
         device: ``cpu``, ``cuda[:N]`` or ``auto`` (:func:`spade.models.modelfile.resolve_device`).
         num_waypoints: points of the returned polyline.
-        threshold, max_gap, goal_tolerance_px: :func:`spade.metrics.extract_path` options (the evaluation's).
+        decode: ``search`` (default: the minimum-cost path over ``-log p`` on the window's costmap, robot to
+            goal, :class:`~spade.metrics.decoding.PathDecoder`) or ``skeleton`` (the paper's extraction).
+        fallback: None (default) or ``shortest``: a plan whose ``low_share`` exceeds ``low_confidence_share`` is
+            replaced by the Nav2-like shortest path on the window's inflated costmap, flagged ``fallback=True``.
+        low_confidence_share: the share of a decoded path's length through pixels with ``p < threshold`` above
+            which the plan is flagged ``low_confidence`` (default 0.1).
+        threshold, max_gap, goal_tolerance_px: :func:`spade.metrics.extract_path` options (the evaluation's);
+            ``threshold`` is also the decoder's confidence threshold.
         disc_radius_m, margin_m: the annotation tool's ``instances.disc_radius_m`` and ``window.margin_m`` the
             student was trained with (defaults: conf/annotate.yaml's, unless the model file records them).
         far_goal: ``fail`` (default) or ``clip`` (plan to the farthest free point towards the goal that fits).
@@ -198,6 +233,9 @@ class Planner:
         collision_check: bool = True,
         batch_size: int = 64,
         threads: int | None = None,
+        decode: str = "search",
+        fallback: str | None = None,
+        low_confidence_share: float = 0.1,
     ) -> None:
         path = Path(model).expanduser()
         if not path.is_file():
@@ -230,6 +268,19 @@ class Planner:
             raise PlannerConfigError(f"far_goal must be 'fail' or 'clip', got {far_goal!r}")
         if batch_size < 1:
             raise PlannerConfigError(f"batch_size must be >= 1, got {batch_size}")
+        if decode not in ("search", "skeleton"):
+            raise PlannerConfigError(f"decode must be 'search' (the planner's search decoder) or 'skeleton' (the "
+                                     f"paper's extraction), got {decode!r}")
+        if fallback not in (None, "none", "shortest"):
+            raise PlannerConfigError(f"fallback must be null or 'shortest', got {fallback!r}")
+        if not 0.0 <= float(low_confidence_share) <= 1.0:
+            raise PlannerConfigError(f"low_confidence_share must lie in [0, 1], got {low_confidence_share}")
+        self.decode = decode
+        self.fallback = None if fallback in (None, "none") else fallback
+        self.low_confidence_share = float(low_confidence_share)
+        # The endpoints were checked free on the map; the window's conservative rotation may still mark the robot's
+        # or the goal's own cell non-free (2 x 2 footprint), which must not make a feasible plan fail.
+        self.decoder = PathDecoder(num_points=num_waypoints, threshold=threshold, force_endpoints=True)
         self.num_waypoints, self.threshold, self.max_gap = int(num_waypoints), float(threshold), float(max_gap)
         self.goal_tolerance_px = float(goal_tolerance_px)
         self.far_goal, self.require_goal, self.collision_check = far_goal, bool(require_goal), bool(collision_check)
@@ -389,11 +440,41 @@ class Planner:
 
     def _extract(self, window: PlanWindow, state: np.ndarray, prob: np.ndarray, pose: np.ndarray,
                  goal_px: np.ndarray, goal_m: np.ndarray, subgoal: bool) -> PlanResult:
+        if self.decode == "search":
+            return self._search(window, state, prob, pose, goal_px, goal_m, subgoal)
+        return self._skeleton(window, state, prob, pose, goal_px, goal_m, subgoal)
+
+    def _search(self, window: PlanWindow, state: np.ndarray, prob: np.ndarray, pose: np.ndarray,
+                goal_px: np.ndarray, goal_m: np.ndarray, subgoal: bool) -> PlanResult:
+        start_px = np.asarray(self.frame.robot_px, dtype=np.float64)
+        codes = np.rint(state[0] * 2).astype(np.uint8)
+        found = self.decoder(prob, codes, start_px, goal_px, self.resolution)
+        common = dict(pose=pose, start=pose[:2].copy(), goal=np.asarray(goal_m, dtype=np.float64), subgoal=subgoal,
+                      window=window, state=state, probability=prob, extraction=found, decode="search")
+        if not found.ok:
+            what = {"start_blocked": "the robot's cell in the window is not free",
+                    "goal_blocked": "the goal's cell in the window is not free"}.get(
+                found.failure, "no collision-free path joins the robot and the goal inside the student's window")
+            return _failure("no_free_path", f"no path: {what}", **common)
+        low = found.low_confidence(self.low_confidence_share)
+        result = dict(low_share=found.low_share, min_probability=found.min_prob, low_confidence=low,
+                      blocked=_blocked(codes, found.points, start_px, goal_px))
+        if low and self.fallback == "shortest":
+            line = shortest_path(codes, start_px, goal_px, self.resolution)
+            if line is not None:  # from the grid cells of the ends to the exact robot and goal positions
+                points = resample_polyline(np.vstack([start_px, line[1:-1], goal_px]), self.num_waypoints)
+                return PlanResult(success=True, waypoints=window.to_world(points), pixels=points, fallback=True,
+                                  **result, **common)
+        return PlanResult(success=True, waypoints=window.to_world(found.points), pixels=found.points, **result,
+                          **common)
+
+    def _skeleton(self, window: PlanWindow, state: np.ndarray, prob: np.ndarray, pose: np.ndarray,
+                  goal_px: np.ndarray, goal_m: np.ndarray, subgoal: bool) -> PlanResult:
         start_px = np.asarray(self.frame.robot_px, dtype=np.float64)
         found = extract_path(prob, start_px, goal_px, self.num_waypoints, threshold=self.threshold,
                              max_gap=self.max_gap, goal_tolerance=self.goal_tolerance_px)
         common = dict(pose=pose, start=pose[:2].copy(), goal=np.asarray(goal_m, dtype=np.float64), subgoal=subgoal,
-                      window=window, state=state, probability=prob, extraction=found)
+                      window=window, state=state, probability=prob, extraction=found, decode="skeleton")
         if not found.ok:
             why = {"empty": f"no pixel of the predicted path reaches probability {self.threshold}",
                    "too_short": "the predicted path near the start is a single pixel"}.get(found.failure, found.failure)

@@ -7,6 +7,9 @@
   it is in the run: a run resumed from an epoch-end checkpoint repeats the uninterrupted run's numbers exactly,
   and nothing done before training (a prerequisite trained in the same process, an untrained-baseline test)
   changes them.
+* :class:`CarryBestCheckpoint` (added by ``spade.train`` when it resumes from ``ckpt_path``) keeps the interrupted
+  run's best checkpoint and score, which Lightning drops when the run folder changes, so a resumed run tests the
+  checkpoint the uninterrupted run would have tested.
 * :func:`install_signal_handlers`: SIGTERM and SIGINT end the run through an exception, so that ``spade.train``
   marks its MLflow run KILLED (:func:`mark_run_ended`; any other exception marks it FAILED).
 * :func:`record_process` tags the run with its host, process id and process start time, and
@@ -119,6 +122,62 @@ class DeterministicTraining(Callback):
 
 # -- signals ----------------------------------------------------------------------------------------------------------
 _received: dict[str, int] = {}
+
+
+class CarryBestCheckpoint(Callback):
+    """Keep the interrupted run's best checkpoint and score when a run resumes from ``ckpt_path``.
+
+    Every run has its own folder, so Lightning's ``ModelCheckpoint`` sees another ``dirpath`` on resume and drops
+    ``best_model_score`` and the top-k list ("dirpath has changed"): the first validation after the resume would
+    then become "best" whatever its score, and the run would test the wrong checkpoint. At the start of training
+    (after Lightning restored the checkpoint) this copies the interrupted run's top-k checkpoints into the new
+    folder (the old folder is never touched, so it can be resumed again) and restores the scores, so the run tests
+    the checkpoint the uninterrupted run would have tested.
+    """
+
+    def __init__(self, ckpt_path: str) -> None:
+        self.ckpt_path = str(ckpt_path)
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        import shutil
+        import zipfile
+        from pathlib import Path
+
+        from spade.models.modelfile import load_checkpoint
+
+        loaded = load_checkpoint(self.ckpt_path, mmap=zipfile.is_zipfile(self.ckpt_path))
+        states = loaded.get("callbacks") or {}
+        for cb in trainer.checkpoint_callbacks:
+            state = states.get(getattr(cb, "state_key", None))
+            if not state or cb.best_model_score is not None or state.get("best_model_score") is None:
+                continue  # the same folder (Lightning restored everything), or nothing to carry
+            if cb.dirpath is None or state.get("monitor") != cb.monitor:
+                continue
+            missing = [old for old in (state.get("best_k_models") or {}) if not Path(old).is_file()]
+            if missing:  # the interrupted run's folder was cleaned: its best cannot be tested, say so
+                log.warning("the interrupted run's checkpoints %s are gone: the best checkpoint is chosen among the "
+                            "epochs after the resume", missing)
+                continue
+            moved: dict[str, Any] = {}
+            for old, score in (state.get("best_k_models") or {}).items():
+                new = Path(cb.dirpath) / Path(old).name
+                if trainer.is_global_zero and Path(old).is_file() and not new.exists():
+                    new.parent.mkdir(parents=True, exist_ok=True)
+                    shutil.copy2(old, new)
+                moved[str(old)] = (str(new), score)
+            trainer.strategy.barrier("carry_best_checkpoint")
+
+            def where(old: Any) -> str:
+                return moved.get(str(old), (str(old), None))[0] if old else ""
+
+            cb.best_k_models = {new: score for new, score in moved.values()}
+            cb.best_model_score = state["best_model_score"]
+            cb.best_model_path = where(state.get("best_model_path"))
+            cb.kth_best_model_path = where(state.get("kth_best_model_path"))
+            if state.get("kth_value") is not None:
+                cb.kth_value = state["kth_value"]
+            log.info("resumed with the interrupted run's best checkpoint %s (%s = %.4g)", cb.best_model_path,
+                     cb.monitor, float(cb.best_model_score))
 
 
 def signal_received() -> int | None:

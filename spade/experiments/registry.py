@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
-import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -11,15 +9,16 @@ from typing import Any
 from lightning.pytorch.loggers import MLFlowLogger
 from omegaconf import DictConfig, OmegaConf
 
+from spade.data.fingerprint import fingerprint
+
 log = logging.getLogger(__name__)
 
 
 def data_fingerprint(cfg: DictConfig) -> str:
-    """A short hash of what determines a run's training data (its generator configs and dataset paths)."""
+    """A short hash of what determines a run's training data (its generator configs and dataset paths): the data
+    part of a registered model's name, known before the data exists (:func:`spade.data.fingerprint.fingerprint`)."""
     data = OmegaConf.to_container(cfg.data, resolve=True)
-    keep = {k: data.get(k) for k in ("train_dir", "train_generate", "max_train_instances")}
-    blob = json.dumps(keep, sort_keys=True, default=str).encode()
-    return hashlib.sha256(blob).hexdigest()[:10]
+    return fingerprint({k: data.get(k) for k in ("train_dir", "train_generate", "max_train_instances")})
 
 
 def registry_name(cfg: DictConfig) -> str | None:

@@ -24,14 +24,20 @@ import hydra
 import lightning as L
 from omegaconf import DictConfig
 
-from spade.experiments.lifecycle import DeterministicTraining, mark_run_ended, mark_stale_runs, record_process
+from spade.experiments.lifecycle import (
+    CarryBestCheckpoint,
+    DeterministicTraining,
+    mark_run_ended,
+    mark_stale_runs,
+    record_process,
+)
 from spade.experiments.prerequisites import complete_prerequisite, pending_prerequisites
 from spade.experiments.tracking import finish_run, run_summary, start_run_logging
-from spade.experiments.validation import validate_train_config
+from spade.experiments.validation import validate_checkpoints, validate_train_config
 from spade.models.modelfile import safe_loading
 from spade.training.instantiate import instantiate_callbacks, instantiate_loggers, run_id_from_checkpoint
 
-__all__ = ["from_checkpoint", "optimized_value", "run", "train", "untrained_test_metrics"]
+__all__ = ["from_checkpoint", "optimized_value", "rename_prefix", "run", "train", "untrained_test_metrics"]
 
 log = logging.getLogger(__name__)
 
@@ -68,11 +74,15 @@ def train(cfg: DictConfig, _depth: int = 0) -> tuple[dict[str, Any], dict[str, A
     KILLED (signal) or FAILED (exception) when it does not finish.
     """
     validate_train_config(cfg)
-    for prerequisite in pending_prerequisites(cfg, depth=_depth):
+    pending = pending_prerequisites(cfg, depth=_depth)
+    for prerequisite in pending:  # every prerequisite's config checked before any of them trains
+        validate_train_config(prerequisite.config)
+    for prerequisite in pending:
         log.info("Prerequisite %s (%s) is not registered: training it first (%s)", prerequisite.key,
                  prerequisite.name, prerequisite.command)
         train(prerequisite.config, _depth=_depth + 1)
         complete_prerequisite(cfg, prerequisite)
+    validate_checkpoints(cfg)  # a model fetched from the registry passes the checks of one given by path
     seed = cfg.get("seed")
     if seed is not None:
         L.seed_everything(seed, workers=True)  # after the prerequisites: their training moved every generator
@@ -92,6 +102,8 @@ def train(cfg: DictConfig, _depth: int = 0) -> tuple[dict[str, Any], dict[str, A
     callbacks = instantiate_callbacks(cfg.get("callbacks"))
     if seed is not None:
         callbacks.append(DeterministicTraining(seed))
+    if ckpt_path and cfg.get("train", True):
+        callbacks.append(CarryBestCheckpoint(str(ckpt_path)))  # the interrupted run's best stays the best
     trainer: L.Trainer = hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
     try:
         start_run_logging(cfg, model, loggers)
@@ -116,6 +128,9 @@ def train(cfg: DictConfig, _depth: int = 0) -> tuple[dict[str, Any], dict[str, A
         metrics.update(baseline)
 
         finish_run(cfg, trainer, model, loggers)
+        if not cfg.get("train", True) and not cfg.get("test", True):
+            for logger in loggers:  # no fit or test ran the trainer's teardown, which ends the MLflow run
+                logger.finalize("success")
     except BaseException as exc:
         mark_run_ended(loggers, exc)
         raise
@@ -134,7 +149,13 @@ def untrained_test_metrics(cfg: DictConfig, model: L.LightningModule, datamodule
     """Test metrics of the model before any training, as ``untrained/...`` (the baseline learning must beat)."""
     tester = hydra.utils.instantiate(cfg.trainer, logger=False, callbacks=[], enable_progress_bar=False)
     results = tester.test(model=model, datamodule=datamodule, verbose=False)[0]
-    return {k.replace("test/", "untrained/"): float(v) for k, v in results.items()}
+    return rename_prefix({k: float(v) for k, v in results.items()}, "test/", "untrained/")
+
+
+def rename_prefix(metrics: dict[str, float], old: str, new: str) -> dict[str, float]:
+    """``metrics`` with the leading ``old`` of each key replaced by ``new`` (only there: ``test/baseline/shortest/``
+    stays ``shortest``)."""
+    return {new + k[len(old):] if k.startswith(old) else k: v for k, v in metrics.items()}
 
 
 def optimized_value(cfg: DictConfig, metrics: dict[str, Any]) -> float | None:

@@ -15,6 +15,7 @@ __all__ = [
     "CELL_METRICS",
     "METRICS",
     "TABLES",
+    "TINY_NOTICE",
     "Comparison",
     "Line",
     "Metric",
@@ -57,10 +58,17 @@ METRICS: dict[str, Metric] = {
         Metric("ape_cm", "test/ape_cm", "APE (cm)", ".2f"),
         Metric("hd19", "test/hd19", "Hd19", ".0f"),
         Metric("failure_rate", "test/failure_rate", "failures", ".1%"),
+        Metric("over_20cm_rate", "test/over_20cm_rate", "> 20 cm", ".1%"),
+        Metric("planner_ape_cm", "test/planner/ape_cm", "planner APE (cm)", ".2f"),
+        Metric("planner_over_20cm_rate", "test/planner/over_20cm_rate", "planner > 20 cm", ".1%"),
+        Metric("planner_low_confidence_rate", "test/planner/low_confidence_rate", "planner low confidence", ".1%"),
         Metric("params", "model/params", "params", "params"),
     )
 }
-CELL_METRICS = ("fid", "ape_cm", "hd19", "failure_rate")  # the paper's cell FID / APE / Hd19, plus failures
+CELL_METRICS = ("fid", "ape_cm", "hd19", "failure_rate", "over_20cm_rate", "planner_ape_cm", "planner_over_20cm_rate")
+"""A cell: the paper's FID / APE / Hd19 (APE and Hd19 of the paper's skeleton extraction; FID of the decoded path
+drawn like the ground truth), the failures, the tail (share of instances over 20 cm), and the planner's APE and tail
+(the search-decoded path a robot would drive, spade.metrics.decoding)."""
 
 BASELINE_LABELS: dict[str, str] = {
     "straight": "straight line",
@@ -69,6 +77,12 @@ BASELINE_LABELS: dict[str, str] = {
 }
 """The classical predictors (spade.metrics.baselines) every table shows as reference rows, on the same test sets:
 a learned row that does not beat them has learned nothing worth deploying."""
+
+
+TINY_NOTICE = ("scale=tiny: a pipeline check, not a result (64 px, a few hundred instances, 2 epochs, tiny "
+               "experts); these figures mean nothing about the methods. Run a table at scale=cpu (its default) or "
+               "scale=paper for figures that do.")
+"""What every summary printed at ``scale=tiny`` says (the run summary, ``spade.report``, a table's start message)."""
 
 
 def baseline_metric(name: str, key: str) -> str:

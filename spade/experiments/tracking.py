@@ -15,7 +15,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import math
@@ -30,6 +29,9 @@ import lightning as L
 from lightning.pytorch.loggers import Logger, MLFlowLogger
 from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, OmegaConf
+
+from spade.data.fingerprint import dataset_fingerprint
+from spade.data.format import read_manifest_json
 
 log = logging.getLogger(__name__)
 
@@ -234,45 +236,9 @@ def bind_experiment(ml: MLFlowLogger, cfg: DictConfig | None = None) -> None:
 
 
 # -- datasets as run inputs -------------------------------------------------------------------------------------
-def dataset_fingerprint(root: str | Path) -> str:
-    """A dataset's fingerprint: the manifest's own ``fingerprint`` when it records one; else the hash of the
-    generator settings that shaped its bytes (:func:`spade.experiments.validation.settings_fingerprint`, what
-    ``spade.train`` checks existing data against); else, for a manifest without them, a digest of its geometry and
-    of every array file's sha256."""
-    raw = _manifest(root)
-    stated = raw.get("fingerprint") or (raw.get("extra") or {}).get("fingerprint")
-    if stated:
-        return str(stated)[:36]  # MLflow's digest column holds 36 characters
-    generator = raw.get("generator")
-    if isinstance(generator, dict) and generator:
-        from spade.experiments.validation import settings_fingerprint
-
-        return settings_fingerprint(generator)
-    files = raw.get("files") or {}
-    content = {
-        "image_size": raw.get("image_size"), "resolution": raw.get("resolution"),
-        "num_instances": raw.get("num_instances"), "frame": raw.get("frame"),
-        "files": {k: (v or {}).get("sha256") for k, v in sorted(files.items()) if isinstance(v, dict)},
-    }
-    return hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode()).hexdigest()[:12]
-
-
-def _manifest(root: str | Path) -> dict[str, Any]:
-    path = Path(root) / "manifest.json"
-    try:
-        raw = json.loads(path.read_text())
-    except FileNotFoundError as exc:
-        raise FileNotFoundError(f"{path}: no dataset manifest, cannot log {root} as an MLflow dataset") from exc
-    except ValueError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc}); re-generate the dataset") from exc
-    if not isinstance(raw, dict):
-        raise ValueError(f"{path}: a dataset manifest must be a JSON object")
-    return raw
-
-
 def dataset_profile(root: str | Path, instances_used: int | None = None) -> dict[str, Any]:
     """The manifest's key facts, as shown in the MLflow UI's dataset panel."""
-    raw = _manifest(root)
+    raw = read_manifest_json(root)
     labels = raw.get("labels") or {}
     generator = raw.get("generator") or {}
 
@@ -377,7 +343,7 @@ def log_dataset_inputs(client: Any, run_id: str, uses: list[DatasetUse]) -> None
 
 
 # -- a run's description ----------------------------------------------------------------------------------------
-FIGURES = ("ape_cm", "fid", "hd19", "failure_rate")  # the test figures a description shows, in this order
+FIGURES = ("ape_cm", "fid", "hd19", "failure_rate", "over_20cm_rate", "planner/ape_cm", "planner/over_20cm_rate")  # the test figures a description shows, in this order
 
 
 def _fmt(key: str, value: float | None) -> str:
@@ -385,7 +351,9 @@ def _fmt(key: str, value: float | None) -> str:
 
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "n/a"
-    metric = METRICS.get(key)
+    if key.endswith("_cm"):  # a description's figures to what they mean: a tenth of a centimetre (the tables keep .2f)
+        return f"{value:.1f}"
+    metric = METRICS.get(key) or METRICS.get(key.replace("/", "_"))  # "planner/ape_cm" -> planner_ape_cm
     return metric.format(value) if metric else f"{value:.4g}"
 
 
@@ -398,7 +366,7 @@ def figure_rows(metrics: dict[str, float]) -> list[tuple[str, dict[str, float]]]
         rows.append(("this model", own))
     baselines: dict[str, dict[str, float]] = {}
     for key, value in metrics.items():
-        match = re.fullmatch(r"test/baseline/([^/]+)/([^/]+)", key)
+        match = re.fullmatch(r"test/baseline/([^/]+)/(.+)", key)
         if match and match.group(2) in FIGURES:
             baselines.setdefault(match.group(1), {})[match.group(2)] = value
     rows += [(f"baseline: {name}", figs) for name, figs in sorted(baselines.items())]
@@ -415,7 +383,8 @@ def figures_table(metrics: dict[str, float]) -> str:
     rows = figure_rows(metrics)
     if not rows:
         return ""
-    labels = {k: METRICS[k].label if k in METRICS else k.replace("_", " ") for k in FIGURES}
+    by_key = {m.mlflow_key.split("/", 1)[1]: m for m in METRICS.values() if m.mlflow_key.startswith("test/")}
+    labels = {k: by_key[k].label if k in by_key else k.replace("_", " ") for k in FIGURES}
     lines = ["| test set | " + " | ".join(labels[k] for k in FIGURES) + " |", "|---" * (len(FIGURES) + 1) + "|"]
     for label, figs in rows:
         name = f"**{label}**" if label == "this model" else label
@@ -700,8 +669,13 @@ def run_summary(cfg: DictConfig, metrics: dict[str, Any]) -> str:
     """The closing lines: test metrics next to the baselines, the ``mlflow ui`` command and URLs to the run and
     to its experiment's runs table."""
     lines = [f"run {cfg.get('run_name')} finished"]
-    keys = ("ape_cm", "fid", "hd19", "failure_rate", "seconds_per_sample")
-    prefixes = ["test", *sorted({k.rsplit("/", 1)[0] for k in metrics if k.startswith("test/baseline/")}),
+    if (cfg.get("scale") or {}).get("name") == "tiny":  # issue 24: tiny figures are never read as results
+        from spade.experiments.tables import TINY_NOTICE
+
+        lines.append(f"  {TINY_NOTICE}")
+    keys = ("ape_cm", "fid", "hd19", "failure_rate", "over_20cm_rate", "planner/ape_cm", "planner/over_20cm_rate",
+            "planner/low_confidence_rate", "seconds_per_sample")
+    prefixes = ["test", *sorted({"/".join(k.split("/")[:3]) for k in metrics if k.startswith("test/baseline/")}),
                 "untrained"]
     for prefix in prefixes:
         vals = [f"{k}={metrics[f'{prefix}/{k}']:.4g}" for k in keys if f"{prefix}/{k}" in metrics]

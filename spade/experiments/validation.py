@@ -13,18 +13,18 @@ traceback instead).
 from __future__ import annotations
 
 import functools
-import hashlib
 import json
 import math
 import os
 import sys
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from spade.data.format import MANIFEST, DatasetError
+from spade.data.fingerprint import settings_fingerprint, shaping_settings
+from spade.data.format import MANIFEST, DatasetError, read_manifest_json
 
 
 class ConfigError(ValueError):
@@ -36,9 +36,6 @@ class DatasetSettingsError(ConfigError, DatasetError):
 
 
 _MISSING = object()
-
-# Annotation settings that never change a dataset's bytes (where it goes, how fast, the preview picture).
-NON_SHAPING_KEYS = frozenset({"out_dir", "overwrite", "workers", "start_method", "progress", "preview", "hydra"})
 
 
 # -- small typed getters ------------------------------------------------------------------------------------------
@@ -114,15 +111,13 @@ def _range_text(low: int | None, high: int | None, extra: tuple[int, ...]) -> st
 def checkpoint_info(path: str | Path) -> dict[str, Any]:
     """The ``spade`` entry of a checkpoint (role, network config, window geometry, MLflow run id).
 
-    Reads only that entry's plain values: the file is opened safely by :func:`spade.models.modelfile.load_checkpoint`
-    (``weights_only=True``, memory-mapped, so no tensor data is read and no code is run; a checkpoint that would
-    run code is refused).
+    Reads only that entry's plain values, through :func:`spade.models.modelfile.read_info` (``weights_only=True``,
+    memory-mapped, so no tensor data is read and no code is run; a checkpoint that would run code is refused);
+    ``{}`` for a checkpoint without the entry.
     """
-    from spade.models.modelfile import load_checkpoint
+    from spade.models.modelfile import read_info
 
-    checkpoint = load_checkpoint(path, mmap=True)
-    info = checkpoint.get("spade") if isinstance(checkpoint, dict) else None
-    return dict(info) if isinstance(info, Mapping) else {}
+    return read_info(path, checkpoint=True, required=False)
 
 
 def _check_checkpoint(key: str, value: Any, role: str, fix: str) -> dict[str, Any] | None:
@@ -130,6 +125,8 @@ def _check_checkpoint(key: str, value: Any, role: str, fix: str) -> dict[str, An
     if value in (None, "", "???"):
         return None
     path = Path(str(value))
+    if path.is_dir():
+        raise ConfigError(f"{key}={value} is a directory, not a checkpoint file; {fix}")
     if not path.is_file():
         raise ConfigError(f"{key}={value} does not exist; {fix}")
     from spade.models.modelfile import UnsafeModelFileError
@@ -182,26 +179,6 @@ def _annotation_settings(root: Path, generate: Any) -> dict[str, Any]:
     return OmegaConf.to_container(annotation_config(root, generate), resolve=True)
 
 
-def _flatten(value: Any, prefix: str = "") -> Iterator[tuple[str, Any]]:
-    if isinstance(value, Mapping):
-        for k, v in value.items():
-            yield from _flatten(v, f"{prefix}{k}.")
-    else:
-        yield prefix[:-1], value
-
-
-def shaping_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
-    """The annotation settings that shape a dataset's bytes, flattened (``window.size_px`` ...)."""
-    kept = {k: v for k, v in settings.items() if k not in NON_SHAPING_KEYS}
-    return {k: json.loads(json.dumps(v, default=str)) for k, v in _flatten(kept)}
-
-
-def settings_fingerprint(settings: Mapping[str, Any]) -> str:
-    """A short hash of the shaping settings (what ``data.*_generate`` asks for or a manifest's ``generator``)."""
-    blob = json.dumps(shaping_settings(settings), sort_keys=True, default=str).encode()
-    return hashlib.sha256(blob).hexdigest()[:10]
-
-
 def settings_difference(recorded: Mapping[str, Any], wanted: Mapping[str, Any]) -> dict[str, tuple[Any, Any]]:
     """{key: (recorded value, wanted value)} for every shaping setting that differs (missing -> None)."""
     a, b = shaping_settings(recorded), shaping_settings(wanted)
@@ -210,11 +187,9 @@ def settings_difference(recorded: Mapping[str, Any], wanted: Mapping[str, Any]) 
 
 def _read_manifest_json(root: Path) -> dict[str, Any]:
     try:
-        return json.loads((root / MANIFEST).read_text())
-    except (OSError, ValueError) as exc:
-        raise DatasetSettingsError(
-            f"{root / MANIFEST} cannot be read ({exc}); delete {root} to regenerate it"
-        ) from None
+        return read_manifest_json(root)
+    except DatasetError as exc:  # reported as a config error: one line, exit status 2
+        raise DatasetSettingsError(f"{exc} Or delete {root} to have it regenerated.") from None
 
 
 def check_dataset(root: str | Path | None, generate: Any, key: str = "data.train_dir") -> None:
@@ -302,12 +277,13 @@ def check_window_holds_manoeuvre(settings: Mapping[str, Any], key: str) -> None:
     """Refuse a window too small for the shortest manoeuvre its templates can draw (plus the margins)."""
     window = settings.get("window") or {}
     size, res = window.get("size_px"), window.get("resolution_m")
-    wkey = f"{key}.window.size_px"
+    wkey = f"{key}.window.size_px" if key else "window.size_px"
     if not _is_int(size) or size < 8:
         raise ConfigError(f"{wkey}={size!r} is not a window size; set it to an integer >= 8 pixels (the tiny scale "
                           "uses 64, the paper 128)")
     if not _is_number(res) or res <= 0:
-        raise ConfigError(f"{key}.window.resolution_m={res!r} must be a number > 0 metres per pixel (e.g. 0.1)")
+        rkey = f"{key}.window.resolution_m" if key else "window.resolution_m"
+        raise ConfigError(f"{rkey}={res!r} must be a number > 0 metres per pixel (e.g. 0.1)")
     imported = (settings.get("rosbag") or {}).get("paths") or (settings.get("skipp") or {}).get("root")
     if settings.get("sketches") or imported:
         return  # demonstrations from outside the templates: their sizes are not known here
@@ -378,10 +354,67 @@ def _check_data(cfg: DictConfig) -> None:
         settings = _annotation_settings(Path(str(root)), generate)
         scaled = _get(cfg, "scale.annotate") not in (_MISSING, None)
         check_window_holds_manoeuvre(settings, "scale.annotate" if scaled else f"data.{name}_generate")
+        _check_window_size(cfg, settings, "scale.annotate" if scaled else f"data.{name}_generate")
         num = settings.get("num_instances")
         if num is not None and (not _is_int(num) or num < 1):
             raise ConfigError(f"data.{name}_generate num_instances={num!r} must be an integer >= 1; set "
                               f"scale.{name}_instances")
+
+
+def model_downsampling(cfg: DictConfig) -> tuple[int, str] | None:
+    """(the multiple every window side must be of, what says so) for the configured network, from its preset."""
+    role = _model_role(cfg)
+    try:
+        if role == "student":
+            from spade.models.student import STUDENT_PRESETS
+
+            size = _get(cfg, "model.size")
+            widths = STUDENT_PRESETS.get(size)
+            what = f"model.size={size}"
+        elif role == "expert":
+            from spade.models.cond_expert import COND_EXPERT_PRESETS
+            from spade.models.uncond_expert import UNCOND_EXPERT_PRESETS
+
+            presets = COND_EXPERT_PRESETS if _get(cfg, "model.conditional") is not False else UNCOND_EXPERT_PRESETS
+            preset = _get(cfg, "model.preset")
+            widths = (presets.get(preset) or {}).get("widths")
+            what = f"model.preset={preset}"
+        else:
+            return None
+    except TypeError:  # an unhashable size or preset: _check_model names it
+        return None
+    if not widths:
+        return None
+    return 2 ** (len(widths) - 1), what
+
+
+def _check_window_size(cfg: DictConfig, settings: Mapping[str, Any], key: str) -> None:
+    """The data's window, ``scale.image_size`` and the U-Net's downsampling agree, before any data or prerequisite
+    is made: ``scale.image_size`` alone does not resize the data, and a side the U-Net cannot halve fails only in
+    the first forward pass."""
+    window = settings.get("window") or {}
+    size, res = window.get("size_px"), window.get("resolution_m")
+    wkey = f"{key}.window.size_px"
+    image_size = _get(cfg, "scale.image_size")
+    if _is_int(image_size) and _is_int(size) and image_size != size:
+        raise ConfigError(
+            f"scale.image_size={image_size} differs from {wkey}={size}, the window the data are cut with (the "
+            f"data would stay {size} px); set both: scale.image_size={image_size} {wkey}={image_size}"
+        )
+    scale_res = _get(cfg, "scale.resolution_m")
+    if _is_number(scale_res) and _is_number(res) and not math.isclose(scale_res, res, rel_tol=1e-9):
+        raise ConfigError(
+            f"scale.resolution_m={scale_res:g} differs from {key}.window.resolution_m={res:g}, the data's metres per "
+            f"pixel; set both: scale.resolution_m={scale_res:g} {key}.window.resolution_m={scale_res:g}"
+        )
+    found = model_downsampling(cfg)
+    if found and _is_int(size) and size % found[0]:
+        multiple, what = found
+        lower, upper = size // multiple * multiple, (size // multiple + 1) * multiple
+        raise ConfigError(
+            f"{wkey}={size} is not a multiple of {multiple}, which the U-Net of {what} needs ({multiple} = 2^its "
+            f"downsamplings); use a window of {lower or upper} or {upper} px (and scale.image_size to match)"
+        )
 
 
 def _check_model(cfg: DictConfig) -> None:
@@ -476,9 +509,19 @@ def validate_evaluate_config(cfg: DictConfig) -> None:
     if ckpt in (_MISSING, None, "", "???"):
         raise ConfigError(f"ckpt_path is not set; {fix} (ckpt_path=PATH)")
     path = Path(str(ckpt))
-    if not path.is_file():
+    if not path.exists():
         raise ConfigError(f"ckpt_path={ckpt} does not exist; {fix}")
-    info = checkpoint_info(path)
+    if path.is_dir():
+        raise ConfigError(f"ckpt_path={ckpt} is a directory, not a checkpoint file; {fix}")
+    from spade.models.modelfile import UnsafeModelFileError
+
+    try:
+        info = checkpoint_info(path)
+    except UnsafeModelFileError as exc:
+        raise ConfigError(f"ckpt_path={ckpt} was refused as unsafe (UnsafeModelFileError): {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - damaged or not a checkpoint: one line naming it
+        raise ConfigError(f"ckpt_path={ckpt} is not a readable PyTorch checkpoint ({type(exc).__name__}); "
+                          f"{fix}") from None
     if info.get("role") not in ("student", "expert"):
         raise ConfigError(f"ckpt_path={ckpt} is not a SPADE student or expert checkpoint (role "
                           f"{info.get('role')!r}); {fix}")
@@ -498,24 +541,289 @@ def _dir(cfg: DictConfig, key: str) -> str | None:
     return None if value in (None, "") else str(value)
 
 
+def validate_checkpoints(cfg: DictConfig) -> None:
+    """The role, kind and geometry checks of every checkpoint a run names (``ckpt_path``, ``model.init_ckpt``,
+    ``model.guidance.expert_ckpt``), again after the prerequisites filled paths from the Model Registry: a
+    fetched model passes the same checks as one given by path."""
+    _check_checkpoints(cfg)
+
+
+# -- the other entry points ---------------------------------------------------------------------------------------
+MODEL_SUFFIXES = (".ckpt", ".onnx", ".pt")
+
+
+def _unset(value: Any) -> bool:
+    return value is _MISSING or value in (None, "", "???")
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+        return a.expanduser().resolve() == b.expanduser().resolve()
+    except OSError:
+        return False
+
+
+def _input_file(key: str, value: Any, fix: str, suffixes: tuple[str, ...] = ()) -> Path:
+    """An input file named at ``key``: set, existing, a file (not a folder), with one of ``suffixes``."""
+    if _unset(value):
+        raise ConfigError(f"{key} is not set; {fix}")
+    path = Path(str(value)).expanduser()
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise ConfigError(f"{key}={value} is not a model file ({' / '.join(suffixes)}); {fix}")
+    if path.is_dir():
+        raise ConfigError(f"{key}={value} is a directory, not a file; {fix}")
+    if not path.exists():
+        raise ConfigError(f"{key}={value} does not exist; {fix}")
+    return path
+
+
+def _output_file(key: str, value: Any, inputs: Mapping[str, Path | None], fix: str,
+                 suffixes: tuple[str, ...] = ()) -> Path:
+    """An output file at ``key``: not a folder, not one of the ``inputs`` (nothing of the user's is overwritten)."""
+    path = Path(str(value)).expanduser()
+    if path.is_dir():
+        raise ConfigError(f"{key}={value} is a directory; give the path of a file to write ({fix})")
+    for in_key, in_path in inputs.items():
+        if in_path is not None and _same_file(path, in_path):
+            raise ConfigError(f"{key}={value} is the input {in_key}: writing it would overwrite that file; {fix}")
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise ConfigError(f"{key}={value} must end with {' or '.join(suffixes)}; {fix}")
+    return path
+
+
+def _map_files(key: str, spec: Any) -> list[Path]:
+    """The files of a map argument (a ROS yaml and its image; none for a procedural ``kind:seed``), checked."""
+    from spade.annotation.sources import parse_procedural
+
+    fix = "give a ROS map yaml (map_server format) or a generator spec such as warehouse:101"
+    if _unset(spec):
+        raise ConfigError(f"{key} is not set; {fix}")
+    try:
+        if parse_procedural(str(spec)) is not None:
+            return []
+    except ValueError as exc:
+        raise ConfigError(f"{key}={spec}: {exc}") from None
+    path = _input_file(key, spec, fix)
+    from spade.maps.ros_io import MapFormatError, read_map_yaml
+
+    try:
+        meta = read_map_yaml(path)
+    except MapFormatError as exc:
+        raise ConfigError(f"{key}={spec}: {exc}") from None
+    return [path, Path(meta.image_path)]
+
+
+def _point(cfg: DictConfig, key: str, n: int, example: str) -> list[float]:
+    value = _get(cfg, key)
+    fix = f"pass {key}={example} (map-frame metres{', yaw in radians' if n == 3 else ''})"
+    if _unset(value):
+        raise ConfigError(f"{key} is not set; {fix}")
+    if not isinstance(value, (list, tuple)) or len(value) != n or not all(_is_number(v) for v in value):
+        raise ConfigError(f"{key}={value!r} is not {n} finite numbers; {fix}")
+    return [float(v) for v in value]
+
+
+def validate_annotate_config(cfg: Mapping[str, Any] | DictConfig) -> None:
+    """``spade.annotate``'s checks before any map is loaded: the output (never a file or a folder that is not a
+    SPADE dataset, an existing dataset only with ``overwrite=true``), the sources, numbers and the window."""
+    from spade.data.writer import check_output_dir
+
+    cfg = cfg if isinstance(cfg, DictConfig) else OmegaConf.create(dict(cfg))
+    if _unset(_get(cfg, "out_dir")):
+        raise ConfigError("out_dir is not set; pass out_dir=FOLDER (a new folder, or a dataset with overwrite=true)")
+    overwrite = _get(cfg, "overwrite")
+    if overwrite not in (_MISSING, None) and not isinstance(overwrite, bool):
+        raise ConfigError(f"overwrite={overwrite!r} is not a boolean; set overwrite=true or overwrite=false")
+    out_dir = Path(str(_get(cfg, "out_dir"))).expanduser()
+    check_output_dir(out_dir, bool(overwrite))
+    _check_int(cfg, "seed", 0, 2**32 - 1, fix=", e.g. seed=0")
+    _check_int(cfg, "workers", 0, fix=" (0 or 1: in this process)")
+    _check_choice(cfg, "start_method", ["spawn", "forkserver", "fork"])
+    _check_int(cfg, "num_waypoints", 2, fix=", e.g. num_waypoints=64")
+    sketches = _get(cfg, "sketches")
+    rosbag = _get(cfg, "rosbag.paths")
+    skipp = _get(cfg, "skipp.root")
+    if not _unset(sketches):
+        path = _input_file("sketches", sketches, "give a sketch file written by python -m spade.sketch (sketches.yaml)")
+        if _same_file(path.parent, out_dir) or out_dir in path.parents:
+            raise ConfigError(f"out_dir={out_dir} holds the input sketches={sketches}; choose another out_dir")
+    elif not _unset(rosbag):
+        for item in rosbag if isinstance(rosbag, list) else [rosbag]:
+            if not Path(str(item)).expanduser().exists():
+                raise ConfigError(f"rosbag.paths entry {item} does not exist; give rosbag2 folders (or .mcap / .db3)")
+    elif not _unset(skipp):
+        if not Path(str(skipp)).expanduser().is_dir():
+            raise ConfigError(f"skipp.root={skipp} is not a folder; give the folder of SKIPP's published dataset")
+    else:
+        _check_int(cfg, "num_instances", 1, fix=", e.g. num_instances=200")
+        shapes = _get(cfg, "shape")
+        from spade.annotation.templates import SHAPES
+
+        for shape in shapes if isinstance(shapes, list) else [shapes]:
+            if shape not in SHAPES:
+                raise ConfigError(f"shape={shape!r} is not one of {list(SHAPES)}; use shape=L, shape=U or shape=[L,U]")
+        from spade.annotation.sources import expand_map_specs
+
+        try:
+            expand_map_specs(_get(cfg, "maps"))
+        except (ValueError, FileNotFoundError) as exc:
+            raise ConfigError(f"maps={_get(cfg, 'maps')}: {exc}; give a folder of ROS map yamls, yaml paths or specs "
+                              "such as warehouse:1") from None
+    settings = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)
+    check_window_holds_manoeuvre(settings, "")
+
+
+def validate_export_config(cfg: DictConfig) -> None:
+    """``spade.export``'s checks: a student checkpoint file in, an output that is not the checkpoint (nor a folder)."""
+    from spade.deploy.export import SUFFIXES
+
+    fix = "pass the student checkpoint (.ckpt) written by python -m spade.train"
+    ckpt = _input_file("ckpt_path", _get(cfg, "ckpt_path"), fix)
+    _check_checkpoint("ckpt_path", str(ckpt), "student", fix)
+    _check_choice(cfg, "format", list(SUFFIXES))
+    fmt = _get(cfg, "format")
+    fmt = "onnx" if fmt in (_MISSING, None) else fmt
+    out = _get(cfg, "out_path")
+    suffix = SUFFIXES[fmt]
+    if _unset(out):
+        default = ckpt.with_suffix(suffix)
+        if _same_file(default, ckpt):
+            raise ConfigError(f"ckpt_path={ckpt} ends with {suffix}: format={fmt} would write its export onto the "
+                              f"checkpoint itself; set out_path={ckpt.with_name(ckpt.stem + '.' + fmt + suffix)}")
+    else:
+        _output_file("out_path", out, {"ckpt_path": ckpt}, f"set out_path to a new {suffix} file", (suffix,))
+    _check_int(cfg, "opset", 7, fix=", e.g. opset=17")
+    _check_int(cfg, "parity_batch", 1)
+    _check_int(cfg, "latency_runs", 0)
+    _check_int(cfg, "threads", 1, none_ok=True, fix=" (null: all cores)")
+    _check_number(cfg, "tolerance", 0, none_ok=True, fix=" (null: only report)")
+    report = _get(cfg, "report_path")
+    if not _unset(report):
+        _output_file("report_path", report, {"ckpt_path": ckpt}, "give a new .json file")
+
+
+def validate_plan_config(cfg: DictConfig) -> None:
+    """``spade.plan``'s checks: the map and model files, a robot pose and a goal that differ, and a picture path
+    that is none of the inputs."""
+    maps = _map_files("map", _get(cfg, "map"))
+    model = _input_file("model_path", _get(cfg, "model_path"),
+                        "pass model=PATH (a student .ckpt from python -m spade.train or its .onnx / .pt export) or set "
+                        "SPADE_PLANNER_MODEL", MODEL_SUFFIXES)
+    if model.suffix.lower() == ".ckpt":
+        _check_checkpoint("model_path", str(model), "student", "pass a student checkpoint (an expert does not plan)")
+    start = _point(cfg, "start", 3, "X,Y,YAW")
+    goal = _point(cfg, "goal", 2, "X,Y")
+    if math.hypot(goal[0] - start[0], goal[1] - start[1]) < 1e-9:
+        raise ConfigError(f"goal={goal[0]:g},{goal[1]:g} is the robot's own position (start); give a goal elsewhere")
+    inputs = {"model_path": model, **{("map" if i == 0 else "the map's image"): p for i, p in enumerate(maps)}}
+    _output_file("out", _get(cfg, "out"), inputs, "set out=plan.png (a new picture file)", (".png",))
+    _check_choice(cfg, "planner.far_goal", ["fail", "clip"])
+    _check_number(cfg, "planner.threshold", 0, 1, low_open=True, high_open=True)
+    _check_int(cfg, "planner.num_waypoints", 2)
+    _check_number(cfg, "picture.context_m", 0)
+    _check_int(cfg, "picture.width_px", 16)
+
+
+def _store_path(uri: str) -> Path | None:
+    """The local path of an MLflow store URI (sqlite:///..., file:..., a plain path); None for a server."""
+    if uri.startswith("sqlite:"):
+        rest = uri[len("sqlite:"):]
+        return Path(rest[3:] if rest.startswith("///") else rest.lstrip("/"))
+    if uri.startswith("file:"):
+        from urllib.parse import urlparse
+
+        return Path(urlparse(uri).path)
+    if "://" in uri:
+        return None  # http(s), databricks, ...: the server answers for itself
+    return Path(uri)
+
+
+def validate_report_config(cfg: DictConfig) -> None:
+    """``spade.report``'s checks: the table exists and the MLflow store is there (a missing one would be created
+    empty and every row reported missing)."""
+    from spade.experiments.tables import get_table
+
+    table = _get(cfg, "table")
+    if str(table) != "all":
+        try:
+            get_table(table)
+        except (KeyError, ValueError) as exc:
+            raise ConfigError(f"table={table}: {exc.args[0] if exc.args else exc}") from None
+    uri = _get(cfg, "tracking_uri")
+    if _unset(uri):
+        raise ConfigError("tracking_uri is not set; pass tracking_uri=sqlite:///PATH/logs/mlflow.db")
+    path = _store_path(str(uri))
+    if path is not None and not path.exists():
+        raise ConfigError(f"tracking_uri={uri}: there is no MLflow store at {path} (reporting would create an empty "
+                          "one); point tracking_uri (or SPADE_HOME / MLFLOW_TRACKING_URI) at the store the runs were "
+                          "logged to")
+    if path is not None and str(uri).startswith("sqlite:") and path.is_dir():
+        raise ConfigError(f"tracking_uri={uri}: {path} is a directory, not an MLflow SQLite store; point it at the "
+                          "store file, e.g. sqlite:///PATH/logs/mlflow.db")
+    out = _get(cfg, "output_dir")
+    if not _unset(out) and Path(str(out)).is_file():
+        raise ConfigError(f"output_dir={out} is a file; give a folder for the report files")
+
+
+def validate_sketch_config(cfg: DictConfig) -> None:
+    """``spade.sketch``'s checks before the server starts: map, port, model file, output folder and window."""
+    _map_files("map", _get(cfg, "map"))
+    _check_int(cfg, "port", 1, 65535, fix=", e.g. port=8765")
+    host = _get(cfg, "host")
+    if not isinstance(host, str) or not host:
+        raise ConfigError(f"host={host!r} is not an address; use host=127.0.0.1")
+    model = _get(cfg, "model_path")
+    if not _unset(model):
+        path = _input_file("model_path", model, "pass model=PATH: a student .ckpt or its .onnx / .pt export",
+                           MODEL_SUFFIXES)
+        if path.suffix.lower() == ".ckpt":
+            _check_checkpoint("model_path", str(path), "student",
+                              "pass a student checkpoint (an expert does not plan)")
+    out = _get(cfg, "out_dir")
+    if not _unset(out) and Path(str(out)).expanduser().is_file():
+        raise ConfigError(f"out_dir={out} is a file; give a folder for sketches.yaml and dataset/")
+    for key in ("models", "allowed_hosts"):
+        value = _get(cfg, key)
+        if value not in (_MISSING, None) and not isinstance(value, list):
+            raise ConfigError(f"{key}={value!r} must be a list, e.g. {key}=[a,b]")
+    for folder in _get(cfg, "models") if isinstance(_get(cfg, "models"), list) else []:
+        if not Path(str(folder)).expanduser().is_dir():
+            raise ConfigError(f"models entry {folder} is not a folder; give folders that hold model files")
+    from spade.sketching.workspace import annotation_config
+
+    overrides = _get(cfg, "annotate")
+    from spade.sketching.app import flatten_overrides
+
+    try:
+        settings = annotation_config(flatten_overrides(overrides) if isinstance(overrides, Mapping) else [])
+    except Exception as exc:  # noqa: BLE001 - an override Hydra cannot apply
+        raise ConfigError(f"annotate: {exc}".replace("\n", " ")) from None
+    check_window_holds_manoeuvre(settings, "annotate")
+
+
 # -- reporting ------------------------------------------------------------------------------------------------------
 def user_errors() -> tuple[type[BaseException], ...]:
     """Exceptions that mean the user must change something (reported without a traceback)."""
+    from spade.annotation.pipeline import NotEnoughInstancesError
     from spade.experiments.prerequisites import PrerequisiteMissing
+    from spade.training.errors import ExpertMismatchError
 
-    errors: list[type[BaseException]] = [ConfigError, DatasetError, PrerequisiteMissing]
-    try:
-        from spade.training.student_module import ExpertMismatchError
-
-        errors.append(ExpertMismatchError)
-    except ImportError:  # pragma: no cover - the module is always there
-        pass
-    try:
-        from spade.annotation.pipeline import NotEnoughInstancesError
-
-        errors.append(NotEnoughInstancesError)
-    except ImportError:  # pragma: no cover
-        pass
+    errors: list[type[BaseException]] = [ConfigError, DatasetError, PrerequisiteMissing, ExpertMismatchError,
+                                         NotEnoughInstancesError]
+    # Inputs the user gave that turn out wrong once read: a model file of the wrong kind, a map, a sketch file, an
+    # import source, a map without free space for goals.
+    for module, name in (("spade.models.modelfile", "ModelFileError"), ("spade.maps.ros_io", "MapFormatError"),
+                         ("spade.annotation.sketch_file", "SketchFileError"),
+                         ("spade.annotation.templates", "UnknownShapeError"),
+                         ("spade.annotation.scenarios", "NoFreeAreaError"),
+                         ("spade.annotation.importers.rosbag", "RosbagImportError"),
+                         ("spade.annotation.importers.skipp", "SkippImportError")):
+        try:
+            errors.append(getattr(__import__(module, fromlist=[name]), name))
+        except (ImportError, AttributeError):  # an optional importer's dependency is missing
+            pass
     return tuple(errors)
 
 

@@ -6,8 +6,13 @@ A learned planner is worth deploying only where it beats these on the operator's
 - ``shortest``: the minimum-cost path on the window's inflated costmap, what a Nav2-style global planner would
   drive (the annotation tool's costmap and grid planner, :mod:`spade.annotation.execution`, with the
   TurtleBot3 footprint and Nav2's default inflation, then its smoothing);
-- ``heading``: a template that knows only the robot's heading: straight ahead to the goal's projection on the
-  heading line, then a 90 degree turn to the goal (in the robot frame the heading is "up the image").
+- ``heading``: a shape template that knows only the robot's heading and the instance's shape label. For an L
+  (and any other label): straight ahead to the goal's projection on the heading line, then a 90 degree turn to
+  the goal (in the robot frame the heading is "up the image"). For a U (:func:`u_template`): straight ahead, a
+  half turn whose radius meets the goal's line, and straight back to the goal; the way back is the annotation
+  presets' mean U tail (1.2 m), since nothing in the state tells how far beyond the goal the operator turns.
+  On U test sets an L template degenerates (48.9 cm on the cpu-scale U transfer test, no better than the
+  straight line), so every U instance gets the U template.
 
 Each predictor gives a polyline in window pixel coordinates; :func:`baseline_images` draws them as one-pixel
 probability images, which go through the same extraction, APE, Hd19 and FID as a model's prediction.
@@ -31,6 +36,8 @@ NAV2_ROBOT: dict[str, float] = {"radius_m": 0.105, "inflation_radius_m": 0.55, "
 """The annotation tool's defaults (conf/annotate.yaml): TurtleBot3 Burger with Nav2's inflation layer."""
 NAV2_COST_WEIGHT = 4.0
 HEADING_UP = np.array([0.0, -1.0])  # the robot frame's heading in window pixel coordinates
+U_TAIL_M = 1.2
+"""Mean of conf/annotate.yaml's U tail distribution (small [0.3, 0.9] or large [1.2, 2.4] m, p_large_tail 0.5)."""
 
 
 def straight_line(start: np.ndarray, goal: np.ndarray) -> np.ndarray:
@@ -44,6 +51,35 @@ def heading_template(start: np.ndarray, goal: np.ndarray, heading: np.ndarray = 
     h = np.asarray(heading, np.float64) / np.linalg.norm(heading)
     corner = start + h * float(np.dot(goal - start, h))
     return np.stack([start, corner, goal])
+
+
+def u_template(start: np.ndarray, goal: np.ndarray, resolution: float, tail_m: float = U_TAIL_M,
+               heading: np.ndarray = HEADING_UP, window: tuple[int, int] | None = None,
+               step_deg: float = 10.0) -> np.ndarray:
+    """Straight along ``heading``, a half turn of radius half the goal's lateral offset, straight back to the goal.
+
+    The turn starts ``tail_m`` beyond the goal's projection on the heading line (never behind the robot), and no
+    higher than the window's top edge allows (``window`` (H, W)). A goal straight ahead (lateral offset under a
+    pixel) gives the straight line.
+    """
+    start, goal = np.asarray(start, np.float64), np.asarray(goal, np.float64)
+    h = np.asarray(heading, np.float64) / np.linalg.norm(heading)
+    side = np.array([-h[1], h[0]])  # heading rotated by +90 degrees in pixel coordinates (right of "up")
+    rel = goal - start
+    ahead, lateral = float(np.dot(rel, h)), float(np.dot(rel, side))
+    if abs(lateral) < 1.0:
+        return straight_line(start, goal)
+    radius = abs(lateral) / 2.0
+    leg = max(ahead, 0.0) + tail_m / resolution
+    if window is not None:  # keep the top of the turn inside the window (the heading is "up the image")
+        leg = min(leg, max(float(np.dot(start, -h)) - radius, max(ahead, 0.0)))
+    leg = max(leg, max(ahead, 0.0))
+    turn_start = start + h * leg
+    centre = turn_start + side * np.sign(lateral) * radius
+    phi = np.deg2rad(np.arange(0.0, 180.0 + 1e-9, step_deg))
+    # from the turn start (angle 0) over the top to the point abreast the goal (angle 180 degrees)
+    arc = centre[None] - np.cos(phi)[:, None] * side[None] * np.sign(lateral) * radius + np.sin(phi)[:, None] * h[None] * radius
+    return np.vstack([start, arc, goal])
 
 
 def shortest_path(occupancy: np.ndarray, start: np.ndarray, goal: np.ndarray, resolution: float,
@@ -79,15 +115,25 @@ def shortest_path(occupancy: np.ndarray, start: np.ndarray, goal: np.ndarray, re
     return smooth_path(pts, smoothing_px=1.0, step_px=0.5, simplify_px=1.5)
 
 
-def baseline_polylines(state: np.ndarray, resolution: float) -> dict[str, np.ndarray | None]:
-    """Each baseline's polyline (window pixels) for one state (3, H, W): occupancy ``code * 0.5``, start, goal."""
+def shape_template(start: np.ndarray, goal: np.ndarray, resolution: float, shape: str | None = None,
+                   window: tuple[int, int] | None = None) -> np.ndarray:
+    """The heading template of the instance's shape: :func:`u_template` for ``U``, :func:`heading_template` else."""
+    if shape == "U":
+        return u_template(start, goal, resolution, window=window)
+    return heading_template(start, goal)
+
+
+def baseline_polylines(state: np.ndarray, resolution: float, shape: str | None = None
+                       ) -> dict[str, np.ndarray | None]:
+    """Each baseline's polyline (window pixels) for one state (3, H, W): occupancy ``code * 0.5``, start, goal;
+    ``shape`` is the instance's label (``L``, ``U``; it picks the template)."""
     start = marker_centre(state[1], "start")
     goal = marker_centre(state[2], "goal")
     codes = np.rint(np.asarray(state[0], dtype=np.float64) * 2).astype(np.uint8)
     return {
         "straight": straight_line(start, goal),
         "shortest": shortest_path(codes, start, goal, resolution),
-        "heading": heading_template(start, goal),
+        "heading": shape_template(start, goal, resolution, shape, window=codes.shape),
     }
 
 
@@ -104,15 +150,34 @@ def draw_polyline(points: np.ndarray | None, height: int, width: int) -> np.ndar
     return image
 
 
-@torch.no_grad()
-def baseline_images(state: torch.Tensor, resolution: torch.Tensor | float) -> dict[str, torch.Tensor]:
-    """Each baseline's prediction (B, 1, H, W) in {0, 1} for a batch of states (B, 3, H, W)."""
+def batch_baseline_polylines(state: torch.Tensor, resolution: torch.Tensor | float,
+                             shapes: list[str] | None = None) -> dict[str, list[np.ndarray | None]]:
+    """Each baseline's polylines (one per instance, None where it has none) for a batch of states (B, 3, H, W)."""
     s = state.detach().float().cpu().numpy()
-    b, _, h, w = s.shape
+    b = s.shape[0]
     res = np.broadcast_to(np.asarray(resolution.cpu() if isinstance(resolution, torch.Tensor) else resolution,
                                      dtype=np.float64).reshape(-1), (b,))
-    out = {name: np.zeros((b, 1, h, w), dtype=np.float32) for name in BASELINES}
+    out: dict[str, list[np.ndarray | None]] = {name: [] for name in BASELINES}
     for i in range(b):
-        for name, poly in baseline_polylines(s[i], float(res[i])).items():
-            out[name][i, 0] = draw_polyline(poly, h, w)
-    return {name: torch.from_numpy(img).to(state.device) for name, img in out.items()}
+        shape = shapes[i] if shapes is not None else None
+        for name, poly in baseline_polylines(s[i], float(res[i]), shape).items():
+            out[name].append(poly)
+    return out
+
+
+def draw_polylines(polylines: list[np.ndarray | None], height: int, width: int,
+                   device: torch.device | str = "cpu") -> torch.Tensor:
+    """(B, 1, H, W) float32 images of polylines drawn as a dataset's path channel (:func:`draw_polyline`)."""
+    images = np.zeros((len(polylines), 1, height, width), dtype=np.float32)
+    for i, poly in enumerate(polylines):
+        images[i, 0] = draw_polyline(poly, height, width)
+    return torch.from_numpy(images).to(device)
+
+
+@torch.no_grad()
+def baseline_images(state: torch.Tensor, resolution: torch.Tensor | float,
+                    shapes: list[str] | None = None) -> dict[str, torch.Tensor]:
+    """Each baseline's prediction (B, 1, H, W) in {0, 1} for a batch of states (B, 3, H, W)."""
+    _, _, h, w = state.shape
+    return {name: draw_polylines(polys, h, w, state.device)
+            for name, polys in batch_baseline_polylines(state, resolution, shapes).items()}

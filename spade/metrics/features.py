@@ -1,11 +1,16 @@
-"""Feature extractors for FID: a fixed, content-hashed random conv net (default, offline) and InceptionV3.
+"""Feature extractors for FID: ``shape`` (the default: a small CNN trained on the project's demonstrations to see
+path shape, :mod:`spade.metrics.shape_features`), a fixed, content-hashed random conv net and InceptionV3.
 
 Every extractor is an ``nn.Module`` mapping (B, C, H, W) images in [0, 1] to (B, D) float features, with the
 attributes ``feature_dim`` (D), ``in_channels`` and ``identity`` (a string naming the extractor and the sha256
 of its weights; FID values are comparable only between runs whose identities are equal, so log it with them).
 
-Why a random conv net by default: no offline machine holds ImageNet Inception weights, and a learned encoder
-would itself have to be trained, versioned and shipped with every dataset. Random-weight conv features are a
+Why not a random conv net by default (it was until shape-v1): with like-for-like rendering it does respond to
+shape, but mostly to how a path is drawn (line width, blur, texture); the trained ``shape`` features separate
+straight lines, U's, sharp corners and broken paths from L demonstrations by one to two orders of magnitude
+more than disjoint samples of the demonstrations differ (tests/test_metrics_fid.py,
+``python -m spade.bench sections=[metrics] metrics.sensitivity=true``). No offline machine holds ImageNet
+Inception weights. The random conv net stays available as ``randconv``: random-weight conv features are a
 known, workable FID embedding (Naeem et al., ICML 2020, "Reliable fidelity and diversity metrics"), cost
 nothing to obtain, and are bit-identical everywhere: the weights come from NumPy's legacy ``RandomState``
 stream, whose output NumPy guarantees never to change, and their sha256 is pinned so that a drift would raise
@@ -28,6 +33,7 @@ __all__ = [
     "RandomConvFeatures",
     "InceptionFeatures",
     "build_feature_extractor",
+    "FEATURE_EXTRACTORS",
     "INCEPTION_WEIGHTS_FILE",
     "INCEPTION_WEIGHTS_URL",
 ]
@@ -114,7 +120,7 @@ class InceptionFeatures(nn.Module):
         how = (
             f"download {INCEPTION_WEIGHTS_URL} on a machine with internet access, copy it here and pass its path "
             "as weights_path (feature_extractor='inception', weights_path=...), or use the default offline "
-            "extractor feature_extractor='randconv'"
+            "extractor feature_extractor='shape'"
         )
         if weights_path is None:
             raise ValueError(f"FID feature extractor 'inception' needs the local weights file {INCEPTION_WEIGHTS_FILE}: {how}")
@@ -130,7 +136,7 @@ class InceptionFeatures(nn.Module):
             raise ImportError(
                 "FID feature extractor 'inception' needs torchvision, which is not installed (it must match "
                 "torch's build; PyPI's wheel does not fit this project's torch 2.13.0). Install a matching "
-                "torchvision, or use the default offline extractor feature_extractor='randconv'."
+                "torchvision, or use the default offline extractor feature_extractor='shape'."
             ) from err
         model = inception_v3(weights=None, aux_logits=True, init_weights=False)
         model.load_state_dict(torch.load(path, map_location="cpu", weights_only=True))
@@ -159,8 +165,18 @@ class InceptionFeatures(nn.Module):
         return self.model((x - self.mean) / self.std)
 
 
-def build_feature_extractor(name: str = "randconv", **kwargs) -> nn.Module:
-    """Make a FID feature extractor by name: "randconv" (default, offline) or "inception" (weights_path=...)."""
+FEATURE_EXTRACTORS = ("shape", "randconv", "inception")
+"""The named FID extractors; ``shape`` is FID's default."""
+
+
+def build_feature_extractor(name: str = "shape", **kwargs) -> nn.Module:
+    """Make a FID feature extractor by name: "shape" (default: :class:`~spade.metrics.shape_features.ShapeFeatures`,
+    trained to see path shape, weights shipped and pinned), "randconv" (fixed random conv net) or "inception"
+    (weights_path=...)."""
+    if name == "shape":
+        from spade.metrics.shape_features import ShapeFeatures
+
+        return ShapeFeatures(**kwargs)
     if name == "randconv":
         defaults = not kwargs or set(kwargs) <= {"in_channels"} and kwargs.get("in_channels", 1) == 1
         if defaults:
@@ -168,4 +184,4 @@ def build_feature_extractor(name: str = "randconv", **kwargs) -> nn.Module:
         return RandomConvFeatures(**kwargs)
     if name == "inception":
         return InceptionFeatures(**kwargs)
-    raise ValueError(f"unknown FID feature extractor {name!r}; use 'randconv' (default, offline) or 'inception'")
+    raise ValueError(f"unknown FID feature extractor {name!r}; use 'shape' (default), 'randconv' or 'inception'")

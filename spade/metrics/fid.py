@@ -61,9 +61,13 @@ class FID(Metric):
     the feature extractor (and its weights' hash): log it with every value (e.g. as an MLflow param/tag).
 
     Args:
-        feature_extractor: "randconv" (default: fixed random conv net, offline), "inception" (torchvision
-            InceptionV3 from a local ``weights_path``), or any ``nn.Module`` with ``feature_dim`` and
-            ``identity`` attributes mapping (B, C, H, W) to (B, D).
+        feature_extractor: "shape" (default: :class:`~spade.metrics.shape_features.ShapeFeatures`, 64 features
+            trained on the project's demonstrations to see path shape, weights shipped with the package and
+            pinned), "randconv" (fixed random conv net, 240 features), "inception" (torchvision InceptionV3 from
+            a local ``weights_path``), or any ``nn.Module`` with ``feature_dim`` and ``identity`` attributes
+            mapping (B, C, H, W) to (B, D). Feed it path images drawn alike for real and generated sets (every
+            predictor's polyline drawn as the ground truth's path channel is,
+            :func:`spade.metrics.baselines.draw_polyline`): FID compares what the features see.
         extractor_kwargs: passed to :func:`~spade.metrics.features.build_feature_extractor` for a named extractor.
     """
 
@@ -71,7 +75,7 @@ class FID(Metric):
     higher_is_better = False
     full_state_update = False
 
-    def __init__(self, feature_extractor: str | nn.Module = "randconv", extractor_kwargs: dict | None = None, **kwargs) -> None:
+    def __init__(self, feature_extractor: str | nn.Module = "shape", extractor_kwargs: dict | None = None, **kwargs) -> None:
         super().__init__(**kwargs)
         if isinstance(feature_extractor, str):
             feature_extractor = build_feature_extractor(feature_extractor, **(extractor_kwargs or {}))

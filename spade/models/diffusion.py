@@ -138,6 +138,25 @@ class NoiseSchedule:
         abar = self.alphas_cumprod.to(device=x0.device, dtype=x0.dtype)[t].view(-1, *([1] * (x0.dim() - 1)))
         return abar.sqrt() * x0 + (1.0 - abar).sqrt() * noise
 
+    def prediction_target(self, x0: torch.Tensor, noise: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        """What the network is trained to output for ``x_t = add_noise(x0, noise, t)``, by ``prediction_type``:
+        ``noise`` (epsilon), ``x0`` (sample) or ``v = sqrt(abar_t) noise - sqrt(1 - abar_t) x0`` (v_prediction,
+        diffusers' ``get_velocity``). Differentiable in ``x0`` (the guidance margin's agent term needs that: with
+        sample or v prediction the target itself depends on the student's path)."""
+        if self.prediction_type == "epsilon":
+            return noise
+        if self.prediction_type == "sample":
+            return x0
+        t = torch.as_tensor(t, device=x0.device)
+        abar = self.alphas_cumprod.to(device=x0.device, dtype=x0.dtype)[t].view(-1, *([1] * (x0.dim() - 1)))
+        return abar.sqrt() * noise - (1.0 - abar).sqrt() * x0
+
+    def denoising_error(self, prediction: torch.Tensor, x0: torch.Tensor, noise: torch.Tensor,
+                        t: torch.Tensor) -> torch.Tensor:
+        """Per-sample mean squared error (B,) of a prediction against :meth:`prediction_target`: the expert's
+        denoising loss in its own parameterisation (what training minimises and the DBC margin compares)."""
+        return (prediction - self.prediction_target(x0, noise, t)).pow(2).flatten(1).mean(1)
+
     def random_timesteps(
         self, batch_size: int, generator: torch.Generator | None = None, antithetic: bool = True, device: torch.device | str | None = None
     ) -> torch.Tensor:

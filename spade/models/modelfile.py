@@ -4,7 +4,8 @@ A **checkpoint** written by ``python -m spade.train`` carries, next to Lightning
 
     {"role": "student" | "expert", "config": <net.config>,
      "data": {"image_size": [H, W], "resolution_m": ..., "frame": {"kind": "robot", "size_px": S,
-              "robot_px": [x, y], "heading": "up"}, "input_encoding": INPUT_ENCODING, "fingerprint": ...},
+              "robot_px": [x, y], "heading": "up"}, "input_encoding": INPUT_ENCODING,
+              "disc_radius_m": ..., "margin_m": ...},
      "mlflow_run_id": ...}
 
 (:func:`checkpoint_entry`, called by ``PathPlanningModule.on_save_checkpoint``). ``data`` describes the windows
@@ -117,9 +118,9 @@ def plain(value: Any) -> Any:
 def checkpoint_entry(role: str, net: nn.Module, datamodule: Any = None, loggers: Sequence[Any] = ()) -> dict[str, Any]:
     """The ``spade`` entry of a checkpoint: role, network config, the training windows, the MLflow run.
 
-    ``datamodule``: the fit's data module; its ``image_size``, ``resolution``, ``frame`` (the manifest's robot
-    frame) and ``fingerprint`` are recorded when it has them. ``loggers``: the module's loggers; an MLflow
-    logger's run id is recorded (a resumed fit continues that run).
+    ``datamodule``: the fit's data module; its ``image_size``, ``resolution`` and ``frame`` (the manifest's robot
+    frame) are recorded when it has them, with the training set's disc radius and goal margin. ``loggers``: the
+    module's loggers; an MLflow logger's run id is recorded (a resumed fit continues that run).
     """
     info: dict[str, Any] = {"role": str(role), "config": plain(dict(net.config))}
     if datamodule is not None and hasattr(datamodule, "resolution"):
@@ -128,9 +129,6 @@ def checkpoint_entry(role: str, net: nn.Module, datamodule: Any = None, loggers:
         frame = getattr(datamodule, "frame", None)
         if frame:
             data["frame"] = plain(dict(frame))
-        fingerprint = getattr(datamodule, "fingerprint", None)
-        if fingerprint is not None and not callable(fingerprint):
-            data["fingerprint"] = str(fingerprint)
         data.update(_annotation_geometry(datamodule))
         info["data"] = data
     for logger in loggers:
@@ -302,11 +300,21 @@ def read_metadata(path: str | Path) -> dict[str, Any]:
     return json.loads(props[ENTRY_KEY])
 
 
-def read_info(path: str | Path) -> dict[str, Any]:
-    """The ``spade`` entry of any model file: a checkpoint's ``checkpoint["spade"]``, an export's metadata."""
-    p = _existing(path)
-    if file_format(p) == "checkpoint":
-        return _entry(load_checkpoint(p, mmap=True), p)
+def read_info(path: str | Path, *, checkpoint: bool = False, required: bool = True) -> dict[str, Any]:
+    """The ``spade`` entry of any model file: a checkpoint's ``checkpoint["spade"]``, an export's metadata. The one
+    reader of that entry: config checks, loading, resuming and fine-tuning all go through it.
+
+    ``checkpoint=True``: the file must be a checkpoint (an export is refused as an unreadable one), for keys that
+    take a ``.ckpt``. ``required=False``: a checkpoint without the entry gives ``{}`` (the caller says what it
+    wanted) instead of :class:`ModelFileError`. A checkpoint's tensors are memory-mapped, not read.
+    """
+    p = _existing(path, "checkpoint" if checkpoint else "model file")
+    if checkpoint or file_format(p) == "checkpoint":
+        loaded = load_checkpoint(p, mmap=zipfile.is_zipfile(p))
+        if not required:
+            entry = loaded.get(ENTRY_KEY)
+            return dict(entry) if isinstance(entry, Mapping) else {}
+        return _entry(loaded, p)
     return read_metadata(p)
 
 

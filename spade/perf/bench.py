@@ -22,7 +22,7 @@ from spade.utils.timing import machine_info
 
 log = logging.getLogger(__name__)
 
-SECTIONS = ("student", "experts", "training", "metrics", "data", "quality", "annotation", "dataset", "maps")
+SECTIONS = ("student", "experts", "training", "metrics", "decoder", "data", "quality", "annotation", "dataset", "maps")
 _KEYS = ("quick", "sections", "out_json", "work_dir", "expert_ckpt", "seed", "threads", *SECTIONS)
 
 
@@ -67,6 +67,11 @@ def bench(cfg: DictConfig) -> dict[str, Any]:
             results["training"] = _training(c["training"])
         if "metrics" in sections:
             results["metrics"] = _metrics(c["metrics"], c["seed"])
+        if "decoder" in sections:
+            from spade.perf.decoding import decoder_costs
+
+            log.info("decoder: search vs skeleton per instance")
+            results["decoder"] = decoder_costs(c["decoder"]["instances"], c["decoder"]["image_sizes"], c["seed"])
         datasets: dict[str, Any] = {}
         if "data" in sections or ("quality" in sections and not (c["quality"].get("test_dir") and c.get("expert_ckpt"))):
             datasets = _datasets(c["data"], work)
@@ -133,8 +138,16 @@ def _metrics(m: dict[str, Any], seed: int) -> dict[str, Any]:
     out = metric_throughput(m["instances"], m["image_size"], m["fid_images"], m.get("batch", 64), seed,
                             m.get("reference_instances", 0), m.get("loops_instances", 0))
     if m.get("sensitivity"):
+        from spade.perf.metrics import shape_validity
+
         log.info("metrics: FID sensitivity")
         out["sensitivity"] = fid_sensitivity(m["sensitivity_images"], m["sensitivity_image_size"], seed)
+        out["shape_validity"] = shape_validity(m["sensitivity_images"], m.get("shape_image_size", 64), seed)
+    if m.get("fid_test_dir"):
+        from spade.perf.metrics import fid_test_table
+
+        log.info("metrics: FID table on %s", m["fid_test_dir"])
+        out["fid_table"] = fid_test_table(m["fid_test_dir"], m.get("fid_resample_dir"), m.get("fid_shape", "L"))
     return out
 
 
@@ -226,14 +239,14 @@ def _quality(q: dict[str, Any], expert_ckpt: str | None, datasets: dict[str, Any
 
 
 def _load_expert(path: str | Path) -> Any:
-    from spade.models.modelfile import load_checkpoint, load_lightning
+    from spade.models.modelfile import load_lightning, read_info
     from spade.training.expert_module import ExpertModule
 
     path = Path(path).expanduser()
     if not path.is_file():
         raise FileNotFoundError(f"expert_ckpt={path} does not exist; pass an expert checkpoint from "
                                 "python -m spade.train +experiment=expert_cond_L, or leave it out to train a tiny one")
-    role = (load_checkpoint(path).get("spade") or {}).get("role")
+    role = read_info(path, checkpoint=True, required=False).get("role")
     if role != "expert":
         raise ValueError(f"expert_ckpt={path} has role {role!r}, not 'expert': pass a diffusion expert checkpoint")
     return load_lightning(ExpertModule, path)

@@ -1,21 +1,26 @@
 """The metrics: APE + Hd19 and FID throughput, a per-instance reference pipeline timed on the same predictions,
-and how FID follows controlled degradations (the ``metrics`` section of ``python -m spade.bench``).
+how FID follows controlled degradations and shape changes, and FID's table on a real test set (the ``metrics``
+section of ``python -m spade.bench``).
 
-Every measurement runs on :mod:`spade.metrics.synthetic`: L/U ground-truth paths (``synthetic_batch``) and
-plausible soft predictions of them (``synthetic_predictions``: blurred, shifted, noisy, some with stray blobs, gaps
-or nothing predicted).
+The throughput and degradation measurements run on :mod:`spade.metrics.synthetic`: L/U ground-truth paths
+(``synthetic_batch``) and plausible soft predictions of them (``synthetic_predictions``: blurred, shifted, noisy,
+some with stray blobs, gaps or nothing predicted). FID's shape validity (:func:`shape_validity`) runs on
+robot-frame L/U paths (:mod:`spade.metrics.shape_paths`), and :func:`fid_test_table` on a dataset directory
+(``metrics.fid_test_dir=``).
 """
 
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
-from spade.metrics import APE, FID, HausdorffCount, RandomConvFeatures, marker_centre
+from spade.metrics import APE, FID, HausdorffCount, RandomConvFeatures, build_feature_extractor, marker_centre
+from spade.metrics.shape_features import ShapeFeatures
 from spade.metrics.synthetic import degrade, synthetic_batch, synthetic_predictions
 
 SENSITIVITY_LEVELS = {"shift": [0, 1, 2, 4, 8], "blur": [0, 0.5, 1, 2, 3], "dropout": [0, 0.1, 0.2, 0.4, 0.6],
@@ -189,14 +194,17 @@ class _Pixels(torch.nn.Module):
 
 def fid_sensitivity(images: int, image_size: int, seed: int = 0) -> dict[str, Any]:
     """FID of ``images`` real vs as many independently drawn generated L/U paths, degraded at increasing levels
-    (shift, blur, dropout, blobs: :data:`SENSITIVITY_LEVELS`), for the default random conv extractor, two other
-    seeds of it and a raw-pixel baseline: does FID rise monotonically with the degradation?"""
+    (shift, blur, dropout, blobs: :data:`SENSITIVITY_LEVELS`), for the default shape extractor, the random conv
+    extractor with three seeds and a raw-pixel baseline: does FID rise monotonically with the degradation?
+    (These are drawing degradations of :mod:`spade.metrics.synthetic`'s paths; :func:`shape_validity` is about
+    shape.)"""
     real = torch.from_numpy(synthetic_batch(images, size=image_size, seed=seed + 1)["path"])
     gen = synthetic_batch(images, size=image_size, seed=seed + 2)["path"]
     degraded = {(k, lv): torch.from_numpy(degrade(gen, k, lv, seed=seed + 3))
                 for k, lvs in SENSITIVITY_LEVELS.items() for lv in lvs}
     rows = []
-    for ext in (RandomConvFeatures(seed=0), RandomConvFeatures(seed=1), RandomConvFeatures(seed=2), _Pixels()):
+    for ext in (ShapeFeatures(), RandomConvFeatures(seed=0), RandomConvFeatures(seed=1), RandomConvFeatures(seed=2),
+                _Pixels()):
         fid = FID(ext)
         fid.update(real, real=True)
         saved = {k: getattr(fid, k).clone() for k in ("real_n", "real_sum", "real_outer")}
@@ -212,3 +220,130 @@ def fid_sensitivity(images: int, image_size: int, seed: int = 0) -> dict[str, An
                          "fid": values, "ratio": values[-1] / values[0],
                          "monotonic": all(b > a for a, b in zip(values, values[1:]))})
     return {"images": images, "image_size": image_size, "rows": rows}
+
+
+SHAPE_LEVELS: dict[str, list[float]] = {"shift_px": [0, 1, 2, 4, 8], "gap": [0, 0.1, 0.2, 0.35, 0.5],
+                                        "radius_scale": [1.0, 0.6, 0.3, 0.0]}
+"""Growing shape corruptions of :func:`shape_validity` (shift in pixels at 64 px, missing middle fraction of the
+arc length, turn radius multiplier: 0 is a sharp corner)."""
+
+
+def _fid_against(extractor: Any, real: torch.Tensor, sets: dict[str, np.ndarray], batch: int = 256) -> dict[str, float]:
+    """FID of every set against ``real`` with one extractor (the real statistics accumulated once)."""
+    fid = FID(extractor)
+    for i in range(0, len(real), batch):
+        fid.update(real[i : i + batch], real=True)
+    saved = {k: getattr(fid, k).clone() for k in ("real_n", "real_sum", "real_outer")}
+    out = {}
+    for name, images in sets.items():
+        fid.reset()
+        for k, v in saved.items():
+            setattr(fid, k, v.clone())
+        t = torch.from_numpy(np.asarray(images, dtype=np.float32))
+        for i in range(0, len(t), batch):
+            fid.update(t[i : i + batch], real=False)
+        out[name] = float(fid.compute()["fid"])
+    return out
+
+
+def shape_validity(images: int, image_size: int = 64, seed: int = 0,
+                   extractors: tuple[str, ...] = ("shape", "randconv")) -> dict[str, Any]:
+    """FID's validity on robot-frame L paths (:mod:`spade.metrics.shape_paths`, ``images`` per set): a disjoint
+    ground-truth sample, straight lines, U's, sharp corners, the middle third removed, a 180 degree rotation,
+    each against the ground truth, and the growing corruptions of :data:`SHAPE_LEVELS`; per extractor."""
+    from spade.metrics.shape_paths import render_paths, rotate_paths, sample_paths, straight_paths
+
+    res = 0.1 * 64 / image_size
+    scale = image_size / 64
+    real = torch.from_numpy(render_paths(sample_paths(images, "L", image_size, res, seed=seed + 1), image_size))
+    gen = sample_paths(images, "L", image_size, res, seed=seed + 2)
+    sets = {"ground truth (disjoint sample)": render_paths(gen, image_size),
+            "straight lines": render_paths(straight_paths(gen), image_size),
+            "U instead of L": render_paths(sample_paths(images, "U", image_size, res, seed=seed + 2), image_size),
+            "sharp corners (radius 0)": None, "middle third removed": render_paths(gen, image_size, gap=1 / 3),
+            "rotated 180 degrees": render_paths(rotate_paths(gen, image_size), image_size)}
+    radius = {lv: render_paths(sample_paths(images, "L", image_size, res, seed=seed + 2, radius_scale=lv), image_size)
+              for lv in SHAPE_LEVELS["radius_scale"]}
+    sets["sharp corners (radius 0)"] = radius[0.0]
+    for lv in SHAPE_LEVELS["shift_px"][1:]:
+        sets[f"shift_px={lv}"] = render_paths(gen, image_size, shift_px=lv * scale, seed=seed + 3)
+    for lv in SHAPE_LEVELS["gap"][1:]:
+        sets[f"gap={lv}"] = render_paths(gen, image_size, gap=lv)
+    for lv in SHAPE_LEVELS["radius_scale"][1:]:
+        sets[f"radius_scale={lv}"] = radius[lv]
+    rows = []
+    for name in extractors:
+        ext = build_feature_extractor(name)
+        values = _fid_against(ext, real, sets)
+        base = values["ground truth (disjoint sample)"]
+        fixed = [{"set": k, "fid": v, "ratio": v / base} for k, v in values.items() if "=" not in k]
+        growing = []
+        for kind, levels in SHAPE_LEVELS.items():
+            fids = [base] + [values[f"{kind}={lv}"] for lv in levels[1:]]
+            growing.append({"kind": kind, "levels": levels, "fid": fids,
+                            "monotonic": all(b > a for a, b in zip(fids, fids[1:]))})
+        rows.append({"extractor": ext.identity, "feature_dim": ext.feature_dim, "sets": fixed, "growing": growing})
+    return {"images": images, "image_size": image_size, "rows": rows}
+
+
+def _load_paths(root: str | Path, shape: str | None) -> dict[str, Any]:
+    from spade.data import PathDataset
+
+    ds = PathDataset(root)
+    keep = [i for i, s in enumerate(ds.labels("shape")) if shape is None or s == shape]
+    items = [ds[i] for i in keep]
+    if not items:
+        raise ValueError(f"{root} holds no {shape!r} instances")
+    return {"path": np.stack([it["path"].numpy() for it in items]),
+            "state": np.stack([it["state"].numpy() for it in items]),
+            "scenario": [str(it["scenario_id"]) for it in items], "resolution": float(ds.resolution)}
+
+
+def fid_test_table(test_dir: str | Path, resample_dir: str | Path | None = None, shape: str | None = "L",
+                   extractors: tuple[str, ...] = ("shape", "randconv")) -> dict[str, Any]:
+    """Issue 21's table: FID against a real test set's ``shape`` ground-truth path images of the ground truth
+    resampled, the classical baselines (straight line, Nav2-like shortest path, heading template; their
+    polylines drawn with :func:`~spade.metrics.baselines.draw_polyline`, like the ground truth's path channel)
+    and the ground truth rotated by 180 degrees, per extractor.
+
+    ``resample_dir``: another dataset of the same distribution (e.g. the test preset with another seed); without
+    one the test set is split by scenario into two halves, and every row is scored against the first half (the
+    resample row is the second half).
+    """
+    from spade.metrics.baselines import BASELINES, baseline_polylines, draw_polyline
+
+    test = _load_paths(test_dir, shape)
+    n = len(test["path"])
+    if resample_dir is not None:
+        real_idx = np.arange(n)
+        resample = _load_paths(resample_dir, shape)["path"]
+        resample_note = f"{resample_dir}"
+    else:
+        names = sorted(set(test["scenario"]))
+        first = set(names[::2])
+        real_idx = np.array([i for i, s in enumerate(test["scenario"]) if s in first])
+        resample = test["path"][[i for i, s in enumerate(test["scenario"]) if s not in first]]
+        resample_note = "the test set's other half (by scenario)"
+    real = test["path"][real_idx]
+    h, w = real.shape[-2:]
+    t0 = time.perf_counter()
+    polys = [baseline_polylines(test["state"][i], test["resolution"]) for i in real_idx]
+    drawn = {name: np.stack([draw_polyline(p[name], h, w)[None] for p in polys]) for name in BASELINES}
+    baseline_s = time.perf_counter() - t0
+    labels = {"straight": "straight line start -> goal", "shortest": "Nav2-like shortest path",
+              "heading": "heading template"}
+    sets = {"ground truth resampled": resample, **{labels[k]: v for k, v in drawn.items()},
+            "ground truth rotated 180 degrees": np.rot90(real, 2, axes=(-2, -1)).copy()}
+    columns = []
+    fewest = min(len(real), *(len(v) for v in sets.values()))
+    for name in extractors:
+        ext = build_feature_extractor(name)
+        t0 = time.perf_counter()
+        if fewest > ext.feature_dim:
+            values: dict[str, float | None] = dict(_fid_against(ext, torch.from_numpy(real), sets))
+        else:  # too few images for this extractor's covariances (e.g. randconv on half a test set)
+            values = dict.fromkeys(sets)
+        columns.append({"extractor": ext.identity, "feature_dim": ext.feature_dim, "fid": values,
+                        "seconds": time.perf_counter() - t0})
+    return {"test_dir": str(test_dir), "shape": shape, "real": int(len(real)), "resample": resample_note,
+            "counts": {k: int(len(v)) for k, v in sets.items()}, "baseline_seconds": baseline_s, "columns": columns}

@@ -102,6 +102,11 @@ def format_report(results: dict[str, Any]) -> str:
                   r["seconds_per_sample"]] for r in q["rows"]]
         parts.append(f"### DDIM vs DDPM on a trained expert ({q['expert']})\n\n" + _table(
             ["sampler", "samples", "APE cm", "failures", "Hd19", "s / sample"], table))
+    if results.get("decoder"):
+        table = [[r["decoder"], r["image_size"], r["instances"], r["median_ms"], r["p95_ms"], r["cpu_ms_per_instance"]]
+                 for r in results["decoder"]]
+        parts.append("### Path decoding per instance (the planner's search vs the paper's skeleton extraction)\n\n"
+                     + _table(["decoder", "px", "instances", "median ms", "p95 ms", "CPU ms / instance"], table))
     if results.get("training"):
         table = [[r["approach"], r["student"], r["expert_preset"] or "-", r["image_size"], r["batch_size"],
                   r["step_ms"], r["ratio_to_bc"]] for r in results["training"]]
@@ -166,6 +171,25 @@ def _metrics(r: dict[str, Any]) -> str:
         out += (f"\n\n### FID sensitivity ({sens['images']} real vs {sens['images']} generated {sens['image_size']} px "
                 f"paths, degraded)\n\n" + _table(["extractor", "degradation", "levels", "FID", "last / first",
                                                   "monotonic"], rows))
+    if r.get("shape_validity"):
+        sv = r["shape_validity"]
+        rows = [[f"{row['extractor']} (D={row['feature_dim']})", s["set"], f"{s['fid']:.4g}", f"{s['ratio']:.1f}"]
+                for row in sv["rows"] for s in row["sets"]]
+        rows += [[f"{row['extractor']} (D={row['feature_dim']})",
+                  f"{g['kind']} " + ", ".join(f"{v:g}" for v in g["levels"]),
+                  " ".join(f"{v:.4g}" for v in g["fid"]), "monotonic" if g["monotonic"] else "NOT monotonic"]
+                 for row in sv["rows"] for g in row["growing"]]
+        out += (f"\n\n### FID shape validity ({sv['images']} robot-frame L paths vs {sv['images']} per set, "
+                f"{sv['image_size']} px)\n\n" + _table(["extractor", "set", "FID", "/ ground truth"], rows))
+    if r.get("fid_table"):
+        ft = r["fid_table"]
+        names = list(ft["columns"][0]["fid"])
+        rows = [[name, ft["counts"][name]] + [f"{c['fid'][name]:.4g}" if c["fid"][name] is not None
+                                              else f"- (needs > {c['feature_dim']} images)" for c in ft["columns"]]
+                for name in names]
+        out += (f"\n\n### FID against the test set's ground truth ({ft['test_dir']}, {ft['shape'] or 'all'} "
+                f"instances: {ft['real']}; resample: {ft['resample']})\n\n"
+                + _table(["generated set", "n"] + [f"FID ({c['extractor']})" for c in ft["columns"]], rows))
     return out
 
 

@@ -1,14 +1,24 @@
 """The FastAPI app: the JSON API (:mod:`spade.sketching.api`) and one static page (``static/``), nothing loaded
-from anywhere else (no CDN: robots and CI have no internet)."""
+from anywhere else (no CDN: robots and CI have no internet).
+
+The app obeys only its user (as MLflow 3's and Jupyter's local servers do): a request whose ``Host`` header is not
+one of the app's own names (127.0.0.1, localhost, ::1 and the address it is bound to) is refused, which stops a web
+page from reaching it by DNS rebinding; a state-changing request (anything but GET / HEAD / OPTIONS) from another
+origin (``Origin`` or ``Sec-Fetch-Site``) is refused, which stops cross-site form posts; both answer 403 with
+``{"error": ...}``. Model files are loaded only from the workspace's model folders
+(:class:`~spade.sketching.workspace.SketchWorkspace`).
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from fastapi import FastAPI
+from urllib.parse import urlsplit
+
+from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse
+from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from spade.sketching.api import request_error, router, validation_error
@@ -17,11 +27,62 @@ from spade.sketching.workspace import RequestError, SketchWorkspace, annotation_
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 
 
-def create_app(workspace: SketchWorkspace) -> FastAPI:
-    """The app around one workspace (map, sketch file, dataset, planner)."""
+LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
+SAFE_METHODS = ("GET", "HEAD", "OPTIONS")
+
+
+def allowed_hosts(hosts: Sequence[str] = ()) -> frozenset[str]:
+    """The host names the app answers to: the loopback names and ``hosts`` (the bound address, ``allowed_hosts``);
+    bound to every interface (0.0.0.0, ::), also this machine's name."""
+    import socket
+
+    names = {*LOCAL_HOSTS}
+    for host in hosts:
+        host = str(host).strip().strip("[]").lower()
+        if host in ("0.0.0.0", "::", ""):
+            names.add(socket.gethostname().lower())
+        else:
+            names.add(host)
+    return frozenset(names)
+
+
+def _host_name(netloc: str) -> str | None:
+    try:
+        return urlsplit(f"//{netloc}").hostname  # lower case, brackets and port removed
+    except ValueError:
+        return None
+
+
+def _refused(message: str) -> JSONResponse:
+    return JSONResponse({"error": message}, status_code=403)
+
+
+def create_app(workspace: SketchWorkspace, hosts: Sequence[str] = ()) -> FastAPI:
+    """The app around one workspace (map, sketch file, dataset, planner); ``hosts``: host names it answers to
+    besides 127.0.0.1, localhost and ::1 (the address it is bound to)."""
     app = FastAPI(title="SPADE sketching", summary="Draw demonstrations on a map, execute, save, build, plan",
                   docs_url=None, redoc_url=None, openapi_url="/api/openapi.json")  # Swagger UI would need a CDN
     app.state.workspace = workspace
+    app.state.allowed_hosts = names = allowed_hosts(hosts)
+
+    @app.middleware("http")
+    async def only_its_user(request: Request, call_next: Any) -> Any:
+        host = request.headers.get("host", "")
+        if _host_name(host) not in names:
+            return _refused(f"Host {host!r} is not this server (it answers to {', '.join(sorted(names))}); open it "
+                            "as http://127.0.0.1:PORT/, or start it with allowed_hosts=[NAME]")
+        if request.method not in SAFE_METHODS:
+            origin = request.headers.get("origin")
+            if origin is not None:
+                parts = urlsplit(origin) if origin != "null" else None
+                if parts is None or parts.netloc.lower() != host.lower() or parts.scheme not in ("http", "https"):
+                    return _refused(f"cross-origin {request.method} refused: Origin {origin!r} is not this server's "
+                                    f"page (http://{host}); use the page it serves, or a script without an Origin")
+            site = request.headers.get("sec-fetch-site")
+            if site is not None and site not in ("same-origin", "none"):
+                return _refused(f"cross-site {request.method} refused (Sec-Fetch-Site: {site}); use the page this "
+                                "server serves")
+        return await call_next(request)
     app.add_exception_handler(RequestValidationError, validation_error)  # type: ignore[arg-type]
     app.add_exception_handler(RequestError, request_error)  # type: ignore[arg-type]
     app.include_router(router(workspace))
@@ -35,11 +96,16 @@ def create_app(workspace: SketchWorkspace) -> FastAPI:
 
 
 def build_app(map_spec: str, out_dir: str | Path, annotate: Sequence[str] | Mapping[str, Any] = (),
-              model: str | Path | None = None, device: str = "cpu") -> FastAPI:
+              model: str | Path | None = None, device: str = "cpu", hosts: Sequence[str] = (),
+              models: Sequence[str | Path] | None = None) -> FastAPI:
     """Workspace and app in one call. ``annotate``: overrides of conf/annotate.yaml, as ``key=value`` strings
-    (``["window.size_px=64"]``) or a nested mapping (``{"window": {"size_px": 64}}``)."""
+    (``["window.size_px=64"]``) or a nested mapping (``{"window": {"size_px": 64}}``); ``hosts``: host names
+    the app answers to besides the loopback ones; ``models``: the folders ``POST /api/model`` may load from
+    (default: the working directory, the map's folder, ``out_dir`` and ``model``'s folder)."""
     overrides = flatten_overrides(annotate) if isinstance(annotate, Mapping) else list(annotate)
-    return create_app(SketchWorkspace(map_spec, out_dir, annotation_config(overrides), model, device, overrides))
+    workspace = SketchWorkspace(map_spec, out_dir, annotation_config(overrides), model, device, overrides,
+                                model_dirs=models)
+    return create_app(workspace, hosts)
 
 
 def flatten_overrides(tree: Mapping[str, Any], prefix: str = "") -> list[str]:

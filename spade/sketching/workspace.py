@@ -35,6 +35,8 @@ from spade.sketching.storage import SketchStore, StorageError
 
 log = logging.getLogger(__name__)
 
+MODEL_SUFFIXES = (".ckpt", ".onnx", ".pt")  # what load_model opens: model files only
+
 # Words for the rejection reasons of the annotation tool (the keys counted in a dataset's manifest).
 REASONS = {
     "sketch_off_map": "a waypoint lies outside the map",
@@ -68,6 +70,15 @@ def annotation_config(overrides: Sequence[str] = ()) -> dict[str, Any]:
     out: dict[str, Any] = OmegaConf.to_container(cfg, resolve=True)  # type: ignore[assignment]
     out.pop("hydra", None)
     return out
+
+
+def _confidence(result: Any) -> dict[str, Any] | None:
+    """A plan's confidence for the page: share of its length through p < 0.5, lowest p, the flags (search only)."""
+    share = getattr(result, "low_share", float("nan"))
+    if not result.success or share is None or not np.isfinite(share):
+        return None
+    return {"low_share": round(float(share), 3), "min_probability": round(float(result.min_probability), 3),
+            "low_confidence": bool(result.low_confidence), "fallback": bool(result.fallback)}
 
 
 def _png(rgba: np.ndarray) -> bytes:
@@ -121,10 +132,13 @@ class SketchWorkspace:
         annotation: the annotation config (:func:`annotation_config`); its window, robot and execution sections
             decide how sketches are executed, exactly as ``spade.annotate`` will when building the dataset.
         model: a student checkpoint or ONNX export for "Try the policy" (optional).
+        model_dirs: the folders :meth:`load_model` may load model files from (``POST /api/model``); default: the
+            working directory, the map's folder and ``out_dir``. ``model``'s folder is always added.
     """
 
     def __init__(self, map_spec: str, out_dir: str | Path, annotation: Mapping[str, Any],
-                 model: str | Path | None = None, device: str = "cpu", overrides: Sequence[str] = ()) -> None:
+                 model: str | Path | None = None, device: str = "cpu", overrides: Sequence[str] = (),
+                 model_dirs: Sequence[str | Path] | None = None) -> None:
         self.cfg = dict(annotation)
         self.overrides = list(overrides)
         self.resolution = float(self.cfg["window"]["resolution_m"])
@@ -147,7 +161,11 @@ class SketchWorkspace:
         self.device = device
         self.planner: Any = None
         self.model_path: str | None = None
+        if model_dirs is None:
+            model_dirs = [Path.cwd(), self.out_dir, *([] if parse_procedural(spec) else [Path(spec).parent])]
+        self.model_dirs = list(dict.fromkeys(Path(d).expanduser().resolve() for d in model_dirs))
         if model:
+            self.model_dirs.append(Path(str(model)).expanduser().resolve().parent)  # the operator's own choice
             self.load_model(model)
         self._exec_lock = threading.Lock()
         self._plan_lock = threading.Lock()
@@ -364,16 +382,34 @@ class SketchWorkspace:
         from spade.deploy.planner import Planner, PlannerConfigError
 
         p = Path(str(path)).expanduser()
-        if not p.is_file():
-            raise RequestError(f"model {str(path)!r}: no such file; give a student checkpoint (.ckpt) from "
-                               "python -m spade.train or its ONNX export (.onnx)", status=404)
+        if p.suffix.lower() not in MODEL_SUFFIXES:  # refused before the file is even looked at
+            raise RequestError(f"model {p.name!r} is not a model file: give a student checkpoint (.ckpt) from "
+                               "python -m spade.train or its export (.onnx, .pt)", status=422)
+        resolved = p.resolve()  # symbolic links followed: a link in a model folder to a file elsewhere is refused
+        inside = any(resolved.is_relative_to(d) for d in self.model_dirs)
+        if not inside or not resolved.is_file():  # one answer for both: no oracle of what exists elsewhere
+            raise RequestError(f"model {str(path)!r}: no such file in the model folders "
+                               f"({', '.join(str(d) for d in self.model_dirs)}); give a student checkpoint (.ckpt) "
+                               "or its export (.onnx, .pt) under one of them (python -m spade.sketch ... "
+                               "models=[FOLDER] sets them)", status=404)
+        from spade.models.modelfile import read_info
+
+        try:  # a SPADE model file at all? Anything else gets one answer that says nothing about its bytes
+            readable = bool(read_info(resolved, required=False))
+        except Exception as exc:  # noqa: BLE001 - pickle, zip, protobuf, TorchScript errors alike
+            log.warning("model %s could not be read: %s: %s", resolved, type(exc).__name__, exc)
+            readable = False
+        if not readable:
+            raise RequestError(f"model {p.name} cannot be read as a student checkpoint or export; give a .ckpt "
+                               "written by python -m spade.train or its .onnx / .pt export", status=422)
         try:
-            planner = Planner(p, device=self.device)
-        except PlannerConfigError as exc:
+            planner = Planner(resolved, device=self.device)
+        except PlannerConfigError as exc:  # a model file, read: what SPADE found in it (its role, its window)
             raise RequestError(f"model {p.name}: {exc}", status=422) from None
-        except Exception as exc:  # not a checkpoint at all (pickle, zip or protobuf errors)
-            raise RequestError(f"model {p.name} cannot be read as a student checkpoint or ONNX export: "
-                               f"{type(exc).__name__}: {exc}", status=422) from None
+        except Exception as exc:  # not a model at all: say so, never what a parser made of its bytes
+            log.warning("model %s could not be read: %s: %s", resolved, type(exc).__name__, exc)
+            raise RequestError(f"model {p.name} cannot be read as a student checkpoint or export; give a .ckpt "
+                               "written by python -m spade.train or its .onnx / .pt export", status=422) from None
         h, w = planner.image_size
         planner.predict(np.zeros((1, 3, h, w), np.float32))  # warm-up: the operator's first plan is not the slow one
         self.planner, self.model_path = planner, str(p.resolve())
@@ -398,6 +434,8 @@ class SketchWorkspace:
             "length_m": round(float(result.length_m), 3), "latency_ms": round(latency, 1),
             "pose": pose.tolist(), "goal": np.asarray(result.goal if result.goal is not None else goal).tolist()[:2],
             "probability": None, "overlay": None,
+            "decode": getattr(result, "decode", None),
+            "confidence": _confidence(result),
         }
         if result.probability is not None:
             out["probability"] = "data:image/png;base64," + base64.b64encode(

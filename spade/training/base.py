@@ -54,10 +54,27 @@ class PathPlanningModule(L.LightningModule):
         write_checkpoint_entry(checkpoint, self.role, self.net, datamodule, self.loggers)
 
     def configure_optimizers(self) -> Any:
+        """The optimiser from ``optimizer_factory`` (AdamW lr 1e-3 when None) and, when the subclass holds an
+        ``lr_scheduler_factory`` (a ``_partial_`` such as :func:`spade.training.schedules.warmup_cosine`, called
+        with the optimiser and ``total_steps``, the trainer's estimated optimisation steps), its scheduler, stepped
+        every optimisation step."""
         params = [p for p in self.parameters() if p.requires_grad]
         if self.optimizer_factory is None:
-            return torch.optim.AdamW(params, lr=1e-3)
-        return self.optimizer_factory(params=params)
+            optimizer = torch.optim.AdamW(params, lr=1e-3)
+        else:
+            optimizer = self.optimizer_factory(params=params)
+        scheduler_factory = getattr(self, "lr_scheduler_factory", None)
+        if scheduler_factory is None:
+            return optimizer
+        import math
+
+        total = self.trainer.estimated_stepping_batches if self._trainer is not None else None
+        if total is None or not math.isfinite(float(total)) or int(total) < 1:
+            raise ValueError(f"a learning-rate schedule needs a finite number of training steps (trainer.max_epochs or "
+                             f"trainer.max_steps), the trainer estimates {total}")
+        scheduler = scheduler_factory(optimizer=optimizer, total_steps=int(total))
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step", "frequency": 1,
+                                                         "name": "lr"}}
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
         self.log_dict(self.validation_losses(batch), batch_size=batch["state"].shape[0], sync_dist=True)
@@ -88,13 +105,17 @@ class PathPlanningModule(L.LightningModule):
         self._test_records = TestRecords()
 
     def test_step(self, batch: dict, batch_idx: int) -> None:
-        from spade.metrics.baselines import baseline_images
+        from spade.metrics.baselines import batch_baseline_polylines, draw_polylines
 
         prob = self.predict_paths(batch)
         self.test_metrics.update(prob, batch)
         self._test_records.add(batch, prob)
-        for name, image in baseline_images(batch["state"], batch["resolution"]).items():
-            self._baseline_metrics[name].update(image, batch)
+        h, w = prob.shape[-2:]
+        shapes = batch.get("shape")
+        shapes = list(shapes) if isinstance(shapes, (list, tuple)) else None
+        for name, polys in batch_baseline_polylines(batch["state"], batch["resolution"], shapes).items():
+            # the paper's figures from the baseline drawn as an image, the planner's from its own polyline
+            self._baseline_metrics[name].update(draw_polylines(polys, h, w, prob.device), batch, polylines=polys)
 
     def on_test_epoch_end(self) -> None:
         self.log_dict({f"test/{k}": v for k, v in self.test_metrics.compute().items()}, sync_dist=False)

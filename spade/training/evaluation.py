@@ -4,49 +4,116 @@ from __future__ import annotations
 
 import logging
 
+import numpy as np
 import torch
 from torch import nn
+from torchmetrics.aggregation import MeanMetric
 
 from spade.metrics import APE, FID, HausdorffCount
+from spade.metrics._inputs import to_numpy
+from spade.metrics.baselines import draw_polylines
+from spade.metrics.decoding import PathDecoder
+from spade.metrics.extraction import marker_centre
 
 log = logging.getLogger(__name__)
 
 
 class PathMetrics(nn.Module):
-    """APE (cm), Hd<threshold> (count) and FID of predicted path probabilities against a batch's ground truth.
+    """The paper's figures and the planner's, for predicted path probabilities against a batch's ground truth.
 
-    FID needs more images than its feature dimension; on smaller sets (a tiny validation split) it is left out
-    of the result with a warning rather than failing the run.
+    - The paper's (keys ``ape_cm``, ``hd19``, ``failure_rate``, ``over_20cm_rate``, ...): the path extracted by
+      threshold and skeleton (:func:`~spade.metrics.extraction.extract_path`), Hd19 of the thresholded image.
+    - The planner's (keys ``planner/...``): the path :class:`~spade.metrics.decoding.PathDecoder` decodes by search
+      from the robot to the goal (what ``Planner(decode="search")`` drives): its APE, tail and failures, Hd19 of
+      that path drawn as a dataset's path channel, and ``planner/low_confidence_rate`` (the share of instances whose
+      decoded path runs more than ``low_confidence_share`` of its length through pixels with p < 0.5).
+    - FID compares like with like: the ground truth's path channel against every prediction's decoded path drawn
+      exactly as that channel is drawn (one-pixel curve), so line width and probability texture cannot matter;
+      a baseline's own polyline is drawn the same way.
+
+    :meth:`update` takes ``polylines`` for predictors that give a path rather than an image (the baselines): they
+    are scored as the planner's path directly. FID needs more images than its feature dimension; on smaller sets
+    (a tiny validation split) it is left out of the result with a warning rather than failing the run.
     """
 
-    def __init__(self, hd_threshold: float = 19.0, pred_threshold: float = 0.5, fid_extractor: str = "randconv",
-                 fid_extractor_kwargs: dict | None = None, fid: bool = True, hd_threshold_m: float | None = 0.95
-                 ) -> None:
+    def __init__(self, hd_threshold: float = 19.0, pred_threshold: float = 0.5, fid_extractor: str | None = None,
+                 fid_extractor_kwargs: dict | None = None, fid: bool = True, hd_threshold_m: float | None = 0.95,
+                 planner: bool = True, tail_cm: float = 20.0, low_confidence_share: float = 0.1,
+                 decoder: dict | None = None) -> None:
         super().__init__()
-        self.ape = APE(threshold=pred_threshold)
+        self.ape = APE(threshold=pred_threshold, tail_cm=tail_cm)
         # Hd19 in metres (0.95 m = 19 px of the paper's 0.05 m/px) so that coarser windows count the same
         # artifacts; the key stays "hd19". hd_threshold_m=null counts hd_threshold pixels instead.
-        self.hd = HausdorffCount(threshold=hd_threshold, pred_threshold=pred_threshold, threshold_m=hd_threshold_m,
-                                 name="hd19" if hd_threshold_m is not None else None)
-        self.fid = FID(fid_extractor, fid_extractor_kwargs) if fid else None
+        hd = dict(threshold=hd_threshold, pred_threshold=pred_threshold, threshold_m=hd_threshold_m,
+                  name="hd19" if hd_threshold_m is not None else None)
+        self.hd = HausdorffCount(**hd)
+        self.planner = planner
+        if not 0 <= low_confidence_share <= 1:
+            raise ValueError(f"low_confidence_share must lie in [0, 1], got {low_confidence_share}")
+        self.low_confidence_share = float(low_confidence_share)
+        self.decoder = PathDecoder(threshold=pred_threshold, force_endpoints=True, **dict(decoder or {}))
+        if planner:
+            self.planner_ape = APE(threshold=pred_threshold, tail_cm=tail_cm)
+            self.planner_hd = HausdorffCount(**hd)
+            self.low_confidence = MeanMetric()
+            self.low_share = MeanMetric()
+        fid_args = () if fid_extractor is None else (fid_extractor,)
+        self.fid = FID(*fid_args, extractor_kwargs=fid_extractor_kwargs) if fid else None
         self._warned = False
 
     @property
     def fid_identity(self) -> str | None:
         return self.fid.identity if self.fid is not None else None
 
+    def decode(self, prob: torch.Tensor, state: torch.Tensor, resolution: torch.Tensor | float
+               ) -> list:
+        """The planner's decoded path (:class:`~spade.metrics.decoding.DecodedPath`) of every instance."""
+        p = to_numpy(prob)[:, 0]
+        s = to_numpy(state)
+        res = np.broadcast_to(np.asarray(to_numpy(resolution, np.float64) if isinstance(resolution, torch.Tensor)
+                                         else resolution, dtype=np.float64).reshape(-1), (len(p),))
+        return [self.decoder(p[i], np.rint(s[i, 0] * 2).astype(np.uint8), marker_centre(s[i, 1], "start"),
+                             marker_centre(s[i, 2], "goal"), float(res[i])) for i in range(len(p))]
+
     @torch.no_grad()
-    def update(self, prob: torch.Tensor, batch: dict) -> None:
+    def update(self, prob: torch.Tensor, batch: dict, polylines: list | None = None) -> None:
+        """``prob`` (B, 1, H, W) predicted path probabilities; ``polylines`` (optional, one (N, 2) array or None per
+        instance): the predictor's own path, used as the planner's path instead of decoding ``prob``."""
         prob = prob.detach().float().clamp(0, 1)
         self.ape.update(prob, batch["state"], batch["waypoints"], batch["resolution"])
         self.hd.update(prob, batch["path"], batch["resolution"])
+        if not (self.planner or self.fid is not None):
+            return
+        if polylines is None:
+            decoded = self.decode(prob, batch["state"], batch["resolution"])
+            polylines = [d.points if d.ok else None for d in decoded]
+            if self.planner:
+                low = torch.tensor([float(d.low_confidence(self.low_confidence_share)) for d in decoded],
+                                   dtype=torch.float32, device=prob.device)
+                share = torch.tensor([d.low_share if d.ok else 1.0 for d in decoded], dtype=torch.float32,
+                                     device=prob.device)
+                self.low_confidence.update(low)
+                self.low_share.update(share)
+        h, w = prob.shape[-2:]
+        drawn = draw_polylines(polylines, h, w, prob.device)
+        if self.planner:
+            self.planner_ape.update_polylines(polylines, batch["state"], batch["waypoints"], batch["resolution"])
+            self.planner_hd.update(drawn, batch["path"], batch["resolution"])
         if self.fid is not None:
             self.fid.update(batch["path"].float(), real=True)
-            self.fid.update(prob, real=False)
+            self.fid.update(drawn, real=False)
 
     def compute(self) -> dict[str, float]:
         out = {k: float(v) for k, v in self.ape.compute().items()}
         out.update({k: float(v) for k, v in self.hd.compute().items()})
+        if self.planner and self.planner_ape.total > 0:
+            planner = {k: float(v) for k, v in self.planner_ape.compute().items() if k != "score_cm"}
+            planner.update({k: float(v) for k, v in self.planner_hd.compute().items()
+                            if k not in ("instances", "empty")})
+            if self.low_confidence.update_count:
+                planner["low_confidence_rate"] = float(self.low_confidence.compute())
+                planner["low_share_mean"] = float(self.low_share.compute())
+            out.update({f"planner/{k}": v for k, v in planner.items()})
         if self.fid is not None:
             have, need = int(self.fid.fake_n), self.fid.feature_dim + 1
             if have >= need:
@@ -59,5 +126,8 @@ class PathMetrics(nn.Module):
     def reset(self) -> None:
         self.ape.reset()
         self.hd.reset()
+        if self.planner:
+            for metric in (self.planner_ape, self.planner_hd, self.low_confidence, self.low_share):
+                metric.reset()
         if self.fid is not None:
             self.fid.reset()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -60,27 +61,35 @@ class ExpertModule(PathPlanningModule):
         preset: str = "paper",
         num_train_timesteps: int = 1000,
         beta_schedule: str = "squaredcos_cap_v2",
+        prediction_type: str = "epsilon",
+        clip_sample: bool = True,
         ema_decay: float = 0.999,
         sampler: str = "ddim",
         num_inference_steps: int = 50,
         sample_seed: int = 0,
         optimizer: Callable[..., torch.optim.Optimizer] | None = None,
+        lr_scheduler: Callable[..., Any] | None = None,
         metrics: dict | None = None,
         val_metric_batches: int | None = 1,
         grid_size: int = 8,
         image_size: int | None = None,
     ) -> None:
         super().__init__(optimizer, metrics, val_metric_batches, grid_size)
+        self.lr_scheduler_factory = lr_scheduler
         if sampler not in ("ddim", "ddpm"):
             raise ValueError(f"sampler must be 'ddim' or 'ddpm', got {sampler!r}")
         if not 0.0 <= ema_decay < 1.0:
             raise ValueError(f"ema_decay must be in [0, 1), got {ema_decay}")
-        self.save_hyperparameters(ignore=["optimizer"])
+        self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"])
         self.conditional = conditional
         self.net = build_model("cond_expert" if conditional else "uncond_expert", preset)
         self.ema = AveragedModel(self.net, multi_avg_fn=WarmupEMA(ema_decay), use_buffers=True)
         self.ema.requires_grad_(False)
-        self.schedule = NoiseSchedule(num_train_timesteps=num_train_timesteps, beta_schedule=beta_schedule)
+        # prediction_type: what the denoiser outputs (epsilon, sample = x0, v_prediction); training, sampling and
+        # the guidance margin all use it (NoiseSchedule.prediction_target). clip_sample: the samplers clip their
+        # x0 estimate to [-1, 1] (paths are binary images in [0, 1]).
+        self.schedule = NoiseSchedule(num_train_timesteps=num_train_timesteps, beta_schedule=beta_schedule,
+                                      prediction_type=prediction_type, clip_sample=clip_sample)
         self.sample_seconds = 0.0
         self.sample_count = 0
 
@@ -129,7 +138,8 @@ class ExpertModule(PathPlanningModule):
         x0 = self.clean_sample(batch)
         noise = torch.randn(x0.shape, generator=generator, device=x0.device, dtype=x0.dtype)
         t = torch.randint(0, self.schedule.num_train_timesteps, (x0.shape[0],), device=x0.device, generator=generator)
-        return F.mse_loss(self.denoise(net, self.schedule.add_noise(x0, noise, t), t, batch["state"]), noise)
+        prediction = self.denoise(net, self.schedule.add_noise(x0, noise, t), t, batch["state"])
+        return self.schedule.denoising_error(prediction, x0, noise, t).mean()
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         loss = self.denoising_loss(self.net, batch)

@@ -1,6 +1,11 @@
 """The diffusion margin of DBC / Cond-DBC (DESIGN.md section 4): how much less expert-like the student's path is.
 
 L_agent  = || eps_phi(x_t(a_hat), t [, s]) - eps ||^2,  L_expert = || eps_phi(x_t(a), t [, s]) - eps ||^2,
+for an epsilon-predicting expert; in general each term is the expert's denoising error in its own
+parameterisation, || f_phi(x_t(x0), t [, s]) - target(x0, eps, t) ||^2 with target eps (epsilon), x0 (sample) or
+v = sqrt(abar_t) eps - sqrt(1 - abar_t) x0 (v_prediction), x0 being a_hat for the agent term and a for the expert's
+(:meth:`spade.models.diffusion.NoiseSchedule.prediction_target`; with sample / v prediction the agent's target
+depends on a_hat and carries its gradient too; for one x_t the three errors differ only by a per-timestep factor),
 L_DM = E[max(L_agent - L_expert, 0)] (per-sample clipping, the paper's formula) or max(E[L_agent - L_expert], 0)
 (per-batch clipping, DBC's official code). Agent and expert terms share noise and timestep; the expert term
 carries no gradient; the expert's weights never change, but gradients flow through it into the student's
@@ -77,16 +82,21 @@ def check_expert_kind(wanted: str | None, conditional: bool, source: str) -> Non
 class DiffusionMargin(nn.Module):
     """Computes L_DM for a frozen expert.
 
-    ``expert(x_t, t, cond)`` predicts noise; ``conditional`` experts see the path channel only, conditioned on
-    the state; unconditional ones see the 4-channel stack (state, path) with noise on all four channels.
-    ``add_noise(x0, noise, t)`` is the schedule's forward process.
+    ``expert(x_t, t, cond)`` predicts the noise (or x0 or v: ``prediction_target``); ``conditional`` experts see
+    the path channel only, conditioned on the state; unconditional ones see the 4-channel stack (state, path) with noise on all four channels.
+    ``add_noise(x0, noise, t)`` is the schedule's forward process. ``prediction_target(x0, noise, t)`` is what
+    the expert predicts (None: taken from the :class:`~spade.models.diffusion.NoiseSchedule` that ``add_noise``
+    is a method of, else the noise: an epsilon expert).
     """
 
     def __init__(self, expert: nn.Module, add_noise, num_train_timesteps: int, conditional: bool,
-                 config: GuidanceConfig) -> None:
+                 config: GuidanceConfig, prediction_target=None) -> None:
         super().__init__()
         self.expert = expert.eval().requires_grad_(False)
         self.add_noise = add_noise
+        if prediction_target is None:
+            prediction_target = getattr(getattr(add_noise, "__self__", None), "prediction_target", None)
+        self.prediction_target = prediction_target or (lambda x0, noise, t: noise)
         self.T = int(num_train_timesteps)
         self.conditional = conditional
         self.config = config
@@ -109,13 +119,15 @@ class DiffusionMargin(nn.Module):
         """Per-sample denoising errors (agent with autograd, expert without) for one shared noise and timestep."""
         if self.config.batch_terms:
             b = agent_x0.shape[0]
-            x_t = self.add_noise(torch.cat([agent_x0, expert_x0.detach()]), torch.cat([noise, noise]), torch.cat([t, t]))
-            eps = self._eps(x_t, torch.cat([t, t]), None if cond is None else torch.cat([cond, cond]))
-            err = (eps - torch.cat([noise, noise])).pow(2).flatten(1).mean(1)
+            x0, noise2, t2 = torch.cat([agent_x0, expert_x0.detach()]), torch.cat([noise, noise]), torch.cat([t, t])
+            out = self._eps(self.add_noise(x0, noise2, t2), t2, None if cond is None else torch.cat([cond, cond]))
+            err = (out - self.prediction_target(x0, noise2, t2)).pow(2).flatten(1).mean(1)
             return err[:b], err[b:].detach()
         with torch.no_grad():
-            expert_err = (self._eps(self.add_noise(expert_x0, noise, t), t, cond) - noise).pow(2).flatten(1).mean(1)
-        agent_err = (self._eps(self.add_noise(agent_x0, noise, t), t, cond) - noise).pow(2).flatten(1).mean(1)
+            out = self._eps(self.add_noise(expert_x0, noise, t), t, cond)
+            expert_err = (out - self.prediction_target(expert_x0, noise, t)).pow(2).flatten(1).mean(1)
+        out = self._eps(self.add_noise(agent_x0, noise, t), t, cond)
+        agent_err = (out - self.prediction_target(agent_x0, noise, t)).pow(2).flatten(1).mean(1)
         return agent_err, expert_err
 
     def forward(self, student_prob: torch.Tensor, target: torch.Tensor, state: torch.Tensor,

@@ -10,7 +10,7 @@ from lightning import Callback
 from lightning.pytorch.loggers import Logger
 from omegaconf import DictConfig
 
-from spade.models.modelfile import load_checkpoint
+from spade.models.modelfile import read_info
 
 log = logging.getLogger(__name__)
 
@@ -53,4 +53,4 @@ def run_id_from_checkpoint(ckpt_path: str | Path | None) -> str | None:
             f"ckpt_path={path} does not exist; pass the path of a checkpoint written by an earlier run "
             "(they live under the run's output directory, checkpoints/last.ckpt)"
         )
-    return (load_checkpoint(path).get("spade") or {}).get("mlflow_run_id")
+    return read_info(path, checkpoint=True, required=False).get("mlflow_run_id")

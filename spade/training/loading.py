@@ -6,7 +6,7 @@ from pathlib import Path
 
 import lightning as L
 
-from spade.models.modelfile import load_checkpoint, load_lightning
+from spade.models.modelfile import load_lightning, read_info
 
 
 def load_module(ckpt_path: str | Path) -> L.LightningModule:
@@ -15,7 +15,7 @@ def load_module(ckpt_path: str | Path) -> L.LightningModule:
     path = Path(ckpt_path)
     if not path.is_file():
         raise FileNotFoundError(f"ckpt_path={path} does not exist; pass a checkpoint written by python -m spade.train")
-    role = (load_checkpoint(path, mmap=True).get("spade") or {}).get("role")
+    role = read_info(path, checkpoint=True, required=False).get("role")
     if role == "student":
         from spade.training.student_module import StudentModule
 

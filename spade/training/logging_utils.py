@@ -22,9 +22,3 @@ def log_image(logger: Logger | None, image: np.ndarray, artifact_file: str, fall
     path = Path(fallback_dir) / artifact_file
     path.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(image).save(path)
-
-
-def log_params(logger: Logger | None, params: dict) -> None:
-    """Log a flat dict as hyperparameters/params on the run."""
-    if logger is not None:
-        logger.log_hyperparams(params)

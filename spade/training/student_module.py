@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 
 from spade.models import build_model
-from spade.models.modelfile import load_checkpoint, load_lightning
+from spade.models.modelfile import load_checkpoint, load_lightning, read_info
 from spade.training.base import PathPlanningModule
 from spade.training.errors import ExpertMismatchError  # noqa: F401  (raised by ExpertModule.check_compatible)
 from spade.training.guidance import DiffusionMargin, GuidanceConfig, check_expert_kind
@@ -41,7 +41,6 @@ class StudentModule(PathPlanningModule):
         metrics: dict | None = None,
         val_metric_batches: int | None = None,
         grid_size: int = 8,
-        image_size: int | None = None,
         bc_pos_weight: float | None = None,
     ) -> None:
         super().__init__(optimizer, metrics, val_metric_batches, grid_size)
@@ -71,8 +70,7 @@ class StudentModule(PathPlanningModule):
         path = Path(ckpt)
         if not path.is_file():
             raise FileNotFoundError(f"init_ckpt={path} does not exist; pass a student checkpoint (.ckpt)")
-        checkpoint = load_checkpoint(path)
-        info = checkpoint.get("spade") or {}
+        info = read_info(path, checkpoint=True, required=False)
         if info.get("role") != "student":
             raise ValueError(f"init_ckpt={path} is a {info.get('role', 'non-SPADE')} checkpoint, not a student's")
         if dict(info.get("config") or {}) != dict(self.net.config):
@@ -80,7 +78,7 @@ class StudentModule(PathPlanningModule):
                 f"init_ckpt={path} holds a student {info.get('config')}, this run builds {dict(self.net.config)}: "
                 "set model.size to the pretrained student's size"
             )
-        weights = {k[len("net."):]: v for k, v in checkpoint["state_dict"].items() if k.startswith("net.")}
+        weights = {k[len("net."):]: v for k, v in load_checkpoint(path)["state_dict"].items() if k.startswith("net.")}
         self.net.load_state_dict(weights)
 
     # -- guidance ------------------------------------------------------------------------------------------

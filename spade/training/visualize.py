@@ -2,9 +2,12 @@
 
 Each instance is one row of two panels, upscaled: left, the occupancy (unknown dark, free grey, obstacles white)
 with the demonstrated path (green), the robot (blue) and the goal (red); right, the predicted path probability as a
-heat map over the dimmed occupancy, with the path extracted from it (white) and the demonstration (green, thin)
-for comparison. The row's title gives the instance's APE (or the reason extraction failed). The validation picture
-shows the first instances of the first batch; the test step keeps the worst and the median instances.
+heat map over the dimmed occupancy, with the path extracted from it (cyan, which no value of the heat map's
+black-red-yellow scale takes) and the demonstration (green, thin) for comparison. The row's title gives the
+instance's APE (or the reason extraction failed). The legend is at the top, where MLflow's Artifacts tab shows a
+picture first, and a picture is at most ``MAX_HEIGHT_PX`` tall (so that it is read at a glance, not scrolled).
+The validation picture shows the first instances of the first batch; the test step keeps the worst instances,
+each from another scenario (a scenario's instances are near-duplicates), and the median ones.
 """
 
 from __future__ import annotations
@@ -15,6 +18,9 @@ import numpy as np
 import torch
 
 from spade.data.polyline import resample_polyline
+
+MAX_HEIGHT_PX = 900
+EXTRACTED_COLOUR = "#00e5ff"  # cyan: stands out on the inferno heat map (black, purple, red, yellow)
 
 
 def overlay(state: torch.Tensor, target: torch.Tensor, prob: torch.Tensor | None = None) -> np.ndarray:
@@ -58,6 +64,7 @@ def prediction_grid(state: torch.Tensor, target: torch.Tensor, prob: torch.Tenso
     res = np.broadcast_to(np.asarray(resolution.cpu() if isinstance(resolution, torch.Tensor) else resolution,
                                      dtype=np.float64).reshape(-1), (b,))
     inch = max(1.6, upscale * w / 100.0)
+    inch = max(0.5, min(inch, (MAX_HEIGHT_PX / 100.0 - 0.6) / b - 0.35))  # at most MAX_HEIGHT_PX tall
     fig, axes = plt.subplots(b, 2, figsize=(2 * inch + 0.4, b * (inch + 0.35) + 0.6), squeeze=False, dpi=100)
     for i in range(b):
         st = state[i].float().cpu().numpy()
@@ -75,7 +82,7 @@ def prediction_grid(state: torch.Tensor, target: torch.Tensor, prob: torch.Tenso
             axes[i, 1].plot(wp[:, 0], wp[:, 1], color="#28c83c", lw=1.0)
             ape, extracted, failure = _instance_ape(p, st, wp, float(res[i]))
             if extracted is not None:
-                axes[i, 1].plot(extracted[:, 0], extracted[:, 1], color="white", lw=1.6, ls="--")
+                axes[i, 1].plot(extracted[:, 0], extracted[:, 1], color=EXTRACTED_COLOUR, lw=1.6)
                 label = f"{label}  APE {ape:.1f} cm".strip()
             else:
                 label = f"{label}  no path: {failure}".strip()
@@ -85,11 +92,12 @@ def prediction_grid(state: torch.Tensor, target: torch.Tensor, prob: torch.Tenso
         axes[i, 0].set_title("state + demonstration", fontsize=8)
         axes[i, 1].set_title(label or "prediction", fontsize=8)
     handles = [Line2D([], [], color="#28c83c", lw=2, label="demonstration"),
-               Line2D([], [], color="white", lw=2, ls="--", label="extracted prediction"),
+               Line2D([], [], color=EXTRACTED_COLOUR, lw=2, label="extracted prediction"),
                Line2D([], [], marker="o", color="#285aff", lw=0, label="robot (heading up)"),
                Line2D([], [], marker="o", color="#f02828", lw=0, label="goal")]
-    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=7, facecolor="#777777", framealpha=1.0)
-    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    top = 0.5 / (b * (inch + 0.35) + 0.6)  # the legend's share of the height, at the top (two rows of two)
+    fig.tight_layout(rect=(0, 0, 1, 1 - top))
+    fig.legend(handles=handles, loc="upper center", ncol=2, fontsize=7, facecolor="#777777", framealpha=1.0)
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     plt.close(fig)
@@ -105,6 +113,7 @@ class TestRecords:
     def __init__(self) -> None:
         self.apes: list[float] = []
         self.items: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]] = []
+        self.scenarios: list[str | None] = []
 
     @property
     def count(self) -> int:
@@ -117,9 +126,11 @@ class TestRecords:
         wps = batch["waypoints"].detach().float().cpu().numpy()
         res = np.broadcast_to(np.asarray(batch["resolution"].cpu() if isinstance(batch["resolution"], torch.Tensor)
                                          else batch["resolution"], dtype=np.float64).reshape(-1), (len(state),))
+        scenarios = batch.get("scenario_id")
         for i in range(len(state)):
             ape, _, _ = _instance_ape(p[i, 0], state[i], wps[i], float(res[i]))
             self.apes.append(ape)
+            self.scenarios.append(str(scenarios[i]) if scenarios is not None and i < len(scenarios) else None)
             self.items.append(((state[i] * 2).round().astype(np.uint8), (path[i] > 0.5).astype(np.uint8),
                                (p[i] * 255).round().astype(np.uint8), wps[i].astype(np.float32), float(res[i])))
 
@@ -133,9 +144,20 @@ class TestRecords:
         return prediction_grid(st, path, prob, wps, res, titles)
 
     def pictures(self, n: int = 4) -> dict[str, np.ndarray]:
-        """``worst`` and ``median`` pictures of ``n`` instances each (failures count as the worst)."""
+        """``worst`` and ``median`` pictures of ``n`` instances each (failures count as the worst); the worst come
+        from distinct scenarios while there are enough."""
         order = np.argsort(np.asarray(self.apes), kind="stable")
-        worst = [int(i) for i in order[::-1][:n]]
+        worst: list[int] = []
+        seen: set[str] = set()
+        for i in order[::-1]:
+            scenario = self.scenarios[int(i)] if int(i) < len(self.scenarios) else None
+            if scenario is not None and scenario in seen:
+                continue
+            seen.add(scenario) if scenario is not None else None
+            worst.append(int(i))
+            if len(worst) == n:
+                break
+        worst += [int(i) for i in order[::-1] if int(i) not in worst][: n - len(worst)]
         mid = len(order) // 2
         median = [int(i) for i in order[max(0, mid - n // 2): max(0, mid - n // 2) + n]]
         return {"worst": self._grid(worst, "worst"), "median": self._grid(median, "median")}

@@ -1,7 +1,7 @@
 """A paper table's report from its MLflow runs (what ``python -m spade.report`` prints and writes).
 
-Modules, one job each: ``results`` (the run chosen for each row, :func:`fetch_results`, and the headline
-comparisons, :func:`compare`), ``render`` (the markdown), ``files`` (the CSV files), ``chart`` (the PNG) and
+Modules, one job each: ``results`` (each row's runs over seeds at one scale, :func:`fetch_results`, the headline
+comparisons with Welch's t-test, :func:`compare`, and the pairwise tests, :func:`pairwise`), ``render`` (the markdown), ``files`` (the CSV files), ``chart`` (the PNG) and
 ``build`` (:func:`build_report` puts one table's report together, :func:`report` those a config asks for). The
 tables themselves are :mod:`spade.experiments.tables`; publishing into MLflow is
 :func:`spade.experiments.tracking.publish_report`.
@@ -14,26 +14,42 @@ from spade.experiments.reporting.render import (
     losses_to_baselines,
     render_comparisons,
     render_notes,
+    render_pairwise,
     render_paper_table,
     render_table,
 )
-from spade.experiments.reporting.results import MISSING, ComparisonResult, RowResult, compare, fetch_results
+from spade.experiments.reporting.results import (
+    ALPHA,
+    MISSING,
+    ComparisonResult,
+    RowResult,
+    SeedRun,
+    compare,
+    fetch_results,
+    pairwise,
+    welch,
+)
 
 __all__ = [
+    "ALPHA",
     "MISSING",
     "ComparisonResult",
     "Report",
     "RowResult",
+    "SeedRun",
     "build_report",
     "compare",
     "fetch_results",
+    "pairwise",
     "losses_to_baselines",
     "plot_table",
     "render_comparisons",
     "render_notes",
+    "render_pairwise",
     "render_paper_table",
     "render_table",
     "report",
+    "welch",
     "write_comparisons_csv",
     "write_csv",
 ]

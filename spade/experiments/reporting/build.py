@@ -11,8 +11,17 @@ from omegaconf import DictConfig
 
 from spade.experiments.reporting.chart import plot_table
 from spade.experiments.reporting.files import write_comparisons_csv, write_csv
-from spade.experiments.reporting.render import render_comparisons, render_notes, render_paper_table, render_table
-from spade.experiments.reporting.results import ComparisonResult, RowResult, compare, fetch_results
+from spade.experiments.reporting.render import (
+    is_tiny,
+    render_comparisons,
+    render_notes,
+    render_pairwise,
+    render_paper_table,
+    render_table,
+    significance_statement,
+    tiny_notice,
+)
+from spade.experiments.reporting.results import ComparisonResult, RowResult, compare, fetch_results, pairwise
 from spade.experiments.tables import TABLES, Table, get_table
 
 
@@ -23,6 +32,7 @@ class Report:
     comparisons: list[ComparisonResult]
     text: str
     files: dict[str, Path]
+    pairs: list[ComparisonResult] | None = None  # the pairwise tests (results.pairwise)
 
 
 def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None = None, scale: str | None = None,
@@ -31,15 +41,24 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
     markdown into each row's MLflow run (``report/``)."""
     results = fetch_results(table, tracking_uri, scale)
     comparisons = compare(table, results)
+    pairs = pairwise(table, results)
     found = sum(r.found for r in results.values())
-    parts = [f"## {table.title}", "",
-             f"MLflow experiment `{table.experiment}` in {tracking_uri}" + (f", scale {scale}" if scale else "")
-             + f": {found} of {len(results)} rows have a finished run.", "", render_table(table, results)]
+    seeds = sorted({r.n for r in results.values() if r.found})
+    parts = [f"## {table.title}", ""]
+    if is_tiny(results, scale):
+        parts += [tiny_notice(), ""]
+    parts += [f"MLflow experiment `{table.experiment}` in {tracking_uri}" + (f", scale {scale}" if scale else "")
+              + f": {found} of {len(results)} rows have a finished run"
+              + (f", over {seeds[0] if len(seeds) == 1 else f'{seeds[0]}-{seeds[-1]}'} seed(s) each" if seeds else "")
+              + ".", "", render_table(table, results), "", significance_statement()]
     notes = render_notes(table, results)
     if notes:
         parts += ["", "Notes:", *(f"- {n}" for n in notes)]
     if comparisons:
-        parts += ["", "Relative changes (negative = lower):", "", render_comparisons(comparisons)]
+        parts += ["", "Relative changes of the means (negative = lower), with Welch's test:", "",
+                  render_comparisons(comparisons)]
+    if pairs:
+        parts += ["", "Pairwise, APE (which orderings the seeds tell apart):", "", render_pairwise(pairs)]
     if paper:
         parts += ["", "The paper's figures (its dataset; compare orderings and ratios, not values):", "",
                   render_paper_table(table)]
@@ -51,7 +70,7 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
         write_csv(table, results, files["csv"])
         if comparisons:
             files["comparisons_csv"] = out / f"{table.key}_comparisons.csv"
-            write_comparisons_csv(comparisons, files["comparisons_csv"])
+            write_comparisons_csv(comparisons, files["comparisons_csv"], pairs)
         if chart:
             files["png"] = out / f"{table.key}.png"
             plot_table(table, results, files["png"], paper=paper)
@@ -62,11 +81,15 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
 
     links = publish_report(table, results, tracking_uri, files, log_to_runs)  # UI links; chart into the runs
     parts += ["", *links] if links else []
-    return Report(table, results, comparisons, "\n".join(parts), files)
+    return Report(table, results, comparisons, "\n".join(parts), files, pairs)
 
 
 def report(cfg: DictConfig) -> list[Report]:
-    """The reports of ``cfg.table`` (one table, or every table with ``table=all``)."""
+    """The reports of ``cfg.table`` (one table, or every table with ``table=all``); a store that does not exist is
+    refused (:class:`~spade.experiments.validation.ConfigError`), never created empty and reported all missing."""
+    from spade.experiments.validation import validate_report_config
+
+    validate_report_config(cfg)
     tables = list(TABLES.values()) if str(cfg.table) == "all" else [get_table(cfg.table)]
     # `scale` is the config group of conf/scale (so that scale=cpu reads as everywhere else); its name filters runs.
     scale = cfg.scale.name if cfg.get("scale") else None

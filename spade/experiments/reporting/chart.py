@@ -1,5 +1,5 @@
-"""The report's chart (``<table>.png``): the measured cells of a table as grouped bars, the paper's figures as
-ticks."""
+"""The report's chart (``<table>.png``): the measured cells of a table as grouped bars (mean over seeds, the
+sample sd as error bars), the paper's figures as ticks."""
 
 from __future__ import annotations
 
@@ -35,7 +35,8 @@ def plot_table(table: Table, results: dict[str, RowResult], path: Path, paper: b
                     ax.text(x[i] + offset, 0, MISSING if not results[row].found else "n/a", rotation=90,
                             ha="center", va="bottom", fontsize=7, color="grey")
                 else:
-                    ax.bar(x[i] + offset, value, width, color=f"C{j}")
+                    sd = results[row].sd(metric.key)  # the spread over seeds, when there are two or more
+                    ax.bar(x[i] + offset, value, width, color=f"C{j}", yerr=sd, capsize=3 if sd else 0)
                 figure = line.paper.get(shape, {}).get(metric.key)
                 if paper and figure is not None:
                     ax.plot(x[i] + offset, figure, marker="_", color="black", markersize=10, mew=2)

@@ -1,16 +1,31 @@
-"""Markdown for a table's report: the measured table in the paper's layout (with the classical baselines as
-reference rows), the paper's own figures, the headline relative changes and the notes on missing or odd rows."""
+"""Markdown for a table's report: the measured table in the paper's layout (mean +/- sd over seeds, the number of
+seeds, the classical baselines as reference rows), the paper's own figures, the headline relative changes with
+their significance test, the pairwise tests, and the notes on missing or odd rows."""
 
 from __future__ import annotations
 
-from spade.experiments.reporting.results import MISSING, ComparisonResult, RowResult
-from spade.experiments.tables import BASELINE_LABELS, CELL_METRICS, METRICS, Table
+from spade.experiments.reporting.results import MISSING, TEST_NAME, ComparisonResult, RowResult
+from spade.experiments.tables import BASELINE_LABELS, CELL_METRICS, METRICS, TINY_NOTICE, Metric, Table
+
+
+def _mean_sd(metric: Metric, result: RowResult, key: str) -> str:
+    """``12.34 ± 1.20`` over two or more seeds, the value alone over one (or for a baseline, which has no spread)."""
+    mean, sd = result.value(key), result.sd(key)
+    text = metric.format(mean)
+    if mean is None or sd is None:
+        return text
+    spread = metric.format(sd)
+    if spread.endswith("%") and text.endswith("%"):
+        return f"{text[:-1]} ± {spread}"
+    return f"{text} ± {spread}"
 
 
 def _cell(result: RowResult, prefix: str = "") -> str:
     if not result.found:
         return MISSING
-    return " / ".join(METRICS[k].format(result.value(prefix + k)) for k in CELL_METRICS)
+    if prefix:  # a classical baseline: the same test set for every seed, so one figure
+        return " / ".join(METRICS[k].format(result.value(prefix + k)) for k in CELL_METRICS)
+    return " / ".join(_mean_sd(METRICS[k], result, k) for k in CELL_METRICS)
 
 
 def _baseline_source(table: Table, results: dict[str, RowResult], shape: str) -> RowResult | None:
@@ -23,7 +38,7 @@ def _baseline_source(table: Table, results: dict[str, RowResult], shape: str) ->
 
 
 def losses_to_baselines(result: RowResult) -> list[str]:
-    """The baselines whose test APE (failures aside) or failure rate this row does not beat."""
+    """The baselines whose test APE (failures aside) or failure rate this row does not beat (means over seeds)."""
     lost = []
     ape, fail = result.value("ape_cm"), result.value("failure_rate")
     for name, label in BASELINE_LABELS.items():
@@ -50,18 +65,26 @@ def _markdown_table(header: list[str], body: list[list[str]]) -> str:
     return "\n".join(lines)
 
 
-def _header(table: Table) -> list[str]:
+def _header(table: Table, seeds: bool = False) -> list[str]:
     cell = " / ".join(METRICS[k].label for k in CELL_METRICS)
-    return [*table.label_columns, *(f"{s}-shape: {cell}" for s in table.shapes), "params"]
+    return [*table.label_columns, *(f"{s}-shape: {cell}" for s in table.shapes), "params", *(["seeds"] if seeds else [])]
+
+
+def _seeds_cell(results: list[RowResult]) -> str:
+    """The number of seeds of each shape's row (``3``, ``3 / 2``; ``0`` for a missing row)."""
+    counts = [str(r.n) for r in results]
+    return counts[0] if len(set(counts)) == 1 else " / ".join(counts)
 
 
 def render_table(table: Table, results: dict[str, RowResult]) -> str:
-    """The measured table in the paper's layout (markdown); missing rows read ``missing``."""
+    """The measured table in the paper's layout (markdown): mean ± sd over the row's seeds (the value alone for one
+    seed), the number of seeds, the classical baselines as reference rows; missing rows read ``missing``."""
     body = []
     for line in table.lines:
         cells = [_cell(results[line.cells[s]]) if s in line.cells else "" for s in table.shapes]
         params = [results[line.cells[s]].value("params") for s in table.shapes if s in line.cells]
-        body.append([*line.labels, *cells, _params_cell(params)])
+        seeds = _seeds_cell([results[line.cells[s]] for s in table.shapes if s in line.cells])
+        body.append([*line.labels, *cells, _params_cell(params), seeds])
     for name, label in BASELINE_LABELS.items():
         sources = {s: _baseline_source(table, results, s) for s in table.shapes}
         if not any(sources.values()):
@@ -70,8 +93,8 @@ def render_table(table: Table, results: dict[str, RowResult]) -> str:
         if len(table.label_columns) == 1:
             labels = [f"reference: {label}"]
         cells = [_cell(src, f"{name}/") if src else "n/a" for src in sources.values()]
-        body.append([*labels, *cells, "0 (no learning)"])
-    return _markdown_table(_header(table), body)
+        body.append([*labels, *cells, "0 (no learning)", "(no seed)"])
+    return _markdown_table(_header(table, seeds=True), body)
 
 
 def render_paper_table(table: Table) -> str:
@@ -88,20 +111,50 @@ def _pct(value: float | None) -> str:
     return "n/a" if value is None else f"{value:+.1f}%"
 
 
+def _change(c: ComparisonResult) -> str:
+    change = _pct(c.change)
+    if c.change is None and c.baseline_value == 0:
+        change = "n/a (baseline 0)"
+    if c.significant is False:
+        change += " (not significant)"
+    return change
+
+
 def render_comparisons(comparisons: list[ComparisonResult]) -> str:
+    """The headline comparisons: the means, their relative change (marked "not significant" when Welch's test does
+    not reject at alpha 0.05), the test's wording (``p = ...``, ``n=1, no test``), the seeds and the paper's change."""
     body = []
     for c in comparisons:
         m = METRICS[c.metric]
-        change = _pct(c.change)
-        if c.change is None and c.baseline_value == 0:
-            change = "n/a (baseline 0)"
-        body.append([c.title, m.label, m.format(c.value), m.format(c.baseline_value), change,
-                     _pct(c.paper) + ("" if c.paper is None else f" ({c.paper_source})")])
-    return _markdown_table(["comparison", "metric", "row", "baseline", "change", "paper"], body)
+        body.append([c.title, m.label, m.format(c.value), m.format(c.baseline_value), _change(c), c.test,
+                     f"{c.n} / {c.baseline_n}", _pct(c.paper) + ("" if c.paper is None else f" ({c.paper_source})")])
+    return _markdown_table(["comparison", "metric", "row (mean)", "baseline (mean)", "change", "Welch test",
+                            "seeds", "paper"], body)
+
+
+def render_pairwise(pairs: list[ComparisonResult]) -> str:
+    body = [[c.title, METRICS[c.metric].label, METRICS[c.metric].format(c.value),
+             METRICS[c.metric].format(c.baseline_value), _change(c), c.test, f"{c.n} / {c.baseline_n}"] for c in pairs]
+    return _markdown_table(["rows", "metric", "first (mean)", "second (mean)", "change", "Welch test", "seeds"], body)
+
+
+def significance_statement() -> str:
+    return (f"Cells: mean ± sample sd (ddof=1) over the row's seeds, the value alone for one seed. Significance: "
+            f"{TEST_NAME}; a change marked (not significant) has p >= 0.05, and with fewer than two seeds on a side "
+            "there is no test (n=1, no test).")
+
+
+def is_tiny(results: dict[str, RowResult], scale: str | None = None) -> bool:
+    """Whether the report shows tiny-scale figures (the scale asked for, or any found row's)."""
+    return scale == "tiny" or any(r.found and r.scale == "tiny" for r in results.values())
+
+
+def tiny_notice() -> str:
+    return f"**{TINY_NOTICE}**"
 
 
 def render_notes(table: Table, results: dict[str, RowResult]) -> list[str]:
-    """Which rows are missing, which have several runs (and which one is used), which scales are mixed."""
+    """Which rows are missing, which have several runs (and which are counted), which scales are mixed."""
     notes = []
     never = [row for row in table.rows if results[row].n_runs == 0]
     if never:
@@ -111,11 +164,21 @@ def render_notes(table: Table, results: dict[str, RowResult]) -> list[str]:
         r = results[row]
         if not r.found and r.n_runs:
             notes.append(f"{row}: missing, {r.n_runs} run(s), none finished ({', '.join(r.statuses)})")
+        elif r.n > 1:
+            seeds = ", ".join("?" if s is None else str(s) for s in r.seeds)
+            notes.append(f"{row}: {r.n} seeds ({seeds}) at scale {r.scale}, from {r.n_runs} runs "
+                         f"({r.n_finished} finished)")
         elif r.n_runs > 1:
             notes.append(f"{row}: {r.n_runs} runs ({r.n_finished} finished); using the latest finished, run {r.run_id}")
+        if r.found and r.n_other_scales:
+            notes.append(f"{row}: {r.n_other_scales} finished run(s) at other scales left out (the row counts its "
+                         f"latest scale, {r.scale}; pass scale=NAME to choose)")
     scales = sorted({r.scale for r in results.values() if r.found and r.scale})
     if len(scales) > 1:
         notes.append(f"rows come from different scales ({', '.join(scales)}); pass scale=NAME to keep one")
+    counts = sorted({r.n for r in results.values() if r.found})
+    if len(counts) > 1:
+        notes.append(f"rows have different numbers of seeds ({', '.join(map(str, counts))}); see the seeds column")
     failed = [row for row in table.rows if results[row].found and results[row].value("ape_cm") is None]
     if failed:
         notes.append(f"APE n/a: no path could be extracted from any test prediction of {', '.join(failed)} "

@@ -1,12 +1,21 @@
-"""A table's results from MLflow: the run chosen for each row, and the headline comparisons between rows.
+"""A table's results from MLflow: each row's runs over seeds, and the headline comparisons between rows.
 
-Runs are matched to rows by run name (see :mod:`spade.experiments.tables`). A row without a finished run is kept
-as a :class:`RowResult` that is not ``found``; of several finished runs the one that ended last is used.
+Runs are matched to rows by run name (see :mod:`spade.experiments.tables`). A row is the aggregate of its finished
+runs **at one scale, one run per distinct seed** (the seed is the run's ``cfg/seed`` param): the scale is the one
+asked for (``scale=``) or else that of the row's latest finished run; of several finished runs with the same seed
+the one that ended last counts. Each cell is the mean over those seeds with the sample standard deviation
+(``ddof=1``; none for one seed). A row without a finished run is kept as a :class:`RowResult` that is not
+``found``.
+
+The headline comparisons (:func:`compare`) give the relative change of the means and Welch's t-test of the
+per-seed values (:func:`welch`: ``scipy.stats.ttest_ind(equal_var=False)``, two-sided, alpha :data:`ALPHA`);
+with fewer than two seeds on either side there is no test ("n=1, no test").
 """
 
 from __future__ import annotations
 
 import math
+import statistics
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -20,28 +29,67 @@ from spade.experiments.tables import (
 )
 
 MISSING = "missing"  # how a row without a finished run reads in every output
+ALPHA = 0.05  # significance level of the two-sided Welch t-test between compared rows
+TEST_NAME = "Welch's t-test (two-sided, unequal variances, alpha 0.05) over the per-seed values"
+NO_TEST = "n=1, no test"
+
+
+@dataclass
+class SeedRun:
+    """One finished run counted in a row: its seed, run id, end time and metrics."""
+
+    seed: int | None
+    run_id: str
+    end_time: int | None
+    metrics: dict[str, float]
 
 
 @dataclass
 class RowResult:
-    """The run chosen for one row (or none): its metrics and how many runs the row has."""
+    """One row: the finished runs counted (one per seed, at one scale), their mean per metric, and how many runs the
+    row has in all."""
 
     row: str
-    metrics: dict[str, float] = field(default_factory=dict)  # metric key (tables.METRICS) -> value
-    run_id: str | None = None
+    metrics: dict[str, float] = field(default_factory=dict)  # metric key (tables.METRICS) -> mean over the seeds
+    run_id: str | None = None  # the latest of the counted runs
     n_runs: int = 0
     n_finished: int = 0
     statuses: tuple[str, ...] = ()
     scale: str | None = None
-    end_time: int | None = None  # ms since the epoch
+    end_time: int | None = None  # ms since the epoch, of the latest counted run
+    runs: list[SeedRun] = field(default_factory=list)  # the counted runs, in seed order
+    n_other_scales: int = 0  # finished runs left out because they are at another scale
 
     @property
     def found(self) -> bool:
         return self.run_id is not None
 
+    @property
+    def n(self) -> int:
+        """How many seeds the row's figures are over."""
+        return len(self.runs)
+
+    @property
+    def seeds(self) -> list[int | None]:
+        return [r.seed for r in self.runs]
+
+    @property
+    def run_ids(self) -> list[str]:
+        return [r.run_id for r in self.runs]
+
     def value(self, key: str) -> float | None:
+        """The mean over the seeds (None when no counted run logged it)."""
         v = self.metrics.get(key)
         return None if v is None or math.isnan(v) else v
+
+    def samples(self, key: str) -> list[float]:
+        """The per-seed values of ``key`` (runs that did not log it, or logged NaN, left out)."""
+        return [r.metrics[key] for r in self.runs if key in r.metrics and not math.isnan(r.metrics[key])]
+
+    def sd(self, key: str) -> float | None:
+        """The sample standard deviation over the seeds (``ddof=1``); None with fewer than two values."""
+        values = self.samples(key)
+        return statistics.stdev(values) if len(values) >= 2 else None
 
 
 @dataclass
@@ -50,11 +98,33 @@ class ComparisonResult:
     row: str
     baseline: str
     metric: str
-    value: float | None
-    baseline_value: float | None
-    change: float | None  # percent
+    value: float | None  # the row's mean
+    baseline_value: float | None  # the baseline row's mean
+    change: float | None  # percent, of the means
     paper: float | None
     paper_source: str
+    n: int = 0  # seeds of the row
+    baseline_n: int = 0  # seeds of the baseline row
+    p_value: float | None = None  # Welch's t-test; None when there is no test
+    test: str = NO_TEST  # "p = 0.012", "n=1, no test", ...
+
+    @property
+    def significant(self) -> bool | None:
+        """True / False at :data:`ALPHA`; None when there is no test."""
+        return None if self.p_value is None else self.p_value < ALPHA
+
+
+def welch(a: list[float], b: list[float]) -> tuple[float | None, str]:
+    """Welch's two-sided t-test of ``a`` against ``b``: ``(p, wording)``; ``(None, "n=1, no test")`` with fewer than
+    two values on either side, ``(None, "no test (no spread)")`` when both sides are constant."""
+    if len(a) < 2 or len(b) < 2:
+        return None, NO_TEST
+    from scipy.stats import ttest_ind
+
+    p = float(ttest_ind(a, b, equal_var=False).pvalue)
+    if math.isnan(p):
+        return None, "no test (no spread)"
+    return p, f"p = {p:.3g}" + ("" if p < ALPHA else ", not significant")
 
 
 def _search_all_runs(client: Any, experiment_id: str, filter_string: str) -> list[Any]:
@@ -67,11 +137,33 @@ def _search_all_runs(client: Any, experiment_id: str, filter_string: str) -> lis
             return runs
 
 
+def _seed(run: Any) -> int | None:
+    value = run.data.params.get("cfg/seed")
+    try:
+        return int(value) if value not in (None, "", "None") else None
+    except ValueError:
+        return None
+
+
+def _run_metrics(run: Any) -> dict[str, float]:
+    metrics = {k: float(run.data.metrics[m.mlflow_key]) for k, m in METRICS.items() if m.mlflow_key in run.data.metrics}
+    for name in BASELINE_LABELS:  # the classical baselines on this row's test set, as "<name>/<metric>"
+        for key in CELL_METRICS:
+            mlflow_key = baseline_metric(name, key)
+            if mlflow_key in run.data.metrics:
+                metrics[f"{name}/{key}"] = float(run.data.metrics[mlflow_key])
+    return metrics
+
+
+def _mean(values: list[float]) -> float:
+    return math.fsum(values) / len(values)
+
+
 def fetch_results(table: Table, tracking_uri: str, scale: str | None = None) -> dict[str, RowResult]:
     """One :class:`RowResult` per row of ``table``, from the runs of its MLflow experiment.
 
-    Runs are matched by run name; ``scale`` keeps only runs tagged with that scale. Of several finished runs,
-    the one that ended last is used.
+    Runs are matched by run name; ``scale`` keeps only runs tagged with that scale (otherwise the scale of the row's
+    latest finished run). The finished runs at that scale count once per distinct seed (the latest of each seed).
     """
     from mlflow import MlflowClient
 
@@ -84,6 +176,10 @@ def fetch_results(table: Table, tracking_uri: str, scale: str | None = None) -> 
     by_row: dict[str, list[Any]] = {}
     for run in _search_all_runs(client, experiment.experiment_id, filter_string):
         by_row.setdefault(run.info.run_name, []).append(run)
+
+    def ended(r: Any) -> tuple[int, int]:
+        return (r.info.end_time or 0, r.info.start_time or 0)
+
     for row, result in results.items():
         runs = by_row.get(row, [])
         finished = [r for r in runs if r.info.status == "FINISHED"]
@@ -91,26 +187,57 @@ def fetch_results(table: Table, tracking_uri: str, scale: str | None = None) -> 
         result.statuses = tuple(sorted({r.info.status for r in runs}))
         if not finished:
             continue
-        run = max(finished, key=lambda r: (r.info.end_time or 0, r.info.start_time or 0))
-        result.run_id, result.end_time = run.info.run_id, run.info.end_time
-        result.scale = run.data.tags.get("scale")
-        result.metrics = {k: float(run.data.metrics[m.mlflow_key]) for k, m in METRICS.items()
-                          if m.mlflow_key in run.data.metrics}
-        for name in BASELINE_LABELS:  # the classical baselines on this row's test set, as "<name>/<metric>"
-            for key in CELL_METRICS:
-                mlflow_key = baseline_metric(name, key)
-                if mlflow_key in run.data.metrics:
-                    result.metrics[f"{name}/{key}"] = float(run.data.metrics[mlflow_key])
+        latest = max(finished, key=ended)
+        result.scale = latest.data.tags.get("scale")
+        same_scale = [r for r in finished if r.data.tags.get("scale") == result.scale]
+        result.n_other_scales = len(finished) - len(same_scale)
+        by_seed: dict[int | None, Any] = {}
+        for run in sorted(same_scale, key=ended):  # the latest run of each seed wins
+            by_seed[_seed(run)] = run
+        order = sorted(by_seed, key=lambda s: (s is None, s if s is not None else 0))
+        result.runs = [SeedRun(s, by_seed[s].info.run_id, by_seed[s].info.end_time, _run_metrics(by_seed[s]))
+                       for s in order]
+        result.run_id, result.end_time = latest.info.run_id, latest.info.end_time
+        keys = {k for r in result.runs for k in r.metrics}
+        result.metrics = {k: _mean(v) for k in keys if (v := result.samples(k))}
     return results
 
 
 def compare(table: Table, results: dict[str, RowResult]) -> list[ComparisonResult]:
-    """The relative changes of the table's headline comparisons, metric by metric."""
+    """The table's headline comparisons, metric by metric: the relative change of the means and Welch's t-test of
+    the per-seed values (:func:`welch`)."""
     out = []
     for comp in table.comparisons:
         row, base = results[comp.row], results[comp.baseline]
         for key in comp.metrics:
             value, baseline = row.value(key), base.value(key)
+            if key == "params":  # a property of the architecture, the same for every seed: nothing to test
+                p, test = None, "no test (fixed by the architecture)"
+            elif value is None or baseline is None:
+                p, test = None, "no test (missing)"
+            else:
+                p, test = welch(row.samples(key), base.samples(key))
             out.append(ComparisonResult(comp.title, comp.row, comp.baseline, key, value, baseline,
-                                        relative_change(value, baseline), comp.paper.get(key), comp.paper_source))
+                                        relative_change(value, baseline), comp.paper.get(key), comp.paper_source,
+                                        row.n, base.n, p, test))
+    return out
+
+
+def pairwise(table: Table, results: dict[str, RowResult], metric: str = "ape_cm") -> list[ComparisonResult]:
+    """Every pair of found rows of one shape whose lines share all labels but the last (Table 1: the approaches of
+    one size, the two experts; Tables 2 and 3: all their rows), on ``metric``: the change of the means and
+    Welch's t-test, as in :func:`compare`. It says which orderings of the table the seeds can tell apart."""
+    out = []
+    for shape in table.shapes:
+        lines = [line for line in table.lines if shape in line.cells and results[line.cells[shape]].found]
+        for i, a in enumerate(lines):
+            for b in lines[i + 1:]:
+                if a.labels[:-1] != b.labels[:-1]:
+                    continue
+                ra, rb = results[a.cells[shape]], results[b.cells[shape]]
+                va, vb = ra.value(metric), rb.value(metric)
+                p, test = welch(ra.samples(metric), rb.samples(metric)) if None not in (va, vb) else (None, "no test (missing)")
+                title = f"{' '.join(b.labels)} vs {' '.join(a.labels)}" + (f" ({shape})" if len(table.shapes) > 1 else "")
+                out.append(ComparisonResult(title, rb.row, ra.row, metric, vb, va, relative_change(vb, va), None, "",
+                                            rb.n, ra.n, p, test))
     return out

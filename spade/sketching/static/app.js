@@ -320,8 +320,12 @@ async function plan() {
   state.plan = r.data;
   state.overlayImg = r.data.overlay ? await loadImage(r.data.overlay.png) : null;
   const p = r.data;
-  setResult("plan-result", p.success ? "success" : "failure",
-            p.success ? `Path of ${p.length_m.toFixed(2)} m, ${p.waypoints.length} waypoints, ${p.latency_ms} ms.`
+  const c = p.confidence;
+  const confidence = c ? ` Decoded by ${p.decode}: ${(100 * c.low_share).toFixed(0)} % of it through p < 0.5, `
+      + `lowest p ${c.min_probability.toFixed(2)}` + (c.fallback ? "; low confidence: the Nav2-like fallback path."
+      : c.low_confidence ? "; LOW CONFIDENCE." : ".") : "";
+  setResult("plan-result", p.success ? (c && c.low_confidence ? "failure" : "success") : "failure",
+            p.success ? `Path of ${p.length_m.toFixed(2)} m, ${p.waypoints.length} waypoints, ${p.latency_ms} ms.${confidence}`
                       : `No path (${p.code}): ${p.reason} (${p.latency_ms} ms).`);
   const img = $("plan-probability");
   const reveal = () => $("policy-section").scrollIntoView({ block: "end" });

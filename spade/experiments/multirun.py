@@ -1,0 +1,258 @@
+"""A paper table as one Hydra multirun: its seed list and the message it prints at its start.
+
+``conf/experiment/table1.yaml``, ``ablation_finetune.yaml`` and ``ablation_scratch.yaml`` sweep their rows and
+``seeds`` (default ``[42, 1, 2]``): ``hydra.sweeper.params.seed: ${spade_sweep:${seeds}}`` turns the list into
+Hydra's sweep syntax (``42,1,2``), so each row runs once per seed, the seeds of a row one after the other. A
+table's prerequisites (experts, pretrained students; :mod:`spade.experiments.prerequisites`) are registered under
+names that carry no seed: the first job that needs one trains it, with that job's seed, and every later seed and
+row uses the registered model. They are trained **once**, not once per seed: the spread over seeds is the
+students' own, for one fixed expert.
+
+:class:`TableStart` (a Hydra callback of those compositions) prints, before the first job, the scale, the rows,
+the seeds, the instances of each dataset and an estimate of the wall time (:func:`estimate_row`), with the
+prerequisites still to train (not yet in the Model Registry) counted once.
+
+The estimate is a cost model, not a measurement of this machine: seconds per training step at batch 32 and 64 px
+on 2 CPU cores (:data:`STEP_SECONDS`, from the README's *Measured figures*), scaled by batch size and pixels, times
+the steps of an epoch and the epochs, plus :data:`VALIDATION_SHARE` for validation and a fixed cost per run
+(:func:`estimate_row`). It reproduces the measured ``ablation_finetune`` at ``scale=cpu`` with one seed (46 min
+54 s on 2 shared cores, prerequisites included, issue 24: the model says 48 min); the tiny scale's estimate is
+rougher (its experts are smaller than the costs assume: an upper bound).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from dataclasses import dataclass
+from typing import Any
+
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+try:  # a Hydra callback when Hydra is there (it always is under spade.train)
+    from hydra.experimental.callback import Callback
+except ImportError:  # pragma: no cover
+    Callback = object  # type: ignore[assignment,misc]
+
+log = logging.getLogger(__name__)
+
+__all__ = ["STEP_SECONDS", "TableStart", "estimate_row", "seed_sweep", "start_message"]
+
+DEFAULT_SEEDS = (42, 1, 2)
+
+
+def seed_sweep(seeds: Any) -> str:
+    """``[42, 1, 2]`` -> ``"42,1,2"`` (Hydra's sweep of ``seed``); one int -> that int. Seeds must be distinct ints."""
+    if isinstance(seeds, (list, tuple, ListConfig)):
+        values = list(seeds)
+    elif seeds is None:
+        values = list(DEFAULT_SEEDS)
+    else:
+        values = [seeds]
+    if not values:
+        raise ValueError("seeds=[] holds no seed; give at least one, e.g. seeds=[42,1,2]")
+    try:
+        ints = [int(v) for v in values]
+    except (TypeError, ValueError):
+        raise ValueError(f"seeds={values} must be integers, e.g. seeds=[42,1,2]") from None
+    if len(set(ints)) != len(ints):
+        raise ValueError(f"seeds={ints} repeats a seed; each seed runs each row once")
+    return ",".join(map(str, ints))
+
+
+OmegaConf.register_new_resolver("spade_sweep", seed_sweep, replace=True)
+
+
+# Seconds per training step, batch 32, 64 px windows, 2 CPU cores (torch with 2 threads). Sources: the README's
+# "Measured figures": training step at 64 px (small student 0.21 s, medium 0.82-0.86 s), the guidance table
+# (medium DBC with the `small` unconditional expert 4.58 s, medium Cond-DBC with a `small` conditional expert
+# 2.07 s); large at 64 px costs what medium does (spade.bench: 197 vs 198 ms per batch-32 forward); a guided
+# small or large student adds the expert's cost (DBC +3.7 s, Cond-DBC +1.2 s) to its own BC step. Experts: the
+# `cpu` conditional preset trained 6 epochs in 10 min on 2 cores (issue 23): 1.8 s a step with its validation, 1.6 s
+# without; the `small` unconditional expert's step is taken as the expert part of the DBC step (3.7 s).
+STEP_SECONDS: dict[str, float] = {
+    "bc/small": 0.21, "bc/medium": 0.86, "bc/large": 0.86,
+    "dbc/small": 3.9, "dbc/medium": 4.58, "dbc/large": 4.58,
+    "conddbc/small": 1.4, "conddbc/medium": 2.07, "conddbc/large": 2.07,
+    "expert/cond": 1.6, "expert/uncond": 3.7,
+}
+VALIDATION_SHARE = 0.05  # validation epochs (15 % of the data, forward only, metrics) on top of the training steps
+RUN_SECONDS = 20.0  # per run: building the model, the test's first batches, pictures, checkpoints, MLflow
+TEST_SECONDS_PER_INSTANCE = 0.03  # the test: predictions, APE / Hd19 / FID, the planner's decoding (README figures)
+DATA_SECONDS_PER_INSTANCE = 1 / 118  # generating a missing dataset (annotation, 118 instances/s with 2 workers)
+
+
+def _kind(cfg: DictConfig) -> str:
+    """The cost kind of a composed row: ``bc/<size>``, ``dbc/<size>``, ``conddbc/<size>`` or ``expert/<kind>``."""
+    tags = cfg.get("tags") or {}
+    if tags.get("role") == "expert":
+        return "expert/uncond" if "uncond" in str(tags.get("approach", "")).lower() else "expert/cond"
+    size = str(cfg.model.get("size") or "medium")
+    expert = (cfg.get("requires") or {}).get("expert")
+    if expert is None:
+        return f"bc/{size}"
+    return f"{'dbc' if 'uncond' in str(expert.experiment) else 'conddbc'}/{size}"
+
+
+def _instances(generate: Any) -> int | None:
+    """The instance count a data config's ``*_generate.set`` asks for (its last ``num_instances``)."""
+    if not generate:
+        return None
+    sets = OmegaConf.to_container(generate.get("set") or [], resolve=True)
+    counts = [s["num_instances"] for s in sets if isinstance(s, dict) and s.get("num_instances") is not None]
+    return int(counts[-1]) if counts else None
+
+
+@dataclass(frozen=True)
+class RowCost:
+    """The estimated cost of one run of a row, with what it rests on."""
+
+    row: str
+    kind: str
+    epochs: int
+    steps_per_epoch: int
+    seconds: float
+
+
+def estimate_row(cfg: DictConfig) -> RowCost:
+    """Seconds one run of the composed row ``cfg`` takes: steps per epoch (training instances less the validation
+    share, over the batch size) x epochs x the step cost of its kind (:data:`STEP_SECONDS`, scaled by batch / 32
+    and (pixels / 64)^2), plus :data:`VALIDATION_SHARE`, plus :data:`RUN_SECONDS` and the test's instances."""
+    kind = _kind(cfg)
+    data = cfg.data
+    n_train = _instances(data.get("train_generate")) or 1000
+    if data.get("max_train_instances"):
+        n_train = min(n_train, int(data.max_train_instances))
+    batch = int(data.get("batch_size") or 32)
+    steps = max(1, math.ceil(n_train * (1 - float(data.get("val_fraction") or 0.0)) / batch))
+    epochs = int(cfg.trainer.get("max_epochs") or 1)
+    size = int(cfg.scale.get("image_size") or 64)
+    step = STEP_SECONDS.get(kind, STEP_SECONDS["bc/medium"]) * (batch / 32) * (size / 64) ** 2
+    n_test = _instances(data.get("test_generate")) or 0
+    seconds = steps * epochs * step * (1 + VALIDATION_SHARE) + RUN_SECONDS + n_test * TEST_SECONDS_PER_INSTANCE
+    return RowCost(str(cfg.get("run_name")), kind, epochs, steps, seconds)
+
+
+def _minutes(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def _store_exists(uri: str) -> bool:
+    if uri.startswith("sqlite:///"):
+        return os.path.exists(uri[len("sqlite:///"):])
+    return True  # a server or another backend: ask it
+
+
+def _registered(uri: str, name: str) -> bool:
+    if not _store_exists(uri):
+        return False  # never create the store just to look (the first run does)
+    try:
+        from mlflow import MlflowClient
+
+        return bool(MlflowClient(tracking_uri=uri).search_model_versions(f"name='{name}'"))
+    except Exception:  # noqa: BLE001 - an estimate must not stop a table
+        return False
+
+
+def _passed_overrides(config: DictConfig) -> list[str]:
+    """The table's command-line overrides that shape its rows (not the rows, seeds or Hydra's own)."""
+    try:
+        task = list(config.hydra.overrides.task)
+    except Exception:  # noqa: BLE001
+        return []
+    skip = ("experiment", "seed", "seeds", "hydra", "scale")
+    return [o for o in task if not o.split("=", 1)[0].lstrip("+~").startswith(skip)]
+
+
+def _datasets(cfg: DictConfig, seen: dict[str, tuple[int, str]]) -> None:
+    for split, key in (("training", "train"), ("test", "test")):
+        n = _instances(cfg.data.get(f"{key}_generate"))
+        directory = cfg.data.get(f"{key}_dir")
+        if n and directory:
+            note = f"{split}, {int(float(cfg.data.get('val_fraction') or 0) * 100)} % of it validation" if key == "train" else split
+            seen[str(directory)] = (n, note)
+
+
+def plan_table(config: DictConfig) -> dict[str, Any]:
+    """What a table's multirun will run: scale, rows, seeds, datasets, per-row and prerequisite costs, total."""
+    from spade.experiments.config import compose_config
+    from spade.experiments.registry import registry_name
+
+    params = config.hydra.sweeper.params
+    rows = [r.strip() for r in str(params.experiment).split(",") if r.strip()]
+    task = [str(o) for o in (OmegaConf.select(config, "hydra.overrides.task") or [])]
+    given = [o.split("=", 1)[1] for o in task if o.split("=", 1)[0].lstrip("+~") == "seed"]  # seed=7 wins
+    seeds = [int(s) for s in (given[-1] if given else str(params.get("seed", config.get("seed", 42)))).split(",")]
+    scale = str(config.scale.name)
+    overrides = [f"scale={scale}", *_passed_overrides(config)]
+    costs: dict[str, RowCost] = {}
+    pending: dict[str, RowCost] = {}  # registry name -> cost of a prerequisite to train
+    datasets: dict[str, tuple[int, str]] = {}
+    uri = str(config.paths.mlflow_tracking_uri)
+
+    def walk(cfg: DictConfig, depth: int = 0) -> None:
+        for req in (cfg.get("requires") or {}).values():
+            if OmegaConf.select(cfg, req.target) not in (None, "", "???") or depth > 4 or req.experiment in rows:
+                continue  # given by path, or a row of this table (Table 1's experts), which trains it first
+            sub = compose_config("train", [f"+experiment={req.experiment}", *overrides, "paths.output_dir=."])
+            name = registry_name(sub)
+            if name is None or name in pending or _registered(uri, name):
+                continue
+            pending[name] = estimate_row(sub)
+            _datasets(sub, datasets)
+            walk(sub, depth + 1)
+
+    for row in rows:
+        cfg = compose_config("train", [f"+experiment={row}", *overrides, "paths.output_dir=."])
+        costs[row] = estimate_row(cfg)
+        _datasets(cfg, datasets)
+        walk(cfg)
+    missing_data = sum(n for d, (n, _) in datasets.items() if not os.path.isdir(d))
+    total = (sum(c.seconds for c in costs.values()) * len(seeds) + sum(c.seconds for c in pending.values())
+             + missing_data * DATA_SECONDS_PER_INSTANCE)
+    return {"scale": scale, "rows": rows, "seeds": seeds, "costs": costs, "pending": pending,
+            "datasets": datasets, "missing_data": missing_data, "total": total}
+
+
+def start_message(config: DictConfig) -> str:
+    """The lines a table's multirun prints at its start (:func:`plan_table`)."""
+    from spade.experiments.tables import TINY_NOTICE
+
+    plan = plan_table(config)
+    seeds, rows = plan["seeds"], plan["rows"]
+    lines = [f"SPADE table run: scale={plan['scale']}, {len(rows)} rows x {len(seeds)} seed(s) "
+             f"({', '.join(map(str, seeds))}) = {len(rows) * len(seeds)} runs"]
+    if plan["scale"] == "tiny":
+        lines.append(f"  {TINY_NOTICE}")
+    lines.append("  rows: " + ", ".join(rows))
+    for directory, (n, note) in plan["datasets"].items():
+        exists = "" if os.path.isdir(directory) else " (to generate)"
+        lines.append(f"  instances: {n:,} {note} in {directory}{exists}")
+    for row, c in plan["costs"].items():
+        lines.append(f"  {row}: {c.epochs} epochs x {c.steps_per_epoch} steps ({c.kind}), about "
+                     f"{_minutes(c.seconds)} per seed")
+    if plan["pending"]:
+        lines.append("  prerequisites to train first, once for all seeds (not in the Model Registry yet): " + ", ".join(
+            f"{c.row} (about {_minutes(c.seconds)})" for c in plan["pending"].values()))
+    else:
+        lines.append("  prerequisites: all registered (or none needed)")
+    lines.append(f"  estimated wall time: about {_minutes(plan['total'])} on 2 quiet CPU cores (a cost model, "
+                 "spade/experiments/multirun.py: measured step costs x steps; more on a shared machine)")
+    return "\n".join(lines)
+
+
+class TableStart(Callback):  # type: ignore[misc,valid-type]
+    """Hydra callback of a table's composition: prints :func:`start_message` before the first job runs."""
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        try:
+            message = start_message(config)
+        except Exception as exc:  # noqa: BLE001 - the message must never stop the table
+            log.warning("could not estimate the table's run: %s", exc)
+            return
+        print(message, flush=True)

@@ -1,0 +1,203 @@
+"""Decode a predicted path probability image by search: the planner's path from the robot to the goal.
+
+The paper's extraction (:func:`spade.metrics.extraction.extract_path`: threshold, skeleton, longest chain from
+the start) defines its APE, and it stays the paper's metric. But a student whose probability dips below the
+threshold in the middle of a turn (sharp and wide turns of the demonstrations disagree there) loses the whole
+rest of its path to it, although the probability image still shows the way. A robot needs a path that starts at
+the robot, ends at the goal and never crosses a non-free cell; learned planners of this family get it by search
+over the network's output (Neural A* runs A* over its cost map, TransPath focal search over its path
+probabilities).
+
+:func:`decode_path` does that:
+
+1. cost of a cell = ``-log(clip(g * p, p_min, 1))``, ``g *`` a Gaussian blur of ``centre_sigma_px`` (the path's
+   negative log-likelihood, if pixels were independent; the blur makes the centre of a band of equally confident
+   pixels cheaper than its edges, so that a student's 3 px wide prediction is followed along its centre line,
+   not its inner edge, which shortcut every turn by a pixel), plus ``inflation_weight`` x the Nav2-style inflation decay of the window's costmap
+   (:func:`spade.annotation.execution.build_costmap`, the annotation tool's costmap, TurtleBot3 footprint);
+   obstacle and unknown cells are impassable, the lethal band closer to an obstacle than the robot radius costs
+   ``lethal_cost`` (a robot already inside that band, a window next to a wall, may drive out of it);
+2. the minimum-cost 8-connected path from the robot's pixel to the goal's centre (scikit-image's
+   ``MCP_Geometric``, Dijkstra with geometric step lengths);
+3. sub-pixel smoothing with the annotation tool's own smoother (:func:`spade.annotation.execution.smooth_path`:
+   Douglas-Peucker, then a spline pinned at both ends), kept only where it stays on free cells (else the grid
+   path is used), then even resampling by arc length.
+
+Its confidence: the share of the path's length through pixels with ``p < 0.5`` and the minimum ``p`` along it.
+A plan through a region the network did not predict is still a path (often the right one: a small dip), but the
+integrator can see it and fall back (``Planner(..., fallback="shortest")``).
+
+Failures are only what is really impossible: the start or the goal off the window or on an impassable cell
+(unless ``force_endpoints``, used for evaluating dataset instances whose disc centre may touch a wall pixel), or
+no free path between them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+from skimage.graph import MCP_Geometric
+
+from spade.annotation.execution import build_costmap, smooth_path
+from spade.data.polyline import polyline_length, resample_polyline
+
+__all__ = ["DecodedPath", "PathDecoder", "decode_path", "FREE_CODE", "path_confidence"]
+
+FREE_CODE = 1  # spade.maps.FREE: window occupancy codes 0 unknown, 1 free, 2 occupied
+DEFAULT_ROBOT: dict[str, float] = {"radius_m": 0.105, "inflation_radius_m": 0.55, "cost_scaling_factor": 3.0}
+"""The annotation tool's footprint and inflation (conf/annotate.yaml): TurtleBot3 Burger, Nav2's defaults."""
+
+
+@dataclass(frozen=True)
+class DecodedPath:
+    """Result of :func:`decode_path`.
+
+    ``points``: (num_points, 2) float64 (x=col, y=row) window pixels from the start to the goal, evenly spaced by
+    arc length; None on failure. ``pixels``: the grid path (M, 2) before smoothing. ``failure``: None, or
+    ``start_blocked`` / ``goal_blocked`` (endpoint outside the window or on an impassable cell), ``no_free_path``.
+    ``low_share``: share of the path's length through pixels with ``p < threshold``; ``min_prob``: the lowest
+    ``p`` along it; ``smoothed``: whether the smoothed curve was kept (False: the grid path was, because the
+    smoothed one cut a non-free cell).
+    """
+
+    points: np.ndarray | None
+    pixels: np.ndarray
+    failure: str | None
+    low_share: float = float("nan")
+    min_prob: float = float("nan")
+    smoothed: bool = False
+
+    @property
+    def ok(self) -> bool:
+        return self.failure is None
+
+    def low_confidence(self, max_low_share: float = 0.1) -> bool:
+        """Whether more than ``max_low_share`` of the path runs through pixels the network gave ``p < 0.5``."""
+        return (not self.ok) or self.low_share > max_low_share
+
+
+def _failed(reason: str) -> DecodedPath:
+    return DecodedPath(points=None, pixels=np.zeros((0, 2)), failure=reason)
+
+
+def path_confidence(prob: np.ndarray, points: np.ndarray, threshold: float = 0.5, step_px: float = 0.25
+                    ) -> tuple[float, float]:
+    """(share of the length through pixels with ``p < threshold``, minimum ``p``) along a polyline (x, y)."""
+    pts = np.asarray(points, np.float64)
+    length = polyline_length(pts)
+    dense = resample_polyline(pts, max(2, int(np.ceil(length / step_px)) + 1))
+    h, w = prob.shape
+    cols = np.clip(np.rint(dense[:, 0]).astype(np.int64), 0, w - 1)
+    rows = np.clip(np.rint(dense[:, 1]).astype(np.int64), 0, h - 1)
+    p = prob[rows, cols]
+    return float(np.mean(p < threshold)), float(p.min())
+
+
+def _cells_free(grid: np.ndarray, points: np.ndarray, step_px: float = 0.25) -> bool:
+    pts = np.asarray(points, np.float64)
+    dense = resample_polyline(pts, max(2, int(np.ceil(polyline_length(pts) / step_px)) + 1))
+    h, w = grid.shape
+    cols = np.clip(np.rint(dense[:, 0]).astype(np.int64), 0, w - 1)
+    rows = np.clip(np.rint(dense[:, 1]).astype(np.int64), 0, h - 1)
+    return bool(np.all(grid[rows, cols] == FREE_CODE))
+
+
+class PathDecoder:
+    """:func:`decode_path` with its options fixed (what the metrics and the planner hold)."""
+
+    def __init__(self, num_points: int = 64, p_min: float = 1e-4, inflation_weight: float = 0.3,
+                 lethal_cost: float = 20.0, smoothing_px: float = 0.25, simplify_px: float = 0.0,
+                 threshold: float = 0.5, robot: Mapping[str, Any] | None = None,
+                 force_endpoints: bool = False, centre_sigma_px: float = 0.7) -> None:
+        if num_points < 2:
+            raise ValueError(f"num_points must be >= 2, got {num_points}")
+        if not 0 < p_min < 1:
+            raise ValueError(f"p_min must lie in (0, 1), got {p_min}")
+        if inflation_weight < 0 or lethal_cost < 0:
+            raise ValueError(f"inflation_weight and lethal_cost must be >= 0, got {inflation_weight}, {lethal_cost}")
+        self.num_points, self.p_min = int(num_points), float(p_min)
+        self.inflation_weight, self.lethal_cost = float(inflation_weight), float(lethal_cost)
+        self.smoothing_px, self.simplify_px, self.threshold = float(smoothing_px), float(simplify_px), float(threshold)
+        self.robot = dict(robot or DEFAULT_ROBOT)
+        self.force_endpoints = bool(force_endpoints)
+        if centre_sigma_px < 0:
+            raise ValueError(f"centre_sigma_px must be >= 0, got {centre_sigma_px}")
+        self.centre_sigma_px = float(centre_sigma_px)
+
+    def cost(self, prob: np.ndarray, grid: np.ndarray, resolution: float) -> np.ndarray:
+        """The per-cell search cost (H, W) (``inf`` on obstacle and unknown cells)."""
+        costmap = build_costmap(grid, resolution, self.robot, cost_weight=1.0)
+        free = grid == FREE_CODE
+        inflation = np.where(np.isfinite(costmap.cost), costmap.cost - 1.0, 1.0)  # Nav2 decay in [0, 1]
+        p = prob.astype(np.float64)
+        if self.centre_sigma_px > 0:
+            p = ndimage.gaussian_filter(p, self.centre_sigma_px, mode="nearest")
+        cost = -np.log(np.clip(p, self.p_min, 1.0)) + self.inflation_weight * inflation
+        cost[free & ~np.isfinite(costmap.cost)] += self.lethal_cost
+        # A small step cost keeps the search from wandering over p = 1 plateaus (-log 1 = 0).
+        cost += 1e-3
+        cost[~free] = np.inf
+        return cost
+
+    def __call__(self, prob: np.ndarray, grid: np.ndarray, start: np.ndarray, goal: np.ndarray,
+                 resolution: float) -> DecodedPath:
+        """Decode one (H, W) probability image on the window's (H, W) uint8 occupancy codes, from ``start`` to
+        ``goal`` (x, y) window pixels; ``resolution`` in metres per pixel (for the robot's footprint)."""
+        prob = np.asarray(prob)
+        grid = np.asarray(grid)
+        if prob.ndim != 2 or prob.shape != grid.shape:
+            raise ValueError(f"decode_path needs (H, W) probabilities and occupancy of one shape, got "
+                             f"{prob.shape} and {grid.shape}")
+        if grid.dtype != np.uint8:
+            grid = np.ascontiguousarray(grid, dtype=np.uint8)
+        h, w = grid.shape
+        cost = self.cost(prob, grid, resolution)
+        ends = []
+        for xy, name in ((start, "start"), (goal, "goal")):
+            xy = np.asarray(xy, np.float64)
+            col, row = int(np.rint(xy[0])), int(np.rint(xy[1]))
+            if not (0 <= row < h and 0 <= col < w):
+                return _failed(f"{name}_blocked")
+            if not np.isfinite(cost[row, col]):
+                if not self.force_endpoints:
+                    return _failed(f"{name}_blocked")
+                cost[row, col] = self.lethal_cost - np.log(self.p_min)
+            ends.append((row, col))
+        a, b = ends
+        if a == b:
+            pts = np.stack([np.asarray(start, np.float64), np.asarray(goal, np.float64)])
+            return DecodedPath(resample_polyline(pts, self.num_points), pts, None, *path_confidence(
+                prob, pts, self.threshold))
+        mcp = MCP_Geometric(cost, fully_connected=True)
+        cum, _ = mcp.find_costs([a], [b], find_all_ends=False)
+        if not np.isfinite(cum[b]):
+            return _failed("no_free_path")
+        grid_path = np.asarray(mcp.traceback(b), dtype=np.float64)[:, ::-1]  # (x, y)
+        # The exact start and goal (sub-pixel centres) as the ends, as the ground truth has them.
+        poly = np.vstack([np.asarray(start, np.float64), grid_path[1:-1], np.asarray(goal, np.float64)])
+        smoothed = False
+        if len(poly) > 2 and (self.smoothing_px > 0 or self.simplify_px > 0):
+            smooth = smooth_path(poly, smoothing_px=self.smoothing_px, step_px=0.5, simplify_px=self.simplify_px)
+            passable = grid
+            if self.force_endpoints:  # a forced endpoint's own cell does not count against the smoothing
+                passable = grid.copy()
+                passable[a], passable[b] = FREE_CODE, FREE_CODE
+            if _cells_free(passable, smooth):
+                poly, smoothed = smooth, True
+        points = resample_polyline(poly, self.num_points)
+        low, pmin = path_confidence(prob, poly, self.threshold)
+        return DecodedPath(points=points, pixels=grid_path, failure=None, low_share=low, min_prob=pmin,
+                           smoothed=smoothed)
+
+
+def decode_path(prob: np.ndarray, grid: np.ndarray, start: np.ndarray, goal: np.ndarray, resolution: float,
+                num_points: int = 64, **options: Any) -> DecodedPath:
+    """The minimum-cost path over ``-log(p)`` plus the costmap's inflation from ``start`` to ``goal``.
+
+    See the module docstring; ``options`` are :class:`PathDecoder`'s.
+    """
+    return PathDecoder(num_points=num_points, **options)(prob, grid, start, goal, resolution)

@@ -1,0 +1,180 @@
+"""The sketching server obeys only its user (issue 22): a foreign ``Host`` (DNS rebinding) and a cross-site
+``Origin`` on a state-changing request are refused, and ``POST /api/model`` opens only model files (.ckpt, .onnx,
+.pt) under the folders the server was started with, never echoing what a parser made of another file."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("fastapi")
+pytest.importorskip("httpx")
+from fastapi.testclient import TestClient  # noqa: E402
+
+from spade.maps import OccupancyMap, save_ros_map  # noqa: E402
+from spade.sketching import build_app  # noqa: E402
+
+TINY = ["window.size_px=64", "window.resolution_m=0.1", "instances.spacing_m=0.15", "preview.count=4"]
+L_WAYPOINTS = [[0.0, 1.0], [1.5, 1.0], [2.5, 1.0], [3.1, 1.3], [3.4, 2.0], [3.4, 3.0]]
+LOCAL = "http://127.0.0.1:8765"
+
+
+def site(root: Path) -> Path:
+    g = np.ones((100, 120), np.uint8)
+    g[[0, -1], :] = 2
+    g[:, [0, -1]] = 2
+    return save_ros_map(OccupancyMap(g, 0.1, origin=(-2.0, -1.0, 0.0), name="site"), root / "site.yaml")
+
+
+def student_checkpoint(path: Path) -> Path:
+    import torch
+
+    from spade.annotation.frame import RobotFrame
+    from spade.models import build_model
+
+    net = build_model("student", "small")
+    info = {"role": "student", "config": dict(net.config),
+            "data": {"image_size": [64, 64], "resolution_m": 0.1, "frame": RobotFrame.for_size(64).to_json()}}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save({"spade": info, "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}, path)
+    return path
+
+
+def digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest() if path.exists() else "absent"
+
+
+@pytest.fixture
+def served(tmp_path: Path) -> dict:
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    out = tmp_path / "out"
+    app = build_app(str(site(maps)), out, TINY, hosts=["192.168.7.7"])
+    return {"client": TestClient(app, base_url=LOCAL), "app": app, "out": out, "maps": maps, "tmp": tmp_path}
+
+
+# -- Host allow-list (DNS rebinding) -----------------------------------------------------------------------------------
+@pytest.mark.parametrize("host", ["attacker.example", "attacker.example:8765", "127.0.0.1.attacker.example",
+                                  "localhost.attacker.example", "testserver", ""])
+def test_a_foreign_host_is_refused(served, host: str) -> None:
+    client = served["client"]
+    for method, url, body in (("GET", "/api/map", None), ("GET", "/", None),
+                              ("POST", "/api/sketches", {"shape": "L", "waypoints": L_WAYPOINTS})):
+        r = client.request(method, url, json=body, headers={"Host": host})
+        assert r.status_code == 403, (host, url, r.text)
+        assert "is not this server" in r.json()["error"]
+    assert digest(served["out"] / "sketches.yaml") == "absent"
+
+
+@pytest.mark.parametrize("host", ["127.0.0.1:8765", "localhost:8765", "[::1]:8765", "LOCALHOST", "192.168.7.7:8765"])
+def test_its_own_names_and_the_bound_address_are_served(served, host: str) -> None:
+    r = served["client"].get("/api/map", headers={"Host": host})
+    assert r.status_code == 200, r.text
+
+
+# -- same-origin check on state-changing requests ---------------------------------------------------------------------
+@pytest.mark.parametrize("headers", [
+    {"Origin": "http://attacker.example"}, {"Origin": "null"}, {"Origin": "http://127.0.0.1:9999"},
+    {"Origin": "http://localhost:8765"},  # another origin, even on this machine
+    {"Sec-Fetch-Site": "cross-site"}, {"Sec-Fetch-Site": "same-site"},
+])
+def test_a_cross_origin_state_change_is_refused_and_changes_nothing(served, headers: dict) -> None:
+    client, out = served["client"], served["out"]
+    saved = client.post("/api/sketches", json={"shape": "L", "waypoints": L_WAYPOINTS, "name": "mine"})
+    assert saved.status_code == 201, saved.text
+    before = digest(out / "sketches.yaml")
+    for method, url, body in (("POST", "/api/sketches", {"shape": "L", "waypoints": L_WAYPOINTS}),
+                              ("DELETE", "/api/sketches/mine", None), ("POST", "/api/build", {}),
+                              ("POST", "/api/model", {"path": "x.ckpt"})):
+        r = client.request(method, url, json=body, headers=headers)
+        assert r.status_code == 403, (method, url, r.text)
+        assert "refused" in r.json()["error"]
+    assert digest(out / "sketches.yaml") == before and not (out / "dataset").exists()
+
+
+def test_the_page_itself_and_scripts_may_change_state(served) -> None:
+    client = served["client"]
+    same = {"Origin": LOCAL, "Sec-Fetch-Site": "same-origin"}
+    assert client.post("/api/sketches", json={"shape": "L", "waypoints": L_WAYPOINTS}, headers=same).status_code == 201
+    assert client.post("/api/sketches", json={"shape": "L", "waypoints": L_WAYPOINTS}).status_code == 201  # curl
+    r = client.get("/api/sketches", headers={"Origin": "http://attacker.example"})
+    assert r.status_code == 200 and "access-control-allow-origin" not in r.headers  # the browser keeps it from them
+
+
+# -- model loading ---------------------------------------------------------------------------------------------------
+@pytest.fixture
+def no_planner(monkeypatch) -> list:
+    """Records every file the planner would have opened."""
+    import spade.deploy.planner as planner_module
+
+    opened: list = []
+
+    class Recorder:
+        def __init__(self, path, **kwargs) -> None:
+            opened.append(Path(path))
+            raise AssertionError("the planner was asked to open a file")
+
+    monkeypatch.setattr(planner_module, "Planner", Recorder)
+    return opened
+
+
+def test_a_file_that_is_not_a_model_is_refused_without_opening_it(served, no_planner, tmp_path: Path) -> None:
+    client = served["client"]
+    secret = served["maps"] / "shadow"
+    secret.write_text("root:$6$saltsalt$hash:19000:0:99999:7:::\n")
+    for path in ("/etc/shadow", "/etc/passwd", str(secret), str(served["maps"] / "site.yaml"), str(served["maps"])):
+        r = client.post("/api/model", json={"path": path})
+        assert r.status_code == 422, r.text
+        assert "is not a model file" in r.json()["error"] and "root:" not in r.text
+    assert no_planner == []
+
+
+def test_a_model_file_outside_the_model_folders_is_refused_without_opening_it(served, no_planner) -> None:
+    client, tmp = served["client"], served["tmp"]
+    elsewhere = student_checkpoint(tmp.parent / f"{tmp.name}-elsewhere" / "student.ckpt")
+    link = served["maps"] / "linked.ckpt"
+    link.symlink_to(elsewhere)  # a link in a model folder to a file outside is outside
+    answers = {}
+    for path in (elsewhere, link, served["maps"] / "missing.ckpt", Path("/root/secret.onnx")):
+        r = client.post("/api/model", json={"path": str(path)})
+        answers[str(path)] = r.status_code
+        assert r.status_code == 404 and "no such file in the model folders" in r.json()["error"], r.text
+    assert set(answers.values()) == {404}  # one answer whether it exists or not: no oracle
+    assert no_planner == []
+
+
+def test_a_model_named_file_that_is_no_model_is_refused_without_echoing_a_parse(served) -> None:
+    client, maps = served["client"], served["maps"]
+    for name, content in (("fake.onnx", b"root:$6$saltsalt$hash:19000:0:99999:7:::\n"),
+                          ("fake.ckpt", b"PK\x03\x04 not really a zip"), ("fake.pt", b"\x80\x04junk")):
+        (maps / name).write_bytes(content)
+        r = client.post("/api/model", json={"path": str(maps / name)})
+        assert r.status_code == 422, r.text
+        error = r.json()["error"]
+        assert error.startswith(f"model {name} cannot be read as a student checkpoint or export"), error
+        for leak in ("root:", "saltsalt", "protobuf", "Protobuf", "zip", "pickle", "Error", "header"):
+            assert leak not in error, (leak, error)
+
+
+def test_models_load_from_the_started_folders_or_the_models_setting(tmp_path: Path) -> None:
+    maps, kept, other = tmp_path / "maps", tmp_path / "kept", tmp_path / "other"
+    for d in (maps, kept, other):
+        d.mkdir()
+    yaml_path = site(maps)
+    in_map_folder = student_checkpoint(maps / "a.ckpt")
+    in_kept = student_checkpoint(kept / "b.ckpt")
+    client = TestClient(build_app(str(yaml_path), tmp_path / "out", TINY), base_url=LOCAL)
+    assert client.post("/api/model", json={"path": str(in_map_folder)}).status_code == 200
+    assert client.post("/api/model", json={"path": str(in_kept)}).status_code == 404
+    client = TestClient(build_app(str(yaml_path), tmp_path / "out", TINY, models=[kept]), base_url=LOCAL)
+    assert client.post("/api/model", json={"path": str(in_kept)}).status_code == 200
+    assert client.post("/api/model", json={"path": str(in_map_folder)}).status_code == 404
+    # the model named on the command line is the operator's own choice: its folder is a model folder
+    started = student_checkpoint(other / "c.ckpt")
+    client = TestClient(build_app(str(yaml_path), tmp_path / "out", TINY, model=started, models=[kept]),
+                        base_url=LOCAL)
+    assert client.get("/api/model").json()["model"]["path"] == str(started.resolve())
+    assert client.post("/api/model", json={"path": str(student_checkpoint(other / "d.ckpt"))}).status_code == 200
