@@ -161,6 +161,7 @@ def test_real_maps_give_sound_instances(tmp_path: Path, maps_dir: Path, names: l
     assert {m["map_id"] for m in manifest["extra"]["maps"]} == set(names)
 
 
+@pytest.mark.slow  # 600 instances on every real map; two real maps: test_real_maps_give_sound_instances
 def test_every_real_map_of_the_folder(tmp_path: Path, maps_dir: Path) -> None:
     cfg = small_cfg(tmp_path / "all", maps=str(maps_dir), shape=["L", "U"], num_instances=600, workers=2)
     annotate(cfg)

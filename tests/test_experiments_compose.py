@@ -43,7 +43,7 @@ def _fill_requirements(cfg, ckpts: dict[str, str]) -> list[str]:
 # One row per code path runs in the default selection (an expert through its test stage, the conditional one is
 # fitted by the tiny_checkpoints fixture; BC, DBC and Cond-DBC students; a fine-tuned ablation row with guidance);
 # the others, the large students among them, are slow.
-FAST_ROWS = {"expert_uncond_U", "t1_small_bc_L", "t1_small_dbc_U", "t1_medium_conddbc_L", "t2_augbc_finetune_conddbc_U"}
+FAST_ROWS = {"expert_uncond_U", "t1_small_bc_L", "t1_small_dbc_U", "t1_small_conddbc_L", "t2_augbc_finetune_conddbc_U"}
 # One batch of each stage, small batches, two prediction pictures, two latency runs: every code path, in seconds.
 FDR = ["debug=fdr", "logger=none", "data.batch_size=4", "data.eval_batch_size=8", "model.grid_size=2",
        "callbacks.model_info.latency_runs=2"]
@@ -149,3 +149,35 @@ def test_tiny_run_summary_says_pipeline_check(spade_home: Path) -> None:
     metrics = {"test/ape_cm": 12.0}
     assert TINY_NOTICE in run_summary(compose_row("smoke", spade_home, "logger=none"), metrics)
     assert TINY_NOTICE not in run_summary(compose_row("smoke", spade_home, "logger=none", "scale=cpu"), metrics)
+
+
+@pytest.mark.slow  # trains a whole table (2 rows x 2 seeds and its expert) at tiny scale, a few minutes
+def test_table_runs_every_seed_and_trains_its_prerequisite_once(tmp_path: Path) -> None:
+    import os
+    import subprocess
+    import sys
+
+    from mlflow import MlflowClient
+
+    from spade.experiments.reporting import build_report
+    from spade.experiments.tables import TABLES, TINY_NOTICE
+
+    env = {**os.environ, "SPADE_HOME": str(tmp_path), "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
+    env.pop("MLFLOW_TRACKING_URI", None)
+    args = ["+experiment=ablation_scratch", "scale=tiny", "seeds=[1,2]", "trainer.max_epochs=1",
+            "++trainer.limit_train_batches=2", "++trainer.limit_val_batches=1", "++trainer.num_sanity_val_steps=0",
+            "trainer.enable_progress_bar=false"]
+    proc = subprocess.run([sys.executable, "-m", "spade.train", *args], cwd=CONF_DIR.parent, env=env,
+                          capture_output=True, text=True, timeout=1500)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-4000:]
+    assert "SPADE table run: scale=tiny, 2 rows x 2 seed(s) (1, 2) = 4 runs" in out
+    assert out.index("SPADE table run") < out.index("Launching 4 jobs")  # printed before the first job
+    assert out.count("run t3_") == 4 and out.count(TINY_NOTICE) >= 5  # start message + every run's summary
+    uri = f"sqlite:///{tmp_path}/logs/mlflow.db"
+    rep = build_report(TABLES["table3"], uri)
+    assert all(r.n == 2 and r.seeds == [1, 2] for r in rep.results.values())
+    assert TINY_NOTICE in rep.text
+    client = MlflowClient(tracking_uri=uri)
+    experts = [m for m in client.search_registered_models() if m.name.startswith("spade-cond_expert-L")]
+    assert len(experts) == 1 and len(client.search_model_versions(f"name='{experts[0].name}'")) == 1

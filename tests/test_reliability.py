@@ -345,7 +345,7 @@ def test_resume_continues_the_run_with_the_uninterrupted_numbers(data_dir: Path,
     from spade.experiments.run import train
 
     monkeypatch.setenv("SPADE_HOME", str(tmp_path))
-    common = ["trainer.max_epochs=2", "+trainer.limit_train_batches=3", "+trainer.limit_val_batches=1",
+    common = ["trainer.max_epochs=2", "+trainer.limit_train_batches=2", "+trainer.limit_val_batches=1",
               "trainer.log_every_n_steps=1", "test=false", "seed=7", "data.augment=mirror",
               f"paths.data_dir={data_dir}", "tags.table=resume", "registry.prefix=null", *QUICK]
 
@@ -365,7 +365,7 @@ def test_resume_continues_the_run_with_the_uninterrupted_numbers(data_dir: Path,
     val = {k: _history(client, r.info.run_id, "val/loss_bc") for k, r in runs.items()}
     assert len(val["whole"]) == 2 and val["part"] == val["whole"]  # every epoch's validation loss, bit for bit
     steps = [s for s, _ in _history(client, runs["part"].info.run_id, "train/loss_bc")]
-    assert len(steps) == 6 and len(set(steps)) == 6  # continued, not restarted
+    assert len(steps) == 4 and len(set(steps)) == 4  # continued, not restarted
     last = "checkpoints/last.ckpt"
     assert _same_weights(tmp_path / "whole" / last, tmp_path / "part2" / last)
 

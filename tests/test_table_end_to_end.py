@@ -31,8 +31,8 @@ def _python(args: list[str], home: Path, timeout: int) -> str:
 
 
 def _table2_end_to_end(home: Path, *train_overrides: str) -> None:
-    _python(["spade.train", "+experiment=ablation_finetune", "scale=tiny", "trainer.enable_progress_bar=false",
-             *train_overrides], home, timeout=1800)
+    _python(["spade.train", "+experiment=ablation_finetune", "scale=tiny", "seeds=[42]",
+             "trainer.enable_progress_bar=false", *train_overrides], home, timeout=1800)
     out = _python(["spade.report", "table=table2"], home, timeout=300)
 
     table = TABLES["table2"]
@@ -80,8 +80,8 @@ def test_table2_from_an_empty_store_full_tiny_scale(tmp_path: Path) -> None:
 @pytest.mark.parametrize("composition,key", [("ablation_scratch", "table3"), ("table1", "table1")])
 def test_whole_table_composition_from_an_empty_store(composition: str, key: str, tmp_path: Path) -> None:
     """The other two table compositions, capped steps: every row (and prerequisite) runs, the report fills them."""
-    _python(["spade.train", f"+experiment={composition}", "scale=tiny", "trainer.enable_progress_bar=false",
-             *CAPPED], tmp_path, timeout=2400)
+    _python(["spade.train", f"+experiment={composition}", "scale=tiny", "seeds=[42]",
+             "trainer.enable_progress_bar=false", *CAPPED], tmp_path, timeout=2400)
     out = _python(["spade.report", f"table={key}", "scale=tiny", "chart=false"], tmp_path, timeout=300)
     table = TABLES[key]
     assert f"{len(table.rows)} of {len(table.rows)} rows have a finished run" in out, out

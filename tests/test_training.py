@@ -93,7 +93,8 @@ def test_same_seed_gives_identical_metrics(spade_home: Path) -> None:
     runs = []
     for _ in range(2):
         cfg = compose_row("t1_small_bc_L", spade_home, "logger=none", "trainer.max_steps=3", "trainer.max_epochs=1",
-                          "callbacks=none")
+                          "callbacks=none", "+trainer.limit_val_batches=1", "+trainer.limit_test_batches=2",
+                          "data.eval_batch_size=16")
         metrics, _ = train(cfg)
         runs.append({k: v for k, v in metrics.items() if k.startswith("test/")})
     assert runs[0]

@@ -174,7 +174,9 @@ def _datasets(cfg: DictConfig, seen: dict[str, tuple[int, str]]) -> None:
         n = _instances(cfg.data.get(f"{key}_generate"))
         directory = cfg.data.get(f"{key}_dir")
         if n and directory:
-            note = f"{split}, {int(float(cfg.data.get('val_fraction') or 0) * 100)} % of it validation" if key == "train" else split
+            note = split
+            if key == "train":
+                note += f", {int(float(cfg.data.get('val_fraction') or 0) * 100)} % of it validation"
             seen[str(directory)] = (n, note)
 
 

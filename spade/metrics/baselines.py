@@ -78,7 +78,8 @@ def u_template(start: np.ndarray, goal: np.ndarray, resolution: float, tail_m: f
     centre = turn_start + side * np.sign(lateral) * radius
     phi = np.deg2rad(np.arange(0.0, 180.0 + 1e-9, step_deg))
     # from the turn start (angle 0) over the top to the point abreast the goal (angle 180 degrees)
-    arc = centre[None] - np.cos(phi)[:, None] * side[None] * np.sign(lateral) * radius + np.sin(phi)[:, None] * h[None] * radius
+    across = side * np.sign(lateral) * radius
+    arc = centre[None] - np.cos(phi)[:, None] * across[None] + np.sin(phi)[:, None] * (h * radius)[None]
     return np.vstack([start, arc, goal])
 
 

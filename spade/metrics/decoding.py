@@ -13,8 +13,9 @@ probabilities).
 1. cost of a cell = ``-log(clip(g * p, p_min, 1))``, ``g *`` a Gaussian blur of ``centre_sigma_px`` (the path's
    negative log-likelihood, if pixels were independent; the blur makes the centre of a band of equally confident
    pixels cheaper than its edges, so that a student's 3 px wide prediction is followed along its centre line,
-   not its inner edge, which shortcut every turn by a pixel), plus ``inflation_weight`` x the Nav2-style inflation decay of the window's costmap
-   (:func:`spade.annotation.execution.build_costmap`, the annotation tool's costmap, TurtleBot3 footprint);
+   not its inner edge, which shortcut every turn by a pixel), plus ``inflation_weight`` x the Nav2-style
+   inflation decay of the window's costmap (:func:`spade.annotation.execution.build_costmap`, the annotation
+   tool's costmap, TurtleBot3 footprint);
    obstacle and unknown cells are impassable, the lethal band closer to an obstacle than the robot radius costs
    ``lethal_cost`` (a robot already inside that band, a window next to a wall, may drive out of it);
 2. the minimum-cost 8-connected path from the robot's pixel to the goal's centre (scikit-image's

@@ -1,7 +1,8 @@
 """A paper table's report from its MLflow runs (what ``python -m spade.report`` prints and writes).
 
 Modules, one job each: ``results`` (each row's runs over seeds at one scale, :func:`fetch_results`, the headline
-comparisons with Welch's t-test, :func:`compare`, and the pairwise tests, :func:`pairwise`), ``render`` (the markdown), ``files`` (the CSV files), ``chart`` (the PNG) and
+comparisons with Welch's t-test, :func:`compare`, and the pairwise tests, :func:`pairwise`), ``render`` (the
+markdown), ``files`` (the CSV files), ``chart`` (the PNG) and
 ``build`` (:func:`build_report` puts one table's report together, :func:`report` those a config asks for). The
 tables themselves are :mod:`spade.experiments.tables`; publishing into MLflow is
 :func:`spade.experiments.tracking.publish_report`.

@@ -119,9 +119,15 @@ def welch(a: list[float], b: list[float]) -> tuple[float | None, str]:
     two values on either side, ``(None, "no test (no spread)")`` when both sides are constant."""
     if len(a) < 2 or len(b) < 2:
         return None, NO_TEST
+    if statistics.pvariance(a) == 0 and statistics.pvariance(b) == 0:
+        return None, "no test (no spread)"
+    import warnings
+
     from scipy.stats import ttest_ind
 
-    p = float(ttest_ind(a, b, equal_var=False).pvalue)
+    with warnings.catch_warnings():  # nearly constant samples: scipy warns, the p-value says what it can
+        warnings.simplefilter("ignore", RuntimeWarning)
+        p = float(ttest_ind(a, b, equal_var=False).pvalue)
     if math.isnan(p):
         return None, "no test (no spread)"
     return p, f"p = {p:.3g}" + ("" if p < ALPHA else ", not significant")
@@ -236,8 +242,13 @@ def pairwise(table: Table, results: dict[str, RowResult], metric: str = "ape_cm"
                     continue
                 ra, rb = results[a.cells[shape]], results[b.cells[shape]]
                 va, vb = ra.value(metric), rb.value(metric)
-                p, test = welch(ra.samples(metric), rb.samples(metric)) if None not in (va, vb) else (None, "no test (missing)")
-                title = f"{' '.join(b.labels)} vs {' '.join(a.labels)}" + (f" ({shape})" if len(table.shapes) > 1 else "")
+                if va is None or vb is None:
+                    p, test = None, "no test (missing)"
+                else:
+                    p, test = welch(ra.samples(metric), rb.samples(metric))
+                title = f"{' '.join(b.labels)} vs {' '.join(a.labels)}"
+                if len(table.shapes) > 1:
+                    title += f" ({shape})"
                 out.append(ComparisonResult(title, rb.row, ra.row, metric, vb, va, relative_change(vb, va), None, "",
                                             rb.n, ra.n, p, test))
     return out
