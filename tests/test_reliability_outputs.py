@@ -249,7 +249,7 @@ def test_report_refuses_a_store_that_does_not_exist(tmp_path: Path, run_main) ->
 
 
 # -- 10. every key that shapes the data is checked before any data or prerequisite -------------------------------------
-def test_image_size_window_and_unet_downsampling_must_agree(spade_home: Path) -> None:
+def test_image_size_window_and_unet_downsampling_must_agree(spade_home: Path, tmp_path: Path) -> None:
     """Case 10: ``scale.image_size=62`` alone was ignored (data stayed 64 px); with the window at 62 px too the run
     generated data and trained and registered an expert before failing on "not divisible by 4"."""
     with pytest.raises(ConfigError, match=r"scale.image_size=62 differs from scale.annotate.window.size_px=64"):
@@ -259,7 +259,10 @@ def test_image_size_window_and_unet_downsampling_must_agree(spade_home: Path) ->
     with pytest.raises(ConfigError, match="not a multiple of 4"):  # the row that trains an expert first, too
         validate_train_config(compose_row("t1_small_conddbc_L", spade_home, "scale.image_size=62",
                                           "scale.annotate.window.size_px=62"))
-    validate_train_config(compose_row(ROW, spade_home, "scale.image_size=72", "scale.annotate.window.size_px=72"))
+    # agreeing sizes pass (in a data folder of their own: the shared 64 px tiny datasets would be refused as other
+    # settings, which is right)
+    validate_train_config(compose_row(ROW, spade_home, "scale.image_size=72", "scale.annotate.window.size_px=72",
+                                      f"paths.data_dir={tmp_path}"))
 
 
 # -- 11. renames by prefix only ----------------------------------------------------------------------------------------
