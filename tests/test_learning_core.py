@@ -252,3 +252,25 @@ def test_warmup_cosine_schedule_and_configure_optimizers() -> None:
     assert lrs[0] == pytest.approx(5e-3) and lrs[1] == pytest.approx(1e-2) and max(lrs) == pytest.approx(1e-2)
     assert lrs[-1] < 1e-3
     assert not isinstance(ExpertModule(preset="tiny").configure_optimizers(), dict)  # no schedule: the optimiser
+
+
+def test_cpu_scale_students_get_the_schedule_and_the_quickstart_keeps_a_constant_rate() -> None:
+    """scale=cpu composes a warm-up + cosine schedule into every student (its validation curve jumped under a
+    constant rate); the quickstart, whose recipe was measured with a constant rate, keeps it."""
+    from types import SimpleNamespace
+
+    import hydra
+
+    from spade.experiments.config import compose_config
+    from spade.training.student_module import StudentModule
+
+    cfg = compose_config("train", ["+experiment=t1_small_bc_L", "scale=cpu"])
+    assert cfg.model.lr_scheduler._target_ == "spade.training.schedules.warmup_cosine"
+    student = hydra.utils.instantiate(cfg.model)
+    assert isinstance(student, StudentModule) and student.lr_scheduler_factory is not None
+    student._trainer = SimpleNamespace(estimated_stepping_batches=40)
+    out = student.configure_optimizers()
+    assert out["lr_scheduler"]["interval"] == "step"
+    quick = compose_config("train", ["+experiment=t1_small_bc_L", "scale=quickstart"])
+    assert quick.model.lr_scheduler is None
+    assert not isinstance(hydra.utils.instantiate(quick.model).configure_optimizers(), dict)

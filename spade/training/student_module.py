@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
+
 import torch
 import torch.nn.functional as F
 
@@ -38,13 +40,15 @@ class StudentModule(PathPlanningModule):
         guidance: dict | None = None,
         init_ckpt: str | None = None,
         optimizer: Callable[..., torch.optim.Optimizer] | None = None,
+        lr_scheduler: Callable[..., Any] | None = None,
         metrics: dict | None = None,
         val_metric_batches: int | None = None,
         grid_size: int = 8,
         bc_pos_weight: float | None = None,
     ) -> None:
         super().__init__(optimizer, metrics, val_metric_batches, grid_size)
-        self.save_hyperparameters(ignore=["optimizer"])
+        self.lr_scheduler_factory = lr_scheduler  # see PathPlanningModule.configure_optimizers
+        self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"])
         if bc_pos_weight is not None and not bc_pos_weight > 0:
             raise ValueError(f"bc_pos_weight must be > 0 (or null for plain BCE), got {bc_pos_weight}")
         self.bc_pos_weight = None if bc_pos_weight in (None, 1, 1.0) else float(bc_pos_weight)
