@@ -147,7 +147,7 @@ def test_path_metrics_report_the_paper_and_the_planner_figures() -> None:
     broken = band(L_PATH, p=0.95)
     broken[14:24, 28:40] = 0.3  # no pixel of the corner passes 0.5
     prob = torch.from_numpy(np.stack([band(L_PATH), broken]))[:, None]
-    metrics = PathMetrics(fid=False)
+    metrics = PathMetrics(fid=False, planner_keys=None)
     metrics.update(prob, batch)
     out = metrics.compute()
     for key in ("ape_cm", "hd19", "failure_rate", "over_20cm_rate", "planner/ape_cm", "planner/hd19",

@@ -9,7 +9,7 @@ import lightning as L
 import torch
 
 from spade.models.modelfile import write_checkpoint_entry
-from spade.training.evaluation import PathMetrics
+from spade.training.evaluation import BASELINE_PLANNER_KEYS, PathMetrics
 from spade.training.logging_utils import log_image
 from spade.training.visualize import TestRecords, prediction_grid
 
@@ -27,7 +27,8 @@ class PathPlanningModule(L.LightningModule):
         super().__init__()
         self.optimizer_factory = optimizer
         metrics = dict(metrics or {})
-        self.val_metrics = PathMetrics(**metrics)
+        # validation selects checkpoints on the paper's figures (val/score_cm): the planner's decoding is for tests
+        self.val_metrics = PathMetrics(**{**metrics, "planner": False})
         self.test_metrics = PathMetrics(**metrics)
         self.val_metric_batches = val_metric_batches
         self.grid_size = grid_size
@@ -101,7 +102,8 @@ class PathPlanningModule(L.LightningModule):
         from spade.metrics.baselines import BASELINES
 
         metrics = dict(self.hparams.get("metrics") or {})
-        self._baseline_metrics = {name: PathMetrics(**metrics).to(self.device) for name in BASELINES}
+        self._baseline_metrics = {name: PathMetrics(**{**metrics, "planner_keys": BASELINE_PLANNER_KEYS}
+                                                    ).to(self.device) for name in BASELINES}
         self._test_records = TestRecords()
 
     def test_step(self, batch: dict, batch_idx: int) -> None:

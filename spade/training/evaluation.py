@@ -18,6 +18,13 @@ from spade.metrics.extraction import marker_centre
 log = logging.getLogger(__name__)
 
 
+PLANNER_KEYS: tuple[str, ...] = ("ape_cm", "ape_median_cm", "ape_max_cm", "failure_rate", "over_20cm_rate", "hd19",
+                                  "low_confidence_rate")
+"""The planner's figures a test logs (``planner/<key>``): MLflow's run page lists about 100 metrics, so the
+planner's figures are the ones a reader compares, not every statistic (``planner_keys=None`` keeps them all)."""
+BASELINE_PLANNER_KEYS: tuple[str, ...] = ("ape_cm", "failure_rate", "over_20cm_rate")
+
+
 class PathMetrics(nn.Module):
     """The paper's figures and the planner's, for predicted path probabilities against a batch's ground truth.
 
@@ -39,8 +46,9 @@ class PathMetrics(nn.Module):
     def __init__(self, hd_threshold: float = 19.0, pred_threshold: float = 0.5, fid_extractor: str | None = None,
                  fid_extractor_kwargs: dict | None = None, fid: bool = True, hd_threshold_m: float | None = 0.95,
                  planner: bool = True, tail_cm: float = 20.0, low_confidence_share: float = 0.1,
-                 decoder: dict | None = None) -> None:
+                 decoder: dict | None = None, planner_keys: tuple[str, ...] | None = PLANNER_KEYS) -> None:
         super().__init__()
+        self.planner_keys = None if planner_keys is None else tuple(planner_keys)
         self.ape = APE(threshold=pred_threshold, tail_cm=tail_cm)
         # Hd19 in metres (0.95 m = 19 px of the paper's 0.05 m/px) so that coarser windows count the same
         # artifacts; the key stays "hd19". hd_threshold_m=null counts hd_threshold pixels instead.
@@ -113,7 +121,8 @@ class PathMetrics(nn.Module):
             if self.low_confidence.update_count:
                 planner["low_confidence_rate"] = float(self.low_confidence.compute())
                 planner["low_share_mean"] = float(self.low_share.compute())
-            out.update({f"planner/{k}": v for k, v in planner.items()})
+            out.update({f"planner/{k}": v for k, v in planner.items()
+                        if self.planner_keys is None or k in self.planner_keys})
         if self.fid is not None:
             have, need = int(self.fid.fake_n), self.fid.feature_dim + 1
             if have >= need:
