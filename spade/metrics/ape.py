@@ -7,7 +7,7 @@ import torch
 from torchmetrics import Metric
 from torchmetrics.utilities import dim_zero_cat
 
-from spade.metrics._inputs import check_images, check_same_batch, to_numpy
+from spade.metrics._inputs import check_images, check_same_batch, per_instance_resolution, to_numpy
 from spade.metrics.decoding import PathDecoder
 from spade.metrics.extraction import extract_path, marker_centre
 from spade.metrics.geometry import polyline_ape
@@ -94,13 +94,11 @@ class APE(Metric):
         prob = to_numpy(pred_prob)[:, 0]
         s = to_numpy(state)
         k = int(waypoints.shape[1])
-        res = self._resolutions(resolution, prob.shape[0])
+        res = per_instance_resolution(resolution, prob.shape[0])
         polylines: list[np.ndarray | None] = []
         for i in range(prob.shape[0]):
             if self._search is not None:
-                grid = np.rint(s[i, 0] * 2).astype(np.uint8)
-                found = self._search(prob[i], grid, marker_centre(s[i, 1], "start"), marker_centre(s[i, 2], "goal"),
-                                     float(res[i]))
+                found = self._search.decode_state(prob[i], s[i], float(res[i]))
             else:
                 found = extract_path(prob[i], s[i, 1], s[i, 2], k, **self.extract_kwargs)
             polylines.append(found.points if found.ok else None)
@@ -112,15 +110,6 @@ class APE(Metric):
         if waypoints.ndim != 3 or waypoints.shape[-1] != 2 or waypoints.shape[1] < 2:
             raise ValueError(f"waypoints must be (B, K, 2) with K >= 2 (x=col, y=row), got {tuple(waypoints.shape)}")
         check_same_batch(("state", state), ("waypoints", waypoints))
-
-    @staticmethod
-    def _resolutions(resolution: torch.Tensor | float, b: int) -> np.ndarray:
-        res = to_numpy(resolution if isinstance(resolution, torch.Tensor) else np.asarray(resolution), np.float64).reshape(-1)
-        if res.size == 1:
-            res = np.full(b, float(res[0]))
-        if res.size != b or not np.all(res > 0):
-            raise ValueError(f"resolution must be a positive scalar or one value per instance (B={b}), got {res}")
-        return res
 
     def update_polylines(
         self,
@@ -139,7 +128,7 @@ class APE(Metric):
         b = state.shape[0]
         if len(polylines) != b:
             raise ValueError(f"update_polylines got {len(polylines)} polylines for a batch of {b} states")
-        res = self._resolutions(resolution, b)
+        res = per_instance_resolution(resolution, b)
         markers = to_numpy(state)[:, 1:3]
         truth = to_numpy(waypoints, np.float64)
         k = truth.shape[1]

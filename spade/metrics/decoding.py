@@ -45,6 +45,7 @@ from skimage.graph import MCP_Geometric
 
 from spade.annotation.execution import build_costmap, smooth_path
 from spade.data.polyline import polyline_length, resample_polyline
+from spade.metrics.extraction import marker_centre
 
 __all__ = ["DecodedPath", "PathDecoder", "decode_path", "FREE_CODE", "path_confidence"]
 
@@ -85,26 +86,26 @@ def _failed(reason: str) -> DecodedPath:
     return DecodedPath(points=None, pixels=np.zeros((0, 2)), failure=reason)
 
 
+def _cells_along(points: np.ndarray, shape: tuple[int, int], step_px: float = 0.25
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of the pixels under a polyline (x, y) sampled every ``step_px`` of its length."""
+    pts = np.asarray(points, np.float64)
+    dense = resample_polyline(pts, max(2, int(np.ceil(polyline_length(pts) / step_px)) + 1))
+    h, w = shape
+    cols = np.clip(np.rint(dense[:, 0]).astype(np.int64), 0, w - 1)
+    rows = np.clip(np.rint(dense[:, 1]).astype(np.int64), 0, h - 1)
+    return rows, cols
+
+
 def path_confidence(prob: np.ndarray, points: np.ndarray, threshold: float = 0.5, step_px: float = 0.25
                     ) -> tuple[float, float]:
     """(share of the length through pixels with ``p < threshold``, minimum ``p``) along a polyline (x, y)."""
-    pts = np.asarray(points, np.float64)
-    length = polyline_length(pts)
-    dense = resample_polyline(pts, max(2, int(np.ceil(length / step_px)) + 1))
-    h, w = prob.shape
-    cols = np.clip(np.rint(dense[:, 0]).astype(np.int64), 0, w - 1)
-    rows = np.clip(np.rint(dense[:, 1]).astype(np.int64), 0, h - 1)
-    p = prob[rows, cols]
+    p = prob[_cells_along(points, prob.shape, step_px)]
     return float(np.mean(p < threshold)), float(p.min())
 
 
-def _cells_free(grid: np.ndarray, points: np.ndarray, step_px: float = 0.25) -> bool:
-    pts = np.asarray(points, np.float64)
-    dense = resample_polyline(pts, max(2, int(np.ceil(polyline_length(pts) / step_px)) + 1))
-    h, w = grid.shape
-    cols = np.clip(np.rint(dense[:, 0]).astype(np.int64), 0, w - 1)
-    rows = np.clip(np.rint(dense[:, 1]).astype(np.int64), 0, h - 1)
-    return bool(np.all(grid[rows, cols] == FREE_CODE))
+def _cells_free(grid: np.ndarray, points: np.ndarray) -> bool:
+    return bool(np.all(grid[_cells_along(points, grid.shape)] == FREE_CODE))
 
 
 class PathDecoder:
@@ -143,6 +144,11 @@ class PathDecoder:
         cost += 1e-3
         cost[~free] = np.inf
         return cost
+
+    def decode_state(self, prob: np.ndarray, state: np.ndarray, resolution: float) -> DecodedPath:
+        """Decode one instance from its network input (3, H, W): occupancy ``code * 0.5``, start and goal discs."""
+        grid = np.rint(np.asarray(state[0], np.float64) * 2).astype(np.uint8)
+        return self(prob, grid, marker_centre(state[1], "start"), marker_centre(state[2], "goal"), resolution)
 
     def __call__(self, prob: np.ndarray, grid: np.ndarray, start: np.ndarray, goal: np.ndarray,
                  resolution: float) -> DecodedPath:

@@ -4,16 +4,14 @@ from __future__ import annotations
 
 import logging
 
-import numpy as np
 import torch
 from torch import nn
 from torchmetrics.aggregation import MeanMetric
 
 from spade.metrics import APE, FID, HausdorffCount
-from spade.metrics._inputs import to_numpy
+from spade.metrics._inputs import per_instance_resolution, to_numpy
 from spade.metrics.baselines import draw_polylines
 from spade.metrics.decoding import PathDecoder
-from spade.metrics.extraction import marker_centre
 
 log = logging.getLogger(__name__)
 
@@ -78,10 +76,8 @@ class PathMetrics(nn.Module):
         """The planner's decoded path (:class:`~spade.metrics.decoding.DecodedPath`) of every instance."""
         p = to_numpy(prob)[:, 0]
         s = to_numpy(state)
-        res = np.broadcast_to(np.asarray(to_numpy(resolution, np.float64) if isinstance(resolution, torch.Tensor)
-                                         else resolution, dtype=np.float64).reshape(-1), (len(p),))
-        return [self.decoder(p[i], np.rint(s[i, 0] * 2).astype(np.uint8), marker_centre(s[i, 1], "start"),
-                             marker_centre(s[i, 2], "goal"), float(res[i])) for i in range(len(p))]
+        res = per_instance_resolution(resolution, len(p))
+        return [self.decoder.decode_state(p[i], s[i], float(res[i])) for i in range(len(p))]
 
     @torch.no_grad()
     def update(self, prob: torch.Tensor, batch: dict, polylines: list | None = None) -> None:
