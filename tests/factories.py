@@ -10,6 +10,16 @@ from skimage.draw import disk, line
 from spade.data import DatasetWriter, resample_polyline
 
 
+def site_map(root: Path) -> Path:
+    """A 12 m x 10 m walled site at 0.1 m/px (a ROS yaml and its image) under ``root``."""
+    from spade.maps import OccupancyMap, save_ros_map
+
+    g = np.ones((100, 120), np.uint8)
+    g[[0, -1], :] = 2
+    g[:, [0, -1]] = 2
+    return save_ros_map(OccupancyMap(g, 0.1, origin=(-2.0, -1.0, 0.0), name="site"), root / "site.yaml")
+
+
 def synthetic_instance(rng: np.random.Generator, size: int = 32, k: int = 16) -> dict:
     """One L-ish instance: free room with a wall, a start and goal disc and the path between them."""
     occ = np.ones((size, size), dtype=np.uint8)

@@ -22,9 +22,8 @@ from omegaconf import open_dict
 
 from spade.data import DatasetWriter
 from spade.experiments.validation import ConfigError, validate_train_config
-from spade.maps import OccupancyMap, save_ros_map
 
-from factories import synthetic_instance
+from factories import site_map, synthetic_instance
 from training_helpers import compose_row
 
 ROW = "t1_small_bc_L"
@@ -54,14 +53,6 @@ def student_checkpoint(path: Path, role: str = "student", size: int = 64) -> Pat
     path.parent.mkdir(parents=True, exist_ok=True)
     torch.save({"spade": info, "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}, path)
     return path
-
-
-def site_map(root: Path) -> Path:
-    """A 12 m x 10 m walled site at 0.1 m/px (a ROS yaml and its image)."""
-    g = np.ones((100, 120), np.uint8)
-    g[[0, -1], :] = 2
-    g[:, [0, -1]] = 2
-    return save_ros_map(OccupancyMap(g, 0.1, origin=(-2.0, -1.0, 0.0), name="site"), root / "site.yaml")
 
 
 def map_image(yaml_path: Path) -> Path:

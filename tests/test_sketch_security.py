@@ -7,26 +7,19 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 pytest.importorskip("fastapi")
 pytest.importorskip("httpx")
 from fastapi.testclient import TestClient  # noqa: E402
 
-from spade.maps import OccupancyMap, save_ros_map  # noqa: E402
 from spade.sketching import build_app  # noqa: E402
+
+from factories import site_map  # noqa: E402
 
 TINY = ["window.size_px=64", "window.resolution_m=0.1", "instances.spacing_m=0.15", "preview.count=4"]
 L_WAYPOINTS = [[0.0, 1.0], [1.5, 1.0], [2.5, 1.0], [3.1, 1.3], [3.4, 2.0], [3.4, 3.0]]
 LOCAL = "http://127.0.0.1:8765"
-
-
-def site(root: Path) -> Path:
-    g = np.ones((100, 120), np.uint8)
-    g[[0, -1], :] = 2
-    g[:, [0, -1]] = 2
-    return save_ros_map(OccupancyMap(g, 0.1, origin=(-2.0, -1.0, 0.0), name="site"), root / "site.yaml")
 
 
 def student_checkpoint(path: Path) -> Path:
@@ -52,7 +45,7 @@ def served(tmp_path: Path) -> dict:
     maps = tmp_path / "maps"
     maps.mkdir()
     out = tmp_path / "out"
-    app = build_app(str(site(maps)), out, TINY, hosts=["192.168.7.7"])
+    app = build_app(str(site_map(maps)), out, TINY, hosts=["192.168.7.7"])
     return {"client": TestClient(app, base_url=LOCAL), "app": app, "out": out, "maps": maps, "tmp": tmp_path}
 
 
@@ -163,7 +156,7 @@ def test_models_load_from_the_started_folders_or_the_models_setting(tmp_path: Pa
     maps, kept, other = tmp_path / "maps", tmp_path / "kept", tmp_path / "other"
     for d in (maps, kept, other):
         d.mkdir()
-    yaml_path = site(maps)
+    yaml_path = site_map(maps)
     in_map_folder = student_checkpoint(maps / "a.ckpt")
     in_kept = student_checkpoint(kept / "b.ckpt")
     client = TestClient(build_app(str(yaml_path), tmp_path / "out", TINY), base_url=LOCAL)
