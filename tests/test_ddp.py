@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from spade.experiments.config import compose_config
+from spade.utils.config import compose_config
 from spade.training.callbacks import ChannelsLast
 from spade.training.student_module import StudentModule
 from training_helpers import compose_row

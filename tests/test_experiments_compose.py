@@ -79,7 +79,7 @@ def _table_config(table: str, home: Path, *overrides: str):
     import os
 
     import spade.experiments.multirun  # noqa: F401  (registers ${spade_sweep:}, as the table's Hydra callback does)
-    from spade.experiments.config import compose_config
+    from spade.utils.config import compose_config
 
     os.environ["SPADE_HOME"] = str(home)
     return compose_config("train", [f"+experiment={table}", *overrides], return_hydra_config=True)

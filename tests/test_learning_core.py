@@ -261,7 +261,7 @@ def test_cpu_scale_students_get_the_schedule_and_the_quickstart_keeps_a_constant
 
     import hydra
 
-    from spade.experiments.config import compose_config
+    from spade.utils.config import compose_config
     from spade.training.student_module import StudentModule
 
     cfg = compose_config("train", ["+experiment=t1_small_bc_L", "scale=cpu"])

@@ -17,7 +17,7 @@ from skimage.draw import line
 from spade.annotation.frame import RobotFrame, heading_from_yaw, path_heading, yaw_from_heading
 from spade.annotation.rasterize import render, robot_instance, state_indices
 from spade.annotation.scenarios import generate_scenario, prepare_map
-from spade.experiments.config import compose_config
+from spade.utils.config import compose_config
 from spade.maps import FREE, OCCUPIED, OccupancyMap, generate_map, load_ros_map
 from spade.models import build_model
 from spade.planner import Planner, PlannerConfigError, PlanResult

@@ -17,7 +17,7 @@ import torch
 import yaml
 from omegaconf import open_dict
 
-from spade.experiments.config import compose_config
+from spade.utils.config import compose_config
 from spade.experiments.validation import (
     ConfigError,
     exit_on_user_error,

@@ -225,7 +225,7 @@ def test_a_run_that_trains_and_tests_nothing_ends_finished(spade_home: Path, tmp
 # -- 9. report refuses a store that does not exist ---------------------------------------------------------------------
 def test_report_refuses_a_store_that_does_not_exist(tmp_path: Path, run_main) -> None:
     """Case 9: ``tracking_uri=sqlite:///<missing dir>/mlflow.db`` created an empty store and reported all missing."""
-    from spade.experiments.config import compose_config
+    from spade.utils.config import compose_config
     from spade.experiments.reporting import report
 
     store = tmp_path / "missing" / "mlflow.db"
@@ -263,7 +263,7 @@ def test_untrained_metrics_are_renamed_by_prefix_only(monkeypatch) -> None:
     import hydra
 
     from spade.experiments import run as run_module
-    from spade.experiments.config import compose_config
+    from spade.utils.config import compose_config
 
     class Tester:
         def test(self, **kwargs):
