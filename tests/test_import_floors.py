@@ -33,8 +33,8 @@ TOP = len(FLOORS)  # spade/*.py entry points and spade/__init__.py
 KNOWN_UPWARD = {
     ("spade.annotation.run", "spade.experiments.config"),
     ("spade.data.datamodule", "spade.annotation.run"),
-    ("spade.data.datamodule", "spade.experiments.validation"),
-    ("spade.data.verify", "spade.experiments.validation"),
+    ("spade.data.datamodule", "spade.experiments.config_checks"),
+    ("spade.data.verify", "spade.experiments.config_checks"),
     ("spade.data.writer", "spade.annotation.frame"),
     ("spade.metrics.baselines", "spade.annotation.execution"),
     ("spade.metrics.baselines", "spade.annotation.rasterize"),

@@ -18,7 +18,7 @@ import yaml
 from omegaconf import open_dict
 
 from spade.utils.config import compose_config
-from spade.experiments.validation import (
+from spade.experiments.config_checks import (
     ConfigError,
     exit_on_user_error,
     validate_evaluate_config,

@@ -21,7 +21,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import open_dict
 
 from spade.data import DatasetWriter
-from spade.experiments.validation import ConfigError, validate_train_config
+from spade.experiments.config_checks import ConfigError, validate_train_config
 
 from factories import site_map, synthetic_instance
 from training_helpers import compose_row
