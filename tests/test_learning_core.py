@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from spade.annotation.frame import RobotFrame
-from spade.annotation.rasterize import robot_instance
+from spade.data.rasterize import robot_instance
+from spade.maps.frame import RobotFrame
 from spade.metrics import APE, HausdorffCount
 from spade.metrics.baselines import BASELINES, baseline_images, baseline_polylines, heading_template, shortest_path
 from spade.training.expert_module import WarmupEMA, ema_decay_at

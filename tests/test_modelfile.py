@@ -15,7 +15,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from spade.annotation.frame import RobotFrame
+from spade.maps.frame import RobotFrame
 from spade.models import build_model
 from spade.models.modelfile import (
     INPUT_ENCODING,

@@ -44,7 +44,7 @@ def student_checkpoint(path: Path, role: str = "student", size: int = 64) -> Pat
     """A checkpoint as spade.train writes it (an untrained small student), without training."""
     import torch
 
-    from spade.annotation.frame import RobotFrame
+    from spade.maps.frame import RobotFrame
     from spade.models import build_model
 
     net = build_model("student", "small")
