@@ -27,7 +27,7 @@ __all__ = ["annotate", "main"]
 
 def _checked_annotate(cfg: DictConfig) -> dict:
     """The config and inputs checked first (one ``error:`` line, exit 2), then the run."""
-    from spade.experiments.validation import validate_annotate_config
+    from spade.experiments.config_checks import validate_annotate_config
 
     validate_annotate_config(cfg)
     return annotate(cfg)
@@ -35,7 +35,7 @@ def _checked_annotate(cfg: DictConfig) -> dict:
 
 @hydra.main(config_path="../conf", config_name="annotate", version_base="1.3")
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.validation import exit_on_user_error
+    from spade.experiments.config_checks import exit_on_user_error
 
     summary = exit_on_user_error(_checked_annotate)(cfg)
     print(OmegaConf.to_yaml(OmegaConf.create(summary)))

@@ -20,7 +20,7 @@ log = logging.getLogger(__name__)
 
 def evaluate(cfg: DictConfig) -> dict[str, Any]:
     """Test ``cfg.ckpt_path`` on ``cfg.data``'s test set; returns the test metrics."""
-    from spade.experiments.validation import validate_evaluate_config
+    from spade.experiments.config_checks import validate_evaluate_config
 
     validate_evaluate_config(cfg)  # role, and the checkpoint's window geometry against the test data's
     L.seed_everything(cfg.seed, workers=True)
@@ -37,7 +37,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.validation import exit_on_user_error
+    from spade.experiments.config_checks import exit_on_user_error
 
     metrics = exit_on_user_error(evaluate)(cfg)
     print("\n".join(f"{k}: {v:.4g}" for k, v in sorted(metrics.items())))

@@ -16,7 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
 from spade.deploy.export import ExportReport, export_student
-from spade.experiments.validation import exit_on_user_error, validate_export_config
+from spade.experiments.config_checks import exit_on_user_error, validate_export_config
 
 log = logging.getLogger(__name__)
 OPTIONS = ("ckpt_path", "out_path", "format", "opset", "parity_batch", "tolerance", "latency_runs", "latency_batches",
@@ -24,7 +24,7 @@ OPTIONS = ("ckpt_path", "out_path", "format", "opset", "parity_batch", "toleranc
 
 
 def export(cfg: DictConfig) -> ExportReport:
-    """Check the config (:func:`~spade.experiments.validation.validate_export_config`: a student checkpoint in, an
+    """Check the config (:func:`~spade.experiments.config_checks.validate_export_config`: a student checkpoint in, an
     output that is neither it nor a folder), then run :func:`~spade.deploy.export.export_student` with it."""
     validate_export_config(cfg)
     # Only this task's keys are resolved: paths.output_dir needs a running Hydra app, and export() works without.

@@ -30,7 +30,7 @@ from spade.deploy.plan_picture import plan_text
 
 def _checked_plan(cfg: DictConfig):  # noqa: ANN202
     """The config and inputs checked first (one ``error:`` line, exit 2), then the query."""
-    from spade.experiments.validation import validate_plan_config
+    from spade.experiments.config_checks import validate_plan_config
 
     validate_plan_config(cfg)  # map and model files, pose and goal, a picture that is none of the inputs
     return run_plan(cfg)
@@ -38,7 +38,7 @@ def _checked_plan(cfg: DictConfig):  # noqa: ANN202
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="plan")
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.validation import exit_on_user_error
+    from spade.experiments.config_checks import exit_on_user_error
 
     result, png = exit_on_user_error(_checked_plan)(cfg)
     print(plan_text(result, str(cfg.map), png), flush=True)

@@ -35,7 +35,7 @@ def rewrite_argv(args: list[str]) -> list[str]:
 
 def _checked_app(cfg: DictConfig):  # noqa: ANN202
     """The config and inputs checked first (one ``error:`` line, exit 2), then the app."""
-    from spade.experiments.validation import validate_sketch_config
+    from spade.experiments.config_checks import validate_sketch_config
     from spade.sketching import build_app
 
     validate_sketch_config(cfg)
@@ -46,7 +46,7 @@ def _checked_app(cfg: DictConfig):  # noqa: ANN202
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="sketch")
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.validation import exit_on_user_error
+    from spade.experiments.config_checks import exit_on_user_error
     from spade.sketching import serve
 
     app = exit_on_user_error(_checked_app)(cfg)

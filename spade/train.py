@@ -17,7 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
 from spade.experiments.lifecycle import install_signal_handlers
 from spade.experiments.run import run
-from spade.experiments.validation import exit_on_user_error
+from spade.experiments.config_checks import exit_on_user_error
 
 log = logging.getLogger(__name__)
 

@@ -9,12 +9,13 @@ import pytest
 from omegaconf import OmegaConf
 
 from spade.annotation.checks import instance_problems
-from spade.annotation.execution import Rejection, build_costmap, execute_sketch, total_turn_deg
-from spade.annotation.frame import RobotFrame, heading_from_yaw, path_heading, yaw_from_heading
-from spade.annotation.rasterize import draw_curve, robot_instance, state_indices
+from spade.annotation.execution import Rejection, execute_sketch, total_turn_deg
 from spade.annotation.scenarios import NoFreeAreaError, generate_scenario, prepare_map, scenario_rng
 from spade.annotation.sketch_file import densify
 from spade.annotation.templates import SHAPES, UnknownShapeError, check_shape, place_template, sample_template
+from spade.data.rasterize import draw_curve, robot_instance, state_indices
+from spade.maps.costmap import build_costmap
+from spade.maps.frame import RobotFrame, heading_from_yaw, path_heading, yaw_from_heading
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "annotate.yaml"
 

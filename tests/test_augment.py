@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from spade.annotation.frame import RobotFrame
-from spade.annotation.rasterize import robot_instance
 from spade.data.augment import augment_batch, check_augmentation, mirror_images, mirror_points, widen_path
+from spade.data.rasterize import robot_instance
+from spade.maps.frame import RobotFrame
 
 
 def _instance(turn: float):

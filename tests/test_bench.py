@@ -129,7 +129,7 @@ def test_targets_are_judged_as_the_issue_states() -> None:
 
 def test_quick_and_full_settings_come_from_one_config() -> None:
     import spade.bench  # noqa: F401  (registers the quick_or resolver)
-    from spade.experiments.config import compose_config
+    from spade.utils.config import compose_config
 
     full = compose_config("bench", [])
     quick = compose_config("bench", ["quick=true", "student.runs=7"])
@@ -141,7 +141,7 @@ def test_quick_and_full_settings_come_from_one_config() -> None:
 
 def test_unknown_sections_are_refused() -> None:
     from spade.bench import bench
-    from spade.experiments.config import compose_config
+    from spade.utils.config import compose_config
 
     with pytest.raises(ValueError, match="unknown bench sections"):
         bench(compose_config("bench", ["quick=true", "sections=[student,gpu]"]))

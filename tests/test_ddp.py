@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import torch
 
-from spade.experiments.config import compose_config
 from spade.training.callbacks import ChannelsLast
 from spade.training.student_module import StudentModule
+from spade.utils.config import compose_config
 from training_helpers import compose_row
 
 REPO = Path(__file__).resolve().parents[1]

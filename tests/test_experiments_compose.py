@@ -73,13 +73,29 @@ def test_scale_presets_compose(spade_home: Path) -> None:
     assert sum(p.numel() for p in model.net.parameters()) > 9e8
 
 
+def test_every_data_config_builds_a_missing_dataset_with_the_annotation_tool(tmp_path: Path) -> None:
+    """The data module receives what builds a missing dataset from its config (conf/data/generator/annotate.yaml);
+    without one it refuses a missing dataset rather than guessing."""
+    from spade.annotation.run import generate_dataset
+    from spade.data import DatasetError
+    from spade.data.datamodule import PathDataModule
+    from spade.utils.config import compose_config
+
+    for data in sorted(p.stem for p in (CONF_DIR / "data").glob("*.yaml")):
+        dm = hydra.utils.instantiate(compose_config("train", [f"data={data}"]).data)
+        assert dm.generator.func is generate_dataset, data
+    with pytest.raises(DatasetError, match="no generator"):
+        PathDataModule(tmp_path / "missing", train_generate={"preset": "lshape"}).prepare_data()
+    assert not (tmp_path / "missing").exists()
+
+
 # -- a table is rows x seeds in one multirun, at scale=cpu unless told, announced at its start (issue 24) ---------
 def _table_config(table: str, home: Path, *overrides: str):
     """The table's composition as `python -m spade.train +experiment=TABLE ...` sees it (no scale forced)."""
     import os
 
     import spade.experiments.multirun  # noqa: F401  (registers ${spade_sweep:}, as the table's Hydra callback does)
-    from spade.experiments.config import compose_config
+    from spade.utils.config import compose_config
 
     os.environ["SPADE_HOME"] = str(home)
     return compose_config("train", [f"+experiment={table}", *overrides], return_hydra_config=True)

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import torch
 
-from spade.annotation.frame import RobotFrame
 from spade.deploy.export import ExportError, example_states, export_student, read_metadata
+from spade.maps.frame import RobotFrame
 from spade.models import build_model
 from spade.models.modelfile import INPUT_ENCODING, open_model
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from spade.annotation.frame import RobotFrame
-from spade.annotation.rasterize import robot_instance
+from spade.data.rasterize import robot_instance
+from spade.maps.frame import RobotFrame
 from spade.metrics import APE, HausdorffCount
 from spade.metrics.baselines import BASELINES, baseline_images, baseline_polylines, heading_template, shortest_path
 from spade.training.expert_module import WarmupEMA, ema_decay_at
@@ -261,7 +261,7 @@ def test_cpu_scale_students_get_the_schedule_and_the_quickstart_keeps_a_constant
 
     import hydra
 
-    from spade.experiments.config import compose_config
+    from spade.utils.config import compose_config
     from spade.training.student_module import StudentModule
 
     cfg = compose_config("train", ["+experiment=t1_small_bc_L", "scale=cpu"])

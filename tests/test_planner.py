@@ -14,13 +14,13 @@ from omegaconf import OmegaConf
 from scipy import ndimage
 from skimage.draw import line
 
-from spade.annotation.frame import RobotFrame, heading_from_yaw, path_heading, yaw_from_heading
-from spade.annotation.rasterize import render, robot_instance, state_indices
 from spade.annotation.scenarios import generate_scenario, prepare_map
-from spade.experiments.config import compose_config
+from spade.data.rasterize import render, robot_instance, state_indices
 from spade.maps import FREE, OCCUPIED, OccupancyMap, generate_map, load_ros_map
+from spade.maps.frame import RobotFrame, heading_from_yaw, path_heading, yaw_from_heading
 from spade.models import build_model
 from spade.planner import Planner, PlannerConfigError, PlanResult
+from spade.utils.config import compose_config
 
 SIZE, RES = 64, 0.1  # scale=tiny's window
 FRAME = RobotFrame.for_size(SIZE)  # robot at (32, 48), heading up

@@ -17,14 +17,14 @@ import torch
 import yaml
 from omegaconf import open_dict
 
-from spade.experiments.config import compose_config
-from spade.experiments.validation import (
+from spade.experiments.config_checks import (
     ConfigError,
     exit_on_user_error,
     validate_evaluate_config,
     validate_train_config,
 )
 from spade.data import DatasetError
+from spade.utils.config import compose_config
 from fault_injection import env_with_tests, kill_at
 from training_helpers import compose_row
 

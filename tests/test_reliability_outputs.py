@@ -21,7 +21,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import open_dict
 
 from spade.data import DatasetWriter
-from spade.experiments.validation import ConfigError, validate_train_config
+from spade.experiments.config_checks import ConfigError, validate_train_config
 
 from factories import site_map, synthetic_instance
 from training_helpers import compose_row
@@ -44,7 +44,7 @@ def student_checkpoint(path: Path, role: str = "student", size: int = 64) -> Pat
     """A checkpoint as spade.train writes it (an untrained small student), without training."""
     import torch
 
-    from spade.annotation.frame import RobotFrame
+    from spade.maps.frame import RobotFrame
     from spade.models import build_model
 
     net = build_model("student", "small")
@@ -225,7 +225,7 @@ def test_a_run_that_trains_and_tests_nothing_ends_finished(spade_home: Path, tmp
 # -- 9. report refuses a store that does not exist ---------------------------------------------------------------------
 def test_report_refuses_a_store_that_does_not_exist(tmp_path: Path, run_main) -> None:
     """Case 9: ``tracking_uri=sqlite:///<missing dir>/mlflow.db`` created an empty store and reported all missing."""
-    from spade.experiments.config import compose_config
+    from spade.utils.config import compose_config
     from spade.experiments.reporting import report
 
     store = tmp_path / "missing" / "mlflow.db"
@@ -263,7 +263,7 @@ def test_untrained_metrics_are_renamed_by_prefix_only(monkeypatch) -> None:
     import hydra
 
     from spade.experiments import run as run_module
-    from spade.experiments.config import compose_config
+    from spade.utils.config import compose_config
 
     class Tester:
         def test(self, **kwargs):

@@ -136,7 +136,7 @@ def test_scale_filter_and_mixed_scale_note(store: dict) -> None:
 def test_cli_config_writes_markdown_csv_and_png(store: dict, tmp_path: Path) -> None:
     from PIL import Image
 
-    from spade.experiments.config import compose_config
+    from spade.utils.config import compose_config
 
     cfg = compose_config("report", ["table=ablation_finetune", f"tracking_uri={store['uri']}",
                                     f"output_dir={tmp_path}", "paths.output_dir=."])
@@ -157,7 +157,7 @@ def test_cli_config_writes_markdown_csv_and_png(store: dict, tmp_path: Path) -> 
 
 def test_cli_scale_override_filters_runs(store: dict, tmp_path: Path) -> None:
     """`scale=cpu` on the command line selects the conf/scale group, whose name filters the runs."""
-    from spade.experiments.config import compose_config
+    from spade.utils.config import compose_config
 
     overrides = ["table=table1", f"tracking_uri={store['uri']}", f"output_dir={tmp_path}", "paths.output_dir=.",
                  "chart=false"]

@@ -57,7 +57,7 @@ def student_checkpoint(path: Path, role: str = "student") -> Path:
 
     from spade.models import build_model
 
-    from spade.annotation.frame import RobotFrame
+    from spade.maps.frame import RobotFrame
 
     net = build_model("student", "small")
     info = {"role": role, "config": dict(net.config),

@@ -41,7 +41,7 @@ def student_checkpoint(path: Path) -> Path:
     """An untrained small student as spade.train writes it (robot frame, 64 px at 0.1 m)."""
     import torch
 
-    from spade.annotation.frame import RobotFrame
+    from spade.maps.frame import RobotFrame
     from spade.models import build_model
 
     net = build_model("student", "small")

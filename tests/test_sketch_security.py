@@ -25,7 +25,7 @@ LOCAL = "http://127.0.0.1:8765"
 def student_checkpoint(path: Path) -> Path:
     import torch
 
-    from spade.annotation.frame import RobotFrame
+    from spade.maps.frame import RobotFrame
     from spade.models import build_model
 
     net = build_model("student", "small")

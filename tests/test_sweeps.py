@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from spade.experiments.config import compose_config
+from spade.utils.config import compose_config
 
 REPO = Path(__file__).resolve().parents[1]
 SWEEPS = REPO / "sweeps"

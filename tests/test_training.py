@@ -201,7 +201,7 @@ def test_killed_run_resumes_into_the_same_mlflow_run(tmp_path: Path) -> None:
 
 def test_evaluate_entry_point_tests_a_checkpoint(spade_home: Path, tiny_checkpoints: dict) -> None:
     from spade.evaluate import evaluate, load_module
-    from spade.experiments.config import compose_config
+    from spade.utils.config import compose_config
 
     cfg = compose_config("evaluate", [f"ckpt_path={tiny_checkpoints['student']}", "logger=none",
                                       "trainer.enable_progress_bar=false", f"paths.output_dir={spade_home}/eval"])

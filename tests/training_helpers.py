@@ -7,7 +7,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, open_dict
 
-from spade.experiments.config import compose_config
+from spade.utils.config import compose_config
 
 
 def compose_row(experiment: str, home: Path, *overrides: str, hydra_config: bool = False) -> DictConfig:

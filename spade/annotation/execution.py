@@ -1,10 +1,11 @@
 """Execution of a sketch as Nav2 would drive it, and the checks that reject a bad execution.
 
 The sketch's waypoints are joined by a minimum-cost grid path (scikit-image ``MCP_Geometric``) on an inflated
-costmap: cells closer to an obstacle than the robot radius are lethal, and a cost that decays exponentially
-with the distance to obstacles (Nav2's inflation layer) pushes the path away from walls, so the executed
-path bends around obstacles the way a Nav2 global planner's would. The grid path is then smoothed with a
-parametric spline (scipy ``splprep``) and resampled evenly by arc length.
+costmap (:mod:`spade.maps.costmap`): cells closer to an obstacle than the robot radius are lethal, and a cost
+that decays exponentially with the distance to obstacles (Nav2's inflation layer) pushes the path away from
+walls, so the executed path bends around obstacles the way a Nav2 global planner's would. The grid path is then
+smoothed with a parametric spline (scipy ``splprep``) and resampled evenly by arc length
+(:func:`spade.data.polyline.smooth_path`).
 
 All geometry here is in map pixel coordinates (x = column, y = row, floats, pixel centres at integers).
 """
@@ -15,14 +16,15 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
-from scipy import interpolate, ndimage
 from scipy.spatial import cKDTree
 from skimage.graph import MCP_Geometric
-from skimage.measure import approximate_polygon
 
-from spade.data.polyline import polyline_length, resample_polyline
+from spade.data.polyline import polyline_length, resample_polyline, smooth_path
+from spade.maps.costmap import Costmap, build_costmap
+from spade.maps.occupancy import FREE
 
-FREE_CODE = 1  # spade.maps.FREE; kept local so this module works on plain uint8 grids
+__all__ = ["Costmap", "ExecutedPath", "Rejection", "build_costmap", "execute_sketch", "hausdorff_px", "smooth_path",
+           "total_turn_deg"]
 
 
 class Rejection(Exception):
@@ -33,46 +35,6 @@ class Rejection(Exception):
         self.reason = reason
         self.detail = detail
         self.points = points  # the executed path (map pixels) when it was driven before the check failed
-
-
-@dataclass(frozen=True)
-class Costmap:
-    """Inflated costmap of one map, computed once per map.
-
-    ``clearance_px``: Euclidean distance (pixels) from each free cell to the nearest non-free cell (unknown
-    counts as non-free, as for Nav2 with ``track_unknown_space``), 0 on non-free cells.
-    ``cost``: per-cell traversal cost for the planner, ``inf`` where the robot's centre may not go.
-    """
-
-    grid: np.ndarray
-    resolution: float
-    clearance_px: np.ndarray
-    cost: np.ndarray
-    robot_radius_px: float
-
-
-def build_costmap(grid: np.ndarray, resolution: float, robot: Mapping[str, Any],
-                  cost_weight: float) -> Costmap:
-    """Inflate ``grid`` (uint8 codes) for a round robot.
-
-    ``robot`` holds ``radius_m`` (inscribed radius: lethal closer than this), ``inflation_radius_m`` (no extra
-    cost beyond it) and ``cost_scaling_factor`` (Nav2's exponential decay rate, 1/m). The planner's cost of a
-    cell is ``1 + cost_weight * exp(-scaling * (d - radius))`` inside the inflation radius, 1 beyond.
-    """
-    grid = np.asarray(grid)
-    if grid.ndim != 2 or grid.dtype != np.uint8:
-        raise ValueError(f"grid must be a 2-D uint8 array of occupancy codes, got {grid.dtype} {grid.shape}")
-    free = grid == FREE_CODE
-    clearance = ndimage.distance_transform_edt(free).astype(np.float32)
-    d_m = clearance * resolution
-    radius = float(robot["radius_m"])
-    inflation = float(robot["inflation_radius_m"])
-    scaling = float(robot["cost_scaling_factor"])
-    decay = np.exp(-scaling * np.clip(d_m - radius, 0.0, None))
-    cost = (1.0 + cost_weight * np.where(d_m <= inflation, decay, 0.0)).astype(np.float64)
-    cost[d_m < radius] = np.inf
-    cost[~free] = np.inf
-    return Costmap(grid, float(resolution), clearance, cost, radius / resolution)
 
 
 @dataclass(frozen=True)
@@ -116,34 +78,6 @@ def _plan(costmap: Costmap, keypoints: np.ndarray, pad_px: int) -> np.ndarray:
     return rc[:, ::-1]
 
 
-def smooth_path(points: np.ndarray, smoothing_px: float, step_px: float, simplify_px: float = 0.0) -> np.ndarray:
-    """Smooth a grid path and resample it evenly every ``step_px``; both ends are kept exactly.
-
-    An 8-connected grid path runs along 0/45-degree staircases; Douglas-Peucker simplification
-    (``skimage.measure.approximate_polygon``, tolerance ``simplify_px``) first straightens them (what a
-    Nav2 planner's path smoother does), then a parametric spline (scipy ``splprep``, smoothing
-    ``s = N * smoothing_px**2`` over the path resampled every pixel) rounds the corners.
-    """
-    pts = np.asarray(points, dtype=np.float64)
-    if simplify_px > 0 and len(pts) > 2:
-        pts = approximate_polygon(pts, tolerance=simplify_px)
-        pts = resample_polyline(pts, max(2, int(np.ceil(polyline_length(pts))) + 1))
-    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9])
-    pts = pts[keep]
-    length = polyline_length(pts)
-    n_out = max(2, int(np.ceil(length / step_px)) + 1)
-    if len(pts) < 4:
-        return resample_polyline(pts, n_out)
-    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    u = np.concatenate([[0.0], np.cumsum(seg)]) / length
-    weights = np.ones(len(pts))
-    weights[[0, -1]] = 100.0  # pin the start and the goal
-    tck, _ = interpolate.splprep([pts[:, 0], pts[:, 1]], u=u, w=weights, s=len(pts) * smoothing_px ** 2, k=3)
-    fine = np.stack(interpolate.splev(np.linspace(0.0, 1.0, 4 * n_out), tck), axis=1)
-    fine[0], fine[-1] = pts[0], pts[-1]
-    return resample_polyline(fine, max(2, int(np.ceil(polyline_length(fine) / step_px)) + 1))
-
-
 def total_turn_deg(points: np.ndarray, end_window_px: float) -> float:
     """Signed net heading change (degrees) between the start and the end of a path.
 
@@ -179,7 +113,7 @@ def execute_sketch(costmap: Costmap, keypoints: np.ndarray, sketch_dense: np.nda
     if (cells < 0).any() or (cells[:, 0] >= h).any() or (cells[:, 1] >= w).any():
         raise Rejection("non_free", "the smoothed path leaves the map", path)
     clearance = costmap.clearance_px[cells[:, 0], cells[:, 1]]
-    if (costmap.grid[cells[:, 0], cells[:, 1]] != FREE_CODE).any() or clearance.min() < costmap.robot_radius_px:
+    if (costmap.grid[cells[:, 0], cells[:, 1]] != FREE).any() or clearance.min() < costmap.robot_radius_px:
         raise Rejection("non_free", f"the smoothed path comes within {clearance.min() * res:.3f} m of non-free "
                                     f"space, robot radius {costmap.robot_radius_px * res:.3f} m", path)
     deviation = hausdorff_px(path, sketch_dense) * res

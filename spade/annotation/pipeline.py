@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping
 
 from spade.annotation.execution import ExecutedPath, Rejection, execute_sketch
-from spade.annotation.rasterize import Instance, fits_robot_frame
 from spade.annotation.scenarios import (
     MapContext,
     ScenarioResult,
@@ -27,6 +26,7 @@ from spade.annotation.scenarios import (
     window_frame,
 )
 from spade.annotation.templates import SHAPES, check_shape
+from spade.data.rasterize import Instance, fits_robot_frame
 
 log = logging.getLogger(__name__)
 

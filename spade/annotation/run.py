@@ -2,7 +2,9 @@
 
 Sources, in order of precedence: ``sketches=`` (an operator's sketch file), ``rosbag.paths=`` (rosbag2
 recordings), ``skipp.root=`` (SKIPP's published layout), else shape templates on ``maps=``. The command line is
-:mod:`spade.annotate`; the data module, the sketching app and the benchmarks call :func:`annotate` directly.
+:mod:`spade.annotate`; the sketching app and the benchmarks call :func:`annotate` directly, the data module
+:func:`generate_dataset` (its generator, named by ``conf/data/generator/annotate.yaml``). The annotation config of a
+data config's ``*_generate`` entry is :func:`spade.data.settings.annotation_config` (imported here too).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from spade.annotation.pipeline import (
 from spade.annotation.preview import write_preview
 from spade.annotation.scenarios import costmap_context
 from spade.annotation.sources import load_map_sources
+from spade.data.settings import annotation_config, preset_override
 
 log = logging.getLogger("spade.annotate")
 
@@ -105,28 +108,10 @@ def _map_info(source: Any) -> dict[str, Any]:
 
 def alias_preset(argv: list[str]) -> list[str]:
     """``preset=X`` -> ``annotate/preset@_global_=X`` (the group lives under conf/annotate/ next to other tools')."""
-    return [_preset_override(a[len("preset="):]) if a.startswith("preset=") else a for a in argv]
+    return [preset_override(a[len("preset="):]) if a.startswith("preset=") else a for a in argv]
 
 
-def _preset_override(name: str) -> str:
-    return f"annotate/preset@_global_={name}"
-
-
-def annotation_config(root: Path, config: Any) -> Any:
-    """The annotation tool's config for a data config's ``*_generate`` entry.
-
-    ``config`` holds ``preset`` (a ``conf/annotate/preset`` name), optional ``overrides`` (command-line style
-    strings, e.g. ``split=test``) and ``set`` (a dict, or a list of dicts merged in order, e.g. the scale's
-    window and instance counts; null values are skipped, keeping the preset's).
-    """
-    from spade.experiments.config import compose_config
-
-    config = OmegaConf.to_container(OmegaConf.create(config), resolve=True) if config is not None else {}
-    overrides = [_preset_override(config["preset"])] if config.get("preset") else []
-    overrides += list(config.get("overrides") or [])
-    cfg = compose_config("annotate", overrides)
-    layers = config.get("set") or []
-    for layer in layers if isinstance(layers, list) else [layers]:
-        layer = {k: v for k, v in (layer or {}).items() if v is not None}
-        cfg = OmegaConf.merge(cfg, layer)
-    return OmegaConf.merge(cfg, {"out_dir": str(root), "overwrite": False})
+def generate_dataset(root: Path, config: Any) -> None:
+    """Build the dataset a data config's ``*_generate`` entry asks for at ``root`` (the data module's generator,
+    ``conf/data/generator/annotate.yaml``, that ``prepare_data`` calls for a missing dataset)."""
+    annotate(annotation_config(root, config))

@@ -16,10 +16,11 @@ from typing import Any, Mapping
 import numpy as np
 from scipy.cluster.vq import kmeans2
 
-from spade.annotation.execution import Costmap, ExecutedPath, Rejection, build_costmap, execute_sketch
-from spade.annotation.frame import RobotFrame, yaw_from_heading
-from spade.annotation.rasterize import Instance, fits_robot_frame, robot_instance, state_indices
+from spade.annotation.execution import ExecutedPath, Rejection, execute_sketch
 from spade.annotation.templates import SHAPES, check_shape, place_template, sample_template
+from spade.data.rasterize import Instance, fits_robot_frame, robot_instance, state_indices
+from spade.maps.costmap import Costmap, build_costmap
+from spade.maps.frame import RobotFrame, yaw_from_heading
 
 
 class NoFreeAreaError(ValueError):

@@ -1,6 +1,6 @@
 """Augmentation that is valid in the robot frame, and the widened path target.
 
-In the robot frame (spade.annotation.frame) the robot sits at a fixed pixel with its heading up the image, so a
+In the robot frame (spade.maps.frame) the robot sits at a fixed pixel with its heading up the image, so a
 rotation or a transpose would turn "forward" into "sideways": the only symmetry that keeps the frame is the
 left-right mirror about the robot's column (a left turn becomes a right turn). The robot's column ``x_r`` is a
 pixel centre, so the mirror maps column ``x`` to ``2 x_r - x``; columns that come from outside the window are

@@ -4,7 +4,6 @@ augmentation and the (optionally widened) path target."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -15,9 +14,8 @@ from torch.utils.data import DataLoader, Subset
 
 from spade.data import DatasetError, PathDataset, read_manifest
 from spade.data.augment import augment_batch, check_augmentation, widen_path
-
-# (dataset directory, annotation config) -> None; builds the dataset when it is missing.
-Generator = Callable[[Path, Any], None]
+from spade.data.checks import check_dataset
+from spade.data.settings import Generator
 
 
 def split_by_scenario(scenario_ids: list[str], val_fraction: float, seed: int) -> tuple[list[int], list[int]]:
@@ -35,18 +33,14 @@ def split_by_scenario(scenario_ids: list[str], val_fraction: float, seed: int) -
     return train, val
 
 
-def _default_generator(root: Path, config: Any) -> None:
-    from spade.annotation.run import annotate, annotation_config
-
-    annotate(annotation_config(root, config))
-
-
 class PathDataModule(L.LightningDataModule):
     """Datasets of the annotation tool as Lightning data.
 
     ``train_dir`` is split into train and validation by scenario; ``test_dir`` (a held-out map) is the test set
     (the validation split stands in when it is None). ``train_generate`` / ``test_generate`` are annotation
     configs: ``prepare_data`` builds a missing dataset with them, so a fresh machine needs no manual step.
+    ``generator`` builds it: ``generator(dataset directory, *_generate entry)``; the data configs give the
+    annotation tool's (``conf/data/generator/annotate.yaml``: :func:`spade.annotation.run.generate_dataset`).
     """
 
     def __init__(
@@ -88,13 +82,11 @@ class PathDataModule(L.LightningDataModule):
         self.target_width_px = int(target_width_px)
         self.max_train_instances, self.max_test_instances = max_train_instances, max_test_instances
         self.test_shape = test_shape
-        self.generator = generator or _default_generator
+        self.generator = generator
         self.train_set = self.val_set = self.test_set = None
 
     # -- Lightning hooks -------------------------------------------------------------------------------------
     def prepare_data(self) -> None:
-        from spade.experiments.validation import check_dataset
-
         for key, root, config in (("data.train_dir", self.train_dir, self.train_generate),
                                   ("data.test_dir", self.test_dir, self.test_generate)):
             check_dataset(root, config, key)  # an existing dataset made with other settings, or not a dataset
@@ -104,6 +96,12 @@ class PathDataModule(L.LightningDataModule):
                 raise DatasetError(
                     f"{root}: dataset missing and no generator config given. Build it with "
                     f"`python -m spade.annotate out_dir={root}` or set the data config's *_generate."
+                )
+            if self.generator is None:
+                raise DatasetError(
+                    f"{root}: dataset missing and the data module has no generator to build it; set the data "
+                    "config's generator (conf/data/generator/annotate.yaml) or build it with "
+                    f"`python -m spade.annotate out_dir={root}`."
                 )
             from spade.data.writer import DatasetExistsError
 
@@ -163,6 +161,13 @@ class PathDataModule(L.LightningDataModule):
         if self.train_set is not None:
             return self.train_set.dataset.frame
         return dict(read_manifest(self.train_dir).frame)
+
+    @property
+    def annotation_settings(self) -> dict[str, Any]:
+        """The annotation settings the training set was generated with (its manifest's ``generator``): a
+        checkpoint records the start/goal disc radius and the goal margin from them
+        (:func:`spade.models.modelfile.checkpoint_entry`)."""
+        return dict(read_manifest(self.train_dir).generator)
 
     @property
     def resolution(self) -> float:

@@ -113,7 +113,7 @@ class PathDataset(Dataset):
 
     @property
     def frame(self) -> dict[str, Any]:
-        """The window frame of the manifest (robot pixel, heading up; spade.annotation.frame)."""
+        """The window frame of the manifest (robot pixel, heading up; spade.maps.frame)."""
         return dict(self.manifest.frame)
 
     def labels(self, key: str) -> list[str]:

@@ -12,7 +12,7 @@ A dataset is one directory::
     pose.bin         float32 (N, 3): the robot's pose in its map, (x, y, yaw) in metres and radians
 
 Version 2: every window is in the robot's frame (``frame`` in the manifest: the robot's pixel and "heading up",
-see spade.annotation.frame), so a prediction maps back to map metres through the instance's pose. Version 1
+see spade.maps.frame), so a prediction maps back to map metres through the instance's pose. Version 1
 windows were axis-aligned and hid the heading; they are refused with the command that rebuilds them.
 
 Array files are raw C-order arrays whose shapes follow from the manifest, so that readers memory-map them.

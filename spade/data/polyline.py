@@ -37,3 +37,34 @@ def resample_polyline(points: np.ndarray, k: int) -> np.ndarray:
     out = np.stack([x, y], axis=1)
     out[0], out[-1] = pts[0], pts[-1]
     return out
+
+
+def smooth_path(points: np.ndarray, smoothing_px: float, step_px: float, simplify_px: float = 0.0) -> np.ndarray:
+    """Smooth a grid path and resample it evenly every ``step_px``; both ends are kept exactly.
+
+    An 8-connected grid path runs along 0/45-degree staircases; Douglas-Peucker simplification
+    (``skimage.measure.approximate_polygon``, tolerance ``simplify_px``) first straightens them (what a
+    Nav2 planner's path smoother does), then a parametric spline (scipy ``splprep``, smoothing
+    ``s = N * smoothing_px**2`` over the path resampled every pixel) rounds the corners.
+    """
+    from scipy import interpolate  # here, so that readers of the dataset format do not load scipy
+    from skimage.measure import approximate_polygon
+
+    pts = np.asarray(points, dtype=np.float64)
+    if simplify_px > 0 and len(pts) > 2:
+        pts = approximate_polygon(pts, tolerance=simplify_px)
+        pts = resample_polyline(pts, max(2, int(np.ceil(polyline_length(pts))) + 1))
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9])
+    pts = pts[keep]
+    length = polyline_length(pts)
+    n_out = max(2, int(np.ceil(length / step_px)) + 1)
+    if len(pts) < 4:
+        return resample_polyline(pts, n_out)
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    u = np.concatenate([[0.0], np.cumsum(seg)]) / length
+    weights = np.ones(len(pts))
+    weights[[0, -1]] = 100.0  # pin the start and the goal
+    tck, _ = interpolate.splprep([pts[:, 0], pts[:, 1]], u=u, w=weights, s=len(pts) * smoothing_px ** 2, k=3)
+    fine = np.stack(interpolate.splev(np.linspace(0.0, 1.0, 4 * n_out), tck), axis=1)
+    fine[0], fine[-1] = pts[0], pts[-1]
+    return resample_polyline(fine, max(2, int(np.ceil(polyline_length(fine) / step_px)) + 1))

@@ -15,6 +15,7 @@ import numpy as np
 from spade.data.dataset import check_files
 from spade.data.format import MANIFEST, DatasetError, Manifest, read_manifest
 from spade.data.packing import unpack_bits, unpack_two_bit
+from spade.utils.errors import exit_on_errors
 
 _CHUNK = 1024
 
@@ -94,9 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m spade.data.verify", description=__doc__.splitlines()[0])
     parser.add_argument("root", type=Path, help="dataset directory (holds manifest.json)")
     args = parser.parse_args(argv)
-    from spade.experiments.validation import exit_on_user_error  # the entry points' one-line errors
-
-    exit_on_user_error(check_target)(args.root)
+    exit_on_errors((DatasetError,))(check_target)(args.root)  # one line and exit status 2, as every entry point
     problems = verify(args.root)
     if problems:
         print(f"{args.root}: {len(problems)} problem(s)")

@@ -115,8 +115,8 @@ class DatasetWriter:
         self.resolution = float(resolution)
         self.num_waypoints = int(num_waypoints)
         self.generator_config = json.loads(json.dumps(generator_config or {}, default=str))
-        if frame is None:  # every SPADE window is in the robot frame of its side (spade.annotation.frame)
-            from spade.annotation.frame import RobotFrame
+        if frame is None:  # every SPADE window is in the robot frame of its side (spade.maps.frame)
+            from spade.maps.frame import RobotFrame
 
             frame = RobotFrame.for_size(self.height).to_json()
         self.frame = json.loads(json.dumps(frame))

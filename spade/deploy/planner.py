@@ -1,7 +1,7 @@
 """Plan with a trained student: a map, a robot pose and a goal in, waypoints in map metres out.
 
 The student only ever saw the windows of the annotation tool, which are in the robot's frame
-(:mod:`spade.annotation.frame`): the robot at a fixed pixel, its heading up the image, the map rotated about it.
+(:mod:`spade.maps.frame`): the robot at a fixed pixel, its heading up the image, the map rotated about it.
 A query is turned into exactly such a window:
 
 - the map is resampled to the student's resolution (``OccupancyMap.resampled``: obstacles never vanish);
@@ -41,9 +41,9 @@ from typing import Any, Union
 
 import numpy as np
 
-from spade.annotation.frame import RobotFrame, WindowPose, heading_from_yaw
-from spade.annotation.rasterize import render
+from spade.data.rasterize import render
 from spade.maps import FREE, OCCUPIED, OccupancyMap, load_ros_map
+from spade.maps.frame import RobotFrame, WindowPose, heading_from_yaw
 from spade.metrics import ExtractedPath, extract_path
 from spade.metrics.baselines import shortest_path
 from spade.data.polyline import resample_polyline

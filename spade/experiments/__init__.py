@@ -4,12 +4,14 @@
 that runs rows and keeps their records:
 
 - :mod:`~spade.experiments.run`: one run, as ``python -m spade.train`` starts it (prerequisites, fit, test);
-- :mod:`~spade.experiments.validation`: every config check that needs no training, before any run opens;
+- :mod:`~spade.experiments.config_checks`: every config check that needs no training, before any run opens;
 - :mod:`~spade.experiments.prerequisites` and :mod:`~spade.experiments.registry`: the experts and pretrained
   students a row needs, found in (or registered to) the MLflow Model Registry;
 - :mod:`~spade.experiments.lifecycle`: run folders, signals, stale RUNNING runs, deterministic seeding;
 - :mod:`~spade.experiments.tracking`: what each run logs to MLflow and the UI links it prints;
 - :mod:`~spade.experiments.tables` and :mod:`~spade.experiments.reporting`: the paper's tables, which rows they
-  hold, and ``python -m spade.report``'s fetching and rendering;
-- :mod:`~spade.experiments.config`: composing the project's Hydra configs from code.
+  hold, and ``python -m spade.report``'s fetching and rendering.
+
+Composing the project's Hydra configs from code is :func:`spade.utils.config.compose_config` (on the lowest floor,
+so that every package may compose a config; :mod:`~spade.experiments.config` re-exports it).
 """

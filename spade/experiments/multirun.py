@@ -182,7 +182,7 @@ def _datasets(cfg: DictConfig, seen: dict[str, tuple[int, str]]) -> None:
 
 def plan_table(config: DictConfig) -> dict[str, Any]:
     """What a table's multirun will run: scale, rows, seeds, datasets, per-row and prerequisite costs, total."""
-    from spade.experiments.config import compose_config
+    from spade.utils.config import compose_config
     from spade.experiments.registry import registry_name
 
     params = config.hydra.sweeper.params

@@ -28,7 +28,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from spade.experiments.registry import fetch_checkpoint, registry_name
-from spade.experiments.config import compose_config
+from spade.utils.config import compose_config
 
 log = logging.getLogger(__name__)
 

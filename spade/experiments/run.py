@@ -10,7 +10,7 @@ with ``weights_only=True`` and SPADE's allow-list (:func:`spade.models.modelfile
 would run code is refused with :class:`~spade.models.modelfile.UnsafeModelFileError` before any of it runs.
 
 Nothing else in ``spade/`` imports this module; it sits above :mod:`spade.experiments.prerequisites`,
-``lifecycle``, ``tracking`` and ``validation`` and the training package, so no import circle runs through it.
+``lifecycle``, ``tracking`` and ``config_checks`` and the training package, so no import circle runs through it.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from spade.experiments.lifecycle import (
 )
 from spade.experiments.prerequisites import complete_prerequisite, pending_prerequisites
 from spade.experiments.tracking import finish_run, run_summary, start_run_logging
-from spade.experiments.validation import validate_checkpoints, validate_train_config
+from spade.experiments.config_checks import validate_checkpoints, validate_train_config
 from spade.models.modelfile import safe_loading
 from spade.training.instantiate import instantiate_callbacks, instantiate_loggers, run_id_from_checkpoint
 
@@ -68,7 +68,7 @@ def run(cfg: DictConfig) -> float | None:
 def train(cfg: DictConfig, _depth: int = 0) -> tuple[dict[str, Any], dict[str, Any]]:
     """Fit (and test) the configured model; returns (metrics, objects).
 
-    In order: the config is validated (:mod:`spade.experiments.validation`: a one-line error before any MLflow run
+    In order: the config is validated (:mod:`spade.experiments.config_checks`: a one-line error before any MLflow run
     or data work), missing prerequisites are trained (each by a nested call), everything is re-seeded, stale
     RUNNING runs of this row are marked KILLED, and then the run itself is built and fitted. Its MLflow run ends
     KILLED (signal) or FAILED (exception) when it does not finish.

@@ -4,7 +4,7 @@ A learned planner is worth deploying only where it beats these on the operator's
 
 - ``straight``: the straight line from the start to the goal;
 - ``shortest``: the minimum-cost path on the window's inflated costmap, what a Nav2-style global planner would
-  drive (the annotation tool's costmap and grid planner, :mod:`spade.annotation.execution`, with the
+  drive (the annotation tool's costmap and grid planner, :mod:`spade.maps.costmap`, with the
   TurtleBot3 footprint and Nav2's default inflation, then its smoothing);
 - ``heading``: a shape template that knows only the robot's heading and the instance's shape label. For an L
   (and any other label): straight ahead to the goal's projection on the heading line, then a 90 degree turn to
@@ -92,7 +92,8 @@ def shortest_path(occupancy: np.ndarray, start: np.ndarray, goal: np.ndarray, re
     band (a window rotated next to a wall) may still drive out of it, so those cells cost a lot but are not
     forbidden here; obstacles and unknown cells are.
     """
-    from spade.annotation.execution import build_costmap, smooth_path
+    from spade.data.polyline import smooth_path
+    from spade.maps.costmap import build_costmap
 
     costmap = build_costmap(np.ascontiguousarray(occupancy, dtype=np.uint8), resolution, robot, cost_weight)
     cost = costmap.cost.copy()
@@ -140,7 +141,7 @@ def baseline_polylines(state: np.ndarray, resolution: float, shape: str | None =
 
 def draw_polyline(points: np.ndarray | None, height: int, width: int) -> np.ndarray:
     """A (H, W) float32 image with 1 on the polyline's one-pixel curve (empty for None)."""
-    from spade.annotation.rasterize import draw_curve
+    from spade.data.rasterize import draw_curve
 
     image = np.zeros((height, width), dtype=np.float32)
     if points is None or len(points) == 0:

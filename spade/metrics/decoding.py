@@ -14,13 +14,13 @@ probabilities).
    negative log-likelihood, if pixels were independent; the blur makes the centre of a band of equally confident
    pixels cheaper than its edges, so that a student's 3 px wide prediction is followed along its centre line,
    not its inner edge, which shortcut every turn by a pixel), plus ``inflation_weight`` x the Nav2-style
-   inflation decay of the window's costmap (:func:`spade.annotation.execution.build_costmap`, the annotation
-   tool's costmap, TurtleBot3 footprint);
+   inflation decay of the window's costmap (:func:`spade.maps.costmap.build_costmap`, the annotation tool's
+   costmap, TurtleBot3 footprint);
    obstacle and unknown cells are impassable, the lethal band closer to an obstacle than the robot radius costs
    ``lethal_cost`` (a robot already inside that band, a window next to a wall, may drive out of it);
 2. the minimum-cost 8-connected path from the robot's pixel to the goal's centre (scikit-image's
    ``MCP_Geometric``, Dijkstra with geometric step lengths);
-3. sub-pixel smoothing with the annotation tool's own smoother (:func:`spade.annotation.execution.smooth_path`:
+3. sub-pixel smoothing with the annotation tool's own smoother (:func:`spade.data.polyline.smooth_path`:
    Douglas-Peucker, then a spline pinned at both ends), kept only where it stays on free cells (else the grid
    path is used), then even resampling by arc length.
 
@@ -43,13 +43,13 @@ import numpy as np
 from scipy import ndimage
 from skimage.graph import MCP_Geometric
 
-from spade.annotation.execution import build_costmap, smooth_path
-from spade.data.polyline import polyline_length, resample_polyline
+from spade.data.polyline import polyline_length, resample_polyline, smooth_path
+from spade.maps.costmap import build_costmap
+from spade.maps.occupancy import FREE as FREE_CODE  # window occupancy codes 0 unknown, 1 free, 2 occupied
 from spade.metrics.extraction import marker_centre
 
 __all__ = ["DecodedPath", "PathDecoder", "decode_path", "FREE_CODE", "path_confidence"]
 
-FREE_CODE = 1  # spade.maps.FREE: window occupancy codes 0 unknown, 1 free, 2 occupied
 DEFAULT_ROBOT: dict[str, float] = {"radius_m": 0.105, "inflation_radius_m": 0.55, "cost_scaling_factor": 3.0}
 """The annotation tool's footprint and inflation (conf/annotate.yaml): TurtleBot3 Burger, Nav2's defaults."""
 

@@ -4,9 +4,9 @@ benchmark compare (see :mod:`spade.metrics.shape_features`).
 Each path is the *remaining* path of one robot state along an ideal annotation template (a straight leg, a
 circular turn of 90 degrees for L or 180 for U, a straight tail; the ranges of ``conf/annotate.yaml``'s
 ``template`` section, in metres), seen in the robot's frame exactly as a dataset window shows it
-(:mod:`spade.annotation.frame`: robot at (W/2, 3W/4), heading up, the whole path at least 0.3 m inside the
+(:mod:`spade.maps.frame`: robot at (W/2, 3W/4), heading up, the whole path at least 0.3 m inside the
 window), and drawn like a dataset's ``path`` channel (the one-pixel curve of
-:func:`spade.annotation.rasterize.draw_curve`). No map and no planner: the geometry alone, deterministic by
+:func:`spade.data.rasterize.draw_curve`). No map and no planner: the geometry alone, deterministic by
 seed, on any window size (64 px at 0.1 m/px and 128 px at 0.05 m/px cover the same 6.4 m).
 
 Shape changes are parameters of the draw (``radius_scale``: 0 turns every arc into a sharp corner; ``shape``)
@@ -141,7 +141,7 @@ def render_paths(paths: Sequence[np.ndarray], size: int, gap: float = 0.0, shift
     ``gap``: the middle ``gap`` fraction of each path's arc length removed (1/3: its middle third);
     ``shift_px``: each path translated by that many pixels in a random direction (deterministic by ``seed``).
     """
-    from spade.annotation.rasterize import draw_curve
+    from spade.data.rasterize import draw_curve
 
     rng = np.random.default_rng(seed)
     out = np.zeros((len(paths), 1, size, size), dtype=np.float32)

@@ -3,8 +3,8 @@
     python -m spade.metrics.train_shape_features [data_dir=...] [out=...] [epochs=...] [seed=...]
 
 ``data_dir`` (default ``$SPADE_HOME/fid_shape_data``, else ``./data/fid_shape_data``) holds the two
-demonstration sets; missing ones are generated with the annotation tool (byte-identical for a seed, whatever
-the worker count)::
+demonstration sets; missing ones are generated with the annotation tool, by the generator the data configs give
+the data module (``conf/data/generator/annotate.yaml``; byte-identical for a seed, whatever the worker count)::
 
     python -m spade.annotate preset=lshape window.size_px=64 window.resolution_m=0.1 instances.spacing_m=0.1 \
         num_instances=4000 seed=21 out_dir=<data_dir>/train_L
@@ -52,6 +52,8 @@ from typing import Any
 
 import numpy as np
 
+from spade.data.settings import Generator
+
 GENERATE = {
     "train_L": {"preset": "lshape", "seed": 21},
     "train_U": {"preset": "ushape", "seed": 22},
@@ -69,18 +71,27 @@ def default_data_dir() -> Path:
     return Path(home) / "fid_shape_data" if home else Path("data") / "fid_shape_data"
 
 
-def ensure_data(data_dir: Path) -> list[Path]:
-    """The demonstration sets under ``data_dir``, generated with the annotation tool where missing."""
-    from spade.annotation.run import annotate, annotation_config
+def configured_generator() -> Generator:
+    """The generator the data configs give the data module (``conf/data/generator/annotate.yaml``: the annotation
+    tool's :func:`~spade.annotation.run.generate_dataset`), instantiated from that config."""
+    from hydra.utils import instantiate
 
+    from spade.utils.config import compose_config
+
+    return instantiate(compose_config("data/generator/annotate").data.generator)
+
+
+def ensure_data(data_dir: Path, generate: Generator | None = None) -> list[Path]:
+    """The demonstration sets under ``data_dir``, built where missing by ``generate(root, *_generate entry)``
+    (default: :func:`configured_generator`, the annotation tool)."""
     roots = []
     for name, spec in GENERATE.items():
         root = data_dir / name
         if not (root / "manifest.json").is_file():
-            cfg = annotation_config(root, {"preset": spec["preset"], "set": [{
+            generate = generate or configured_generator()
+            generate(root, {"preset": spec["preset"], "set": [{
                 "window": {"size_px": 64, "resolution_m": 0.1}, "instances": {"spacing_m": 0.1},
                 "num_instances": NUM_INSTANCES, "seed": spec["seed"], "workers": 1, "progress": False}]})
-            annotate(cfg)
         generator = json.loads((root / "manifest.json").read_text())["generator"]
         if (int(generator["seed"]) != spec["seed"] or int(generator["num_instances"]) != NUM_INSTANCES
                 or int(generator["window"]["size_px"]) != 64):

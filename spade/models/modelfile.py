@@ -9,7 +9,7 @@ A **checkpoint** written by ``python -m spade.train`` carries, next to Lightning
      "mlflow_run_id": ...}
 
 (:func:`checkpoint_entry`, called by ``PathPlanningModule.on_save_checkpoint``). ``data`` describes the windows
-the network was trained on; ``frame`` is the robot frame of :mod:`spade.annotation.frame` (absent in models
+the network was trained on; ``frame`` is the robot frame of :mod:`spade.maps.frame` (absent in models
 trained on the older, axis-aligned windows). An **export** (ONNX ``metadata_props["spade"]``, TorchScript extra
 file ``spade.json``) carries the same entry as JSON plus the export's own fields (:func:`export_metadata`).
 
@@ -138,16 +138,12 @@ def checkpoint_entry(role: str, net: nn.Module, datamodule: Any = None, loggers:
 
 
 def _annotation_geometry(datamodule: Any) -> dict[str, float]:
-    """``disc_radius_m`` and ``margin_m`` of the training windows, from the training set's manifest (the
-    annotation settings it was generated with), so that a planner draws the same start/goal discs and keeps
-    goals as far inside the window; empty when the datamodule has no readable manifest."""
-    root = getattr(datamodule, "train_dir", None)
-    if not root:
-        return {}
+    """``disc_radius_m`` and ``margin_m`` of the training windows, from the annotation settings the training set
+    was generated with (the datamodule's ``annotation_settings``: its manifest's ``generator``), so that a planner
+    draws the same start/goal discs and keeps goals as far inside the window; empty when the datamodule has no
+    readable manifest."""
     try:
-        from spade.data.format import read_manifest
-
-        generator = read_manifest(root).generator or {}
+        generator = getattr(datamodule, "annotation_settings", None) or {}
     except Exception:  # no manifest yet, or not a SPADE dataset: the planner falls back to the annotation defaults
         return {}
     out = {}

@@ -254,7 +254,7 @@ def _load_expert(path: str | Path) -> Any:
 
 def _train_expert(q: dict[str, Any], datasets: dict[str, Any], work: Path, seed: int) -> Any:
     """A tiny conditional expert trained on the bench's training set (``+experiment=expert_cond_L``)."""
-    from spade.experiments.config import compose_config
+    from spade.utils.config import compose_config
     from spade.experiments.run import train
 
     out = work / "expert"

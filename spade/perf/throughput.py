@@ -38,7 +38,8 @@ def generation_throughput(out_dir: str | Path, preset: str, num_instances: int |
     Returns the instances per second and what the tool rejected: ``rejection_rates`` are fractions of the
     placement attempts (accepted scenarios plus every rejection but ``scenario_failed``).
     """
-    from spade.annotation.run import annotate, annotation_config
+    from spade.annotation.run import annotate
+    from spade.data.settings import annotation_config
 
     layer: dict[str, Any] = {"workers": workers, "progress": False, "preview": {"enabled": False},
                              "num_instances": num_instances,

@@ -7,7 +7,7 @@ A recording of a Nav2 waypoint run, as the paper's tool made it, holds:
 Each waypoints message starts an episode (a scenario); the episode's poses until the next waypoints message
 form the driven trajectory, which is spline-smoothed and ends on the goal. Every pose sample becomes one
 instance, rasterised on the latest costmap at or before it (matched by header stamp, else by record time), in the
-robot's frame (spade.annotation.frame: the costmap rotated about the robot, which heads along the driven path).
+robot's frame (spade.maps.frame: the costmap rotated about the robot, which heads along the driven path).
 The costmap and the poses must share a frame (record the local costmap with ``global_frame: map``).
 """
 
@@ -21,11 +21,11 @@ import numpy as np
 from scipy import interpolate
 
 from spade.annotation.pipeline import RunStats
-from spade.annotation.frame import RobotFrame, yaw_from_heading
-from spade.annotation.rasterize import Instance, robot_instance
 from spade.annotation.scenarios import ScenarioResult
 from spade.annotation.templates import check_shape
 from spade.data.polyline import polyline_length, resample_polyline
+from spade.data.rasterize import Instance, robot_instance
+from spade.maps.frame import RobotFrame, yaw_from_heading
 from spade.maps.ros_io import codes_from_values
 
 WAYPOINT_TYPES = {"nav_msgs/msg/Path", "geometry_msgs/msg/PoseArray"}
@@ -190,7 +190,7 @@ def rosbag_instances(cfg: Mapping[str, Any], stats: RunStats,
 
 def _instance(cm: _Costmap, remaining_m: np.ndarray, size: int, disc_px: float, k_wp: int, threshold: int,
               result: ScenarioResult) -> Instance | None:
-    """The robot-frame window (spade.annotation.frame) of a robot at ``remaining_m[0]`` heading along the driven
+    """The robot-frame window (spade.maps.frame) of a robot at ``remaining_m[0]`` heading along the driven
     path, cut out of the costmap it was recorded with (cells outside the costmap are unknown)."""
     h, w = cm.codes.shape
     res = cm.resolution

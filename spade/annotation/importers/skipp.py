@@ -9,7 +9,7 @@ The EGM is grey-level: black unknown, grey free, white obstacle, which the loade
 SKIPP's loader puts the start at a fixed spot; here the start is the end of the path curve farther from the
 goal along the curve, so that the stored polyline runs from the robot to the goal as SPADE's format requires. 256 px images
 are reduced to ``window.size_px`` (occupancy by block maximum, so an obstacle never disappears), then turned into
-SPADE's robot frame (spade.annotation.frame: robot at its fixed pixel, heading along the path up the image; cells
+SPADE's robot frame (spade.maps.frame: robot at its fixed pixel, heading along the path up the image; cells
 that fall outside SKIPP's image are unknown), and the path is re-drawn from its ordered polyline, which keeps it
 one connected curve. The recorded pose is in SKIPP's image frame (metres from its top-left corner, y up).
 """
@@ -27,10 +27,10 @@ from skimage.measure import block_reduce
 from skimage.morphology import skeletonize
 
 from spade.annotation.pipeline import RunStats
-from spade.annotation.frame import RobotFrame, yaw_from_heading
-from spade.annotation.rasterize import Instance, robot_instance
 from spade.annotation.scenarios import ScenarioResult
 from spade.annotation.templates import check_shape
+from spade.data.rasterize import Instance, robot_instance
+from spade.maps.frame import RobotFrame, yaw_from_heading
 
 SKIPP_SIZE = 256
 UNKNOWN_MAX, FREE_MAX = 60, 140  # SKIPP's threshold_obs

@@ -4,36 +4,27 @@
 ``spade.evaluate``) raise :class:`ConfigError` with one line naming the key, its value and the fix: wrong types
 and ranges, a window too small to hold a manoeuvre, a checkpoint of the wrong role (a student given as
 ``model.guidance.expert_ckpt``), a checkpoint whose window geometry differs from the data's, and an existing
-dataset whose generation settings differ from the config's (:func:`check_dataset`, also run by the data module's
-``prepare_data``, so a dataset is never silently reused for other settings). :func:`exit_on_user_error` turns
-these errors into one line on stderr and exit status 2 at the entry points (``HYDRA_FULL_ERROR=1`` shows the
-traceback instead).
+dataset whose generation settings differ from the config's (:func:`spade.data.checks.check_dataset`, also run by
+the data module's ``prepare_data``, so a dataset is never silently reused for other settings).
+:func:`exit_on_user_error` turns these errors into one line on stderr and exit status 2 at the entry points
+(``HYDRA_FULL_ERROR=1`` shows the traceback instead).
 """
 
 from __future__ import annotations
 
-import functools
 import json
 import math
 import os
-import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from spade.data.fingerprint import settings_fingerprint, shaping_settings
-from spade.data.format import MANIFEST, DatasetError, read_manifest_json
-
-
-class ConfigError(ValueError):
-    """A user error in the config, reported as one line (key, value, fix) without a traceback."""
-
-
-class DatasetSettingsError(ConfigError, DatasetError):
-    """An existing dataset made with other settings than the config asks for (or not a dataset at all)."""
-
+from spade.data.checks import check_dataset, data_geometry
+from spade.data.format import DatasetError
+from spade.data.settings import dataset_settings
+from spade.utils.errors import ConfigError, exit_on_errors
 
 _MISSING = object()
 
@@ -172,75 +163,6 @@ def geometry_mismatch(ckpt: Mapping[str, Any], data: Mapping[str, Any]) -> list[
     return out
 
 
-# -- datasets -------------------------------------------------------------------------------------------------------
-def _annotation_settings(root: Path, generate: Any) -> dict[str, Any]:
-    from spade.annotation.run import annotation_config
-
-    return OmegaConf.to_container(annotation_config(root, generate), resolve=True)
-
-
-def settings_difference(recorded: Mapping[str, Any], wanted: Mapping[str, Any]) -> dict[str, tuple[Any, Any]]:
-    """{key: (recorded value, wanted value)} for every shaping setting that differs (missing -> None)."""
-    a, b = shaping_settings(recorded), shaping_settings(wanted)
-    return {k: (a.get(k), b.get(k)) for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)}
-
-
-def _read_manifest_json(root: Path) -> dict[str, Any]:
-    try:
-        return read_manifest_json(root)
-    except DatasetError as exc:  # reported as a config error: one line, exit status 2
-        raise DatasetSettingsError(f"{exc} Or delete {root} to have it regenerated.") from None
-
-
-def check_dataset(root: str | Path | None, generate: Any, key: str = "data.train_dir") -> None:
-    """Refuse an existing dataset at ``root`` that ``generate`` (a data config's ``*_generate``) would not make.
-
-    Missing: fine (``prepare_data`` builds it). A folder without ``manifest.json``: not a dataset (a writer never
-    leaves one). A manifest whose ``generator`` records other shaping settings: the keys that differ are named,
-    with both values; the dataset is never reused for settings that did not make it.
-    """
-    if root is None:
-        return
-    root = Path(str(root))
-    if not root.exists():
-        return
-    if not (root / MANIFEST).is_file():
-        raise DatasetSettingsError(
-            f"{key}={root} exists but holds no {MANIFEST} (not a complete SPADE dataset): delete the folder to "
-            f"have it regenerated, or point {key} at another folder"
-        )
-    if generate is None:
-        return
-    recorded = _read_manifest_json(root).get("generator") or {}
-    wanted = _annotation_settings(root, generate)
-    diff = settings_difference(recorded, wanted)
-    if diff:
-        shown = "; ".join(f"{k}: dataset {a!r}, config {b!r}" for k, (a, b) in list(diff.items())[:8])
-        more = f" (and {len(diff) - 8} more)" if len(diff) > 8 else ""
-        raise DatasetSettingsError(
-            f"{key}={root} was generated with other settings (dataset {settings_fingerprint(recorded)}, config "
-            f"{settings_fingerprint(wanted)}): {shown}{more}. Delete {root} to regenerate it, or set paths.data_dir "
-            f"(or {key}) to another folder"
-        )
-
-
-def data_geometry(root: str | Path | None, generate: Any) -> dict[str, Any] | None:
-    """Window geometry of a dataset: from its manifest when it exists, else from the settings that will make it."""
-    if root is None:
-        return None
-    root = Path(str(root))
-    if (root / MANIFEST).is_file():
-        manifest = _read_manifest_json(root)
-        return {"image_size": manifest.get("image_size"), "resolution_m": manifest.get("resolution"),
-                "frame": manifest.get("frame"), "source": str(root)}
-    if generate is None:
-        return None
-    settings = _annotation_settings(root, generate)
-    size = int(settings["window"]["size_px"])
-    return {"image_size": [size, size], "resolution_m": float(settings["window"]["resolution_m"]), "frame": None,
-            "source": f"{root} (to be generated)"}
-
-
 def _check_geometry(key: str, value: Any, info: Mapping[str, Any] | None, cfg: DictConfig,
                     data_keys: tuple[str, ...]) -> None:
     if not info or not info.get("data"):
@@ -351,7 +273,7 @@ def _check_data(cfg: DictConfig) -> None:
         if generate is _MISSING or generate is None:
             continue
         root = _get(cfg, f"data.{name}_dir")
-        settings = _annotation_settings(Path(str(root)), generate)
+        settings = dataset_settings(Path(str(root)), generate)
         scaled = _get(cfg, "scale.annotate") not in (_MISSING, None)
         check_window_holds_manoeuvre(settings, "scale.annotate" if scaled else f"data.{name}_generate")
         _check_window_size(cfg, settings, "scale.annotate" if scaled else f"data.{name}_generate")
@@ -828,19 +750,9 @@ def user_errors() -> tuple[type[BaseException], ...]:
 
 
 def exit_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """Wrap an entry point's task function: a user error ends the process with one line and exit status 2.
+    """Wrap an entry point's task function: a user error (:func:`user_errors`) ends the process with one line and
+    exit status 2.
 
     ``HYDRA_FULL_ERROR=1`` re-raises it instead, for Hydra's full traceback.
     """
-
-    @functools.wraps(fn)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return fn(*args, **kwargs)
-        except user_errors() as exc:
-            if os.environ.get("HYDRA_FULL_ERROR") == "1":
-                raise
-            print(f"error: {exc}", file=sys.stderr, flush=True)
-            raise SystemExit(2) from None
-
-    return wrapper
+    return exit_on_errors(user_errors)(fn)

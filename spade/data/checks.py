@@ -1,0 +1,86 @@
+"""Checks of a data config's datasets before any data is generated or read.
+
+:func:`check_dataset` refuses an existing dataset whose generation settings differ from the ones the config asks
+for (the keys that differ are named), so a dataset is never silently reused for other settings; it runs in the
+data module's ``prepare_data`` and in the entry points' config checks (:mod:`spade.experiments.config_checks`).
+:func:`data_geometry` is a dataset's window geometry, read from its manifest or from the settings that will make
+it. Both raise :class:`DatasetSettingsError`, a :class:`~spade.utils.errors.ConfigError` (one line, exit status 2
+at the entry points) and a :class:`~spade.data.format.DatasetError`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from spade.data.fingerprint import settings_fingerprint, shaping_settings
+from spade.data.format import MANIFEST, DatasetError, read_manifest_json
+from spade.data.settings import dataset_settings
+from spade.utils.errors import ConfigError
+
+
+class DatasetSettingsError(ConfigError, DatasetError):
+    """An existing dataset made with other settings than the config asks for (or not a dataset at all)."""
+
+
+def settings_difference(recorded: Mapping[str, Any], wanted: Mapping[str, Any]) -> dict[str, tuple[Any, Any]]:
+    """{key: (recorded value, wanted value)} for every shaping setting that differs (missing -> None)."""
+    a, b = shaping_settings(recorded), shaping_settings(wanted)
+    return {k: (a.get(k), b.get(k)) for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)}
+
+
+def _read_manifest_json(root: Path) -> dict[str, Any]:
+    try:
+        return read_manifest_json(root)
+    except DatasetError as exc:  # reported as a config error: one line, exit status 2
+        raise DatasetSettingsError(f"{exc} Or delete {root} to have it regenerated.") from None
+
+
+def check_dataset(root: str | Path | None, generate: Any, key: str = "data.train_dir") -> None:
+    """Refuse an existing dataset at ``root`` that ``generate`` (a data config's ``*_generate``) would not make.
+
+    Missing: fine (``prepare_data`` builds it). A folder without ``manifest.json``: not a dataset (a writer never
+    leaves one). A manifest whose ``generator`` records other shaping settings: the keys that differ are named,
+    with both values; the dataset is never reused for settings that did not make it.
+    """
+    if root is None:
+        return
+    root = Path(str(root))
+    if not root.exists():
+        return
+    if not (root / MANIFEST).is_file():
+        raise DatasetSettingsError(
+            f"{key}={root} exists but holds no {MANIFEST} (not a complete SPADE dataset): delete the folder to "
+            f"have it regenerated, or point {key} at another folder"
+        )
+    if generate is None:
+        return
+    recorded = _read_manifest_json(root).get("generator") or {}
+    wanted = dataset_settings(root, generate)
+    diff = settings_difference(recorded, wanted)
+    if diff:
+        shown = "; ".join(f"{k}: dataset {a!r}, config {b!r}" for k, (a, b) in list(diff.items())[:8])
+        more = f" (and {len(diff) - 8} more)" if len(diff) > 8 else ""
+        raise DatasetSettingsError(
+            f"{key}={root} was generated with other settings (dataset {settings_fingerprint(recorded)}, config "
+            f"{settings_fingerprint(wanted)}): {shown}{more}. Delete {root} to regenerate it, or set paths.data_dir "
+            f"(or {key}) to another folder"
+        )
+
+
+def data_geometry(root: str | Path | None, generate: Any) -> dict[str, Any] | None:
+    """Window geometry of a dataset: from its manifest when it exists, else from the settings that will make it."""
+    if root is None:
+        return None
+    root = Path(str(root))
+    if (root / MANIFEST).is_file():
+        manifest = _read_manifest_json(root)
+        return {"image_size": manifest.get("image_size"), "resolution_m": manifest.get("resolution"),
+                "frame": manifest.get("frame"), "source": str(root)}
+    if generate is None:
+        return None
+    settings = dataset_settings(root, generate)
+    size = int(settings["window"]["size_px"])
+    return {"image_size": [size, size], "resolution_m": float(settings["window"]["resolution_m"]), "frame": None,
+            "source": f"{root} (to be generated)"}

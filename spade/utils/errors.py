@@ -1,0 +1,47 @@
+"""User errors: the config error every check raises, and the entry points' one-line report of such errors.
+
+A user error means the user must change something (a key, a file, a folder); the entry points report it as one
+line on stderr with exit status 2 instead of a traceback (``HYDRA_FULL_ERROR=1`` shows the traceback instead).
+Which exceptions count is the caller's: :func:`spade.experiments.config_checks.user_errors` lists every
+package's, ``python -m spade.data.verify`` only the dataset's.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import sys
+from collections.abc import Callable
+from typing import Any
+
+
+class ConfigError(ValueError):
+    """A user error in the config, reported as one line (key, value, fix) without a traceback."""
+
+
+Errors = tuple[type[BaseException], ...]
+
+
+def exit_on_errors(errors: Errors | Callable[[], Errors]) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Wrap an entry point's task function: an exception of ``errors`` (a tuple, or a function returning one when
+    such an exception occurs) ends the process with one line and exit status 2.
+
+    ``HYDRA_FULL_ERROR=1`` re-raises it instead, for Hydra's full traceback.
+    """
+
+    def decorate(fn: Callable[..., Any]) -> Callable[..., Any]:
+        @functools.wraps(fn)
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            try:
+                return fn(*args, **kwargs)
+            except BaseException as exc:
+                if not isinstance(exc, errors() if callable(errors) else errors):
+                    raise
+                if os.environ.get("HYDRA_FULL_ERROR") == "1":
+                    raise
+                print(f"error: {exc}", file=sys.stderr, flush=True)
+                raise SystemExit(2) from None
+
+        return wrapper
+
+    return decorate
