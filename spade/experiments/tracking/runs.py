@@ -1,7 +1,7 @@
 """An MLflow run from start to end: opened, its config and process recorded, described when it finishes, its status.
 
-* :func:`bind_experiment` finds or creates the logger's experiment before the logger does, safely under parallel
-  jobs, and tags it (:mod:`~spade.experiments.tracking.experiment_tags`).
+* :func:`bind_experiment` opens the logger's run (a new one, or the resumed ``run_id``) safely under parallel jobs
+  and tags its experiment (:mod:`~spade.experiments.tracking.experiment_tags`).
 * :func:`start_run_logging` records the composed config (flattened params and ``config/train.yaml``) and the FID
   extractor's identity; :func:`record_process` tags the run with its host, process id and process start time (a
   resumed run is RUNNING again).
@@ -13,6 +13,9 @@
   :func:`spade.experiments.lifecycle.install_signal_handlers`) or FAILED (any other exception), and
   :func:`mark_stale_runs` (run by the next ``spade.train`` of the same row) marks RUNNING runs whose process is
   gone (a ``kill -9``, a power cut) KILLED, with a message.
+
+Only Lightning's public ``MLFlowLogger`` API is used (``experiment``: its ``MlflowClient``; ``run_id``;
+``experiment_id``) and MLflow's own client.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import logging
 import os
 import signal
 import socket
+import weakref
 from dataclasses import dataclass
 from typing import Any
 
@@ -38,15 +42,7 @@ from spade.experiments.tracking.descriptions import (
     run_description,
     version_description,
 )
-from spade.experiments.tracking.experiment_tags import (
-    KIND_TAG,
-    KIND_TRAINING,
-    NOTE_TAG,
-    VIEW_TAG,
-    ensure_experiment_tags,
-    experiment_description,
-    runs_view_state,
-)
+from spade.experiments.tracking.experiment_tags import NOTE_TAG, ensure_experiment_tags
 from spade.utils.processes import pid_alive, process_start
 
 log = logging.getLogger(__name__)
@@ -70,42 +66,38 @@ def mlflow_logger(loggers: list[Logger]) -> MLFlowLogger | None:
 
 
 # -- opening the run --------------------------------------------------------------------------------------------
+_bound: weakref.WeakSet[MLFlowLogger] = weakref.WeakSet()  # loggers whose run bind_experiment opened or resumed
+
+
 def bind_experiment(ml: MLFlowLogger, cfg: DictConfig | None = None) -> None:
-    """Find or create the logger's MLflow experiment before the logger does, safely under parallel jobs, and tag it.
+    """Open the logger's MLflow run (a new one in its experiment, or the resumed ``run_id``), safely under parallel
+    jobs, and tag its experiment.
 
     Lightning's ``MLFlowLogger`` looks its experiment up and creates it when absent: two jobs of a sweep that
-    start together into an empty store both find it absent and the second ``create_experiment`` fails. Here a
-    failed create falls back to the lookup. The experiment gets :func:`ensure_experiment_tags` (also one created
-    before SPADE tagged experiments). A resumed run's experiment is tagged the same way.
+    start together into an empty store both find it absent and the second ``create_experiment`` fails. That
+    failure leaves the logger unbound, so a second ``ml.experiment`` looks the experiment up again and finds the
+    one the parallel job created. The experiment gets
+    :func:`~spade.experiments.tracking.experiment_tags.ensure_experiment_tags` (also one created before SPADE
+    tagged experiments); a resumed run's experiment is tagged the same way. A deleted experiment of that name
+    raises Lightning's error, as before.
     """
     from mlflow.exceptions import MlflowException
 
-    client, name = ml._mlflow_client, ml._experiment_name
-    if ml._initialized or ml._run_id is not None or ml._experiment_id is not None:
-        experiment_id = ml._experiment_id
-        if experiment_id is None and ml._run_id is not None:
-            experiment_id = client.get_run(ml._run_id).info.experiment_id
-        if experiment_id is not None:
-            ensure_experiment_tags(client, client.get_experiment(experiment_id), cfg)
-        return  # resuming a run, or already bound
-    found = client.get_experiment_by_name(name)
-    if found is not None:
-        if found.lifecycle_stage != "deleted":
-            ml._experiment_id = found.experiment_id
-            ensure_experiment_tags(client, found, cfg)
-        return  # a deleted experiment: Lightning's own handling applies
     try:
-        experiment_id = client.create_experiment(
-            name, artifact_location=ml._artifact_location,
-            tags={KIND_TAG: KIND_TRAINING, NOTE_TAG: experiment_description(name, cfg), VIEW_TAG: runs_view_state()},
-        )
+        client = ml.experiment
     except MlflowException:
-        found = client.get_experiment_by_name(name)  # created meanwhile by a parallel job
-        if found is None:
-            raise
-        experiment_id = found.experiment_id
-        ensure_experiment_tags(client, found, cfg)
-    ml._experiment_id = experiment_id
+        client = ml.experiment  # created meanwhile by a parallel job: this lookup finds it
+    _bound.add(ml)  # the run is open: from here on mark_run_ended closes it when the run fails
+    ensure_experiment_tags(client, client.get_experiment(ml.experiment_id), cfg)
+
+
+def bound_run_id(ml: MLFlowLogger) -> str | None:
+    """The logger's MLflow run id, without opening a run: on rank zero the run :func:`bind_experiment` opened or
+    resumed (None before it did, or when it failed); on other ranks, whose logger holds no client, the ``run_id``
+    it was made with (a resumed run; None for a new one)."""
+    if rank_zero_only.rank == 0 and ml not in _bound:
+        return None
+    return ml.run_id
 
 
 @rank_zero_only  # under DDP, other ranks' MLflow loggers hold no run (their experiment is a no-op)
@@ -147,31 +139,33 @@ def process_tags() -> dict[str, str]:
 def record_process(loggers: list[Logger], resumed: bool) -> None:
     """Tag the MLflow run with this process (for :func:`mark_stale_runs`); a resumed run is RUNNING again."""
     ml = mlflow_logger(loggers)
-    if ml is None or ml._run_id is None:
+    run_id = bound_run_id(ml) if ml is not None else None
+    if run_id is None:
         return
     client = ml.experiment
     for key, value in process_tags().items():
-        client.set_tag(ml.run_id, key, value)
-    if resumed and client.get_run(ml.run_id).info.status != "RUNNING":
-        client.update_run(ml.run_id, status="RUNNING")
-        client.set_tag(ml.run_id, "spade.end_reason", "")
+        client.set_tag(run_id, key, value)
+    if resumed and client.get_run(run_id).info.status != "RUNNING":
+        client.update_run(run_id, status="RUNNING")
+        client.set_tag(run_id, "spade.end_reason", "")
 
 
 def mark_run_ended(loggers: list[Logger], exc: BaseException) -> None:
     """Close this process's MLflow run after ``exc``: KILLED for a signal or Ctrl+C, FAILED otherwise."""
     ml = mlflow_logger(loggers)
-    if ml is None or ml._run_id is None:
-        return
+    run_id = bound_run_id(ml) if ml is not None else None
+    if run_id is None:
+        return  # no run was opened (or the one to resume could not be): nothing to close
     sig = signal_received()
     killed = sig is not None or isinstance(exc, KeyboardInterrupt)
     status = "KILLED" if killed else "FAILED"
     reason = f"signal {signal.Signals(sig).name}" if sig is not None else f"{type(exc).__name__}: {exc}"
     try:
-        ml.experiment.set_tag(ml.run_id, "spade.end_reason", reason[:4000])
-        ml.experiment.set_terminated(ml.run_id, status)
-        log.info("MLflow run %s marked %s (%s)", ml.run_id, status, reason[:200])
+        ml.experiment.set_tag(run_id, "spade.end_reason", reason[:4000])
+        ml.experiment.set_terminated(run_id, status)
+        log.info("MLflow run %s marked %s (%s)", run_id, status, reason[:200])
     except Exception as err:  # never hide the original error
-        log.warning("could not mark MLflow run %s %s: %s", ml.run_id, status, err)
+        log.warning("could not mark MLflow run %s %s: %s", run_id, status, err)
 
 
 def mark_stale_runs(cfg: DictConfig) -> list[str]:
@@ -262,7 +256,7 @@ def describe_run(cfg: DictConfig, ml: MLFlowLogger, datamodule: Any, contexts: t
                                   (str(run.info.experiment_id), run_id))
     client.set_tag(run_id, NOTE_TAG, description)
     global _last_run
-    _last_run = RunRef(str(ml._tracking_uri), str(run.info.experiment_id), run_id, str(run.info.run_name))
+    _last_run = RunRef(str(client.tracking_uri), str(run.info.experiment_id), run_id, str(run.info.run_name))
     return uses, metrics
 
 
