@@ -29,7 +29,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     loggers = instantiate_loggers(cfg.get("logger"))
     trainer = hydra.utils.instantiate(cfg.trainer, logger=loggers or False, callbacks=[])
     results = trainer.test(model=model, datamodule=datamodule)[0]
-    from spade.experiments.tracking import finish_evaluation
+    from spade.experiments.tracking.runs import finish_evaluation
 
     finish_evaluation(cfg, trainer, loggers)  # MLflow: experiment kind and description, test data input
     return {k: float(v) for k, v in results.items()}

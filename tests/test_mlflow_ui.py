@@ -225,8 +225,8 @@ def test_experiments_are_tagged_as_training_with_a_description(tmp_path: Path) -
 
     ml = _logger(tmp_path, "table2")
     bind_experiment(ml)
-    client = ml._mlflow_client
-    tags = client.get_experiment(ml._experiment_id).tags
+    client = ml.experiment
+    tags = client.get_experiment(ml.experiment_id).tags
     assert tags[KIND_TAG] == "custom_model_development"
     assert "Table 2" in tags[NOTE_TAG] and "python -m spade.train +experiment=ablation_finetune" in tags[NOTE_TAG]
     assert "python -m spade.report table=table2" in tags[NOTE_TAG] and "t2_bc_finetune_U" in tags[NOTE_TAG]
@@ -239,6 +239,31 @@ def test_experiments_are_tagged_as_training_with_a_description(tmp_path: Path) -
     bind_experiment(_logger(tmp_path, "sweep_conddbc_lambda"))
     note = client.get_experiment_by_name("sweep_conddbc_lambda").tags[NOTE_TAG]
     assert "python -m spade.train --config-dir sweeps +search=conddbc_lambda" in note
+
+
+def test_an_experiment_a_parallel_job_creates_first_is_bound_and_tagged(tmp_path: Path,
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two sweep jobs into an empty store: both find the experiment absent, the other job creates it first, this
+    job's create fails; the run still opens (one run, in that experiment) and the experiment is tagged."""
+    from mlflow import MlflowClient
+
+    from spade.experiments.tracking import KIND_TAG, NOTE_TAG, VIEW_TAG, bind_experiment
+
+    create = MlflowClient.create_experiment
+
+    def created_first_by_another_job(self, name, *args, **kwargs):
+        monkeypatch.setattr(MlflowClient, "create_experiment", create)
+        create(MlflowClient(tracking_uri=f"sqlite:///{tmp_path}/mlflow.db"), name)  # the other job's
+        return create(self, name, *args, **kwargs)  # fails: the name exists now
+
+    monkeypatch.setattr(MlflowClient, "create_experiment", created_first_by_another_job)
+    ml = _logger(tmp_path, "table1")
+    bind_experiment(ml)
+    experiment = ml.experiment.get_experiment_by_name("table1")
+    assert ml.experiment_id == experiment.experiment_id
+    assert experiment.tags[KIND_TAG] == "custom_model_development" and NOTE_TAG in experiment.tags
+    assert VIEW_TAG in experiment.tags
+    assert [r.info.run_id for r in ml.experiment.search_runs([experiment.experiment_id])] == [ml.run_id]
 
 
 def test_datasets_are_run_inputs_with_fingerprint_source_context_and_profile(tmp_path: Path) -> None:

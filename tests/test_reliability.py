@@ -370,6 +370,34 @@ def test_resume_continues_the_run_with_the_uninterrupted_numbers(data_dir: Path,
     assert _same_weights(tmp_path / "whole" / last, tmp_path / "part2" / last)
 
 
+def test_run_status_is_recorded_on_the_run_spade_opened_and_no_other(tmp_path: Path) -> None:
+    """In-process: before its run is open a failure opens none; once open the run carries its process and a
+    failure marks it FAILED with the reason; a resumed run is RUNNING again, in the same MLflow run."""
+    from lightning.pytorch.loggers import MLFlowLogger
+    from mlflow import MlflowClient
+
+    from spade.experiments.tracking.runs import bind_experiment, mark_run_ended, record_process
+
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    ml = MLFlowLogger(experiment_name="status", run_name="row", tracking_uri=uri)
+    mark_run_ended([ml], RuntimeError("before the run opened"))
+    record_process([ml], resumed=False)
+    client = MlflowClient(tracking_uri=uri)
+    assert client.get_experiment_by_name("status") is None  # nothing opened: no experiment, no run
+    bind_experiment(ml)
+    record_process([ml], resumed=False)
+    mark_run_ended([ml], RuntimeError("boom"))
+    run = client.get_run(ml.run_id)
+    assert run.info.status == "FAILED" and run.data.tags["spade.end_reason"] == "RuntimeError: boom"
+    assert run.data.tags["spade.pid"] == str(os.getpid()) and run.info.run_name == "row"
+    resumed = MLFlowLogger(experiment_name="status", tracking_uri=uri, run_id=ml.run_id)
+    bind_experiment(resumed)
+    record_process([resumed], resumed=True)
+    again = client.get_run(ml.run_id)
+    assert again.info.status == "RUNNING" and again.data.tags["spade.end_reason"] == ""
+    assert len(client.search_runs([run.info.experiment_id])) == 1
+
+
 def test_numbers_do_not_depend_on_what_the_process_did_before(spade_home: Path, data_dir: Path,
                                                               tmp_path: Path) -> None:
     """What a prerequisite trained in the same process does to the generators (and anything else run before)

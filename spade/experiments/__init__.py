@@ -7,8 +7,9 @@ that runs rows and keeps their records:
 - :mod:`~spade.experiments.config_checks`: every config check that needs no training, before any run opens;
 - :mod:`~spade.experiments.prerequisites` and :mod:`~spade.experiments.registry`: the experts and pretrained
   students a row needs, found in (or registered to) the MLflow Model Registry;
-- :mod:`~spade.experiments.lifecycle`: run folders, signals, stale RUNNING runs, deterministic seeding;
-- :mod:`~spade.experiments.tracking`: what each run logs to MLflow and the UI links it prints;
+- :mod:`~spade.experiments.lifecycle`: deterministic seeding, the best checkpoint across a resume, signals;
+- :mod:`~spade.experiments.tracking`: what each run logs to MLflow (one module per job: UI links, experiment
+  tags, dataset inputs, descriptions, the run's start, status and end, the closing lines, the report);
 - :mod:`~spade.experiments.tables` and :mod:`~spade.experiments.reporting`: the paper's tables, which rows they
   hold, and ``python -m spade.report``'s fetching and rendering.
 

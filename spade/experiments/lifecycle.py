@@ -1,4 +1,4 @@
-"""A training run's life: seeds that make it reproducible and resumable, and an MLflow status that tells the truth.
+"""A training run's life: seeds that make it reproducible and resumable, its best checkpoint across a resume, signals.
 
 * :class:`DeterministicTraining` (a callback ``spade.train`` always adds when a seed is set) draws the training
   data order from a generator seeded by (seed, epoch) and re-seeds Python's, NumPy's and torch's global generators
@@ -11,20 +11,18 @@
   run's best checkpoint and score, which Lightning drops when the run folder changes, so a resumed run tests the
   checkpoint the uninterrupted run would have tested.
 * :func:`install_signal_handlers`: SIGTERM and SIGINT end the run through an exception, so that ``spade.train``
-  marks its MLflow run KILLED (:func:`mark_run_ended`; any other exception marks it FAILED).
-* :func:`record_process` tags the run with its host, process id and process start time, and
-  :func:`mark_stale_runs` (run by the next ``spade.train`` of the same row) marks RUNNING runs whose process is
-  gone (a ``kill -9``, a power cut) KILLED, with a message.
+  marks its MLflow run KILLED (:func:`spade.experiments.tracking.runs.mark_run_ended`, which reads
+  :func:`signal_received`; any other exception marks it FAILED).
+
+The MLflow run's status (its process recorded, KILLED / FAILED when it does not finish, stale RUNNING runs marked
+KILLED) is kept by :mod:`spade.experiments.tracking.runs`, with the rest of the run's start and end.
 """
 
 from __future__ import annotations
 
-import datetime
 import logging
-import os
 import random
 import signal
-import socket
 import threading
 from typing import Any
 
@@ -32,11 +30,7 @@ import lightning as L
 import numpy as np
 import torch
 from lightning.pytorch.callbacks import Callback
-from lightning.pytorch.loggers import Logger, MLFlowLogger
-from omegaconf import DictConfig, OmegaConf
 from torch.utils.data import DataLoader, RandomSampler
-
-from spade.utils.processes import pid_alive, process_start
 
 log = logging.getLogger(__name__)
 
@@ -120,10 +114,7 @@ class DeterministicTraining(Callback):
         self._reseed(trainer.current_epoch, batch_idx + 1)  # for the next batch, drawn before its hooks run
 
 
-# -- signals ----------------------------------------------------------------------------------------------------------
-_received: dict[str, int] = {}
-
-
+# -- resume ---------------------------------------------------------------------------------------------------------
 class CarryBestCheckpoint(Callback):
     """Keep the interrupted run's best checkpoint and score when a run resumes from ``ckpt_path``.
 
@@ -180,6 +171,10 @@ class CarryBestCheckpoint(Callback):
                      cb.monitor, float(cb.best_model_score))
 
 
+# -- signals ----------------------------------------------------------------------------------------------------------
+_received: dict[str, int] = {}
+
+
 def signal_received() -> int | None:
     """The SIGTERM / SIGINT that is ending this process, if any."""
     return _received.get("signal")
@@ -198,91 +193,3 @@ def install_signal_handlers() -> None:
         return
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, _on_signal)
-
-
-# -- MLflow run status ------------------------------------------------------------------------------------------------
-def _mlflow(loggers: list[Logger]) -> MLFlowLogger | None:
-    return next((lg for lg in loggers if isinstance(lg, MLFlowLogger)), None)
-
-
-def process_tags() -> dict[str, str]:
-    tags = {"spade.host": socket.gethostname(), "spade.pid": str(os.getpid())}
-    start = process_start(os.getpid())
-    if start is not None:
-        tags["spade.proc_start"] = start
-    return tags
-
-
-def record_process(loggers: list[Logger], resumed: bool) -> None:
-    """Tag the MLflow run with this process (for :func:`mark_stale_runs`); a resumed run is RUNNING again."""
-    ml = _mlflow(loggers)
-    if ml is None or ml._run_id is None:
-        return
-    client = ml.experiment
-    for key, value in process_tags().items():
-        client.set_tag(ml.run_id, key, value)
-    if resumed and client.get_run(ml.run_id).info.status != "RUNNING":
-        client.update_run(ml.run_id, status="RUNNING")
-        client.set_tag(ml.run_id, "spade.end_reason", "")
-
-
-def mark_run_ended(loggers: list[Logger], exc: BaseException) -> None:
-    """Close this process's MLflow run after ``exc``: KILLED for a signal or Ctrl+C, FAILED otherwise."""
-    ml = _mlflow(loggers)
-    if ml is None or ml._run_id is None:
-        return
-    sig = signal_received()
-    killed = sig is not None or isinstance(exc, KeyboardInterrupt)
-    status = "KILLED" if killed else "FAILED"
-    reason = f"signal {signal.Signals(sig).name}" if sig is not None else f"{type(exc).__name__}: {exc}"
-    try:
-        ml.experiment.set_tag(ml.run_id, "spade.end_reason", reason[:4000])
-        ml.experiment.set_terminated(ml.run_id, status)
-        log.info("MLflow run %s marked %s (%s)", ml.run_id, status, reason[:200])
-    except Exception as err:  # never hide the original error
-        log.warning("could not mark MLflow run %s %s: %s", ml.run_id, status, err)
-
-
-def mark_stale_runs(cfg: DictConfig) -> list[str]:
-    """Mark KILLED the RUNNING runs of this row (same MLflow experiment and run name) whose process is gone.
-
-    A run's process is known by its ``spade.host`` / ``spade.pid`` / ``spade.proc_start`` tags; runs started on
-    another host are left alone (their process cannot be checked from here) and named in the log. Returns one
-    message per run marked.
-    """
-    logger_cfg = (cfg.get("logger") or {}).get("mlflow")
-    if not logger_cfg or "MLFlowLogger" not in str(logger_cfg.get("_target_", "")):
-        return []
-    from mlflow import MlflowClient
-
-    resolved = OmegaConf.to_container(logger_cfg, resolve=True)
-    client = MlflowClient(tracking_uri=resolved.get("tracking_uri"))
-    experiment = client.get_experiment_by_name(str(resolved.get("experiment_name")))
-    if experiment is None:
-        return []
-    run_name = str(resolved.get("run_name"))
-    host = socket.gethostname()
-    messages = []
-    for run in client.search_runs([experiment.experiment_id], filter_string="attributes.status = 'RUNNING'",
-                                  max_results=1000):
-        if run.info.run_name != run_name:
-            continue
-        tags = run.data.tags
-        pid = tags.get("spade.pid")
-        if pid is None:
-            continue  # not started by this version of spade.train: its process cannot be identified
-        if tags.get("spade.host") != host:
-            log.warning("MLflow run %s (%s) is RUNNING on host %s: left as it is", run.info.run_id, run_name,
-                        tags.get("spade.host"))
-            continue
-        if pid_alive(int(pid), tags.get("spade.proc_start")):
-            continue
-        started = datetime.datetime.fromtimestamp(run.info.start_time / 1000).isoformat(timespec="seconds")
-        message = (f"MLflow run {run.info.run_id} ({experiment.name}/{run_name}, started {started}) was still "
-                   f"RUNNING although its process {pid} on {host} is gone: marked KILLED")
-        client.set_tag(run.info.run_id, "spade.end_reason",
-                       f"process {pid} on {host} ended without closing the run; marked KILLED by a later spade.train")
-        client.set_terminated(run.info.run_id, "KILLED")
-        log.warning(message)
-        messages.append(message)
-    return messages

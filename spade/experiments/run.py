@@ -24,16 +24,17 @@ import hydra
 import lightning as L
 from omegaconf import DictConfig
 
-from spade.experiments.lifecycle import (
-    CarryBestCheckpoint,
-    DeterministicTraining,
+from spade.experiments.lifecycle import CarryBestCheckpoint, DeterministicTraining
+from spade.experiments.prerequisites import complete_prerequisite, pending_prerequisites
+from spade.experiments.tracking.runs import (
+    finish_run,
     mark_run_ended,
     mark_stale_runs,
     record_process,
+    start_run_logging,
 )
-from spade.experiments.prerequisites import complete_prerequisite, pending_prerequisites
-from spade.experiments.tracking import finish_run, run_summary, start_run_logging
 from spade.experiments.config_checks import validate_checkpoints, validate_train_config
+from spade.experiments.tracking.summary import run_summary
 from spade.models.modelfile import safe_loading
 from spade.training.instantiate import instantiate_callbacks, instantiate_loggers, run_id_from_checkpoint
 
@@ -44,7 +45,7 @@ log = logging.getLogger(__name__)
 
 def run(cfg: DictConfig) -> float | None:
     """Train (:func:`train`), print the closing lines (test metrics next to the baselines, the ``mlflow ui``
-    command and URLs to the run: :func:`spade.experiments.tracking.run_summary`), and return
+    command and URLs to the run: :func:`spade.experiments.tracking.summary.run_summary`), and return
     ``optimized_metric``'s value (:func:`optimized_value`).
 
     A single run that never logged that metric (e.g. ``trainer.max_steps`` ended it before a validation) still

@@ -1,5 +1,5 @@
 """One table's report put together: fetch the results, render the markdown, write the CSV, chart and markdown
-files, publish into MLflow (:func:`spade.experiments.tracking.publish_report`); and the reports a
+files, publish into MLflow (:func:`spade.experiments.tracking.report.publish_report`); and the reports a
 ``conf/report.yaml`` config asks for (:func:`report`, what ``python -m spade.report`` runs)."""
 
 from __future__ import annotations
@@ -77,7 +77,7 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
         files["markdown"] = out / f"{table.key}.md"
         parts += ["", "Written: " + ", ".join(str(p) for p in files.values())]
         files["markdown"].write_text("\n".join(parts) + "\n")
-    from spade.experiments.tracking import publish_report  # imports Lightning: only once a report is built
+    from spade.experiments.tracking.report import publish_report  # imports Lightning: only once a report is built
 
     links = publish_report(table, results, tracking_uri, files, log_to_runs)  # UI links; chart into the runs
     parts += ["", *links] if links else []

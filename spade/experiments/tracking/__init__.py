@@ -1,0 +1,60 @@
+"""What every run records in MLflow besides Lightning's metrics, and how a person opens it in the MLflow UI.
+
+One module per job:
+
+- :mod:`~spade.experiments.tracking.links`: the MLflow UI's address, the URLs of runs, runs tables and
+  artifacts, and the ``mlflow ui`` command (:func:`ui_lines`, printed at the end of training and by
+  ``spade.report``);
+- :mod:`~spade.experiments.tracking.experiment_tags`: an experiment's metadata: tagged as model training
+  (MLflow 3 UIs otherwise open it on the GenAI traces view), its description (the paper table it reproduces and
+  how to regenerate it) and SPADE's runs view (the Dataset and metric columns);
+- :mod:`~spade.experiments.tracking.dataset_inputs`: a run's datasets as MLflow dataset inputs (name, digest =
+  the dataset's fingerprint, source = its directory, context training / validation / test, the manifest's key
+  facts as the profile);
+- :mod:`~spade.experiments.tracking.descriptions`: a run's description (row, approach, prerequisites linked to
+  their runs, test figures next to the classical baselines and the untrained model) and the descriptions of the
+  models it registers;
+- :mod:`~spade.experiments.tracking.runs`: an MLflow run from start to end: opened in its tagged experiment,
+  its composed config (flattened params and ``config/train.yaml``), the FID extractor's identity and its process
+  recorded, its checkpoints, inputs and description logged when it finishes, marked KILLED / FAILED when it does
+  not, and stale RUNNING runs of a row marked KILLED;
+- :mod:`~spade.experiments.tracking.summary`: the closing lines of ``spade.train``;
+- :mod:`~spade.experiments.tracking.report`: ``spade.report``'s table published in MLflow.
+
+The names below are re-exported for the callers that import them from the package.
+"""
+
+from __future__ import annotations
+
+from spade.experiments.tracking.dataset_inputs import (
+    DatasetUse,
+    dataset_fingerprint,
+    dataset_uses,
+    log_dataset_inputs,
+)
+from spade.experiments.tracking.descriptions import figures_table, prerequisite_uses, run_description
+from spade.experiments.tracking.experiment_tags import KIND_TAG, NOTE_TAG, VIEW_TAG
+from spade.experiments.tracking.links import ui_lines
+from spade.experiments.tracking.report import publish_report
+from spade.experiments.tracking.runs import bind_experiment, finish_evaluation, finish_run, start_run_logging
+from spade.experiments.tracking.summary import run_summary
+
+__all__ = [
+    "KIND_TAG",
+    "NOTE_TAG",
+    "VIEW_TAG",
+    "DatasetUse",
+    "bind_experiment",
+    "dataset_fingerprint",
+    "dataset_uses",
+    "figures_table",
+    "finish_evaluation",
+    "finish_run",
+    "log_dataset_inputs",
+    "prerequisite_uses",
+    "publish_report",
+    "run_description",
+    "run_summary",
+    "start_run_logging",
+    "ui_lines",
+]

@@ -1,0 +1,214 @@
+"""A run's description in the MLflow UI (markdown) and the descriptions of the models it registers.
+
+:func:`run_description` is the run's one-paragraph summary: row, approach, data, prerequisites (linked to the
+runs that trained them), the command that regenerates it, its test figures next to the classical baselines and
+the untrained model (:func:`figures_table`) when it logged them, and links to its prediction pictures.
+:func:`model_description` and :func:`version_description` describe a registered model and one of its versions.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from lightning.pytorch.loggers import MLFlowLogger
+from omegaconf import DictConfig, OmegaConf
+
+from spade.data.fingerprint import dataset_fingerprint
+from spade.experiments.tracking.dataset_inputs import DatasetUse
+from spade.experiments.tracking.links import artifact_url, relative_run_link
+
+log = logging.getLogger(__name__)
+
+REPO_CONF = Path(__file__).resolve().parents[3] / "conf"  # the repository's: a row is conf/experiment/<row>.yaml
+# the test figures a description shows, in this order
+FIGURES = ("ape_cm", "fid", "hd19", "failure_rate", "over_20cm_rate", "planner/ape_cm", "planner/over_20cm_rate")
+
+
+def _fmt(key: str, value: float | None) -> str:
+    from spade.experiments.tables import METRICS
+
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "n/a"
+    if key.endswith("_cm"):  # a description's figures to what they mean: a tenth of a centimetre (the tables keep .2f)
+        return f"{value:.1f}"
+    metric = METRICS.get(key) or METRICS.get(key.replace("/", "_"))  # "planner/ape_cm" -> planner_ape_cm
+    return metric.format(value) if metric else f"{value:.4g}"
+
+
+def figure_rows(metrics: dict[str, float]) -> list[tuple[str, dict[str, float]]]:
+    """(label, {figure: value}) for the run's test figures, each classical baseline (``test/baseline/<name>/``)
+    and the untrained model (``untrained/``), in that order; only those the run logged."""
+    rows: list[tuple[str, dict[str, float]]] = []
+    own = {k: metrics[f"test/{k}"] for k in FIGURES if f"test/{k}" in metrics}
+    if own:
+        rows.append(("this model", own))
+    baselines: dict[str, dict[str, float]] = {}
+    for key, value in metrics.items():
+        match = re.fullmatch(r"test/baseline/([^/]+)/(.+)", key)
+        if match and match.group(2) in FIGURES:
+            baselines.setdefault(match.group(1), {})[match.group(2)] = value
+    rows += [(f"baseline: {name}", figs) for name, figs in sorted(baselines.items())]
+    untrained = {k: metrics[f"untrained/{k}"] for k in FIGURES if f"untrained/{k}" in metrics}
+    if untrained:
+        rows.append(("untrained", untrained))
+    return rows
+
+
+def figures_table(metrics: dict[str, float]) -> str:
+    """The test figures next to the baselines as a markdown table ('' when the run has no test figures)."""
+    from spade.experiments.tables import METRICS
+
+    rows = figure_rows(metrics)
+    if not rows:
+        return ""
+    by_key = {m.mlflow_key.split("/", 1)[1]: m for m in METRICS.values() if m.mlflow_key.startswith("test/")}
+    labels = {k: by_key[k].label if k in by_key else k.replace("_", " ") for k in FIGURES}
+    lines = ["| test set | " + " | ".join(labels[k] for k in FIGURES) + " |", "|---" * (len(FIGURES) + 1) + "|"]
+    for label, figs in rows:
+        name = f"**{label}**" if label == "this model" else label
+        lines.append(f"| {name} | " + " | ".join(_fmt(k, figs.get(k)) for k in FIGURES) + " |")
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class PrerequisiteUse:
+    """A model a run was built on: the ``requires`` entry, its checkpoint, and where it was registered."""
+
+    key: str
+    experiment: str
+    checkpoint: str
+    registered: str | None = None  # "<name> v<version>"
+    run_link: str | None = None  # markdown link to the run that trained it
+
+
+def prerequisite_uses(cfg: DictConfig, client: Any | None) -> list[PrerequisiteUse]:
+    """The run's prerequisites as resolved: registry-cache checkpoints are traced back to their runs."""
+    out = []
+    cache = Path(str(OmegaConf.select(cfg, "paths.registry_cache_dir", default="") or "")).resolve()
+    for key, req in (cfg.get("requires") or {}).items():
+        ckpt = OmegaConf.select(cfg, str(req.target), default=None)
+        if ckpt in (None, "", "???"):
+            continue
+        registered = link = None
+        try:
+            parts = Path(str(ckpt)).resolve().relative_to(cache).parts
+        except ValueError:
+            parts = ()  # an explicit checkpoint path, not from the registry
+        if client is not None and len(parts) >= 2 and re.fullmatch(r"v\d+", parts[1]):
+            name, version = parts[0], parts[1][1:]
+            registered = f"{name} v{version}"
+            try:
+                mv = client.get_model_version(name, version)
+                run = client.get_run(mv.run_id)
+                link = f"[{run.info.run_name}]({relative_run_link(run.info.experiment_id, mv.run_id)})"
+            except Exception as exc:  # noqa: BLE001 - a description must not fail a finished run
+                log.warning("prerequisite %s: no run found for %s (%s)", key, registered, exc)
+        out.append(PrerequisiteUse(str(key), str(req.experiment), str(ckpt), registered, link))
+    return out
+
+
+def regenerate_command(cfg: DictConfig) -> str | None:
+    """The command that makes this run again: the row's experiment at its scale, else the entry point
+    (``task_name``: train, evaluate) with the command line's overrides."""
+    run_name = str(cfg.get("run_name") or "")
+    scale = OmegaConf.select(cfg, "scale.name", default=None)
+    if run_name and (REPO_CONF / "experiment" / f"{run_name}.yaml").is_file():
+        return f"python -m spade.train +experiment={run_name}" + (f" scale={scale}" if scale else "")
+    from hydra.core.hydra_config import HydraConfig
+
+    if HydraConfig.initialized():
+        overrides = list(HydraConfig.get().overrides.task)
+        return " ".join([f"python -m spade.{cfg.get('task_name') or 'train'}", *overrides])  # train, evaluate
+    return None
+
+
+def _what(tags: dict[str, Any]) -> str:
+    """``Cond-DBC student``, ``Cond-expert`` (the role is left out when the approach already names it)."""
+    approach, role = str(tags.get("approach") or ""), str(tags.get("role") or "")
+    if role and role.lower() not in approach.lower():
+        return f"{approach} {role}".strip()
+    return approach or role or "model"
+
+
+def run_description(cfg: DictConfig, metrics: dict[str, float], uses: list[DatasetUse],
+                    prerequisites: list[PrerequisiteUse], pictures: list[str] | None = None,
+                    run: tuple[str, str] | None = None) -> str:
+    """A run's one-paragraph summary (markdown): row, approach, data, prerequisites, test figures and baselines."""
+    tags = dict(cfg.get("tags") or {})
+    row = cfg.get("run_name") or tags.get("row") or "run"
+    what = _what(tags)
+    details = [f"size {tags['size']}" if tags.get("size") else None,
+               f"{_fmt('params', metrics['model/params'])} parameters" if "model/params" in metrics else None]
+    details_text = ", ".join(d for d in details if d)
+    sentence = f"**{row}**: {what or 'model'}" + (f" ({details_text})" if details_text else "")
+    if tags.get("shape"):
+        sentence += f", {tags['shape']}-shape paths"
+    if tags.get("scale"):
+        sentence += f", scale `{tags['scale']}`"
+    sentence += f"; experiment `{tags.get('table', 'none')}`."
+    parts = [sentence]
+    train = [u for u in uses if u.context == "training"]
+    val = [u for u in uses if u.context == "validation"]
+    test = [u for u in uses if u.context == "test"]
+
+    def n(use: DatasetUse) -> str:
+        return f"{use.instances} instances" if use.instances is not None else "all instances"
+
+    if train:
+        extra = f", validated on {n(val[0])} of its held-out scenarios" if val else ""
+        parts.append(f"Trained on `{train[0].name.split(' (')[0]}` ({n(train[0])}{extra}).")
+    if test:
+        parts.append(f"Tested on `{test[0].name}` ({n(test[0])}).")
+    if prerequisites:
+        items = []
+        for p in prerequisites:
+            item = f"{p.key} from `{p.experiment}`"
+            if p.registered:
+                item += f" (registered model `{p.registered}`" + (f", run {p.run_link})" if p.run_link else ")")
+            else:
+                item += f" (checkpoint `{p.checkpoint}`)"
+            items.append(item)
+        parts.append("Prerequisites: " + "; ".join(items) + ".")
+    command = regenerate_command(cfg)
+    if command:
+        parts.append(f"Regenerate: `{command}`.")
+    text = " ".join(parts)
+    table = figures_table(metrics)
+    text += ("\n\n" + table) if table else "\n\nNo test figures (the run was not tested)."
+    if pictures:
+        shown = [f"[{p}]({artifact_url('', *run, p)})" if run else f"`{p}`" for p in pictures]
+        text += "\n\nPictures (Artifacts tab): " + ", ".join(shown) + "."
+    return text
+
+
+def model_description(cfg: DictConfig, uses: list[DatasetUse]) -> str:
+    """A registered model's description: what it is, what trained it, on which data."""
+    from spade.experiments.registry import data_fingerprint
+
+    tags = dict(cfg.get("tags") or {})
+    what = _what(tags)
+    text = (f"SPADE {what}, size `{tags.get('size', '?')}`, for {tags.get('shape', '?')}-shape paths at scale "
+            f"`{tags.get('scale', '?')}`, trained by row `{cfg.get('run_name')}` (experiment "
+            f"`{tags.get('table', 'none')}`). The name ends in the fingerprint of its training data "
+            f"(`{data_fingerprint(cfg)}`, tag `data_fingerprint`): rows that require this model find it by that "
+            f"name. Each version links to the run that trained it.")
+    train = next((u for u in uses if u.context == "training"), None)
+    if train is not None:
+        text += f" Training data: `{train.name.split(' (')[0]}` (dataset digest `{dataset_fingerprint(train.root)}`)."
+    command = regenerate_command(cfg)
+    if command:
+        text += f" Retrain: `{command}`."
+    return text
+
+
+def version_description(cfg: DictConfig, ml: MLFlowLogger, metrics: dict[str, float]) -> str:
+    """A registered model version's description: the run that trained it (linked) and its test figures."""
+    run = ml.experiment.get_run(ml.run_id)
+    figures = ", ".join(f"{k} {_fmt(k, metrics[f'test/{k}'])}" for k in FIGURES if f"test/{k}" in metrics)
+    link = f"[{run.info.run_name}]({relative_run_link(run.info.experiment_id, ml.run_id)})"
+    return f"From run {link}" + (f"; test: {figures}." if figures else " (not tested).")

@@ -1,0 +1,94 @@
+"""An MLflow experiment's metadata: tagged as model training, described (the paper table it reproduces), SPADE's view.
+
+The experiment (one per paper table, quickstart, smoke, sweep or evaluation) is tagged as model-training work
+(``mlflow.experimentKind=custom_model_development``: MLflow 3 UIs otherwise open it on the GenAI traces view),
+carries a description (``mlflow.note.content``: the paper table it reproduces and how to regenerate it) and stores
+the runs-table view that shows the Dataset and metric columns (:data:`VIEW_TAG`, :func:`runs_view_state`).
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from omegaconf import DictConfig
+
+from spade.experiments.tracking.links import VIEW_KEY
+
+KIND_TAG = "mlflow.experimentKind"
+KIND_TRAINING = "custom_model_development"  # the MLflow UI's "model training" experiments
+NOTE_TAG = "mlflow.note.content"  # an experiment's or a run's description in the MLflow UI
+VIEW_TAG = f"mlflow.sharedViewState.{VIEW_KEY}"  # the runs-table view that ?viewStateShareKey=<VIEW_KEY> opens
+
+
+def runs_view_state() -> str:
+    """The runs table as SPADE shows it: Dataset, the paper's test metrics and the parameter count as columns."""
+    from spade.experiments.tables import METRICS
+
+    columns = ["attributes.`Dataset`", *(f"metrics.`{m.mlflow_key}`" for m in METRICS.values())]
+    return json.dumps({"selectedColumns": columns, "orderByKey": "attributes.start_time", "orderByAsc": False})
+
+
+def _scale_note() -> str:
+    return "any scale: append `scale=tiny|cpu|quickstart|paper` (the runs carry `tags.scale`)"
+
+
+def experiment_description(name: str, cfg: DictConfig | None = None) -> str:
+    """What a SPADE experiment holds, which paper table it reproduces and the commands that regenerate it."""
+    from spade.experiments.tables import METRICS, TABLES
+
+    columns = ", ".join(f"`{m.mlflow_key}`" for m in METRICS.values())
+    table = next((t for t in TABLES.values() if t.experiment == name), None)
+    if table is not None:
+        return (
+            f"Reproduces **{table.title}** of the SPADE paper (AAMAS 2026). One run per row, named after the "
+            f"row: {', '.join(table.rows)}. Every row logs {columns}, so the runs table with those columns is "
+            f"the paper's table.\n\n"
+            f"Regenerate: `python -m spade.train +experiment={table.composition}` ({_scale_note()}); one row: "
+            f"`python -m spade.train +experiment=ROW`. Print the table in the paper's layout: "
+            f"`python -m spade.report table={table.key}`."
+        )
+    if name == "quickstart":
+        return (
+            "The README's first command (`make quickstart`, i.e. `python -m spade.train +experiment=quickstart`): "
+            "a small Cond-DBC student trained on L-shape demonstrations with a tiny conditional expert's guidance, "
+            "tested next to the same student untrained and the classical baselines. Not a paper table; it shows "
+            "the whole pipeline in about half an hour on a CPU. Regenerate: `make quickstart`."
+        )
+    if name == "smoke":
+        return (
+            "Pipeline check (`python -m spade.train +experiment=smoke`, seconds at `scale=tiny`): data "
+            "generation, a tiny conditional expert (registered) and a few steps of a Cond-DBC student. Its "
+            "figures mean nothing; it reproduces no paper table. Regenerate: `python -m spade.train +experiment=smoke`."
+        )
+    if name == "evaluation":
+        return (
+            "Checkpoints tested on a data config's test set by `python -m spade.evaluate ckpt_path=PATH "
+            "[data=lshape|ushape|transfer] [scale=...]`; one run per evaluation. Reproduces no table by itself: "
+            f"it re-tests students and experts of the tables' rows. Columns: {columns}."
+        )
+    if name.startswith("sweep_"):
+        search = name[len("sweep_"):]
+        return (
+            f"Optuna search `{search}` (sweeps/search/{search}.yaml): each trial is one run, its lambda in "
+            f"`tags.lambda`. Supports Table 1's Cond-DBC rows (the guidance weight); it is not a paper table. "
+            f"Regenerate: `python -m spade.train --config-dir sweeps +search={search}` ({_scale_note()})."
+        )
+    return (
+        f"Runs of `python -m spade.train` with `tags.table={name}`; not one of the paper's tables. Each run's "
+        f"description gives the command that regenerates it, and its composed config is the artifact "
+        f"`config/train.yaml`."
+    )
+
+
+def ensure_experiment_tags(client: Any, experiment: Any, cfg: DictConfig | None = None) -> None:
+    """Tag ``experiment`` as model training, store SPADE's runs view (:func:`runs_view_state`) and add the
+    description where there is none (a description a person wrote in the UI is kept)."""
+    tags = dict(experiment.tags or {})
+    if tags.get(KIND_TAG) != KIND_TRAINING:
+        client.set_experiment_tag(experiment.experiment_id, KIND_TAG, KIND_TRAINING)
+    if not tags.get(NOTE_TAG):
+        client.set_experiment_tag(experiment.experiment_id, NOTE_TAG, experiment_description(experiment.name, cfg))
+    view = runs_view_state()
+    if tags.get(VIEW_TAG) != view:
+        client.set_experiment_tag(experiment.experiment_id, VIEW_TAG, view)

@@ -1,0 +1,296 @@
+"""An MLflow run from start to end: opened, its config and process recorded, described when it finishes, its status.
+
+* :func:`bind_experiment` opens the logger's run (a new one, or the resumed ``run_id``) safely under parallel jobs
+  and tags its experiment (:mod:`~spade.experiments.tracking.experiment_tags`).
+* :func:`start_run_logging` records the composed config (flattened params and ``config/train.yaml``) and the FID
+  extractor's identity; :func:`record_process` tags the run with its host, process id and process start time (a
+  resumed run is RUNNING again).
+* :func:`finish_run` logs the best and last checkpoints, the datasets as inputs
+  (:mod:`~spade.experiments.tracking.dataset_inputs`) and the description
+  (:mod:`~spade.experiments.tracking.descriptions`), and registers the model when the row asks;
+  :func:`finish_evaluation` does the same for ``spade.evaluate``'s run. :func:`last_run` is where the run lives.
+* A run that does not finish is closed honestly: :func:`mark_run_ended` marks it KILLED (a signal, Ctrl+C:
+  :func:`spade.experiments.lifecycle.install_signal_handlers`) or FAILED (any other exception), and
+  :func:`mark_stale_runs` (run by the next ``spade.train`` of the same row) marks RUNNING runs whose process is
+  gone (a ``kill -9``, a power cut) KILLED, with a message.
+
+Only Lightning's public ``MLFlowLogger`` API is used (``experiment``: its ``MlflowClient``; ``run_id``;
+``experiment_id``) and MLflow's own client.
+"""
+
+from __future__ import annotations
+
+import datetime
+import logging
+import os
+import signal
+import socket
+import weakref
+from dataclasses import dataclass
+from typing import Any
+
+import lightning as L
+from lightning.pytorch.loggers import Logger, MLFlowLogger
+from lightning.pytorch.utilities import rank_zero_only
+from omegaconf import DictConfig, OmegaConf
+
+from spade.experiments.lifecycle import signal_received
+from spade.experiments.tracking.dataset_inputs import DatasetUse, dataset_uses, log_dataset_inputs
+from spade.experiments.tracking.descriptions import (
+    model_description,
+    prerequisite_uses,
+    run_description,
+    version_description,
+)
+from spade.experiments.tracking.experiment_tags import NOTE_TAG, ensure_experiment_tags
+from spade.utils.processes import pid_alive, process_start
+
+log = logging.getLogger(__name__)
+
+
+def flatten(cfg: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested dict -> {"a/b/c": value}; lists are kept as their string form (MLflow params are strings)."""
+    out: dict[str, Any] = {}
+    for key, value in cfg.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(flatten(value, f"{name}/"))
+        else:
+            out[name] = value
+    return out
+
+
+def mlflow_logger(loggers: list[Logger]) -> MLFlowLogger | None:
+    """The run's MLflow logger among ``loggers`` (the first one); None when the run does not log to MLflow."""
+    return next((lg for lg in loggers if isinstance(lg, MLFlowLogger)), None)
+
+
+# -- opening the run --------------------------------------------------------------------------------------------
+_bound: weakref.WeakSet[MLFlowLogger] = weakref.WeakSet()  # loggers whose run bind_experiment opened or resumed
+
+
+def bind_experiment(ml: MLFlowLogger, cfg: DictConfig | None = None) -> None:
+    """Open the logger's MLflow run (a new one in its experiment, or the resumed ``run_id``), safely under parallel
+    jobs, and tag its experiment.
+
+    Lightning's ``MLFlowLogger`` looks its experiment up and creates it when absent: two jobs of a sweep that
+    start together into an empty store both find it absent and the second ``create_experiment`` fails. That
+    failure leaves the logger unbound, so a second ``ml.experiment`` looks the experiment up again and finds the
+    one the parallel job created. The experiment gets
+    :func:`~spade.experiments.tracking.experiment_tags.ensure_experiment_tags` (also one created before SPADE
+    tagged experiments); a resumed run's experiment is tagged the same way. A deleted experiment of that name
+    raises Lightning's error, as before.
+    """
+    from mlflow.exceptions import MlflowException
+
+    try:
+        client = ml.experiment
+    except MlflowException:
+        client = ml.experiment  # created meanwhile by a parallel job: this lookup finds it
+    _bound.add(ml)  # the run is open: from here on mark_run_ended closes it when the run fails
+    ensure_experiment_tags(client, client.get_experiment(ml.experiment_id), cfg)
+
+
+def bound_run_id(ml: MLFlowLogger) -> str | None:
+    """The logger's MLflow run id, without opening a run: on rank zero the run :func:`bind_experiment` opened or
+    resumed (None before it did, or when it failed); on other ranks, whose logger holds no client, the ``run_id``
+    it was made with (a resumed run; None for a new one)."""
+    if rank_zero_only.rank == 0 and ml not in _bound:
+        return None
+    return ml.run_id
+
+
+@rank_zero_only  # under DDP, other ranks' MLflow loggers hold no run (their experiment is a no-op)
+def start_run_logging(cfg: DictConfig, model: L.LightningModule, loggers: list[Logger]) -> None:
+    """Log the composed config (flattened params and a YAML artifact) and the FID extractor's identity."""
+    ml = mlflow_logger(loggers)
+    if ml is None:
+        return
+    bind_experiment(ml, cfg)
+    resolved = OmegaConf.to_container(cfg, resolve=True)
+    params = {f"cfg/{k}": v for k, v in flatten(resolved).items() if not k.startswith("hydra")}
+    fid = getattr(getattr(model, "test_metrics", None), "fid_identity", None)
+    if fid:
+        params["fid/extractor_identity"] = fid
+    # A resumed run continues an MLflow run whose params are immutable: log only what it lacks (ckpt_path and
+    # anything else set differently for the resume is recorded as a tag instead).
+    existing = ml.experiment.get_run(ml.run_id).data.params
+    if existing:
+        changed = {k: v for k, v in params.items() if k in existing and existing[k] != str(v)}
+        for key, value in changed.items():
+            ml.experiment.set_tag(ml.run_id, f"resumed/{key}", str(value))
+        params = {k: v for k, v in params.items() if k not in existing}
+    if params:
+        ml.log_hyperparams(params)
+    ml.experiment.log_text(ml.run_id, OmegaConf.to_yaml(cfg, resolve=True), "config/train.yaml")
+    if fid:
+        ml.experiment.set_tag(ml.run_id, "fid_extractor", fid)
+
+
+# -- the run's process and status -------------------------------------------------------------------------------
+def process_tags() -> dict[str, str]:
+    tags = {"spade.host": socket.gethostname(), "spade.pid": str(os.getpid())}
+    start = process_start(os.getpid())
+    if start is not None:
+        tags["spade.proc_start"] = start
+    return tags
+
+
+def record_process(loggers: list[Logger], resumed: bool) -> None:
+    """Tag the MLflow run with this process (for :func:`mark_stale_runs`); a resumed run is RUNNING again."""
+    ml = mlflow_logger(loggers)
+    run_id = bound_run_id(ml) if ml is not None else None
+    if run_id is None:
+        return
+    client = ml.experiment
+    for key, value in process_tags().items():
+        client.set_tag(run_id, key, value)
+    if resumed and client.get_run(run_id).info.status != "RUNNING":
+        client.update_run(run_id, status="RUNNING")
+        client.set_tag(run_id, "spade.end_reason", "")
+
+
+def mark_run_ended(loggers: list[Logger], exc: BaseException) -> None:
+    """Close this process's MLflow run after ``exc``: KILLED for a signal or Ctrl+C, FAILED otherwise."""
+    ml = mlflow_logger(loggers)
+    run_id = bound_run_id(ml) if ml is not None else None
+    if run_id is None:
+        return  # no run was opened (or the one to resume could not be): nothing to close
+    sig = signal_received()
+    killed = sig is not None or isinstance(exc, KeyboardInterrupt)
+    status = "KILLED" if killed else "FAILED"
+    reason = f"signal {signal.Signals(sig).name}" if sig is not None else f"{type(exc).__name__}: {exc}"
+    try:
+        ml.experiment.set_tag(run_id, "spade.end_reason", reason[:4000])
+        ml.experiment.set_terminated(run_id, status)
+        log.info("MLflow run %s marked %s (%s)", run_id, status, reason[:200])
+    except Exception as err:  # never hide the original error
+        log.warning("could not mark MLflow run %s %s: %s", run_id, status, err)
+
+
+def mark_stale_runs(cfg: DictConfig) -> list[str]:
+    """Mark KILLED the RUNNING runs of this row (same MLflow experiment and run name) whose process is gone.
+
+    A run's process is known by its ``spade.host`` / ``spade.pid`` / ``spade.proc_start`` tags; runs started on
+    another host are left alone (their process cannot be checked from here) and named in the log. Returns one
+    message per run marked.
+    """
+    logger_cfg = (cfg.get("logger") or {}).get("mlflow")
+    if not logger_cfg or "MLFlowLogger" not in str(logger_cfg.get("_target_", "")):
+        return []
+    from mlflow import MlflowClient
+
+    resolved = OmegaConf.to_container(logger_cfg, resolve=True)
+    client = MlflowClient(tracking_uri=resolved.get("tracking_uri"))
+    experiment = client.get_experiment_by_name(str(resolved.get("experiment_name")))
+    if experiment is None:
+        return []
+    run_name = str(resolved.get("run_name"))
+    host = socket.gethostname()
+    messages = []
+    for run in client.search_runs([experiment.experiment_id], filter_string="attributes.status = 'RUNNING'",
+                                  max_results=1000):
+        if run.info.run_name != run_name:
+            continue
+        tags = run.data.tags
+        pid = tags.get("spade.pid")
+        if pid is None:
+            continue  # not started by this version of spade.train: its process cannot be identified
+        if tags.get("spade.host") != host:
+            log.warning("MLflow run %s (%s) is RUNNING on host %s: left as it is", run.info.run_id, run_name,
+                        tags.get("spade.host"))
+            continue
+        if pid_alive(int(pid), tags.get("spade.proc_start")):
+            continue
+        started = datetime.datetime.fromtimestamp(run.info.start_time / 1000).isoformat(timespec="seconds")
+        message = (f"MLflow run {run.info.run_id} ({experiment.name}/{run_name}, started {started}) was still "
+                   f"RUNNING although its process {pid} on {host} is gone: marked KILLED")
+        client.set_tag(run.info.run_id, "spade.end_reason",
+                       f"process {pid} on {host} ended without closing the run; marked KILLED by a later spade.train")
+        client.set_terminated(run.info.run_id, "KILLED")
+        log.warning(message)
+        messages.append(message)
+    return messages
+
+
+# -- finishing the run ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RunRef:
+    """Where a finished run lives, for the closing lines of ``spade.train``."""
+
+    tracking_uri: str
+    experiment_id: str
+    run_id: str
+    run_name: str
+
+
+_last_run: RunRef | None = None
+
+
+def last_run() -> RunRef | None:
+    """The run most recently finished by :func:`finish_run` in this process (a row after its prerequisites)."""
+    return _last_run
+
+
+def _picture_paths(client: Any, run_id: str) -> list[str]:
+    try:
+        return sorted(a.path for a in client.list_artifacts(run_id, "predictions") if a.path.endswith(".png"))
+    except Exception:  # noqa: BLE001 - listing artifacts is a nicety of the description
+        return []
+
+
+def describe_run(cfg: DictConfig, ml: MLFlowLogger, datamodule: Any, contexts: tuple[str, ...] | None = None
+                 ) -> tuple[list[DatasetUse], dict[str, float]]:
+    """Log the run's dataset inputs and set its description; returns (dataset uses, the run's metrics)."""
+    client, run_id = ml.experiment, ml.run_id
+    uses = dataset_uses(datamodule) if datamodule is not None else []
+    if contexts is not None:
+        uses = [u for u in uses if u.context in contexts]
+    try:
+        log_dataset_inputs(client, run_id, uses)
+    except (OSError, ValueError) as exc:  # an unreadable manifest: the run itself is fine, say so
+        log.warning("datasets not logged as MLflow inputs: %s", exc)
+    run = client.get_run(run_id)
+    metrics = dict(run.data.metrics)
+    description = run_description(cfg, metrics, uses, prerequisite_uses(cfg, client), _picture_paths(client, run_id),
+                                  (str(run.info.experiment_id), run_id))
+    client.set_tag(run_id, NOTE_TAG, description)
+    global _last_run
+    _last_run = RunRef(str(client.tracking_uri), str(run.info.experiment_id), run_id, str(run.info.run_name))
+    return uses, metrics
+
+
+@rank_zero_only
+def finish_run(cfg: DictConfig, trainer: L.Trainer, model: L.LightningModule, loggers: list[Logger]) -> None:
+    """Log the checkpoints, the datasets as inputs and the run's description; register the model when asked."""
+    ml = mlflow_logger(loggers)
+    if ml is None:
+        return
+    ckpt_cb = trainer.checkpoint_callback
+    paths = {}
+    if ckpt_cb is not None:
+        if ckpt_cb.best_model_path:
+            paths["best"] = ckpt_cb.best_model_path
+        if getattr(ckpt_cb, "last_model_path", ""):
+            paths["last"] = ckpt_cb.last_model_path
+    for kind, path in paths.items():
+        ml.experiment.log_artifact(ml.run_id, path, artifact_path=f"checkpoints/{kind}")
+    uses, metrics = describe_run(cfg, ml, getattr(trainer, "datamodule", None))
+    from spade.experiments.registry import data_fingerprint, register_checkpoint, registry_name
+
+    name = registry_name(cfg)
+    if name and paths:
+        tags = {**dict(cfg.get("tags") or {}), **dict((cfg.get("registry") or {}).get("tags") or {})}
+        register_checkpoint(ml, name, f"checkpoints/{'best' if 'best' in paths else 'last'}", tags=tags,
+                            data_fingerprint=data_fingerprint(cfg), description=model_description(cfg, uses),
+                            version_description=version_description(cfg, ml, metrics))
+
+
+@rank_zero_only
+def finish_evaluation(cfg: DictConfig, trainer: L.Trainer, loggers: list[Logger]) -> None:
+    """``spade.evaluate``'s run: the test dataset as input and a description with the figures and baselines."""
+    ml = mlflow_logger(loggers)
+    if ml is None:
+        return
+    bind_experiment(ml, cfg)
+    describe_run(cfg, ml, getattr(trainer, "datamodule", None), contexts=("test",))

@@ -1,0 +1,65 @@
+"""The closing lines of ``spade.train``: the test figures next to the baselines, and where to open the run.
+
+:func:`run_summary` prints the run's test metrics, each classical baseline's and the untrained model's, then the
+``mlflow ui`` command and the URLs of the run and of its experiment's runs table
+(:func:`~spade.experiments.tracking.links.ui_lines`); the run is the one this process just finished
+(:func:`~spade.experiments.tracking.runs.last_run`), else the newest run of that name in the store.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from spade.experiments.tracking.links import ui_lines
+from spade.experiments.tracking.runs import RunRef, last_run
+
+log = logging.getLogger(__name__)
+
+
+def _find_run(cfg: DictConfig) -> RunRef | None:
+    """The run of ``cfg`` in its store: the one this process finished, else the latest with its name."""
+    ref = last_run()
+    if ref is not None and ref.run_name == str(cfg.get("run_name")):
+        return ref
+    if OmegaConf.select(cfg, "logger.mlflow", default=None) is None:
+        return None
+    from mlflow import MlflowClient
+
+    uri = str(cfg.paths.mlflow_tracking_uri)
+    client = MlflowClient(tracking_uri=uri)
+    experiment = client.get_experiment_by_name(str(OmegaConf.select(cfg, "logger.mlflow.experiment_name")))
+    if experiment is None:
+        return None
+    runs = client.search_runs([experiment.experiment_id], filter_string=f"attributes.run_name = '{cfg.run_name}'",
+                              order_by=["attributes.start_time DESC"], max_results=1)
+    return RunRef(uri, experiment.experiment_id, runs[0].info.run_id, runs[0].info.run_name) if runs else None
+
+
+def run_summary(cfg: DictConfig, metrics: dict[str, Any]) -> str:
+    """The closing lines: test metrics next to the baselines, the ``mlflow ui`` command and URLs to the run and
+    to its experiment's runs table."""
+    lines = [f"run {cfg.get('run_name')} finished"]
+    if (cfg.get("scale") or {}).get("name") == "tiny":  # issue 24: tiny figures are never read as results
+        from spade.experiments.tables import TINY_NOTICE
+
+        lines.append(f"  {TINY_NOTICE}")
+    keys = ("ape_cm", "fid", "hd19", "failure_rate", "over_20cm_rate", "planner/ape_cm", "planner/over_20cm_rate",
+            "planner/low_confidence_rate", "seconds_per_sample")
+    prefixes = ["test", *sorted({"/".join(k.split("/")[:3]) for k in metrics if k.startswith("test/baseline/")}),
+                "untrained"]
+    for prefix in prefixes:
+        vals = [f"{k}={metrics[f'{prefix}/{k}']:.4g}" for k in keys if f"{prefix}/{k}" in metrics]
+        if vals:
+            label = prefix.replace("test/baseline/", "baseline ")
+            lines.append(f"  {label:17s}: " + "  ".join(vals))
+    uri = str(cfg.paths.mlflow_tracking_uri)
+    try:
+        ref = _find_run(cfg)
+    except Exception as exc:  # noqa: BLE001 - the closing lines must not fail a finished run
+        log.warning("could not look the run up in %s: %s", uri, exc)
+        ref = None
+    lines += ui_lines(uri, ref.experiment_id if ref else None, ref.run_id if ref else None)
+    return "\n".join(lines)
