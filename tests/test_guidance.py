@@ -188,3 +188,77 @@ def test_margin_is_the_denoising_error_in_the_experts_parameterisation(predictio
     assert loss.item() > 0
     loss.backward()
     assert student.grad is not None and student.grad.abs().sum() > 0
+
+
+# -- regression: the margin of a trained-from-checkpoint expert keeps its value (issue 19, part 4) ------------------
+# Computed with the code before the margin was built from the ExpertModule (one input builder for the expert's
+# training step and the margin): (expert kind, prediction type, expert training steps, margin options) ->
+# the expert's training and validation losses, the student's L_DM, active share and total loss (lambda 2.5).
+MARGIN_CASES = {
+    "cond_eps": (True, "epsilon", 0, {}),
+    "cond_x0_batch": (True, "sample", 40, {"clip": "batch", "num_noise": 2}),
+    "uncond_eps": (False, "epsilon", 40, {"t_min": 3, "t_max": 90}),
+    "uncond_batch": (False, "sample", 40, {"clip": "batch", "num_noise": 3}),
+    "cond_v_terms": (True, "v_prediction", 40, {"batch_terms": True, "antithetic": False}),
+}
+MARGIN_REFERENCE = {  # denoise_net, denoise_ema, loss_dm, margin_active, loss
+    "cond_eps": (1.0277615785598755, 1.0910179615020752, 0.013337463140487671, 0.25, 1.579323172569275),
+    "cond_x0_batch": (0.09259437769651413, 0.12696492671966553, 1.368794322013855, 1.0, 4.967965126037598),
+    "uncond_eps": (0.6070190072059631, 0.761494517326355, 0.08432020246982574, 1.0, 1.7567800283432007),
+    "uncond_batch": (0.25979527831077576, 0.2606773376464844, 0.39770376682281494, 1.0, 2.540238857269287),
+    "cond_v_terms": (0.7286268472671509, 0.4889547824859619, 0.3803038001060486, 1.0, 2.496738910675049),
+}
+
+
+def _regression_batch(size: int = 16, b: int = 4) -> dict:
+    g = torch.Generator().manual_seed(0)
+    state = (torch.rand(b, 3, size, size, generator=g) > 0.5).float() * 0.5
+    path = (torch.rand(b, 1, size, size, generator=g) > 0.9).float()
+    return {"state": state, "path": path, "target": path}
+
+
+def _expert_checkpoint(path, conditional: bool, prediction_type: str, steps: int):
+    """A tiny ExpertModule fitted ``steps`` Adam steps on the regression batch (its EMA then differs from the raw
+    weights, and the expert prefers the demonstration), saved as a checkpoint ``load_from_checkpoint`` reads."""
+    import lightning
+
+    from spade.models.modelfile import checkpoint_entry
+    from spade.training.expert_module import ExpertModule
+
+    torch.manual_seed(0)
+    module = ExpertModule(conditional=conditional, preset="tiny", prediction_type=prediction_type, ema_decay=0.9,
+                          num_train_timesteps=100, metrics={"fid": False, "planner": False})
+    opt = torch.optim.Adam(module.net.parameters(), lr=3e-3)
+    batch, gen = _regression_batch(), torch.Generator().manual_seed(3)
+    for _ in range(steps):
+        opt.zero_grad()
+        module.denoising_loss(module.net, batch, gen).backward()
+        opt.step()
+        module.ema.update_parameters(module.net)
+    torch.save({"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams),
+                "pytorch-lightning_version": lightning.__version__,
+                "spade": checkpoint_entry("expert", module.net)}, path)
+    return module
+
+
+@pytest.mark.parametrize("case", sorted(MARGIN_CASES))
+def test_the_margin_keeps_its_value_for_a_fixed_expert_batch_and_seed(case: str, tmp_path) -> None:
+    from spade.training.student_module import StudentModule
+
+    conditional, prediction_type, steps, options = MARGIN_CASES[case]
+    ckpt = tmp_path / f"{case}.ckpt"
+    expert = _expert_checkpoint(ckpt, conditional, prediction_type, steps)
+    batch = _regression_batch()
+    with torch.no_grad():
+        denoise_net = float(expert.denoising_loss(expert.net, batch, torch.Generator().manual_seed(7)))
+        denoise_ema = float(expert.validation_losses(batch)["val/loss"])
+    torch.manual_seed(1)
+    student = StudentModule(size="small", guidance={"expert_ckpt": str(ckpt), "weight": 2.5, "expert": None,
+                                                    **options})
+    student.load_guidance((16, 16))
+    with torch.no_grad():
+        student.net.head.bias.fill_(1.5)  # the student draws paths everywhere: margins well above zero
+    torch.manual_seed(2)
+    parts = student.losses(batch)
+    got = (denoise_net, denoise_ema, float(parts["loss_dm"]), float(parts["margin_active"]), float(parts["loss"]))
+    assert got == pytest.approx(MARGIN_REFERENCE[case], rel=1e-6, abs=1e-6)
