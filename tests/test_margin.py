@@ -6,7 +6,7 @@ import pytest
 import torch
 from torch import nn
 
-from spade.training.guidance import DiffusionMargin, GuidanceConfig, sample_timesteps
+from spade.training.margin import DiffusionMargin, MarginConfig, sample_timesteps
 
 
 @pytest.fixture(autouse=True)
@@ -43,7 +43,7 @@ def _batch(b=4, s=8):
 @pytest.mark.parametrize("clip", ["sample", "batch"])
 def test_margin_is_zero_for_the_demonstration(clip: str) -> None:
     state, target = _batch()
-    margin = DiffusionMargin(TinyDenoiser(), _add_noise, 1000, True, GuidanceConfig(clip=clip, num_noise=2))
+    margin = DiffusionMargin(TinyDenoiser(), _add_noise, 1000, True, MarginConfig(clip=clip, num_noise=2))
     loss, active = margin(target.clone(), target, state, generator=torch.Generator().manual_seed(3))
     assert loss.item() == 0.0 and active.item() == 0.0
 
@@ -52,7 +52,7 @@ def test_gradients_reach_the_student_but_never_the_expert() -> None:
     state, target = _batch()
     expert = TinyDenoiser()
     before = {k: v.clone() for k, v in expert.state_dict().items()}
-    margin = DiffusionMargin(expert, _add_noise, 1000, True, GuidanceConfig())
+    margin = DiffusionMargin(expert, _add_noise, 1000, True, MarginConfig())
     logits = torch.zeros_like(target, requires_grad=True)
     loss, _ = margin(torch.sigmoid(logits), target, state, generator=torch.Generator().manual_seed(1))
     loss.backward()
@@ -66,7 +66,7 @@ def test_gradients_reach_the_student_but_never_the_expert() -> None:
 def test_unconditional_margin_uses_the_four_channel_stack() -> None:
     state, target = _batch()
     expert = TinyDenoiser(channels=4, cond=0)
-    margin = DiffusionMargin(expert, _add_noise, 1000, False, GuidanceConfig(clip="batch"))
+    margin = DiffusionMargin(expert, _add_noise, 1000, False, MarginConfig(clip="batch"))
     loss, _ = margin(torch.full_like(target, 0.5), target, state, generator=torch.Generator().manual_seed(0))
     assert torch.isfinite(loss)
 
@@ -78,10 +78,10 @@ def test_antithetic_timesteps_pair_up() -> None:
     assert t.min() >= 100 and t.max() < 200 and len(t) == 5
 
 
-@pytest.mark.parametrize("bad", [dict(weight=-1.0), dict(clip="mean"), dict(num_noise=0), dict(t_min=5, t_max=5)])
-def test_bad_guidance_options_are_refused(bad: dict) -> None:
+@pytest.mark.parametrize("bad", [dict(lambda_dm=-1.0), dict(clip="mean"), dict(num_noise=0), dict(t_min=5, t_max=5)])
+def test_bad_margin_options_are_refused(bad: dict) -> None:
     with pytest.raises(ValueError):
-        GuidanceConfig(**bad)
+        MarginConfig(**bad)
 
 
 class AnchoredDenoiser(TinyDenoiser):
@@ -134,7 +134,7 @@ def test_batched_and_separate_terms_equal_the_formula(conditional: bool, clip: s
         if batch_terms is None:
             loss = _reference_margin(expert, state, torch.sigmoid(logits), target, conditional, clip, 2, seed=7)
         else:
-            config = GuidanceConfig(clip=clip, num_noise=2, batch_terms=batch_terms)
+            config = MarginConfig(clip=clip, num_noise=2, batch_terms=batch_terms)
             margin = DiffusionMargin(expert, _add_noise, 1000, conditional, config)
             loss, _ = margin(torch.sigmoid(logits), target, state, generator=torch.Generator().manual_seed(7))
         loss.backward()
@@ -148,7 +148,7 @@ def test_batched_and_separate_terms_equal_the_formula(conditional: bool, clip: s
 def test_batched_terms_keep_the_expert_frozen_and_its_term_gradient_free() -> None:
     state, target = _batch()
     expert = AnchoredDenoiser(2 * target - 1)
-    margin = DiffusionMargin(expert, _add_noise, 1000, True, GuidanceConfig(batch_terms=True))
+    margin = DiffusionMargin(expert, _add_noise, 1000, True, MarginConfig(batch_terms=True))
     demo = target.clone().requires_grad_(True)  # were the expert term differentiable, this would get a gradient
     logits = torch.zeros_like(target, requires_grad=True)
     loss, _ = margin(torch.sigmoid(logits), demo, state, generator=torch.Generator().manual_seed(1))
@@ -167,7 +167,7 @@ def test_margin_is_the_denoising_error_in_the_experts_parameterisation(predictio
     schedule = NoiseSchedule(prediction_type=prediction_type)
     state, target = _batch()
     expert = TinyDenoiser()
-    margin = DiffusionMargin(expert, schedule.add_noise, 1000, True, GuidanceConfig(antithetic=False))
+    margin = DiffusionMargin(expert, schedule.add_noise, 1000, True, MarginConfig(antithetic=False))
     loss, active = margin(target.clone(), target, state, generator=torch.Generator().manual_seed(3))
     assert loss.item() == 0.0 and active.item() == 0.0
 
@@ -253,12 +253,80 @@ def test_the_margin_keeps_its_value_for_a_fixed_expert_batch_and_seed(case: str,
         denoise_net = float(expert.denoising_loss(expert.net, batch, torch.Generator().manual_seed(7)))
         denoise_ema = float(expert.validation_losses(batch)["val/loss"])
     torch.manual_seed(1)
-    student = StudentModule(size="small", guidance={"expert_ckpt": str(ckpt), "weight": 2.5, "expert": None,
-                                                    **options})
-    student.load_guidance((16, 16))
+    student = StudentModule(size="small", margin={"expert_ckpt": str(ckpt), "lambda_dm": 2.5, "expert": None,
+                                                  **options})
+    student.load_margin((16, 16))
     with torch.no_grad():
         student.net.head.bias.fill_(1.5)  # the student draws paths everywhere: margins well above zero
     torch.manual_seed(2)
     parts = student.losses(batch)
-    got = (denoise_net, denoise_ema, float(parts["loss_dm"]), float(parts["margin_active"]), float(parts["loss"]))
+    got = (denoise_net, denoise_ema, *(float(parts[k].detach()) for k in ("loss_dm", "margin_active", "loss")))
     assert got == pytest.approx(MARGIN_REFERENCE[case], rel=1e-6, abs=1e-6)
+
+
+def test_the_margin_is_built_from_the_expert_module_it_was_trained_in(tmp_path) -> None:
+    """``StudentModule.load_margin`` loads the ExpertModule of the checkpoint and the margin takes its EMA denoiser
+    (what its sampling uses), its schedule's forward process and prediction target, and its kind; the module is
+    frozen. The expert's training step and the margin build the expert's input with the same function."""
+    from spade.training.expert_module import expert_input
+    from spade.training.student_module import StudentModule
+
+    ckpt = tmp_path / "x0.ckpt"
+    trained = _expert_checkpoint(ckpt, True, "sample", 3)
+    student = StudentModule(size="small", margin={"expert_ckpt": str(ckpt), "expert": "conditional"})
+    student.load_margin((16, 16))
+    margin = student.margin
+    ema = trained.ema_net().state_dict()
+    assert all(torch.equal(v, ema[k]) for k, v in margin.expert.state_dict().items())
+    raw = trained.net.state_dict()
+    assert not all(torch.equal(v, raw[k]) for k, v in margin.expert.state_dict().items())  # not the raw weights
+    expert = margin.add_noise.__self__
+    assert expert.prediction_type == "sample" and margin.prediction_target == expert.prediction_target
+    assert margin.T == 100 and margin.conditional and not margin.expert.training
+    assert all(not p.requires_grad for p in margin.expert.parameters())
+    batch = _regression_batch()
+    x0, cond = trained.model_input(batch)
+    ref_x0, ref_cond = expert_input(batch["state"], batch["path"], True)
+    assert torch.equal(x0, ref_x0) and torch.equal(cond, ref_cond)
+
+
+def test_margin_options_are_checked_once_and_name_the_option() -> None:
+    from spade.training.margin import MarginOptionError
+
+    with pytest.raises(MarginOptionError, match=r"^lambda_dm=-1 is out of range; set it to a number >= 0") as err:
+        MarginConfig(lambda_dm=-1)
+    assert err.value.at("model.margin.").startswith("model.margin.lambda_dm=-1 is out of range")
+    with pytest.raises(MarginOptionError, match=r"expert='film' is not one of \['conditional', 'unconditional'\]"):
+        MarginConfig(expert="film")
+    with pytest.raises(MarginOptionError, match=r"t_max=5 is out of range; set it to an integer > t_min=5"):
+        MarginConfig(t_min=5, t_max=5)
+    with pytest.raises(MarginOptionError, match="weight is not an option of the diffusion margin"):
+        MarginConfig.from_options({"weight": 1.0})  # the old name of lambda_dm
+    assert MarginConfig.from_options({"expert_ckpt": "e.ckpt", "lambda_dm": 0.5}) == MarginConfig(lambda_dm=0.5)
+
+
+def test_a_student_checkpoint_saved_with_guidance_hparams_loads_with_its_margin(tmp_path) -> None:
+    """Checkpoints written before issue 19 keep the margin's options as hyper-parameter ``guidance`` with
+    ``weight`` for lambda: they load with the margin mapped to ``margin`` / ``lambda_dm`` (not silently as BC)."""
+    import lightning
+
+    from spade.models.modelfile import checkpoint_entry
+    from spade.training.loading import load_module
+    from spade.training.margin import legacy_margin_options
+    from spade.training.student_module import StudentModule
+
+    expert = tmp_path / "expert.ckpt"
+    _expert_checkpoint(expert, True, "epsilon", 0)
+    old = {"expert_ckpt": str(expert), "expert": "conditional", "weight": 0.7, "clip": "batch", "num_noise": 2}
+    torch.manual_seed(0)
+    student = StudentModule(size="small")
+    path = tmp_path / "old_student.ckpt"
+    torch.save({"state_dict": student.state_dict(), "hyper_parameters": {"size": "small", "guidance": old},
+                "pytorch-lightning_version": lightning.__version__,
+                "spade": checkpoint_entry("student", student.net)}, path)
+    loaded = load_module(path)
+    assert loaded.margin_cfg == MarginConfig(lambda_dm=0.7, clip="batch", num_noise=2, expert="conditional")
+    assert loaded.hparams["margin"] == legacy_margin_options(old) and "guidance" not in loaded.hparams
+    assert all(torch.equal(v, student.state_dict()[k]) for k, v in loaded.state_dict().items())
+    with pytest.raises(ValueError, match="not also under their old name guidance"):
+        StudentModule(size="small", margin={"expert_ckpt": str(expert)}, guidance=old)
