@@ -1,8 +1,8 @@
 """``python -m spade.train [+experiment=NAME] [key=value ...]``: train, validate and test one model.
 
 A thin Hydra entry point in the style of lightning-hydra-template: the config (``conf/train.yaml``) composes
-data, model, guidance, trainer, logger, callbacks and paths; :func:`spade.experiments.run.run` resolves the run's
-prerequisites (a guidance expert, a pretrained student), trains, prints the closing summary and returns
+data, model, margin, trainer, logger, callbacks and paths; :func:`spade.experiments.run.run` resolves the run's
+prerequisites (the margin's expert, a pretrained student), trains, prints the closing summary and returns
 ``optimized_metric``'s value, which this entry point hands to Hydra so that sweepers can optimise it. A user
 error (a bad config, a missing dataset or prerequisite) ends the process with one line and exit status 2.
 """

@@ -36,12 +36,12 @@ def _fill_requirements(cfg, ckpts: dict[str, str]) -> list[str]:
             out.append(f"model.init_ckpt={ckpts['student']}")
         else:
             key = "uncond" if "uncond" in req.experiment else "cond"
-            out.append(f"model.guidance.expert_ckpt={ckpts[key]}")
+            out.append(f"model.margin.expert_ckpt={ckpts[key]}")
     return out
 
 
 # One row per code path runs in the default selection (an expert through its test stage, the conditional one is
-# fitted by the tiny_checkpoints fixture; BC, DBC and Cond-DBC students; a fine-tuned ablation row with guidance);
+# fitted by the tiny_checkpoints fixture; BC, DBC and Cond-DBC students; a fine-tuned ablation row with the margin);
 # the others, the large students among them, are slow.
 FAST_ROWS = {"expert_uncond_U", "t1_small_bc_L", "t1_small_dbc_U", "t1_small_conddbc_L", "t2_augbc_finetune_conddbc_U"}
 # One batch of each stage, small batches, two prediction pictures, two latency runs: every code path, in seconds.
@@ -57,7 +57,7 @@ def test_row_composes_instantiates_and_runs_fast_dev_run(row: str, spade_home: P
     metrics, objects = train(cfg)
     assert "test/ape_cm" in metrics and "test/hd19" in metrics
     model = objects["model"]
-    if cfg.model.get("guidance"):
+    if cfg.model.get("margin"):
         assert model.margin is not None
         assert all(not p.requires_grad for p in model.margin.expert.parameters())
 

@@ -1,4 +1,4 @@
-"""The learning core: baselines, the failure-aware score, Hd19 in metres, EMA warm-up, the guidance gradient,
+"""The learning core: baselines, the failure-aware score, Hd19 in metres, EMA warm-up, the margin gradient,
 the total loss, and a conditional expert that uses its state."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from spade.maps.frame import RobotFrame
 from spade.metrics import APE, HausdorffCount
 from spade.metrics.baselines import BASELINES, baseline_images, baseline_polylines, heading_template, shortest_path
 from spade.training.expert_module import WarmupEMA, ema_decay_at
-from spade.training.guidance import DiffusionMargin, GuidanceConfig
+from spade.training.margin import DiffusionMargin, MarginConfig
 
 
 def _batch(turn: float = 1.0, wall: bool = False) -> dict:
@@ -130,7 +130,7 @@ def _analytic_margin(target01: torch.Tensor, weight: float = 1.0) -> DiffusionMa
 
     schedule = NoiseSchedule(num_train_timesteps=100, beta_schedule="squaredcos_cap_v2")
     expert = _AnalyticExpert(to_model_range(target01), schedule.alphas_cumprod)
-    return DiffusionMargin(expert, schedule.add_noise, 100, True, GuidanceConfig(weight=weight, t_min=5))
+    return DiffusionMargin(expert, schedule.add_noise, 100, True, MarginConfig(lambda_dm=weight, t_min=5))
 
 
 def test_one_margin_step_moves_the_student_towards_the_demonstration() -> None:
@@ -155,7 +155,7 @@ def test_total_loss_is_bc_plus_lambda_times_margin() -> None:
     batch["target"] = batch["path"]
     student = StudentModule(size="small")
     lam = 2.5
-    student.guidance_cfg = GuidanceConfig(weight=lam)
+    student.margin_cfg = MarginConfig(lambda_dm=lam)
     student._margin.append(_analytic_margin(batch["path"], lam))
     torch.manual_seed(3)
     parts = student.losses(batch)

@@ -10,7 +10,7 @@ from spade.data.polyline import polyline_length
 from spade.metrics.baselines import draw_polyline, heading_template, shape_template, u_template
 from spade.metrics.decoding import PathDecoder, decode_path, path_confidence
 from spade.metrics.synthetic import rasterise_polyline
-from spade.training.evaluation import PathMetrics
+from spade.metrics.path_metrics import PathMetrics
 
 H = 64
 START = np.array([32.0, 48.0])  # the robot-frame robot pixel at 64 px

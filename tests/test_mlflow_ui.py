@@ -309,8 +309,8 @@ def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(
     cache = tmp_path / "registry-cache"
     cfg = OmegaConf.create({
         "run_name": "t1_small_conddbc_L", "paths": {"registry_cache_dir": str(cache)},
-        "model": {"guidance": {"expert_ckpt": str(cache / "spade-cond_expert-L-tiny-abc" / "v1" / "best" / "e.ckpt")}},
-        "requires": {"expert": {"experiment": "expert_cond_L", "target": "model.guidance.expert_ckpt"}},
+        "model": {"margin": {"expert_ckpt": str(cache / "spade-cond_expert-L-tiny-abc" / "v1" / "best" / "e.ckpt")}},
+        "requires": {"expert": {"experiment": "expert_cond_L", "target": "model.margin.expert_ckpt"}},
         "scale": {"name": "tiny"},
         "tags": {"table": "table1", "role": "student", "approach": "Cond-DBC", "size": "small", "shape": "L",
                  "scale": "tiny"}})

@@ -142,7 +142,7 @@ def test_optimiser_factories_and_arbitrary_objects_are_refused(tmp_path: Path) -
 
 
 def test_omegaconf_hyper_parameters_load_and_are_written_plain(tmp_path: Path) -> None:
-    hp = OmegaConf.create({"size": "small", "metrics": {"hd_threshold": 19}, "guidance": {"weights": [0.1, None]}})
+    hp = OmegaConf.create({"size": "small", "metrics": {"hd_threshold": 19}, "margin": {"lambda_dm": [0.1, None]}})
     path = student_checkpoint(tmp_path / "omega.ckpt", hyper_parameters=hp, hparams_type=type(hp),
                               some_path=Path("/tmp/somewhere"))
     loaded = load_checkpoint(path)  # allow-listed: OmegaConf containers and pathlib paths only rebuild data
@@ -152,7 +152,7 @@ def test_omegaconf_hyper_parameters_load_and_are_written_plain(tmp_path: Path) -
     checkpoint = {"hyper_parameters": hp, "hparams_type": type(hp)}
     write_checkpoint_entry(checkpoint, "student", build_model("student", "small"))
     assert checkpoint["hyper_parameters"] == {"size": "small", "metrics": {"hd_threshold": 19},
-                                              "guidance": {"weights": [0.1, None]}}
+                                              "margin": {"lambda_dm": [0.1, None]}}
     assert type(checkpoint["hyper_parameters"]["metrics"]) is dict and "hparams_type" not in checkpoint
 
 

@@ -1,4 +1,4 @@
-"""Tests of the SPADE networks: parameter budgets, shapes, conditioning, errors and the registry."""
+"""Tests of the SPADE networks: parameter budgets, shapes, conditioning, errors and the builders (spade.models.builders)."""
 
 from __future__ import annotations
 
@@ -185,7 +185,7 @@ def test_uncond_expert_shapes() -> None:
         build_uncond_expert("giant")
 
 
-def test_registry_builds_every_cpu_preset_with_metadata() -> None:
+def test_the_builders_build_every_cpu_preset_with_metadata() -> None:
     assert set(ROLES) == {"student", "cond_expert", "uncond_expert"}
     for role in ROLES:
         for preset in presets(role):

@@ -186,23 +186,23 @@ def test_checkpoint_roles_and_geometry_are_checked(spade_home: Path, tmp_path: P
     expert = _fake_checkpoint(tmp_path / "expert.ckpt", "expert")
     coarse = _fake_checkpoint(tmp_path / "coarse.ckpt", "student", size=32, resolution=0.2)
     row = "t1_small_conddbc_L"
-    with pytest.raises(ConfigError, match=r"model.guidance.expert_ckpt=.*student.ckpt is a student checkpoint, this "
+    with pytest.raises(ConfigError, match=r"model.margin.expert_ckpt=.*student.ckpt is a student checkpoint, this "
                                           r"key takes an expert checkpoint; pass an expert checkpoint"):
-        validate_train_config(compose_row(row, spade_home, f"model.guidance.expert_ckpt={student}"))
-    validate_train_config(compose_row(row, spade_home, f"model.guidance.expert_ckpt={expert}"))
-    # the guidance group says which expert its method needs: DBC unconditional, Cond-DBC conditional
+        validate_train_config(compose_row(row, spade_home, f"model.margin.expert_ckpt={student}"))
+    validate_train_config(compose_row(row, spade_home, f"model.margin.expert_ckpt={expert}"))
+    # the margin group says which expert its method needs: DBC unconditional, Cond-DBC conditional
     cond = _fake_checkpoint(tmp_path / "cond.ckpt", "expert", net="cond_expert")
     uncond = _fake_checkpoint(tmp_path / "uncond.ckpt", "expert", net="uncond_expert")
-    validate_train_config(compose_row(row, spade_home, f"model.guidance.expert_ckpt={cond}"))
-    validate_train_config(compose_row("t1_small_dbc_L", spade_home, f"model.guidance.expert_ckpt={uncond}"))
-    with pytest.raises(ConfigError, match=r"cond.ckpt is a conditional expert, but DBC \(guidance=dbc\) needs an "
+    validate_train_config(compose_row(row, spade_home, f"model.margin.expert_ckpt={cond}"))
+    validate_train_config(compose_row("t1_small_dbc_L", spade_home, f"model.margin.expert_ckpt={uncond}"))
+    with pytest.raises(ConfigError, match=r"cond.ckpt is a conditional expert, but DBC \(margin=dbc\) needs an "
                                           r"unconditional one; pass an unconditional expert \(an expert_uncond_\* "):
-        validate_train_config(compose_row("t1_small_dbc_L", spade_home, f"model.guidance.expert_ckpt={cond}"))
-    with pytest.raises(ConfigError, match=r"uncond.ckpt is an unconditional expert, but Cond-DBC \(guidance=cond_dbc\) "
+        validate_train_config(compose_row("t1_small_dbc_L", spade_home, f"model.margin.expert_ckpt={cond}"))
+    with pytest.raises(ConfigError, match=r"uncond.ckpt is an unconditional expert, but Cond-DBC \(margin=cond_dbc\) "
                                           r"needs a conditional one"):
-        validate_train_config(compose_row(row, spade_home, f"model.guidance.expert_ckpt={uncond}"))
-    with pytest.raises(ConfigError, match=r"model.guidance.expert='film' is not one of"):
-        validate_train_config(compose_row(row, spade_home, "model.guidance.expert=film"))
+        validate_train_config(compose_row(row, spade_home, f"model.margin.expert_ckpt={uncond}"))
+    with pytest.raises(ConfigError, match=r"model.margin.expert='film' is not one of"):
+        validate_train_config(compose_row(row, spade_home, "model.margin.expert=film"))
     with pytest.raises(ConfigError, match="model.init_ckpt=.*is an expert checkpoint"):
         validate_train_config(compose_row(ROW, spade_home, f"model.init_ckpt={expert}"))
     with pytest.raises(ConfigError, match=r"ckpt_path=.*coarse.ckpt was trained on 32 x 32 px at 0.2 m/px windows, "

@@ -291,8 +291,41 @@ def test_an_expert_fetched_from_the_registry_is_checked_like_an_explicit_path(sp
         cfg = compose_row("t1_small_conddbc_L", spade_home, "logger=none", f"paths.output_dir={tmp_path / 'out'}", FID)
         with pytest.raises(ConfigError, match=message) as info:
             train(cfg)
-        assert "model.guidance.expert_ckpt" in str(info.value)
+        assert "model.margin.expert_ckpt" in str(info.value)
     assert not (tmp_path / "out" / "checkpoints").exists()  # refused before anything was built
+
+
+def test_a_registry_expert_of_the_wrong_kind_is_refused_before_training(spade_home: Path, tmp_path: Path,
+                                                                       monkeypatch) -> None:
+    """Issue 19: an expert fetched from the Model Registry passes the kind check of one given by path. A Cond-DBC
+    row whose registry lookup returns an unconditional expert (right role, right window geometry) stops with the
+    kind error, naming the key and the fix, before any data module, model or run is built; the same expert by path
+    stops the same way."""
+    import torch
+
+    from spade.annotation.frame import RobotFrame
+    from spade.experiments import prerequisites
+    from spade.experiments import run as run_module
+    from spade.models import build_model
+
+    net = build_model("uncond_expert", "tiny")
+    uncond = tmp_path / "cache" / "uncond.ckpt"
+    uncond.parent.mkdir(parents=True)
+    torch.save({"spade": {"role": "expert", "config": dict(net.config), "data": {
+        "image_size": [64, 64], "resolution_m": 0.1, "frame": RobotFrame.for_size(64).to_json()}}}, uncond)
+    fetched = []
+    monkeypatch.setattr(prerequisites, "fetch_checkpoint", lambda *a, **k: fetched.append(a) or uncond)
+    row = ("t1_small_conddbc_L", spade_home, "logger=none", f"paths.output_dir={tmp_path / 'out'}", FID)
+    cfg = compose_row(*row)
+    built = []
+    monkeypatch.setattr(run_module.hydra.utils, "instantiate", lambda *a, **k: built.append(a))
+    with pytest.raises(ConfigError, match=r"model.margin.expert_ckpt=.*uncond.ckpt is an unconditional expert, but "
+                                          r"Cond-DBC \(margin=cond_dbc\) needs a conditional one; pass a conditional "
+                                          r"expert \(an expert_cond_\* experiment\)"):
+        run_module.train(cfg)
+    assert fetched and not built  # the registry filled the path in; nothing was instantiated after the refusal
+    with pytest.raises(ConfigError, match="is an unconditional expert, but Cond-DBC"):
+        validate_train_config(compose_row(*row, f"model.margin.expert_ckpt={uncond}"))
 
 
 # -- part 2: every entry point fails like spade.train -----------------------------------------------------------------

@@ -35,11 +35,11 @@ def _compose(*overrides: str):
 
 def test_conddbc_lambda_search_composes() -> None:
     _plugin("optuna")
-    cfg = _compose("+search=conddbc_lambda", "model.guidance.weight=0.3")
+    cfg = _compose("+search=conddbc_lambda", "model.margin.lambda_dm=0.3")
     sweeper = cfg.hydra.sweeper
     assert sweeper._target_.endswith("OptunaSweeper") and cfg.hydra.mode.name == "MULTIRUN"
-    assert sweeper.params["model.guidance.weight"] == "tag(log, interval(0.01, 10.0))"
-    assert cfg.hydra.runtime.choices.guidance == "cond_dbc" and cfg.model.size == "medium"
+    assert sweeper.params["model.margin.lambda_dm"] == "tag(log, interval(0.01, 10.0))"
+    assert cfg.hydra.runtime.choices.margin == "cond_dbc" and cfg.model.size == "medium"
     assert cfg.run_name == "t1_medium_conddbc_L_lambda0.3" and cfg.tags.table == "sweep_conddbc_lambda"
     assert cfg.registry.prefix is None  # trials never replace the table row's registered model
     assert cfg.requires.expert.experiment == "expert_cond_L"
@@ -150,4 +150,4 @@ def test_optuna_search_with_joblib_runs_two_trials_in_parallel(server: dict) -> 
     assert all(0.01 <= v <= 10.0 for v in lambdas) and lambdas[0] != lambdas[1]
     assert all(r.info.run_name.startswith("t1_medium_conddbc_L_lambda") for r in runs)
     results = (sweep_dir / "optimization_results.yaml").read_text()
-    assert "best_params" in results and "model.guidance.weight" in results
+    assert "best_params" in results and "model.margin.lambda_dm" in results

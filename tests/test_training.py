@@ -59,15 +59,15 @@ def test_bc_expert_and_cond_dbc_losses_fall(spade_home: Path, tiny_checkpoints: 
     assert _falls(_fit_steps(student, lambda b: student.losses(b)["loss_bc"], batches, 40, 3e-3))
     expert = ExpertModule(conditional=True, preset="tiny")
     assert _falls(_fit_steps(expert, lambda b: expert.denoising_loss(expert.net, b), batches, 60, 3e-3))
-    guided = StudentModule(size="small", guidance={"expert_ckpt": tiny_checkpoints["cond"], "weight": 1.0})
-    guided.load_guidance((64, 64))
+    guided = StudentModule(size="small", margin={"expert_ckpt": tiny_checkpoints["cond"], "lambda_dm": 1.0})
+    guided.load_margin((64, 64))
     assert _falls(_fit_steps(guided, lambda b: guided.losses(b)["loss"], batches, 40, 3e-3))
 
 
-def test_guided_step_changes_student_never_expert(spade_home: Path, tiny_checkpoints: dict) -> None:
+def test_a_margin_step_changes_the_student_never_the_expert(spade_home: Path, tiny_checkpoints: dict) -> None:
     batch = next(iter(_data(spade_home).train_dataloader()))
-    student = StudentModule(size="small", guidance={"expert_ckpt": tiny_checkpoints["cond"], "weight": 5.0})
-    student.load_guidance((64, 64))
+    student = StudentModule(size="small", margin={"expert_ckpt": tiny_checkpoints["cond"], "lambda_dm": 5.0})
+    student.load_margin((64, 64))
     expert = student.margin.expert
     before = {k: v.clone() for k, v in expert.state_dict().items()}
     opt = torch.optim.SGD([p for p in student.parameters() if p.requires_grad], lr=0.1)
@@ -83,8 +83,8 @@ def test_guided_step_changes_student_never_expert(spade_home: Path, tiny_checkpo
 
 def test_margin_is_zero_when_the_student_outputs_the_demonstration(spade_home: Path, tiny_checkpoints: dict) -> None:
     batch = next(iter(_data(spade_home).train_dataloader()))
-    student = StudentModule(size="small", guidance={"expert_ckpt": tiny_checkpoints["cond"]})
-    student.load_guidance((64, 64))
+    student = StudentModule(size="small", margin={"expert_ckpt": tiny_checkpoints["cond"]})
+    student.load_margin((64, 64))
     loss, active = student.margin(batch["path"], batch["path"], batch["state"], torch.Generator().manual_seed(0))
     assert loss.item() == 0.0 and active.item() == 0.0
 
@@ -124,19 +124,19 @@ def test_bc_pos_weight_weighs_path_pixels() -> None:
 
 def test_bad_inputs_fail_before_training(spade_home: Path, tiny_checkpoints: dict, tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match="does not exist"):
-        StudentModule(size="small", guidance={"expert_ckpt": str(tmp_path / "missing.ckpt")})
+        StudentModule(size="small", margin={"expert_ckpt": str(tmp_path / "missing.ckpt")})
     with pytest.raises(ValueError, match="small"):
         StudentModule(size="huge")
     with pytest.raises(ValueError, match="lambda"):
-        StudentModule(size="small", guidance={"expert_ckpt": tiny_checkpoints["cond"], "weight": -1.0})
-    guided = StudentModule(size="small", guidance={"expert_ckpt": tiny_checkpoints["cond"]})
+        StudentModule(size="small", margin={"expert_ckpt": tiny_checkpoints["cond"], "lambda_dm": -1.0})
+    guided = StudentModule(size="small", margin={"expert_ckpt": tiny_checkpoints["cond"]})
     with pytest.raises(ExpertMismatchError, match="64 x 64"):
-        guided.load_guidance((32, 32))
-    dbc = StudentModule(size="small", guidance={"expert_ckpt": tiny_checkpoints["cond"], "expert": "unconditional"})
+        guided.load_margin((32, 32))
+    dbc = StudentModule(size="small", margin={"expert_ckpt": tiny_checkpoints["cond"], "expert": "unconditional"})
     with pytest.raises(ExpertMismatchError, match="conditional expert, but DBC"):
-        dbc.load_guidance((64, 64))
-    with pytest.raises(ValueError, match="guidance expert must be one of"):
-        StudentModule(size="small", guidance={"expert_ckpt": tiny_checkpoints["cond"], "expert": "film"})
+        dbc.load_margin((64, 64))
+    with pytest.raises(ValueError, match=r"expert='film' is not one of"):
+        StudentModule(size="small", margin={"expert_ckpt": tiny_checkpoints["cond"], "expert": "film"})
     expert = ExpertModule.load_from_checkpoint(tiny_checkpoints["uncond"], map_location="cpu")
     with pytest.raises(ExpertMismatchError, match="channels"):
         expert.check_compatible(in_channels=2, image_size=None, source="x")

@@ -1,6 +1,6 @@
 """Running and tracking the experiments that ``conf/experiment/*.yaml`` define (one file per row of a paper table).
 
-``conf/experiment/`` says *what* a row is (data, model, guidance, prerequisites, tags); this package is the code
+``conf/experiment/`` says *what* a row is (data, model, margin, prerequisites, tags); this package is the code
 that runs rows and keeps their records:
 
 - :mod:`~spade.experiments.run`: one run, as ``python -m spade.train`` starts it (prerequisites, fit, test);

@@ -3,7 +3,7 @@
 :func:`validate_train_config` (called first thing by ``spade.train``) and :func:`validate_evaluate_config` (by
 ``spade.evaluate``) raise :class:`ConfigError` with one line naming the key, its value and the fix: wrong types
 and ranges, a window too small to hold a manoeuvre, a checkpoint of the wrong role (a student given as
-``model.guidance.expert_ckpt``), a checkpoint whose window geometry differs from the data's, and an existing
+``model.margin.expert_ckpt``), a checkpoint whose window geometry differs from the data's, and an existing
 dataset whose generation settings differ from the config's (:func:`spade.data.checks.check_dataset`, also run by
 the data module's ``prepare_data``, so a dataset is never silently reused for other settings).
 :func:`exit_on_user_error` turns these errors into one line on stderr and exit status 2 at the entry points
@@ -348,16 +348,7 @@ def _check_model(cfg: DictConfig) -> None:
     if role == "student":
         _check_choice(cfg, "model.size", presets("student"))
         _check_number(cfg, "model.bc_pos_weight", 0, low_open=True, none_ok=True, fix=" (null: plain BCE)")
-        guidance = _get(cfg, "model.guidance")
-        if guidance not in (_MISSING, None):
-            _check_number(cfg, "model.guidance.weight", 0, fix=" (lambda; 0 turns the guidance off)")
-            _check_choice(cfg, "model.guidance.clip", ["sample", "batch"])
-            from spade.training.guidance import EXPERT_KINDS
-
-            _check_choice(cfg, "model.guidance.expert", [k for k in EXPERT_KINDS if k], none_ok=True)
-            _check_int(cfg, "model.guidance.num_noise", 1)
-            _check_int(cfg, "model.guidance.t_min", 0)
-            _check_int(cfg, "model.guidance.t_max", 1, none_ok=True)
+        _margin_config(cfg)  # model.margin's options, by MarginConfig's own checks (lambda_dm >= 0, expert kind...)
     elif role == "expert":
         kind = "cond_expert" if _get(cfg, "model.conditional") is not False else "uncond_expert"
         _check_choice(cfg, "model.preset", presets(kind))
@@ -365,6 +356,23 @@ def _check_model(cfg: DictConfig) -> None:
         _check_choice(cfg, "model.sampler", ["ddim", "ddpm"])
         _check_int(cfg, "model.num_inference_steps", 1)
         _check_int(cfg, "model.num_train_timesteps", 2)
+
+
+def _margin_config(cfg: DictConfig) -> Any:
+    """``model.margin`` as a :class:`~spade.training.margin.MarginConfig` (None without a margin): its checks are
+    MarginConfig's, reported as one line naming ``model.margin.<option>``."""
+    from spade.training.margin import MarginConfig, MarginOptionError
+
+    options = _get(cfg, "model.margin")
+    if options in (_MISSING, None):
+        return None
+    if not isinstance(options, Mapping):
+        raise ConfigError(f"model.margin={options!r} is not a group of margin options; choose margin=none, "
+                          "margin=dbc or margin=cond_dbc")
+    try:
+        return MarginConfig.from_options(options)
+    except MarginOptionError as exc:
+        raise ConfigError(exc.at("model.margin.")) from None
 
 
 def _check_checkpoints(cfg: DictConfig) -> None:
@@ -380,27 +388,26 @@ def _check_checkpoints(cfg: DictConfig) -> None:
         info = _check_checkpoint("model.init_ckpt", init, "student",
                                  "pass a student checkpoint (the pretrained student of the fine-tuning row)")
         _check_geometry("model.init_ckpt", init, info, cfg, train_data)
-    expert = _get(cfg, "model.guidance.expert_ckpt")
+    expert = _get(cfg, "model.margin.expert_ckpt")
     if expert is not _MISSING:
-        info = _check_checkpoint("model.guidance.expert_ckpt", expert, "expert",
+        info = _check_checkpoint("model.margin.expert_ckpt", expert, "expert",
                                  "pass an expert checkpoint (from an expert_* experiment), or leave it null so that "
                                  "the experiment's requires.expert finds or trains one")
-        _check_geometry("model.guidance.expert_ckpt", expert, info, cfg, train_data)
+        _check_geometry("model.margin.expert_ckpt", expert, info, cfg, train_data)
         _check_expert_kind(cfg, expert, info)
 
 
 def _check_expert_kind(cfg: DictConfig, expert: Any, info: dict[str, Any] | None) -> None:
-    """DBC needs an unconditional expert, Cond-DBC a conditional one (``model.guidance.expert``)."""
+    """DBC needs an unconditional expert, Cond-DBC a conditional one (``model.margin.expert``; the check is
+    :meth:`MarginConfig.check_expert`, which the student runs on the loaded expert too)."""
     from spade.training.errors import ExpertMismatchError
-    from spade.training.guidance import check_expert_kind
 
     net_role = ((info or {}).get("config") or {}).get("role")
-    if net_role not in ("cond_expert", "uncond_expert"):
+    config = _margin_config(cfg)
+    if net_role not in ("cond_expert", "uncond_expert") or config is None:
         return
-    wanted = _get(cfg, "model.guidance.expert")
     try:
-        check_expert_kind(None if wanted is _MISSING else wanted, net_role == "cond_expert",
-                          f"model.guidance.expert_ckpt={expert}")
+        config.check_expert(net_role == "cond_expert", f"model.margin.expert_ckpt={expert}")
     except ExpertMismatchError as exc:
         raise ConfigError(str(exc)) from None
 
@@ -465,7 +472,7 @@ def _dir(cfg: DictConfig, key: str) -> str | None:
 
 def validate_checkpoints(cfg: DictConfig) -> None:
     """The role, kind and geometry checks of every checkpoint a run names (``ckpt_path``, ``model.init_ckpt``,
-    ``model.guidance.expert_ckpt``), again after the prerequisites filled paths from the Model Registry: a
+    ``model.margin.expert_ckpt``), again after the prerequisites filled paths from the Model Registry: a
     fetched model passes the same checks as one given by path."""
     _check_checkpoints(cfg)
 

@@ -2,7 +2,7 @@
 
 * :class:`DeterministicTraining` (a callback ``spade.train`` always adds when a seed is set) draws the training
   data order from a generator seeded by (seed, epoch) and re-seeds Python's, NumPy's and torch's global generators
-  before every training batch from (seed, epoch, batch index). Augmentation, guidance noise and timesteps and the
+  before every training batch from (seed, epoch, batch index). Augmentation, the margin's noise and timesteps and the
   expert's denoising noise all come from those global generators, so a batch's randomness depends only on where
   it is in the run: a run resumed from an epoch-end checkpoint repeats the uninterrupted run's numbers exactly,
   and nothing done before training (a prerequisite trained in the same process, an untrained-baseline test)

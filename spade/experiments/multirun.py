@@ -65,7 +65,7 @@ OmegaConf.register_new_resolver("spade_sweep", seed_sweep, replace=True)
 
 
 # Seconds per training step, batch 32, 64 px windows, 2 CPU cores (torch with 2 threads). Sources: the README's
-# "Measured figures": training step at 64 px (small student 0.21 s, medium 0.82-0.86 s), the guidance table
+# "Measured figures": training step at 64 px (small student 0.21 s, medium 0.82-0.86 s), the margin step-time table
 # (medium DBC with the `small` unconditional expert 4.58 s, medium Cond-DBC with a `small` conditional expert
 # 2.07 s); large at 64 px costs what medium does (spade.bench: 197 vs 198 ms per batch-32 forward); a guided
 # small or large student adds the expert's cost (DBC +3.7 s, Cond-DBC +1.2 s) to its own BC step. Experts: the

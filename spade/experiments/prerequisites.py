@@ -1,11 +1,11 @@
-"""Prerequisites of a run: a guidance expert or a pretrained student, found in the registry or trained first.
+"""Prerequisites of a run: the margin's expert or a pretrained student, found in the registry or trained first.
 
 An experiment names what it needs in its ``requires`` section::
 
     requires:
       expert:
         experiment: expert_cond_L          # the experiment that trains it
-        target: model.guidance.expert_ckpt # the config key its checkpoint fills
+        target: model.margin.expert_ckpt   # the config key its checkpoint fills
 
 When ``target`` is already set (an explicit checkpoint path) nothing happens. Otherwise the requirement's
 config is composed with the parent's scale, paths, trainer and logger overrides, its registry name is derived

@@ -2,7 +2,7 @@
 
 :func:`run` trains, validates and tests the configured model (:func:`train`), prints the closing lines and
 returns the metric a sweeper optimises (:func:`optimized_value`). :func:`train` resolves the run's prerequisites
-(a guidance expert, a pretrained student: :mod:`spade.experiments.prerequisites` returns what is missing, this
+(the margin's expert, a pretrained student: :mod:`spade.experiments.prerequisites` returns what is missing, this
 module trains it) and returns the metrics with the objects it built.
 
 Checkpoints that Lightning itself opens (``ckpt_path`` to resume a fit, the best checkpoint to test) are loaded

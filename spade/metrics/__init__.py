@@ -6,6 +6,8 @@
 - :class:`FID` - Frechet distance of features from a pluggable, versioned extractor (default the shipped
   :class:`ShapeFeatures`, trained on the project's demonstrations to see path shape; :class:`RandomConvFeatures`;
   :class:`InceptionFeatures` from a local torchvision weights file).
+- :class:`~spade.metrics.path_metrics.PathMetrics` - the paper's and the planner's figures of predicted path
+  images against a batch, as the Lightning modules log them (import it from :mod:`spade.metrics.path_metrics`).
 """
 
 from spade.metrics.ape import APE

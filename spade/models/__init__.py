@@ -1,5 +1,6 @@
 """SPADE's networks: the SKIPP-style student U-Nets, the two diffusion experts and their noise schedule."""
 
+from spade.models.builders import ROLES, build_model, model_from_config, presets
 from spade.models.cond_expert import COND_EXPERT_PRESETS, CondExpertUNet, ConditionalResidualBlock2D, build_cond_expert
 from spade.models.diffusion import (
     BETA_SCHEDULES,
@@ -8,7 +9,6 @@ from spade.models.diffusion import (
     from_model_range,
     to_model_range,
 )
-from spade.models.registry import ROLES, build_model, model_from_config, presets
 from spade.models.student import PAPER_PARAMETER_COUNTS, STUDENT_PRESETS, StudentUNet, build_student
 from spade.models.uncond_expert import UNCOND_EXPERT_PRESETS, ConvNeXtBlock, UncondExpertUNet, build_uncond_expert
 

@@ -141,7 +141,7 @@ class NoiseSchedule:
     def prediction_target(self, x0: torch.Tensor, noise: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         """What the network is trained to output for ``x_t = add_noise(x0, noise, t)``, by ``prediction_type``:
         ``noise`` (epsilon), ``x0`` (sample) or ``v = sqrt(abar_t) noise - sqrt(1 - abar_t) x0`` (v_prediction,
-        diffusers' ``get_velocity``). Differentiable in ``x0`` (the guidance margin's agent term needs that: with
+        diffusers' ``get_velocity``). Differentiable in ``x0`` (the diffusion margin's agent term needs that: with
         sample or v prediction the target itself depends on the student's path)."""
         if self.prediction_type == "epsilon":
             return noise

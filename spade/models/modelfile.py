@@ -22,7 +22,7 @@ runs. :func:`load_lightning` applies the same rule to Lightning's ``load_from_ch
 :func:`open_model` opens any of the three kinds of file (checkpoint, ONNX, TorchScript) as one callable,
 ``ModelRunner(states) -> logits``, with one device policy (:func:`resolve_device`).
 
-This module sits on the models floor: it imports torch, numpy and :mod:`spade.models.registry` only (onnx,
+This module sits on the models floor: it imports torch, numpy and :mod:`spade.models.builders` only (onnx,
 onnxruntime and Lightning lazily, where a function needs them), so that training, evaluation, export, the
 planner and the benchmarks can all import it.
 """
@@ -353,7 +353,7 @@ def robot_frame(info: Mapping[str, Any], path: str | Path) -> dict[str, Any]:
 def build_network(info: Mapping[str, Any], state_dict: Mapping[str, torch.Tensor], path: str | Path) -> nn.Module:
     """The network a model file describes (``info["config"]``) with its weights (a Lightning state dict's
     ``net.`` entries, or a bare state dict), in eval mode on the CPU."""
-    from spade.models.registry import model_from_config
+    from spade.models.builders import model_from_config
 
     try:
         net = model_from_config(dict(info["config"]))
@@ -369,7 +369,7 @@ def build_network(info: Mapping[str, Any], state_dict: Mapping[str, torch.Tensor
 
 
 def load_network(path: str | Path, role: str | None = "student") -> tuple[nn.Module, dict[str, Any]]:
-    """The network of a checkpoint (rebuilt from its config: neither the LightningModule nor a guidance expert is
+    """The network of a checkpoint (rebuilt from its config: neither the LightningModule nor the margin's expert is
     needed) and its ``spade`` entry."""
     p = _existing(path, "checkpoint")
     checkpoint = load_checkpoint(p)

@@ -160,10 +160,10 @@ def expert_step(conditional: bool, preset: str, image_size: int, batch_size: int
 def student_step(size: str, expert_preset: str | None, image_size: int, batch_size: int, device: torch.device,
                  precision: str = "bf16", timed_steps: int = 10, warmup: int = 2) -> dict[str, Any]:
     """One AdamW step of a student's losses: BC (``expert_preset=None``) or Cond-DBC with a frozen conditional
-    expert of that preset (random weights, wired as training wires it: :func:`spade.perf.training.guided_student`)."""
-    from spade.perf.training import guided_student
+    expert of that preset (random weights, wired as training wires it: :func:`spade.perf.training.student_with_margin`)."""
+    from spade.perf.training import student_with_margin
 
-    module = guided_student(size, "cond" if expert_preset else None, expert_preset or "tiny").to(device)
+    module = student_with_margin(size, "cond" if expert_preset else None, expert_preset or "tiny").to(device)
     optimizer = torch.optim.AdamW([p for p in module.parameters() if p.requires_grad], lr=1e-3)
     batch = _batch(batch_size, image_size, device)
 

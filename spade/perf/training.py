@@ -1,8 +1,9 @@
 """Training step time of BC, DBC and Cond-DBC with the same student, batch and optimiser.
 
 A step is what Lightning runs per batch minus its bookkeeping: ``StudentModule.losses`` (BCE, plus the diffusion
-margin of a frozen expert when guided), backward, AdamW step. The experts have random weights (their cost does
-not depend on them) and are wired into the student exactly as ``StudentModule.load_guidance`` does.
+margin of a frozen expert for DBC / Cond-DBC), backward, AdamW step. The experts are fresh
+:class:`~spade.training.expert_module.ExpertModule` s with random weights (their cost does not depend on them),
+wired into the student exactly as ``StudentModule.load_margin`` wires a trained one (``StudentModule.use_expert``).
 """
 
 from __future__ import annotations
@@ -15,23 +16,23 @@ import torch
 from spade.utils.timing import measure
 
 
-def guided_student(size: str, expert: str | None = None, preset: str = "tiny", **guidance: Any) -> Any:
-    """A :class:`StudentModule` of ``size``; guided by a fresh ``cond``/``uncond`` expert of ``preset`` if given."""
-    from spade.models import build_model
-    from spade.models.diffusion import NoiseSchedule
-    from spade.training.guidance import DiffusionMargin, GuidanceConfig
+def student_with_margin(size: str, expert: str | None = None, preset: str = "tiny", **margin: Any) -> Any:
+    """A :class:`StudentModule` of ``size``; with the diffusion margin (``margin``: :class:`MarginConfig` options)
+    of a fresh ``cond``/``uncond`` expert of ``preset`` if given."""
+    from spade.training.expert_module import ExpertModule
+    from spade.training.margin import MarginConfig
     from spade.training.student_module import StudentModule
 
     module = StudentModule(size=size)
     if expert is not None:
         if expert not in ("cond", "uncond"):
             raise ValueError(f"expert must be 'cond' or 'uncond', got {expert!r}")
-        net = build_model("cond_expert" if expert == "cond" else "uncond_expert", preset)
-        schedule = NoiseSchedule()
-        config = GuidanceConfig(**guidance)
-        module.guidance_cfg = config
-        module._margin.append(DiffusionMargin(net, schedule.add_noise, schedule.num_train_timesteps,
-                                              expert == "cond", config))
+        # the default noise schedule (1000 steps, epsilon); no metrics: the module only lends its denoiser
+        expert_module = ExpertModule(conditional=expert == "cond", preset=preset,
+                                     metrics={"fid": False, "planner": False})
+        module.margin_cfg = MarginConfig(**margin)
+        module.use_expert(expert_module, source=f"the {expert} expert")
+        del expert_module  # the margin keeps the EMA denoiser, not the module's training weights
     return module.train()
 
 
@@ -68,7 +69,7 @@ def training_step_times(student: str, image_size: int, batch_size: int, cond_pre
         setups.append(("Cond-DBC (batch_terms)", "cond", cond_presets[0], {"batch_terms": True}))
     rows = []
     for name, expert, preset, options in setups:
-        module = guided_student(student, expert, preset or "tiny", **options)
+        module = student_with_margin(student, expert, preset or "tiny", **options)
         row = {"approach": name, "student": student, "expert_preset": preset, "image_size": image_size,
                "batch_size": batch_size, **step_time(module, batch, runs, warmup)}
         rows.append(row)

@@ -8,8 +8,8 @@ from typing import Any
 import lightning as L
 import torch
 
+from spade.metrics.path_metrics import BASELINE_PLANNER_KEYS, PathMetrics
 from spade.models.modelfile import write_checkpoint_entry
-from spade.training.evaluation import BASELINE_PLANNER_KEYS, PathMetrics
 from spade.training.logging_utils import log_image
 from spade.training.visualize import TestRecords, prediction_grid
 
@@ -46,7 +46,8 @@ class PathPlanningModule(L.LightningModule):
             terms = ", ".join(f"{k}={float(v):.4g}" for k, v in parts.items())
             raise FloatingPointError(
                 f"non-finite training loss {float(loss)} at global step {self.global_step} (epoch "
-                f"{self.current_epoch}): {terms}. Lower the learning rate or the guidance weight, or check the data."
+                f"{self.current_epoch}): {terms}. Lower the learning rate or the margin weight "
+                "(model.margin.lambda_dm), or check the data."
             )
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:

@@ -5,4 +5,4 @@ from __future__ import annotations
 
 
 class ExpertMismatchError(ValueError):
-    """A guidance expert that does not fit the student's data."""
+    """An expert for the diffusion margin that does not fit the student's data or the method (DBC / Cond-DBC)."""

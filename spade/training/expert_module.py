@@ -27,6 +27,25 @@ def ema_decay_at(step: int | torch.Tensor, max_decay: float) -> float:
     return min(float(max_decay), (1.0 + n) / (10.0 + n))
 
 
+def expert_input(state: torch.Tensor, path: torch.Tensor, conditional: bool
+                 ) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """The expert's model input for a state (B, 3, H, W) and a path (B, 1, H, W), both in [0, 1]: ``(x0, cond)`` in
+    the model's [-1, 1] range. Conditional (Cond-DBC): ``x0`` the path channel, ``cond`` the state; unconditional
+    (DBC): ``x0`` the 4-channel stack (state, path), noised on all four channels, ``cond`` None.
+
+    The one builder of the expert's input: its training step (:meth:`ExpertModule.model_input`) and the diffusion
+    margin (:class:`spade.training.margin.DiffusionMargin`, for the demonstration and the student's path) use it.
+    """
+    if conditional:
+        return to_model_range(path), to_model_range(state)
+    return to_model_range(torch.cat([state, path], dim=1)), None
+
+
+def denoise(net: torch.nn.Module, x_t: torch.Tensor, t: torch.Tensor, cond: torch.Tensor | None) -> torch.Tensor:
+    """The denoiser's output for ``x_t`` at ``t``, conditioned on ``cond`` when :func:`expert_input` gave one."""
+    return net(x_t, t) if cond is None else net(x_t, t, cond)
+
+
 class WarmupEMA:
     """``multi_avg_fn`` for :class:`torch.optim.swa_utils.AveragedModel` with the :func:`ema_decay_at` schedule
     (a plain class, so that the averaged model pickles and its state is just the weights and ``n_averaged``)."""
@@ -86,7 +105,7 @@ class ExpertModule(PathPlanningModule):
         self.ema = AveragedModel(self.net, multi_avg_fn=WarmupEMA(ema_decay), use_buffers=True)
         self.ema.requires_grad_(False)
         # prediction_type: what the denoiser outputs (epsilon, sample = x0, v_prediction); training, sampling and
-        # the guidance margin all use it (NoiseSchedule.prediction_target). clip_sample: the samplers clip their
+        # the diffusion margin all use it (NoiseSchedule.prediction_target). clip_sample: the samplers clip their
         # x0 estimate to [-1, 1] (paths are binary images in [0, 1]).
         self.schedule = NoiseSchedule(num_train_timesteps=num_train_timesteps, beta_schedule=beta_schedule,
                                       prediction_type=prediction_type, clip_sample=clip_sample)
@@ -95,7 +114,7 @@ class ExpertModule(PathPlanningModule):
 
     # -- networks ------------------------------------------------------------------------------------------
     def ema_net(self) -> torch.nn.Module:
-        """The EMA copy of the denoiser: what evaluation and guidance use."""
+        """The EMA copy of the denoiser: what sampling (evaluation) and the diffusion margin use."""
         return self.ema.module
 
     def check_compatible(self, in_channels: int, image_size: tuple[int, int] | None, source: str) -> None:
@@ -123,22 +142,17 @@ class ExpertModule(PathPlanningModule):
             self.hparams["image_size"] = int(dm.image_size[0])
 
     # -- training ------------------------------------------------------------------------------------------
-    def clean_sample(self, batch: dict) -> torch.Tensor:
-        """The demonstration in the model's range: the (possibly widened, ``data.target_width_px``) path target,
-        so that the expert judges the student's paths at the width the student learns."""
-        path = batch.get("target", batch["path"])
-        if self.conditional:
-            return to_model_range(path)
-        return to_model_range(torch.cat([batch["state"], path], dim=1))
-
-    def denoise(self, net: torch.nn.Module, x_t: torch.Tensor, t: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
-        return net(x_t, t, to_model_range(state)) if self.conditional else net(x_t, t)
+    def model_input(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """``(x0, cond)`` of a batch (:func:`expert_input`): the demonstration is the (possibly widened,
+        ``data.target_width_px``) path target, so that the expert judges the student's paths at the width the
+        student learns."""
+        return expert_input(batch["state"], batch.get("target", batch["path"]), self.conditional)
 
     def denoising_loss(self, net: torch.nn.Module, batch: dict, generator: torch.Generator | None = None) -> torch.Tensor:
-        x0 = self.clean_sample(batch)
+        x0, cond = self.model_input(batch)
         noise = torch.randn(x0.shape, generator=generator, device=x0.device, dtype=x0.dtype)
         t = torch.randint(0, self.schedule.num_train_timesteps, (x0.shape[0],), device=x0.device, generator=generator)
-        prediction = self.denoise(net, self.schedule.add_noise(x0, noise, t), t, batch["state"])
+        prediction = denoise(net, self.schedule.add_noise(x0, noise, t), t, cond)
         return self.schedule.denoising_error(prediction, x0, noise, t).mean()
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:

@@ -36,7 +36,7 @@ def instantiate_loggers(cfg: DictConfig | None, run_id: str | None = None) -> li
                     extra["run_id"] = run_id
                 if conf.get("tags"):
                     # MLflow tags are strings; a file store stringifies numbers itself, a REST store
-                    # (`mlflow server`) refuses them (e.g. a sweep's `lambda: ${model.guidance.weight}`).
+                    # (`mlflow server`) refuses them (e.g. a sweep's `lambda: ${model.margin.lambda_dm}`).
                     extra["tags"] = {str(k): str(v) for k, v in conf.tags.items() if v is not None}
             log.info("Instantiating logger %s <%s>", name, conf._target_)
             loggers.append(hydra.utils.instantiate(conf, **extra))

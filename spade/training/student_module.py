@@ -1,10 +1,11 @@
-"""``StudentModule``: the compact U-Net policy trained by BC, optionally guided by a frozen diffusion expert."""
+"""``StudentModule``: the compact U-Net policy trained by BC, optionally plus the diffusion margin of a frozen
+diffusion expert (DBC / Cond-DBC)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 import torch.nn.functional as F
@@ -13,23 +14,30 @@ from spade.models import build_model
 from spade.models.modelfile import load_checkpoint, load_lightning, read_info
 from spade.training.base import PathPlanningModule
 from spade.training.errors import ExpertMismatchError  # noqa: F401  (raised by ExpertModule.check_compatible)
-from spade.training.guidance import DiffusionMargin, GuidanceConfig, check_expert_kind
+from spade.training.margin import DiffusionMargin, MarginConfig, legacy_margin_options
+
+if TYPE_CHECKING:
+    from spade.training.expert_module import ExpertModule
 
 
 class StudentModule(PathPlanningModule):
-    """BC (binary cross-entropy on logits) plus ``weight`` x the diffusion margin of a frozen expert.
+    """BC (binary cross-entropy on logits) plus ``lambda_dm`` x the diffusion margin of a frozen expert.
 
     Args:
         size: student preset (``small``, ``medium``, ``large``, or a smaller test preset).
-        guidance: None for plain BC, else a dict with ``expert_ckpt`` (an :class:`ExpertModule` checkpoint) and
-            the :class:`~spade.training.guidance.GuidanceConfig` options (weight, clip, antithetic, num_noise,
-            t_min, t_max). The expert is loaded when fitting starts; it is never part of this module's
-            checkpoint, so a deployed student needs no expert.
+        margin: None for plain BC, else a dict (the ``conf/margin`` group) with ``expert_ckpt`` (an
+            :class:`ExpertModule` checkpoint) and the :class:`~spade.training.margin.MarginConfig` options
+            (lambda_dm, clip, antithetic, num_noise, t_min, t_max, batch_terms, expert). The expert is loaded
+            when fitting starts; it is never part of this module's checkpoint, so a deployed student needs no
+            expert.
         optimizer: a ``_partial_`` optimiser factory (AdamW lr 1e-3 when None).
         bc_pos_weight: weight of the path pixels in the BCE (``pos_weight`` of
             :func:`torch.nn.functional.binary_cross_entropy_with_logits`). None or 1 is the paper's plain BCE. A path
             covers about 1-2% of a window, so a briefly trained student keeps every pixel below 0.5 and no path can
             be extracted; a weight of a few (the quickstart uses 4) makes it commit to a path early.
+        guidance: the name student checkpoints written before issue 19 keep ``margin`` under (``weight`` for
+            ``lambda_dm``): read as ``margin`` (:func:`~spade.training.margin.legacy_margin_options`), so that
+            such checkpoints load with their margin; never saved.
     """
 
     role = "student"
@@ -37,7 +45,7 @@ class StudentModule(PathPlanningModule):
     def __init__(
         self,
         size: str = "medium",
-        guidance: dict | None = None,
+        margin: dict | None = None,
         init_ckpt: str | None = None,
         optimizer: Callable[..., torch.optim.Optimizer] | None = None,
         lr_scheduler: Callable[..., Any] | None = None,
@@ -45,26 +53,30 @@ class StudentModule(PathPlanningModule):
         val_metric_batches: int | None = None,
         grid_size: int = 8,
         bc_pos_weight: float | None = None,
+        guidance: dict | None = None,
     ) -> None:
+        if guidance is not None:  # a checkpoint written before the rename: its hparams say guidance (weight)
+            if margin is not None:
+                raise ValueError("give the margin's options as margin only, not also under their old name guidance")
+            margin = legacy_margin_options(guidance)
         super().__init__(optimizer, metrics, val_metric_batches, grid_size)
         self.lr_scheduler_factory = lr_scheduler  # see PathPlanningModule.configure_optimizers
-        self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"])
+        self.save_hyperparameters(ignore=["optimizer", "lr_scheduler", "guidance"])  # margin as mapped above
         if bc_pos_weight is not None and not bc_pos_weight > 0:
             raise ValueError(f"bc_pos_weight must be > 0 (or null for plain BCE), got {bc_pos_weight}")
         self.bc_pos_weight = None if bc_pos_weight in (None, 1, 1.0) else float(bc_pos_weight)
         self.net = build_model("student", size)
         if init_ckpt:
             self.load_pretrained(init_ckpt)
-        self.guidance_cfg = None
-        if guidance:
-            options = {k: v for k, v in dict(guidance).items() if k != "expert_ckpt"}
-            self.guidance_cfg = GuidanceConfig(**options)
-            ckpt = guidance.get("expert_ckpt")
+        self.margin_cfg: MarginConfig | None = None
+        if margin:
+            self.margin_cfg = MarginConfig.from_options(margin)
+            ckpt = margin.get("expert_ckpt")
             if not ckpt:
-                raise ValueError("guidance needs expert_ckpt: the path of a trained ExpertModule checkpoint")
+                raise ValueError("the margin needs expert_ckpt: the path of a trained ExpertModule checkpoint")
             if not Path(ckpt).is_file():
                 raise FileNotFoundError(
-                    f"guidance expert checkpoint {ckpt} does not exist; train one with "
+                    f"margin expert checkpoint {ckpt} does not exist; train one with "
                     "`python -m spade.train +experiment=<expert experiment>` and pass its checkpoint path"
                 )
         self._margin: list[DiffusionMargin] = []  # kept out of the module tree: never checkpointed or optimised
@@ -85,31 +97,35 @@ class StudentModule(PathPlanningModule):
         weights = {k[len("net."):]: v for k, v in load_checkpoint(path)["state_dict"].items() if k.startswith("net.")}
         self.net.load_state_dict(weights)
 
-    # -- guidance ------------------------------------------------------------------------------------------
+    # -- the diffusion margin ------------------------------------------------------------------------------
     @property
     def margin(self) -> DiffusionMargin | None:
         return self._margin[0] if self._margin else None
 
-    def load_guidance(self, image_size: tuple[int, int] | None = None) -> None:
-        """Load and check the frozen expert named by the guidance config (once)."""
-        if self.guidance_cfg is None or self._margin:
+    def load_margin(self, image_size: tuple[int, int] | None = None) -> None:
+        """Load the frozen expert named by ``margin.expert_ckpt`` as the :class:`ExpertModule` it was trained in
+        (``load_from_checkpoint``, safely) and build the margin from it (:meth:`use_expert`); once."""
+        if self.margin_cfg is None or self._margin:
             return
         from spade.training.expert_module import ExpertModule
 
-        ckpt = self.hparams.guidance["expert_ckpt"]
-        expert = load_lightning(ExpertModule, ckpt)
-        expert.check_compatible(in_channels=self.net.in_channels, image_size=image_size, source=str(ckpt))
-        check_expert_kind(self.guidance_cfg.expert, expert.conditional, str(ckpt))
-        margin = DiffusionMargin(
-            expert.ema_net(), expert.schedule.add_noise, expert.schedule.num_train_timesteps,
-            expert.conditional, self.guidance_cfg,
-        )
-        self._margin.append(margin.to(self.device))
+        ckpt = self.hparams.margin["expert_ckpt"]
+        self.use_expert(load_lightning(ExpertModule, ckpt), image_size, source=str(ckpt))
+
+    def use_expert(self, expert: ExpertModule, image_size: tuple[int, int] | None = None,
+                   source: str = "the expert") -> None:
+        """The margin of ``expert`` (:meth:`DiffusionMargin.from_expert`: frozen, its EMA denoiser and noise
+        schedule), after checking it against this student's data and the kind of expert the method needs."""
+        if self.margin_cfg is None:
+            raise ValueError("this student has no margin options (margin=null): nothing to use an expert for")
+        expert.check_compatible(in_channels=self.net.in_channels, image_size=image_size, source=source)
+        self.margin_cfg.check_expert(expert.conditional, source)
+        self._margin[:] = [DiffusionMargin.from_expert(expert, self.margin_cfg).to(self.device)]
 
     def setup(self, stage: str) -> None:
-        if stage == "fit" and self.guidance_cfg is not None:
+        if stage == "fit" and self.margin_cfg is not None:
             dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
-            self.load_guidance(getattr(dm, "image_size", None))
+            self.load_margin(getattr(dm, "image_size", None))
 
     def on_fit_start(self) -> None:
         if self.margin is not None:
@@ -138,7 +154,7 @@ class StudentModule(PathPlanningModule):
         if self.margin is not None:
             loss_dm, active = self.margin(torch.sigmoid(logits), target, batch["state"].to(logits.dtype))
             out.update(loss_dm=loss_dm, margin_active=active)
-            total = total + self.guidance_cfg.weight * loss_dm
+            total = total + self.margin_cfg.lambda_dm * loss_dm
         out["loss"] = total
         return out
 

@@ -1,4 +1,7 @@
-"""The paper's three metrics over predicted path images, as one module the Lightning modules share."""
+"""The paper's three metrics over predicted path images, as one module the Lightning modules share.
+
+On the metrics floor: it imports only :mod:`spade.metrics` modules (and torch / torchmetrics), never the training
+package that uses it (``PathPlanningModule`` in :mod:`spade.training.base`)."""
 
 from __future__ import annotations
 
@@ -8,10 +11,12 @@ import torch
 from torch import nn
 from torchmetrics.aggregation import MeanMetric
 
-from spade.metrics import APE, FID, HausdorffCount
 from spade.metrics._inputs import per_instance_resolution, to_numpy
+from spade.metrics.ape import APE
 from spade.metrics.baselines import draw_polylines
 from spade.metrics.decoding import PathDecoder
+from spade.metrics.fid import FID
+from spade.metrics.hausdorff import HausdorffCount
 
 log = logging.getLogger(__name__)
 

@@ -1,0 +1,232 @@
+"""The diffusion margin of DBC / Cond-DBC (DESIGN.md section 4): how much less expert-like the student's path is.
+
+L_agent  = || eps_phi(x_t(a_hat), t [, s]) - eps ||^2,  L_expert = || eps_phi(x_t(a), t [, s]) - eps ||^2,
+for an epsilon-predicting expert; in general each term is the expert's denoising error in its own
+parameterisation, || f_phi(x_t(x0), t [, s]) - target(x0, eps, t) ||^2 with target eps (epsilon), x0 (sample) or
+v = sqrt(abar_t) eps - sqrt(1 - abar_t) x0 (v_prediction), x0 being a_hat for the agent term and a for the expert's
+(:meth:`spade.models.diffusion.NoiseSchedule.prediction_target`; with sample / v prediction the agent's target
+depends on a_hat and carries its gradient too; for one x_t the three errors differ only by a per-timestep factor),
+L_DM = E[max(L_agent - L_expert, 0)] (per-sample clipping, the paper's formula) or max(E[L_agent - L_expert], 0)
+(per-batch clipping, DBC's official code). Agent and expert terms share noise and timestep; the expert term
+carries no gradient; the expert's weights never change, but gradients flow through it into the student's
+prediction.
+
+The expert is the :class:`~spade.training.expert_module.ExpertModule` it was trained in
+(:meth:`DiffusionMargin.from_expert`): its EMA denoiser (what its sampling uses), its noise schedule (forward
+process, prediction type, timesteps) and its input builder (:func:`~spade.training.expert_module.expert_input`, also
+used by its training step). The weight lambda (``lambda_dm``, ``L = L_BC + lambda_dm * L_DM``) and the options are
+:class:`MarginConfig` (``conf/margin/*.yaml``, ``model.margin``), whose checks are the only ones: the config
+check of ``spade.train`` runs them too.
+
+Cost. A step with the margin adds three expert passes to BC's student forward and backward: the agent term's
+forward, its backward (input gradients only: the expert's parameters do not require grad, so no weight gradients
+are formed) and the expert term's forward without autograd. By default the two terms go through the expert separately;
+``batch_terms=True`` sends ``[agent; expert]`` through one forward of twice the batch (the expert half detached),
+which saves per-call overhead but makes the backward compute input gradients for the expert half too: on a CPU
+at batch 32 it is about 1.4x slower than separate passes, so it is only worth it where per-call overhead
+dominates (small batches on an accelerator). ``python -m spade.bench`` measures both.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any
+
+import torch
+from torch import nn
+
+from spade.models.diffusion import sample_timesteps
+from spade.training.errors import ExpertMismatchError
+from spade.training.expert_module import ExpertModule, denoise, expert_input
+
+__all__ = ["EXPERT_KINDS", "DiffusionMargin", "MarginConfig", "MarginOptionError", "legacy_margin_options",
+           "sample_timesteps"]
+
+#: ``MarginConfig.expert`` -> whether that method's expert is conditional (None: either).
+EXPERT_KINDS: dict[str | None, bool | None] = {"conditional": True, "unconditional": False, None: None}
+
+#: Keys of the options as checkpoints written before issue 19 store them (hyper-parameter ``guidance``) -> now.
+LEGACY_KEYS: dict[str, str] = {"weight": "lambda_dm"}
+
+
+def legacy_margin_options(guidance: Mapping[str, Any]) -> dict[str, Any]:
+    """The ``margin`` options of a student checkpoint written before the rename, from its ``guidance`` entry
+    (``weight`` is ``lambda_dm``; the other keys kept their names)."""
+    return {LEGACY_KEYS.get(k, k): v for k, v in dict(guidance).items()}
+
+
+class MarginOptionError(ValueError):
+    """A margin option of the wrong type or out of range. ``str()`` names the option (``lambda_dm=-1 ...``);
+    :meth:`at` names it under a config path (``model.margin.lambda_dm=-1 ...``)."""
+
+    def __init__(self, key: str, template: str) -> None:
+        self.key, self.template = key, template
+        super().__init__(template.format(key=key))
+
+    def at(self, prefix: str) -> str:
+        """The message with the option's key as ``prefix + key`` (e.g. ``prefix="model.margin."``)."""
+        return self.template.format(key=prefix + self.key)
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+@dataclass(frozen=True)
+class MarginConfig:
+    """Options of the diffusion margin; ``__post_init__`` holds every check of them (the config check of
+    ``spade.train`` builds one too, so that a bad value stops the run before anything is made)."""
+
+    lambda_dm: float = 1.0  # lambda in L_total = L_BC + lambda * L_DM
+    clip: str = "sample"  # "sample" (E[max(.,0)]) or "batch" (max(E[.],0))
+    antithetic: bool = True  # half the timesteps t, half T-1-t
+    num_noise: int = 1  # K noise draws per instance, averaged
+    t_min: int = 0
+    t_max: int | None = None  # exclusive; None = the schedule's T
+    batch_terms: bool = False  # one expert forward over [agent; expert] (see the module docstring for when it pays)
+    # Which expert the method needs: "conditional" (Cond-DBC), "unconditional" (DBC); None accepts either.
+    expert: str | None = None
+
+    def __post_init__(self) -> None:
+        lam = self.lambda_dm
+        fix = "set it to a number >= 0 (lambda; 0 turns the margin off)"
+        if not (isinstance(lam, (int, float)) and not isinstance(lam, bool) and math.isfinite(lam)):
+            raise MarginOptionError("lambda_dm", "{key}=" + f"{lam!r} is not a number; {fix}")
+        if lam < 0:
+            raise MarginOptionError("lambda_dm", "{key}=" + f"{lam:g} is out of range; {fix}")
+        self._choice("clip", ["sample", "batch"])
+        self._choice("expert", [k for k in EXPERT_KINDS if k], none_ok=True)
+        for key in ("antithetic", "batch_terms"):
+            if not isinstance(getattr(self, key), bool):
+                raise MarginOptionError(key, "{key}=" + f"{getattr(self, key)!r} is not a boolean; set "
+                                        "{key}=true or {key}=false")
+        self._int("num_noise", 1)
+        self._int("t_min", 0)
+        if self.t_max is not None:
+            self._int("t_max", self.t_min + 1, what=f"> t_min={self.t_min} (or null for all of the expert's)")
+
+    def _choice(self, key: str, choices: list[str], none_ok: bool = False) -> None:
+        value = getattr(self, key)
+        if not (value is None and none_ok) and value not in choices:
+            tail = " (or null for either)" if none_ok else ""
+            raise MarginOptionError(key, "{key}=" + f"{value!r} is not one of {choices}; set " + "{key}="
+                                    + f"{choices[0]} (or another of them){tail}")
+
+    def _int(self, key: str, low: int, what: str | None = None) -> None:
+        value, what = getattr(self, key), what or f">= {low}"
+        if not _is_int(value):
+            raise MarginOptionError(key, "{key}=" + f"{value!r} is not an integer; set it to an integer {what}")
+        if value < low:
+            raise MarginOptionError(key, "{key}=" + f"{value} is out of range; set it to an integer {what}")
+
+    @classmethod
+    def from_options(cls, options: Mapping[str, Any]) -> MarginConfig:
+        """From the ``model.margin`` group (``expert_ckpt`` is the student's, not an option of the margin)."""
+        known = {f.name for f in fields(cls)}
+        options = {k: v for k, v in dict(options).items() if k != "expert_ckpt"}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise MarginOptionError(unknown[0], "{key} is not an option of the diffusion margin; its options are "
+                                    f"{sorted(known)} (and expert_ckpt)")
+        return cls(**options)
+
+    def check_expert(self, conditional: bool, source: str) -> None:
+        """Refuse an expert of the other kind than the method needs (DBC: unconditional, Cond-DBC: conditional),
+        with the fix; ``expert`` None accepts either. ``source`` names the expert in the message."""
+        need = EXPERT_KINDS.get(self.expert)
+        if need is None or need == conditional:
+            return
+        wanted, have = self.expert, "conditional" if conditional else "unconditional"
+        method, other = ("Cond-DBC (margin=cond_dbc)", "margin=dbc") if need else \
+            ("DBC (margin=dbc)", "margin=cond_dbc")
+        have_a, want_a = ("a" if conditional else "an"), ("a" if need else "an")
+        raise ExpertMismatchError(
+            f"{source} is {have_a} {have} expert, but {method} needs {want_a} {wanted} one; pass {want_a} {wanted} "
+            f"expert (an expert_{'cond' if need else 'uncond'}_* experiment) or use {other} for this expert"
+        )
+
+
+class DiffusionMargin(nn.Module):
+    """Computes L_DM for a frozen expert; build it with :meth:`from_expert` from the ExpertModule that trained it.
+
+    ``expert(x_t, t[, cond])`` predicts the noise (or x0 or v: ``prediction_target``); ``conditional`` experts see
+    the path channel only, conditioned on the state; unconditional ones see the 4-channel stack (state, path) with
+    noise on all four channels (:func:`~spade.training.expert_module.expert_input` builds both).
+    ``add_noise(x0, noise, t)`` is the schedule's forward process. ``prediction_target(x0, noise, t)`` is what
+    the expert predicts (None: taken from the :class:`~spade.models.diffusion.NoiseSchedule` that ``add_noise``
+    is a method of, else the noise: an epsilon expert).
+    """
+
+    def __init__(self, expert: nn.Module, add_noise, num_train_timesteps: int, conditional: bool,
+                 config: MarginConfig, prediction_target=None) -> None:
+        super().__init__()
+        self.expert = expert.eval().requires_grad_(False)
+        self.add_noise = add_noise
+        if prediction_target is None:
+            prediction_target = getattr(getattr(add_noise, "__self__", None), "prediction_target", None)
+        self.prediction_target = prediction_target or (lambda x0, noise, t: noise)
+        self.T = int(num_train_timesteps)
+        self.conditional = conditional
+        self.config = config
+        t_max = config.t_max if config.t_max is not None else self.T
+        if t_max > self.T:
+            raise ValueError(f"margin t_max={t_max} exceeds the expert's {self.T} training timesteps")
+        self.t_max = t_max
+
+    @classmethod
+    def from_expert(cls, expert: ExpertModule, config: MarginConfig) -> DiffusionMargin:
+        """The margin of a trained :class:`~spade.training.expert_module.ExpertModule` (e.g. from
+        ``load_from_checkpoint``), frozen (``eval()``, no gradients): its EMA denoiser (:meth:`ema_net`, what its
+        sampling uses), its kind and its noise schedule (forward process, prediction type, training timesteps).
+        The margin keeps the EMA denoiser and the schedule, not the module (whose raw training weights it does
+        not need)."""
+        expert.eval().requires_grad_(False)
+        schedule = expert.schedule
+        return cls(expert.ema_net(), schedule.add_noise, schedule.num_train_timesteps, expert.conditional, config,
+                   prediction_target=schedule.prediction_target)
+
+    def train(self, mode: bool = True) -> DiffusionMargin:
+        # The expert stays in eval mode (frozen normalisation statistics, no dropout) whatever the student does.
+        super().train(mode)
+        self.expert.eval()
+        return self
+
+    def _errors(self, agent_x0: torch.Tensor, expert_x0: torch.Tensor, noise: torch.Tensor, t: torch.Tensor,
+                cond: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per-sample denoising errors (agent with autograd, expert without) for one shared noise and timestep."""
+        if self.config.batch_terms:
+            b = agent_x0.shape[0]
+            x0, noise2, t2 = torch.cat([agent_x0, expert_x0.detach()]), torch.cat([noise, noise]), torch.cat([t, t])
+            out = denoise(self.expert, self.add_noise(x0, noise2, t2), t2,
+                          None if cond is None else torch.cat([cond, cond]))
+            err = (out - self.prediction_target(x0, noise2, t2)).pow(2).flatten(1).mean(1)
+            return err[:b], err[b:].detach()
+        with torch.no_grad():
+            out = denoise(self.expert, self.add_noise(expert_x0, noise, t), t, cond)
+            expert_err = (out - self.prediction_target(expert_x0, noise, t)).pow(2).flatten(1).mean(1)
+        out = denoise(self.expert, self.add_noise(agent_x0, noise, t), t, cond)
+        agent_err = (out - self.prediction_target(agent_x0, noise, t)).pow(2).flatten(1).mean(1)
+        return agent_err, expert_err
+
+    def forward(self, student_prob: torch.Tensor, target: torch.Tensor, state: torch.Tensor,
+                generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Return (L_DM, fraction of active margins). ``student_prob`` and ``target`` are (B, 1, H, W) in [0, 1]."""
+        cfg = self.config
+        agent_x0, cond = expert_input(state, student_prob, self.conditional)
+        expert_x0, _ = expert_input(state, target, self.conditional)
+        b = student_prob.shape[0]
+        margins = []
+        for _ in range(cfg.num_noise):
+            t = sample_timesteps(b, cfg.t_min, self.t_max, cfg.antithetic, student_prob.device, generator)
+            noise = torch.randn(agent_x0.shape, device=agent_x0.device, dtype=agent_x0.dtype, generator=generator)
+            agent_err, expert_err = self._errors(agent_x0, expert_x0, noise, t, cond)
+            margins.append(agent_err - expert_err)
+        margin = torch.stack(margins).mean(0)
+        if cfg.clip == "sample":
+            loss = margin.clamp_min(0).mean()
+        else:
+            loss = margin.mean().clamp_min(0)
+        active = (margin > 0).float().mean()
+        return loss, active
