@@ -52,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from spade.data.format import MANIFEST, read_manifest_json
 from spade.data.settings import Generator
 
 GENERATE = {
@@ -87,12 +88,12 @@ def ensure_data(data_dir: Path, generate: Generator | None = None) -> list[Path]
     roots = []
     for name, spec in GENERATE.items():
         root = data_dir / name
-        if not (root / "manifest.json").is_file():
+        if not (root / MANIFEST).is_file():
             generate = generate or configured_generator()
             generate(root, {"preset": spec["preset"], "set": [{
                 "window": {"size_px": 64, "resolution_m": 0.1}, "instances": {"spacing_m": 0.1},
                 "num_instances": NUM_INSTANCES, "seed": spec["seed"], "workers": 1, "progress": False}]})
-        generator = json.loads((root / "manifest.json").read_text())["generator"]
+        generator = read_manifest_json(root)["generator"]
         if (int(generator["seed"]) != spec["seed"] or int(generator["num_instances"]) != NUM_INSTANCES
                 or int(generator["window"]["size_px"]) != 64):
             raise ValueError(f"{root} was not generated with seed {spec['seed']}, {NUM_INSTANCES} instances at 64 px; "
