@@ -167,11 +167,11 @@ def test_path_metrics_report_the_paper_and_the_planner_figures() -> None:
 
 def test_u_template_turns_back_to_the_goal() -> None:
     start, goal = np.array([32.0, 48.0]), np.array([42.0, 40.0])  # 1 m to the right, 0.8 m ahead, at 0.1 m/px
-    poly = u_template(start, goal, 0.1, window=(H, H))
+    poly = u_template(start, goal, 0.1, tail_m=1.2, window=(H, H))
     np.testing.assert_allclose(poly[0], start)
     np.testing.assert_allclose(poly[-1], goal)
     top = poly[:, 1].min()
-    assert top == pytest.approx(48 - 8 - 12 - 5, abs=0.3)  # goal ahead 8 px + the 1.2 m tail, radius 5 px
+    assert top == pytest.approx(48 - 8 - 12 - 5, abs=0.3)  # goal ahead 8 px + a 1.2 m way back, radius 5 px
     assert poly[:, 0].max() == pytest.approx(42.0, abs=1e-6) and poly[:, 0].min() == pytest.approx(32.0, abs=1e-6)
     heading_turn = np.degrees(np.arctan2(*(poly[-1] - poly[-2])[::-1]))  # the last leg runs back down (+y)
     assert heading_turn == pytest.approx(90.0, abs=1e-6)
@@ -179,7 +179,11 @@ def test_u_template_turns_back_to_the_goal() -> None:
     assert near_top[:, 1].min() >= -1e-6  # the turn stays inside the window
     np.testing.assert_allclose(u_template(start, np.array([32.3, 30.0]), 0.1), [start, [32.3, 30.0]])
     np.testing.assert_allclose(shape_template(start, goal, 0.1, "L"), heading_template(start, goal))
-    np.testing.assert_allclose(shape_template(start, goal, 0.1, "U", (H, H)), poly)
+    default = u_template(start, goal, 0.1, window=(H, H))  # U_TAIL_M = 0: the turn starts abreast of the goal
+    assert default[:, 1].min() == pytest.approx(48 - 8 - 5, abs=0.3)
+    np.testing.assert_allclose(default[-1], goal)
+    assert np.linalg.norm(np.diff(default, axis=0), axis=1).min() > 1e-6  # no repeated point at the goal
+    np.testing.assert_allclose(shape_template(start, goal, 0.1, "U", (H, H)), default)
 
 
 def test_decoding_is_deterministic() -> None:
