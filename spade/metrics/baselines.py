@@ -14,9 +14,8 @@ A learned planner is worth deploying only where it beats these on the operator's
   the way back), so a longer way back overshoots. On 150 training instances of the transfer preset at
   ``scale=cpu`` the mean distance to the demonstration was 29.4 / 30.9 / 32.7 / 40.7 / 61.5 cm for a way back
   of 0 / 0.2 / 0.3 / 0.6 / 1.2 m (the annotation presets' mean U tail, 1.2 m, was this template's first
-  setting: 55.1 cm APE on the cpu-scale U transfer test, worse than the straight line's 49.7).
-  On U test sets an L template degenerates (48.9 cm on the cpu-scale U transfer test, no better than the
-  straight line), so every U instance gets the U template.
+  setting: 55.1 cm APE on the cpu-scale U transfer test, worse than the straight line's 49.7; now 28.75 cm).
+  An L template degenerates on U test sets too (48.9 cm there), so every U instance gets the U template.
 
 Each predictor gives a polyline in window pixel coordinates; :func:`baseline_images` draws them as one-pixel
 probability images, which go through the same extraction, APE, Hd19 and FID as a model's prediction.
