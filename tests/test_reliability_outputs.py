@@ -303,7 +303,7 @@ def test_a_registry_expert_of_the_wrong_kind_is_refused_before_training(spade_ho
     stops the same way."""
     import torch
 
-    from spade.annotation.frame import RobotFrame
+    from spade.maps.frame import RobotFrame
     from spade.experiments import prerequisites
     from spade.experiments import run as run_module
     from spade.models import build_model

@@ -5,5 +5,5 @@ Modules: ``templates`` (L/U sketches), ``scenarios`` (goals, placement, per-scen
 sketches), ``preview`` (contact sheet), ``importers`` (rosbag2, SKIPP). ``run`` (one annotation run, :func:`spade.annotation.run.annotate`). The CLI is :mod:`spade.annotate`.
 The robot frame of the windows (:mod:`spade.maps.frame`) and their rasterisation into the four images
 (:mod:`spade.data.rasterize`) live below this package, where the dataset writer, the metrics and the planner use
-them too (``frame`` and ``rasterize`` here re-export their names).
+them too.
 """

@@ -23,8 +23,7 @@ from spade.data.polyline import polyline_length, resample_polyline, smooth_path
 from spade.maps.costmap import Costmap, build_costmap
 from spade.maps.occupancy import FREE
 
-__all__ = ["Costmap", "ExecutedPath", "Rejection", "build_costmap", "execute_sketch", "hausdorff_px", "smooth_path",
-           "total_turn_deg"]
+__all__ = ["ExecutedPath", "Rejection", "execute_sketch", "hausdorff_px", "total_turn_deg"]
 
 
 class Rejection(Exception):

@@ -14,5 +14,5 @@ that runs rows and keeps their records:
   hold, and ``python -m spade.report``'s fetching and rendering.
 
 Composing the project's Hydra configs from code is :func:`spade.utils.config.compose_config` (on the lowest floor,
-so that every package may compose a config; :mod:`~spade.experiments.config` re-exports it).
+so that every package may compose a config).
 """
