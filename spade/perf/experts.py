@@ -39,6 +39,8 @@ def _run(module: Any, state: torch.Tensor, sampler: str, steps: int, calls: int 
         pass
     finally:
         handle.remove()
+    if state.is_cuda:  # CUDA runs asynchronously: the loop's time is the device's
+        torch.cuda.synchronize(state.device)
     return time.perf_counter() - t0
 
 

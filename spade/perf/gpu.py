@@ -121,12 +121,13 @@ def expert_step(conditional: bool, preset: str, image_size: int, batch_size: int
                 prediction_type: str = "sample") -> dict[str, Any]:
     """One AdamW step of an expert's denoising loss (``ExpertModule.denoising_loss``) with its EMA update; on
     CUDA out-of-memory the batch halves until it fits (reported as ``batch_size``)."""
+    from spade.models import count_parameters
     from spade.training.expert_module import ExpertModule
 
     row: dict[str, Any] = {"expert": "cond" if conditional else "uncond", "preset": preset, "image_size": image_size}
     module = ExpertModule(conditional=conditional, preset=preset, prediction_type=prediction_type, ema_decay=0.999)
     module.to(device).train()
-    row["params_m"] = round(sum(p.numel() for p in module.net.parameters()) / 1e6, 2)
+    row["params_m"] = round(count_parameters(module.net, trainable_only=False) / 1e6, 2)
     optimizer = torch.optim.AdamW(module.net.parameters(), lr=1e-4)
     while True:
         batch = _batch(batch_size, image_size, device)
@@ -153,7 +154,6 @@ def expert_step(conditional: bool, preset: str, image_size: int, batch_size: int
             optimizer.zero_grad(set_to_none=True)
             batch_size //= 2
     row["samples_per_s"] = round(row["batch_size"] / (row["step_ms"] / 1000), 1) if row.get("step_ms") else None
-    del module, optimizer
     return row
 
 
@@ -179,29 +179,22 @@ def student_step(size: str, expert_preset: str | None, image_size: int, batch_si
                            "expert_preset": expert_preset, "image_size": image_size, "batch_size": batch_size}
     with _peak_memory(device, row):
         row.update(_timed_steps(step, device, timed_steps, warmup))
-    del module, optimizer
     return row
 
 
 def sampling_cost(preset: str, image_size: int, batch_size: int, ddim_steps: int, device: torch.device,
                   precision: str = "bf16") -> dict[str, Any]:
     """Seconds per sample of the conditional expert's DDIM loop, ``batch_size`` states at once."""
+    from spade.perf.experts import sampling_seconds
     from spade.training.expert_module import ExpertModule
 
-    module = ExpertModule(conditional=True, preset=preset, prediction_type="sample",
-                          num_inference_steps=ddim_steps).to(device).eval()
+    module = ExpertModule(conditional=True, preset=preset, prediction_type="sample").to(device).eval()
     state = _batch(batch_size, image_size, device)["state"]
-    sync = _sync(device)
-
-    def run() -> None:
-        with _autocast(device, precision):
-            module.sample_paths(state)
-        sync()
-
-    timing = measure(run, runs=2, warmup=1)
+    with _autocast(device, precision):
+        cost = sampling_seconds(module, state, "ddim", ddim_steps)
+    per_sample = cost["seconds_per_sample"]
     return {"preset": preset, "image_size": image_size, "batch_size": batch_size, "ddim_steps": ddim_steps,
-            "batch_s": round(timing.median_ms / 1000, 3),
-            "ms_per_sample": round(timing.median_ms / batch_size, 2)}
+            "batch_s": round(per_sample * batch_size, 3), "ms_per_sample": round(per_sample * 1000, 2)}
 
 
 def _run_figures(store: Path) -> list[dict[str, Any]]:
