@@ -9,24 +9,19 @@ first); prints Markdown, writes JSON (``out_json``). ``conf/gpu_check.yaml`` lis
 
 from __future__ import annotations
 
-import sys
-
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
 from spade.perf.gpu import DeviceUnavailableError, format_gpu_report, gpu_check, write_json
+from spade.utils.errors import exit_on_errors
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="gpu_check")
 def main(cfg: DictConfig) -> None:
     settings = {k: OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v
                 for k, v in cfg.items() if k not in ("paths", "hydra", "out_json")}
-    try:
-        results = gpu_check(settings)
-    except (DeviceUnavailableError, ValueError) as exc:
-        print(f"spade.gpu_check: {exc}", file=sys.stderr)
-        sys.exit(2)
+    results = exit_on_errors((DeviceUnavailableError, ValueError))(gpu_check)(settings)
     path = write_json(results, cfg.out_json)
     print(format_gpu_report(results))
     print(f"\nJSON: {path}")

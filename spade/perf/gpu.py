@@ -53,7 +53,7 @@ def _check_device(device: str) -> torch.device:
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise DeviceUnavailableError("device=cuda but torch sees no CUDA GPU (torch.cuda.is_available() is False): run this "
                            "on a machine with an NVIDIA GPU and a CUDA build of torch, or pass device=cpu with the "
-                           "tiny settings of the README to check the script itself")
+                           "tiny settings in conf/gpu_check.yaml to check the script itself")
     if dev.type not in ("cuda", "cpu"):
         raise ValueError(f"device must be cuda, cuda:N or cpu, got {device!r}")
     return dev
