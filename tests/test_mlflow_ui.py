@@ -266,6 +266,42 @@ def test_an_experiment_a_parallel_job_creates_first_is_bound_and_tagged(tmp_path
     assert [r.info.run_id for r in ml.experiment.search_runs([experiment.experiment_id])] == [ml.run_id]
 
 
+def test_a_tag_a_parallel_job_writes_at_the_same_moment_is_not_an_error(tmp_path: Path,
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two sweep jobs tag the new experiment together: the other job's insert lands between this job's look-up and
+    insert, whose write fails on the unique key (CI saw it through ``mlflow server``). The run still opens and
+    the experiment ends with SPADE's tags; a failure that leaves the tag unset still raises."""
+    from mlflow import MlflowClient
+    from mlflow.exceptions import MlflowException
+
+    from spade.experiments.tracking import KIND_TAG, NOTE_TAG, VIEW_TAG, bind_experiment
+
+    set_tag = MlflowClient.set_experiment_tag
+    raced: list[str] = []
+
+    def written_first_by_another_job(self, experiment_id, key, value):
+        if key not in raced:  # the other job wins each tag once; its note is its own
+            raced.append(key)
+            set_tag(self, experiment_id, key, "the other job's note" if key == NOTE_TAG else value)
+            raise MlflowException("UNIQUE constraint failed: experiment_tags.key, experiment_tags.experiment_id")
+        return set_tag(self, experiment_id, key, value)
+
+    monkeypatch.setattr(MlflowClient, "set_experiment_tag", written_first_by_another_job)
+    ml = _logger(tmp_path, "table1")
+    bind_experiment(ml)
+    tags = ml.experiment.get_experiment(ml.experiment_id).tags
+    assert raced == [KIND_TAG, NOTE_TAG, VIEW_TAG]
+    assert tags[KIND_TAG] == "custom_model_development" and tags[NOTE_TAG] == "the other job's note"
+    assert VIEW_TAG in tags
+
+    def failing(self, experiment_id, key, value):
+        raise MlflowException("the store is read-only")
+
+    monkeypatch.setattr(MlflowClient, "set_experiment_tag", failing)
+    with pytest.raises(MlflowException, match="read-only"):
+        bind_experiment(_logger(tmp_path, "table2"))
+
+
 def test_datasets_are_run_inputs_with_fingerprint_source_context_and_profile(tmp_path: Path) -> None:
     import json
     from types import SimpleNamespace

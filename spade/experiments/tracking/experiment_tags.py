@@ -81,14 +81,35 @@ def experiment_description(name: str, cfg: DictConfig | None = None) -> str:
     )
 
 
+def _set_tag(client: Any, experiment_id: str, key: str, value: str, *, keep_existing: bool = False) -> None:
+    """Set one experiment tag, safely when a parallel job sets the same tag at the same moment.
+
+    MLflow's SQL store writes an experiment tag as look-up-then-insert: two jobs of a sweep that start together
+    both find the tag absent and the second insert fails on the table's unique key (``IntegrityError``, a
+    ``RestException`` through ``mlflow server``). The tag is then set (by the other job): read it back, and set it
+    again only when it still differs (``keep_existing``: any value the other job wrote is kept).
+    """
+    from mlflow.exceptions import MlflowException
+
+    try:
+        client.set_experiment_tag(experiment_id, key, value)
+    except MlflowException:
+        current = (client.get_experiment(experiment_id).tags or {}).get(key)
+        if current is None:
+            raise
+        if current != value and not keep_existing:
+            client.set_experiment_tag(experiment_id, key, value)  # the row exists now: this write is an update
+
+
 def ensure_experiment_tags(client: Any, experiment: Any, cfg: DictConfig | None = None) -> None:
     """Tag ``experiment`` as model training, store SPADE's runs view (:func:`runs_view_state`) and add the
     description where there is none (a description a person wrote in the UI is kept)."""
     tags = dict(experiment.tags or {})
+    eid = experiment.experiment_id
     if tags.get(KIND_TAG) != KIND_TRAINING:
-        client.set_experiment_tag(experiment.experiment_id, KIND_TAG, KIND_TRAINING)
+        _set_tag(client, eid, KIND_TAG, KIND_TRAINING)
     if not tags.get(NOTE_TAG):
-        client.set_experiment_tag(experiment.experiment_id, NOTE_TAG, experiment_description(experiment.name, cfg))
+        _set_tag(client, eid, NOTE_TAG, experiment_description(experiment.name, cfg), keep_existing=True)
     view = runs_view_state()
     if tags.get(VIEW_TAG) != view:
-        client.set_experiment_tag(experiment.experiment_id, VIEW_TAG, view)
+        _set_tag(client, eid, VIEW_TAG, view)
