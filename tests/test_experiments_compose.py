@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from spade.paths import CONF_DIR
+import spade.experiments.multirun  # noqa: F401  (registers the tables' ${spade_sweep:} and ${spade_rows:})
 from spade.experiments.run import train
 from training_helpers import compose_row
 
@@ -126,6 +127,32 @@ def test_seed_list_composes_into_rows_times_seeds(table: str, count: int, spade_
     assert all("scale=tiny" in j for j in jobs)  # the command line's scale reaches every job
     one = _jobs(_table_config(table, spade_home, "seed=5"))
     assert len(one) == count and all("seed=5" in j for j in one)
+
+
+def test_rows_select_a_subset_of_a_table_by_name_or_pattern(spade_home: Path) -> None:
+    """`rows=` runs part of a table (Hydra refuses `hydra.sweeper.params.experiment=` on the command line)."""
+    cfg = _table_config("table1", spade_home, "rows=[t1_small_*_L,expert_cond_L]", "seeds=[42,1]")
+    jobs = _jobs(cfg)
+    assert [j[0] for j in jobs] == [f"experiment={r}" for r in ("expert_cond_L", "t1_small_bc_L", "t1_small_dbc_L",
+                                                               "t1_small_conddbc_L") for _ in (42, 1)]  # table order
+    one = _jobs(_table_config("ablation_scratch", spade_home, "rows=[t3_bc_scratch_U]"))
+    assert [j[:2] for j in one] == [["experiment=t3_bc_scratch_U", f"seed={s}"] for s in (42, 1, 2)]
+    everything = _table_config("ablation_finetune", spade_home)
+    assert everything.hydra.sweeper.params.experiment.split(",") == [
+        "t2_bc_finetune_U", "t2_augbc_finetune_bc_U", "t2_augbc_finetune_conddbc_U"]
+
+
+def test_row_selection_is_checked() -> None:
+    from spade.experiments.multirun import row_sweep
+
+    table = ("t1_small_bc_L", "t1_small_bc_U", "t1_medium_bc_L")
+    assert row_sweep(None, *table) == ",".join(table)
+    assert row_sweep(["*_L"], *table) == "t1_small_bc_L,t1_medium_bc_L"
+    assert row_sweep("t1_small_bc_U", *table) == "t1_small_bc_U"
+    with pytest.raises(ValueError, match=r"match no row of this table; its rows: t1_small_bc_L, t1_small_bc_U"):
+        row_sweep(["t1_tiny_*"], *table)
+    with pytest.raises(ValueError, match="selects no row"):
+        row_sweep([], *table)
 
 
 def test_seed_list_is_checked() -> None:

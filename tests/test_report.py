@@ -29,7 +29,12 @@ def test_table_layouts_match_the_experiment_configs(key: str) -> None:
     for row in table.rows:
         cfg = _experiment_yaml(row)
         assert cfg["run_name"] == row and cfg["tags"]["table"] == table.experiment, row
-    launched = _experiment_yaml(table.composition)["hydra"]["sweeper"]["params"]["experiment"].split(",")
+    from omegaconf import OmegaConf
+
+    import spade.experiments.multirun  # noqa: F401  (registers ${spade_rows:})
+
+    sweep = _experiment_yaml(table.composition)["hydra"]["sweeper"]["params"]["experiment"]
+    launched = OmegaConf.create({"rows": None, "experiment": sweep}).experiment.split(",")  # rows=null: all
     assert sorted(launched) == sorted(table.rows)
     for comp in table.comparisons:
         assert {comp.row, comp.baseline} <= set(table.rows)

@@ -37,7 +37,7 @@ except ImportError:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-__all__ = ["STEP_SECONDS", "TableStart", "estimate_row", "seed_sweep", "start_message"]
+__all__ = ["STEP_SECONDS", "TableStart", "estimate_row", "row_sweep", "seed_sweep", "start_message"]
 
 DEFAULT_SEEDS = (42, 1, 2)
 
@@ -61,7 +61,30 @@ def seed_sweep(seeds: Any) -> str:
     return ",".join(map(str, ints))
 
 
+def row_sweep(rows: Any, *table_rows: str) -> str:
+    """The rows of a table to run, as Hydra's sweep of ``experiment``: all of ``table_rows`` for ``rows=null``,
+    else those that one of ``rows`` names or matches as a shell pattern (``rows=[t1_small_*_L,expert_*_L]``),
+    in the table's order.
+
+    Overriding ``hydra.sweeper.params.experiment`` on the command line does not work (Hydra refuses to sweep its
+    own config), so a table's subset of rows is chosen with this key, like its seeds with ``seeds=``. A name or
+    pattern that matches no row is an error that lists the table's rows.
+    """
+    import fnmatch
+
+    if rows is None:
+        return ",".join(table_rows)
+    wanted = [str(r) for r in rows] if isinstance(rows, (list, tuple, ListConfig)) else [str(rows)]
+    if not wanted:
+        raise ValueError("rows=[] selects no row; leave rows out for all of them, or name some, e.g. rows=[t1_small_*_L]")
+    unmatched = [w for w in wanted if not fnmatch.filter(table_rows, w)]
+    if unmatched:
+        raise ValueError(f"rows={unmatched} match no row of this table; its rows: {', '.join(table_rows)}")
+    return ",".join(r for r in table_rows if any(fnmatch.fnmatchcase(r, w) for w in wanted))
+
+
 OmegaConf.register_new_resolver("spade_sweep", seed_sweep, replace=True)
+OmegaConf.register_new_resolver("spade_rows", row_sweep, replace=True)
 
 
 # Seconds per training step, batch 32, 64 px windows, 2 CPU cores (torch with 2 threads). Sources: the README's
@@ -165,7 +188,7 @@ def _passed_overrides(config: DictConfig) -> list[str]:
         task = list(config.hydra.overrides.task)
     except Exception:  # noqa: BLE001
         return []
-    skip = ("experiment", "seed", "seeds", "hydra", "scale")
+    skip = ("experiment", "seed", "seeds", "rows", "hydra", "scale")
     return [o for o in task if not o.split("=", 1)[0].lstrip("+~").startswith(skip)]
 
 
