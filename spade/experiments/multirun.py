@@ -77,7 +77,7 @@ def row_sweep(rows: Any, *table_rows: str) -> str:
     wanted = [str(r) for r in rows] if isinstance(rows, (list, tuple, ListConfig)) else [str(rows)]
     if not wanted:
         raise ValueError("rows=[] selects no row; leave rows out for all of them, or name some, e.g. rows=[t1_small_*_L]")
-    unmatched = [w for w in wanted if not fnmatch.filter(table_rows, w)]
+    unmatched = [w for w in wanted if not any(fnmatch.fnmatchcase(r, w) for r in table_rows)]
     if unmatched:
         raise ValueError(f"rows={unmatched} match no row of this table; its rows: {', '.join(table_rows)}")
     return ",".join(r for r in table_rows if any(fnmatch.fnmatchcase(r, w) for w in wanted))
