@@ -331,6 +331,56 @@ def test_datasets_are_run_inputs_with_fingerprint_source_context_and_profile(tmp
         dataset_fingerprint(tmp_path / "nothing")
 
 
+def test_a_dataset_a_parallel_job_logs_at_the_same_moment_is_linked_not_an_error(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two sweep jobs test on one set and finish together: the other job's dataset row lands between this job's
+    look-up and insert, which fails on the unique key (CI saw it through ``mlflow server``). The run ends up
+    linked to the one shared row; any other failure still raises."""
+    from types import SimpleNamespace
+
+    from mlflow import MlflowClient
+    from mlflow.exceptions import MlflowException
+
+    from factories import write_synthetic
+    from spade.experiments.tracking import dataset_uses, log_dataset_inputs
+
+    for name, seed in (("lshape", 0), ("test", 1)):
+        write_synthetic(tmp_path / "tiny" / name, n=9, seed=seed)
+    datamodule = SimpleNamespace(train_dir=tmp_path / "tiny/lshape", test_dir=tmp_path / "tiny/test",
+                                 train_set=list(range(6)), val_set=list(range(3)), test_set=list(range(9)))
+    other, this = _logger(tmp_path, "table1"), _logger(tmp_path, "table1")
+    other_run, this_run = other.run_id, this.run_id  # both runs open before either logs
+    log_inputs = MlflowClient.log_inputs
+    calls: list[str] = []
+
+    def raced_by_the_other_job(self, run_id, datasets=None, models=None):
+        calls.append(run_id)
+        if len(calls) == 1:  # the other job's rows commit first; this job's insert then breaks the unique key
+            log_inputs(self, other_run, datasets=datasets)
+            raise MlflowException("(sqlite3.IntegrityError) UNIQUE constraint failed: datasets.experiment_id, "
+                                  "datasets.name, datasets.digest")
+        return log_inputs(self, run_id, datasets=datasets, models=models)
+
+    monkeypatch.setattr(MlflowClient, "log_inputs", raced_by_the_other_job)
+    log_dataset_inputs(this.experiment, this_run, dataset_uses(datamodule))
+    assert calls == [this_run, this_run]
+    names = {run: sorted(d.dataset.name for d in this.experiment.get_run(run).inputs.dataset_inputs)
+             for run in (this_run, other_run)}
+    assert names[this_run] == names[other_run] == ["tiny/lshape (train split)", "tiny/lshape (validation split)",
+                                                    "tiny/test"]
+    experiment_id = this.experiment.get_run(this_run).info.experiment_id
+    shared = {(d.dataset.name, d.dataset.digest) for run in (this_run, other_run)
+              for d in this.experiment.get_run(run).inputs.dataset_inputs}
+    assert len(shared) == 3 and experiment_id == this.experiment.get_run(other_run).info.experiment_id
+
+    def failing(self, run_id, datasets=None, models=None):
+        raise MlflowException("the store is read-only")
+
+    monkeypatch.setattr(MlflowClient, "log_inputs", failing)
+    with pytest.raises(MlflowException, match="read-only"):
+        log_dataset_inputs(this.experiment, this_run, dataset_uses(datamodule))
+
+
 def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(tmp_path: Path) -> None:
     from omegaconf import OmegaConf
 

@@ -120,4 +120,28 @@ def log_dataset_inputs(client: Any, run_id: str, uses: list[DatasetUse]) -> None
         for use in uses
     ]
     if inputs:
-        client.log_inputs(run_id, datasets=inputs)
+        _log_inputs(client, run_id, inputs)
+
+
+def _log_inputs(client: Any, run_id: str, inputs: list[Any], attempts: int = 3) -> None:
+    """``client.log_inputs``, safely when a parallel job logs the same dataset into the experiment at that moment.
+
+    MLflow's SQL store keeps one ``datasets`` row per experiment, name and digest and writes it as
+    look-up-then-insert: two jobs of a sweep that test on the same set and finish together both find it absent
+    and the second insert fails on the unique key (``IntegrityError``; a ``RestException`` through
+    ``mlflow server``). The failed write is one transaction, rolled back whole; the row exists now, so the same
+    call again links this run to it. Any other failure, or the same one ``attempts`` times, raises.
+    """
+    import random
+    import time
+
+    from mlflow.exceptions import MlflowException
+
+    for attempt in range(attempts):
+        try:
+            client.log_inputs(run_id, datasets=inputs)
+            return
+        except MlflowException as error:
+            if "UNIQUE constraint" not in str(error) or attempt == attempts - 1:
+                raise
+            time.sleep(random.uniform(0.05, 0.3))
