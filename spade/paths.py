@@ -1,4 +1,5 @@
-"""Where the project's own files are, and the ``${cwd:}`` config resolver (usable outside a Hydra app)."""
+"""Where the project's own files are, and the ``${cwd:}`` and ``${spade_package:}`` config resolvers (usable outside a
+Hydra app)."""
 
 import os
 from pathlib import Path
@@ -7,8 +8,11 @@ from omegaconf import OmegaConf
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 CONF_DIR = PROJECT_ROOT / "conf"
+PACKAGE_DIR = Path(__file__).resolve().parent
 
 OmegaConf.register_new_resolver("cwd", os.getcwd, replace=True)
+# ``${spade_package:}``: the installed package's folder, where the files SPADE ships live (conf/paths: weights_dir).
+OmegaConf.register_new_resolver("spade_package", lambda: str(PACKAGE_DIR), replace=True)
 
 
 def _run_uid() -> str:

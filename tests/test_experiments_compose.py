@@ -164,6 +164,28 @@ def test_seed_list_is_checked() -> None:
             seed_sweep(bad)
 
 
+def test_a_bad_row_or_seed_list_ends_the_table_with_one_error_line(spade_home: Path, capsys,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """The table's start callback resolves the sweep before Hydra's sweeper would print OmegaConf's traceback."""
+    from omegaconf.errors import InterpolationResolutionError
+
+    from spade.experiments.multirun import TableStart
+
+    monkeypatch.delenv("HYDRA_FULL_ERROR", raising=False)
+    for override, message in (("seeds=[1,1]", "error: seeds=[1, 1] repeats a seed; each seed runs each row once"),
+                              ("rows=[t9_*]", "error: rows=['t9_*'] match no row of this table; its rows: "
+                                              "t2_bc_finetune_U, t2_augbc_finetune_bc_U")):
+        config = _table_config("ablation_finetune", spade_home, override)
+        with pytest.raises(SystemExit) as stop:
+            TableStart().on_multirun_start(config)
+        assert stop.value.code == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith(message) and len(err.splitlines()) == 1, err
+    monkeypatch.setenv("HYDRA_FULL_ERROR", "1")
+    with pytest.raises(InterpolationResolutionError, match="repeats a seed"):
+        TableStart().on_multirun_start(_table_config("ablation_finetune", spade_home, "seeds=[1,1]"))
+
+
 def test_table_prints_scale_rows_seeds_instances_and_estimate(spade_home: Path) -> None:
     from spade.experiments.multirun import STEP_SECONDS, estimate_row, start_message
     from spade.experiments.tables import TINY_NOTICE

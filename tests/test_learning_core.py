@@ -254,9 +254,9 @@ def test_warmup_cosine_schedule_and_configure_optimizers() -> None:
     assert not isinstance(ExpertModule(preset="tiny").configure_optimizers(), dict)  # no schedule: the optimiser
 
 
-def test_cpu_scale_students_get_the_schedule_and_the_quickstart_keeps_a_constant_rate() -> None:
+def test_cpu_scale_students_get_the_schedule_and_so_does_the_quickstart() -> None:
     """scale=cpu composes a warm-up + cosine schedule into every student (its validation curve jumped under a
-    constant rate); the quickstart, whose recipe was measured with a constant rate, keeps it."""
+    constant rate); the quickstart's student is Table 1's small Cond-DBC recipe at that scale, schedule included."""
     from types import SimpleNamespace
 
     import hydra
@@ -271,6 +271,11 @@ def test_cpu_scale_students_get_the_schedule_and_the_quickstart_keeps_a_constant
     student._trainer = SimpleNamespace(estimated_stepping_batches=40)
     out = student.configure_optimizers()
     assert out["lr_scheduler"]["interval"] == "step"
-    quick = compose_config("train", ["+experiment=t1_small_bc_L", "scale=quickstart"])
-    assert quick.model.lr_scheduler is None
-    assert not isinstance(hydra.utils.instantiate(quick.model).configure_optimizers(), dict)
+    quick = compose_config("train", ["+experiment=quickstart"])
+    table = compose_config("train", ["+experiment=t1_small_conddbc_L", "scale=cpu"])
+    assert quick.model.lr_scheduler == table.model.lr_scheduler and quick.trainer.max_epochs == table.trainer.max_epochs
+    for key in ("size", "bc_pos_weight", "optimizer", "lr_scheduler"):
+        assert quick.model[key] == table.model[key], key
+    assert {**quick.model.margin, "expert_ckpt": None} == {**table.model.margin, "expert_ckpt": None}
+    assert quick.model.margin.expert_ckpt.endswith("spade/models/weights/cond_expert_L_cpu_lite_x0.ckpt")
+    assert quick.data.train_dir.endswith("/quickstart/lshape") and quick.data.batch_size == table.data.batch_size

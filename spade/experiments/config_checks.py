@@ -120,6 +120,7 @@ def _check_checkpoint(key: str, value: Any, role: str, fix: str) -> dict[str, An
         raise ConfigError(f"{key}={value} is a directory, not a checkpoint file; {fix}")
     if not path.is_file():
         raise ConfigError(f"{key}={value} does not exist; {fix}")
+    _check_shipped(key, path)
     from spade.models.modelfile import UnsafeModelFileError
 
     try:
@@ -133,6 +134,18 @@ def _check_checkpoint(key: str, value: Any, role: str, fix: str) -> dict[str, An
         what = f"{_a(have)} {have} checkpoint" if have else "not a SPADE checkpoint (no 'spade' entry)"
         raise ConfigError(f"{key}={value} is {what}, this key takes {_a(role)} {role} checkpoint; {fix}")
     return info
+
+
+def _check_shipped(key: str, path: Path) -> None:
+    """A file SPADE ships (:mod:`spade.models.shipped`) must hash to its pin before a run rests on it."""
+    from spade.models.shipped import SHIPPED, shipped_path
+
+    for name, model in SHIPPED.items():
+        if path.resolve() == model.path:
+            try:
+                shipped_path(name)
+            except Exception as exc:  # noqa: BLE001 - missing or changed: one line naming the fix
+                raise ConfigError(f"{key}={path}: {exc}") from None
 
 
 def _a(word: str) -> str:

@@ -271,10 +271,34 @@ def start_message(config: DictConfig) -> str:
     return "\n".join(lines)
 
 
+def check_sweep(config: DictConfig) -> None:
+    """Resolve a table's sweep (``${spade_rows:}``, ``${spade_sweep:}``) before Hydra does: a bad ``rows=`` or
+    ``seeds=`` ends the process with one ``error:`` line and exit status 2 (as :func:`exit_on_user_error` ends a
+    run's), where Hydra's sweeper would print OmegaConf's traceback. ``HYDRA_FULL_ERROR=1`` shows the traceback."""
+    import sys
+
+    from omegaconf.errors import InterpolationResolutionError
+
+    params = OmegaConf.select(config, "hydra.sweeper.params") or {}
+    try:
+        for key in params:
+            str(params[key])
+    except InterpolationResolutionError as exc:
+        cause: BaseException = exc  # the resolver's own error, under OmegaConf's (raised without `from`)
+        while isinstance(cause, InterpolationResolutionError) and (cause.__cause__ or cause.__context__):
+            cause = cause.__cause__ or cause.__context__  # type: ignore[assignment]
+        if (isinstance(cause, InterpolationResolutionError) or not isinstance(cause, ValueError)
+                or os.environ.get("HYDRA_FULL_ERROR") == "1"):
+            raise
+        print(f"error: {cause}", file=sys.stderr, flush=True)
+        raise SystemExit(2) from None
+
+
 class TableStart(Callback):  # type: ignore[misc,valid-type]
     """Hydra callback of a table's composition: prints :func:`start_message` before the first job runs."""
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        check_sweep(config)
         try:
             message = start_message(config)
         except Exception as exc:  # noqa: BLE001 - the message must never stop the table
