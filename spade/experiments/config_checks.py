@@ -141,7 +141,7 @@ def _check_shipped(key: str, path: Path) -> None:
     from spade.models.shipped import SHIPPED, shipped_path
 
     for name, model in SHIPPED.items():
-        if path.resolve() == model.path:
+        if path.resolve() == model.path.resolve():
             try:
                 shipped_path(name)
             except Exception as exc:  # noqa: BLE001 - missing or changed: one line naming the fix

@@ -4,13 +4,13 @@
 
 Why ship a model: the quickstart (``make quickstart``, 10 minutes on 2 CPU cores, install included) cannot also
 train an expert worth learning from. The conditional expert that beats the heading template (``cpu_lite``, x0
-prediction, 594 optimisation steps) takes about 19 minutes on one core; the tiny one that fits the budget plans
+prediction, 594 optimisation steps) takes 9-19 minutes on one core; the tiny one that fits the budget plans
 worse than a straight line (README, issue 23). So the package carries that expert, trained by the project's own
 command (:data:`SHIPPED`'s ``rebuild``) on data the project generates, and the quickstart's Cond-DBC student
 learns from it. Nothing is downloaded: the file is in the repository, like FID's feature weights.
 
 A shipped file is a checkpoint of ``python -m spade.train`` with Lightning's resume state left out (optimiser
-moments, schedulers, loops, callbacks: 5.9 of its 9 MB), so that it loads as the module it was trained in
+moments, schedulers, loops, callbacks: half of its 12.3 MB), so that it loads as the module it was trained in
 (:func:`spade.models.modelfile.load_lightning`) but cannot resume a fit. Its ``spade`` entry keeps the role, the
 network, the training windows, and gains ``shipped``: the rebuild command and the source checkpoint's MLflow
 run. :func:`shipped_path` checks the pin before anyone uses the file, so that a changed or damaged file stops a
@@ -34,7 +34,7 @@ __all__ = ["SHIPPED", "WEIGHTS_DIR", "ShippedModel", "file_sha256", "ship_checkp
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 
 # What a shipped checkpoint keeps: what load_from_checkpoint needs, and SPADE's entry.
-KEEP = ("state_dict", "hyper_parameters", ENTRY_KEY, "pytorch-lightning_version", "epoch", "global_step")
+KEEP = ("state_dict", "hyper_parameters", "hparams_name", ENTRY_KEY, "pytorch-lightning_version", "epoch", "global_step")
 
 
 @dataclass(frozen=True)
@@ -56,7 +56,7 @@ SHIPPED: dict[str, ShippedModel] = {
     # instances 5.06 cm APE, Hd19 5 (README, Table 1's L half), against the heading template's 12.09 cm.
     "cond_expert_L": ShippedModel(
         file="cond_expert_L_cpu_lite_x0.ckpt",
-        sha256="",
+        sha256="38eac1a15b252ec6ba92bb93739130e21eec5451ad763eca6ad7e91c630b2460",
         rebuild="python -m spade.train +experiment=expert_cond_L scale=cpu seed=42, then python -m "
                 "spade.models.shipped ckpt=<its registered checkpoint> name=cond_expert_L",
         role="expert",
