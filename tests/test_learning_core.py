@@ -256,7 +256,7 @@ def test_warmup_cosine_schedule_and_configure_optimizers() -> None:
 
 def test_cpu_scale_students_get_the_schedule_and_so_does_the_quickstart() -> None:
     """scale=cpu composes a warm-up + cosine schedule into every student (its validation curve jumped under a
-    constant rate); the quickstart's student is Table 1's small Cond-DBC recipe at that scale, schedule included."""
+    constant rate); the quickstart's student is Table 1's medium Cond-DBC recipe at that scale, schedule included."""
     from types import SimpleNamespace
 
     import hydra
@@ -272,7 +272,7 @@ def test_cpu_scale_students_get_the_schedule_and_so_does_the_quickstart() -> Non
     out = student.configure_optimizers()
     assert out["lr_scheduler"]["interval"] == "step"
     quick = compose_config("train", ["+experiment=quickstart"])
-    table = compose_config("train", ["+experiment=t1_small_conddbc_L", "scale=cpu"])
+    table = compose_config("train", ["+experiment=t1_medium_conddbc_L", "scale=cpu"])
     assert quick.model.lr_scheduler == table.model.lr_scheduler and quick.trainer.max_epochs == table.trainer.max_epochs
     for key in ("size", "bc_pos_weight", "optimizer", "lr_scheduler"):
         assert quick.model[key] == table.model[key], key
