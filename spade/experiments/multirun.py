@@ -13,11 +13,12 @@ the seeds, the instances of each dataset and an estimate of the wall time (:func
 prerequisites still to train (not yet in the Model Registry) counted once.
 
 The estimate is a cost model, not a measurement of this machine: seconds per training step at batch 32 and 64 px
-on 2 CPU cores (:data:`STEP_SECONDS`, from the README's *Measured figures*), scaled by batch size and pixels, times
-the steps of an epoch and the epochs, plus :data:`VALIDATION_SHARE` for validation and a fixed cost per run
-(:func:`estimate_row`). It reproduces the measured ``ablation_finetune`` at ``scale=cpu`` with one seed (46 min
-54 s on 2 shared cores, prerequisites included, issue 24: the model says 48 min); the tiny scale's estimate is
-rougher (its experts are smaller than the costs assume: an upper bound).
+on 2 quiet CPU cores with two torch threads (:data:`STEP_SECONDS`, measured with ``python -m spade.bench
+sections=[training]`` and the experts' own step, README *Measured figures*), scaled by batch size and pixels,
+times the steps of an epoch and the epochs, plus :data:`VALIDATION_SHARE` for validation and data loading (the
+quickstart's whole epochs took 8-13 % longer than their steps) and a fixed cost per run (:func:`estimate_row`).
+A machine shared with other jobs takes longer (two 1-thread runs side by side took about twice these figures
+each); the tiny scale's estimate is rougher (its experts are smaller than the costs assume: an upper bound).
 """
 
 from __future__ import annotations
@@ -87,20 +88,17 @@ OmegaConf.register_new_resolver("spade_sweep", seed_sweep, replace=True)
 OmegaConf.register_new_resolver("spade_rows", row_sweep, replace=True)
 
 
-# Seconds per training step, batch 32, 64 px windows, 2 CPU cores (torch with 2 threads). Sources: the README's
-# "Measured figures": training step at 64 px (small student 0.21 s, medium 0.82-0.86 s), the margin step-time table
-# (medium DBC with the `small` unconditional expert 4.58 s, medium Cond-DBC with a `small` conditional expert
-# 2.07 s); large at 64 px costs what medium does (spade.bench: 197 vs 198 ms per batch-32 forward); a guided
-# small or large student adds the expert's cost (DBC +3.7 s, Cond-DBC +1.2 s) to its own BC step. Experts: the
-# `cpu` conditional preset trained 6 epochs in 10 min on 2 cores (issue 23): 1.8 s a step with its validation, 1.6 s
-# without; the `small` unconditional expert's step is taken as the expert part of the DBC step (3.7 s).
+# Seconds per training step, batch 32, 64 px windows, 2 CPU cores (torch with 2 threads).
 STEP_SECONDS: dict[str, float] = {
-    "bc/small": 0.21, "bc/medium": 0.86, "bc/large": 0.86,
-    "dbc/small": 3.9, "dbc/medium": 4.58, "dbc/large": 4.58,
-    "conddbc/small": 1.4, "conddbc/medium": 2.07, "conddbc/large": 2.07,
-    "expert/cond": 1.6, "expert/uncond": 3.7,
+    # 2026-12-02, 2 threads on the quiet 2-core machine, batch 32 at 64 px, the cpu scale's cpu_lite experts:
+    # students (BC; DBC and Cond-DBC with their margin's three expert passes) from spade.bench's training
+    # section, the experts' denoising step (x0, AdamW) timed alike.
+    "bc/small": 0.19, "bc/medium": 0.58, "bc/large": 0.60,
+    "dbc/small": 0.52, "dbc/medium": 0.87, "dbc/large": 0.98,
+    "conddbc/small": 0.53, "conddbc/medium": 0.90, "conddbc/large": 0.92,
+    "expert/cond": 0.36, "expert/uncond": 0.63,
 }
-VALIDATION_SHARE = 0.05  # validation epochs (15 % of the data, forward only, metrics) on top of the training steps
+VALIDATION_SHARE = 0.12  # validation epochs (15 % of the data, forward only, metrics) and data loading on top of the steps
 RUN_SECONDS = 20.0  # per run: building the model, the test's first batches, pictures, checkpoints, MLflow
 TEST_SECONDS_PER_INSTANCE = 0.03  # the test: predictions, APE / Hd19 / FID, the planner's decoding (README figures)
 DATA_SECONDS_PER_INSTANCE = 1 / 118  # generating a missing dataset (annotation, 118 instances/s with 2 workers)
