@@ -276,6 +276,8 @@ def test_cpu_scale_students_get_the_schedule_and_so_does_the_quickstart() -> Non
     assert quick.model.lr_scheduler == table.model.lr_scheduler and quick.trainer.max_epochs == table.trainer.max_epochs
     for key in ("size", "bc_pos_weight", "optimizer", "lr_scheduler"):
         assert quick.model[key] == table.model[key], key
-    assert {**quick.model.margin, "expert_ckpt": None} == {**table.model.margin, "expert_ckpt": None}
+    assert {**quick.model.margin, "expert_ckpt": None, "lambda_dm": 0.3} == {**table.model.margin, "expert_ckpt": None,
+                                                                           "lambda_dm": 0.3}
+    assert quick.model.margin.lambda_dm == 0.3  # chosen on validation (README, Table 1's lambda grid)
     assert quick.model.margin.expert_ckpt.endswith("spade/models/weights/cond_expert_L_cpu_lite_x0.ckpt")
     assert quick.data.train_dir.endswith("/quickstart/lshape") and quick.data.batch_size == table.data.batch_size
