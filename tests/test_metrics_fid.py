@@ -208,6 +208,19 @@ class _Against:
         return self.fid.compute()["fid"].item()
 
 
+def shape_changes(gen: list) -> dict[str, tuple[np.ndarray, float]]:
+    """The L paths ``gen`` changed in shape, drawn at 64 px, each with the margin over the ground truth's FID that
+    the shape extractor must keep."""
+    return {
+        "straight lines": (render_paths(straight_paths(gen), 64), 30.0),
+        "U instead of L": (render_paths(sample_paths(SHAPE_N, "U", 64, 0.1, seed=2), 64), 30.0),
+        "sharp corners (radius 0)": (render_paths(sample_paths(SHAPE_N, "L", 64, 0.1, seed=2, radius_scale=0.0), 64),
+                                     5.0),
+        "middle third removed": (render_paths(gen, 64, gap=1 / 3), 5.0),
+        "rotated 180 degrees": (render_paths(rotate_paths(gen, 64), 64), 30.0),
+    }
+
+
 @pytest.fixture(scope="module")
 def l_paths() -> dict:
     size = 64
@@ -231,14 +244,7 @@ def test_ground_truth_resample_is_smallest_and_shape_changes_score_far_higher(l_
     """Measured (shape-v1, 300 vs 300 at 64 px): ground truth vs a disjoint sample ~0.3; the changed sets 20x to
     300x that. Stated margins: at least MARGIN x the ground-truth value, and above an absolute floor."""
     gen = l_paths["gen"]
-    changed = {
-        "straight lines": (render_paths(straight_paths(gen), 64), 30.0),
-        "U instead of L": (render_paths(sample_paths(SHAPE_N, "U", 64, 0.1, seed=2), 64), 30.0),
-        "sharp corners (radius 0)": (render_paths(sample_paths(SHAPE_N, "L", 64, 0.1, seed=2, radius_scale=0.0), 64),
-                                     5.0),
-        "middle third removed": (render_paths(gen, 64, gap=1 / 3), 5.0),
-        "rotated 180 degrees": (render_paths(rotate_paths(gen, 64), 64), 30.0),
-    }
+    changed = shape_changes(gen)
     assert 0 < gt_fid < 1.0, gt_fid
     values = {name: shape_fid(images) for name, (images, _) in changed.items()}
     for name, (_, margin) in changed.items():
@@ -308,10 +314,7 @@ def test_rebuild_command_reproduces_the_pinned_weights(tmp_path, l_paths: dict) 
                   f"than the one that pinned them; checked as an equivalent extractor instead")
     assert summary["history"][-1]["held_kind_accuracy"] >= 0.95, summary["history"][-1]
     gen = l_paths["gen"]
-    probes = {"ground truth": render_paths(gen, 64), "straight lines": render_paths(straight_paths(gen), 64),
-              "U instead of L": render_paths(sample_paths(SHAPE_N, "U", 64, 0.1, seed=2), 64),
-              "middle third removed": render_paths(gen, 64, gap=1 / 3),
-              "rotated 180 degrees": render_paths(rotate_paths(gen, 64), 64)}
+    probes = {"ground truth": render_paths(gen, 64), **{n: im for n, (im, _) in shape_changes(gen).items()}}
     shipped, rebuilt = _Against(l_paths["real"]), _Against(l_paths["real"], ShapeFeatures(out))
     for name, images in probes.items():
         a, b = shipped(images), rebuilt(images)

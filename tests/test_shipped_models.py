@@ -10,7 +10,8 @@ import pytest
 import torch
 
 from spade.models.modelfile import ModelFileError, load_checkpoint, load_lightning, read_info
-from spade.models.shipped import SHIPPED, file_sha256, ship_checkpoint, shipped_path
+from spade.models.shipped import SHIPPED, ship_checkpoint, shipped_path
+from spade.utils.hashing import file_sha256
 
 
 def test_the_quickstart_expert_is_the_pinned_scale_cpu_conditional_expert() -> None:
@@ -37,7 +38,7 @@ def test_the_shipped_expert_prefers_demonstrated_paths_to_straight_lines(tmp_pat
     from spade.annotation.run import annotate
     from spade.data.augment import widen_path
     from spade.data.dataset import PathDataset
-    from spade.metrics.baselines import draw_polyline
+    from spade.metrics.baselines import draw_polylines
     from spade.training.expert_module import ExpertModule
     from spade.training.margin import DiffusionMargin, MarginConfig
     from spade.utils.config import compose_config
@@ -46,14 +47,11 @@ def test_the_shipped_expert_prefers_demonstrated_paths_to_straight_lines(tmp_pat
                                       "instances.spacing_m=0.1", "num_instances=24", "seed=77",
                                       f"out_dir={tmp_path / 'L'}", "workers=1", "progress=false"])
     annotate(cfg)
-    items = [PathDataset(tmp_path / "L")[i] for i in range(24)]
+    dataset = PathDataset(tmp_path / "L")
+    items = [dataset[i] for i in range(len(dataset))]
     state = torch.stack([torch.as_tensor(it["state"]) for it in items])
     demo = widen_path(torch.stack([torch.as_tensor(it["path"]) for it in items]), 3)
-    straight = torch.zeros_like(demo)
-    for i, it in enumerate(items):
-        ends = np.asarray(it["waypoints"])[[0, -1]]
-        straight[i, 0] = torch.from_numpy(draw_polyline(ends, 64, 64))
-    straight = widen_path(straight, 3)
+    straight = widen_path(draw_polylines([np.asarray(it["waypoints"])[[0, -1]] for it in items], 64, 64), 3)
     expert = load_lightning(ExpertModule, shipped_path("cond_expert_L"))
     margin = DiffusionMargin.from_expert(expert, MarginConfig(expert="conditional", num_noise=8))
     generator = torch.Generator().manual_seed(0)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import mmap
 from pathlib import Path
 from typing import Any
@@ -13,18 +12,7 @@ from torch.utils.data import Dataset
 
 from spade.data.format import DatasetError, Manifest, read_manifest
 from spade.data.packing import unpack_bits, unpack_two_bit
-
-_HASH_CHUNK = 1 << 22
-
-
-def file_sha256(path: Path) -> str:
-    """sha256 of a file, read in chunks (the file is never held in memory whole)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        while chunk := handle.read(_HASH_CHUNK):
-            digest.update(chunk)
-    return digest.hexdigest()
-
+from spade.utils.hashing import file_sha256
 
 def check_files(manifest: Manifest, checksums: bool = True) -> None:
     """Check that every array file exists with the size (and, if ``checksums``, the sha256) the manifest gives.

@@ -29,6 +29,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from spade.utils.hashing import file_sha256
+
 __all__ = [
     "RandomConvFeatures",
     "InceptionFeatures",
@@ -145,7 +147,7 @@ class InceptionFeatures(nn.Module):
         self.model = model
         self.in_channels = int(in_channels)
         self.feature_dim = 2048
-        self.sha256 = hashlib.sha256(path.read_bytes()).hexdigest()
+        self.sha256 = file_sha256(path)
         self.identity = f"inception_v3-torchvision_sha256-{self.sha256[:12]}"
         self.register_buffer("mean", torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1), persistent=False)

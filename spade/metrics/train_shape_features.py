@@ -57,6 +57,7 @@ import numpy as np
 
 from spade.data.format import MANIFEST, read_manifest_json
 from spade.data.settings import Generator
+from spade.utils.timing import cpu_model
 
 GENERATE = {
     "train_L": {"preset": "lshape", "seed": 21},
@@ -244,19 +245,7 @@ def build_platform() -> dict[str, str]:
     import torch
 
     return {"torch": torch.__version__, "cpu_capability": torch.backends.cpu.get_cpu_capability(),
-            "machine": platform.machine(), "processor": _cpu_model()}
-
-
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    import platform
-
-    return platform.processor() or "unknown"
+            "machine": platform.machine(), "processor": cpu_model()}
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:

@@ -19,7 +19,6 @@ run with the fix named instead of quietly changing every figure that rests on it
 
 from __future__ import annotations
 
-import hashlib
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,8 +27,9 @@ from typing import Any
 import torch
 
 from spade.models.modelfile import ENTRY_KEY, ModelFileError, load_checkpoint
+from spade.utils.hashing import file_sha256
 
-__all__ = ["SHIPPED", "WEIGHTS_DIR", "ShippedModel", "file_sha256", "ship_checkpoint", "shipped_path"]
+__all__ = ["SHIPPED", "WEIGHTS_DIR", "ShippedModel", "ship_checkpoint", "shipped_path"]
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 
@@ -62,14 +62,6 @@ SHIPPED: dict[str, ShippedModel] = {
         role="expert",
     ),
 }
-
-
-def file_sha256(path: str | Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def _model(name: str) -> ShippedModel:
