@@ -327,6 +327,7 @@ def test_datasets_are_run_inputs_with_fingerprint_source_context_and_profile(tmp
     assert profile["instances"] == 9 and profile["instances_used"] == 6 and profile["shapes"] == ["L", "U"]
     assert got["tiny/lshape (validation split)"][2:4] == ("validation", {**profile, "instances_used": 3})
     assert got["tiny/test"][0] == dataset_fingerprint(test) and got["tiny/test"][2] == "test"
+    assert {d.dataset.source_type for d in inputs} == {"local"}  # the UI's source column reads "local"
     with pytest.raises(FileNotFoundError, match="no dataset manifest"):
         dataset_fingerprint(tmp_path / "nothing")
 

@@ -63,11 +63,16 @@ def _mlflow_dataset(root: Path, name: str, instances_used: int | None) -> Any:
         def to_dict(self) -> dict[str, str]:
             return {**super().to_dict(), "profile": json.dumps(self._profile, sort_keys=True)}
 
-    from mlflow.data.dataset_source_registry import get_registered_sources, resolve_dataset_source
+    import warnings
 
-    # MLflow registers its local-directory source (source type "local") twice; take the first, else resolve.
-    local = [c for c in get_registered_sources() if c._get_source_type() == "local"]
-    source = local[0](str(root)) if local else resolve_dataset_source(str(root))
+    from mlflow.data.dataset_source_registry import resolve_dataset_source
+    from mlflow.data.filesystem_dataset_source import FileSystemDatasetSource
+
+    with warnings.catch_warnings():
+        # MLflow registers its local-directory source twice (URI schemes "" and "file"), so resolving a local path
+        # warns that it "can be interpreted in multiple ways": both readings are the same source type, "local".
+        warnings.filterwarnings("ignore", message="The specified dataset source can be interpreted in multiple ways")
+        source = resolve_dataset_source(str(root), candidate_sources=[FileSystemDatasetSource])
     return SpadeDataset(source, name, dataset_fingerprint(root), dataset_profile(root, instances_used))
 
 
