@@ -207,6 +207,25 @@ def test_table_prints_scale_rows_seeds_instances_and_estimate(spade_home: Path) 
     assert "scale=tiny, 2 rows x 1 seed(s) (1) = 2 runs" in tiny and TINY_NOTICE in tiny
 
 
+def test_table_estimate_scales_with_the_speed_measured_on_this_machine(spade_home: Path) -> None:
+    import math
+
+    from spade.experiments.multirun import machine_speed, plan_table, start_message
+
+    config = _table_config("ablation_scratch", spade_home)
+    base, slow = plan_table(config), plan_table(config, speed=2.5)
+    assert slow["total"] == pytest.approx(2.5 * base["total"])
+    assert all(slow["costs"][r].seconds == pytest.approx(2.5 * base["costs"][r].seconds) for r in base["costs"])
+    assert [c.seconds for c in slow["pending"].values()] == pytest.approx([2.5 * c.seconds for c in base["pending"].values()])
+    for bad in (0.0, -1.0, math.nan, math.inf):
+        with pytest.raises(ValueError, match="positive factor"):
+            plan_table(config, speed=bad)
+    assert "not measured here" in start_message(config)
+    assert "on this machine, which took 2.50 x the cost model's 0.58 s for a medium BC step" in start_message(config, 2.5)
+    speed = machine_speed(runs=1)  # a real medium BC step here, against the reference machine's
+    assert math.isfinite(speed) and 0.05 < speed < 100
+
+
 def test_tiny_run_summary_says_pipeline_check(spade_home: Path) -> None:
     from spade.experiments.tables import TINY_NOTICE
     from spade.experiments.tracking import run_summary

@@ -12,17 +12,20 @@ students' own, for one fixed expert.
 the seeds, the instances of each dataset and an estimate of the wall time (:func:`estimate_row`), with the
 prerequisites still to train (not yet in the Model Registry) counted once.
 
-The estimate is a cost model, not a measurement of this machine: seconds per training step at batch 32 and 64 px
-on 2 quiet CPU cores with two torch threads (:data:`STEP_SECONDS`, measured with ``python -m spade.bench
-sections=[training]`` and the experts' own step, README *Measured figures*), scaled by batch size and pixels,
-times the steps of an epoch and the epochs, plus :data:`VALIDATION_SHARE` for validation and data loading (the
-quickstart's whole epochs took 8-13 % longer than their steps) and a fixed cost per run (:func:`estimate_row`).
-A machine shared with other jobs takes longer (two 1-thread runs side by side took about twice these figures
-each); the tiny scale's estimate is rougher (its experts are smaller than the costs assume: an upper bound).
+The estimate is a cost model: seconds per training step at batch 32 and 64 px on 2 quiet CPU cores with two
+torch threads (:data:`STEP_SECONDS`, measured with ``python -m spade.bench sections=[training]`` and the experts'
+own step, README *Measured figures*), scaled by batch size and pixels, times the steps of an epoch and the epochs,
+plus :data:`VALIDATION_SHARE` for validation and data loading (the quickstart's whole epochs took 8-13 % longer
+than their steps) and a fixed cost per run (:func:`estimate_row`). Machines differ (two 2-core cloud machines of
+the same name trained 2.1 x apart), so before a table at a scale other than tiny :class:`TableStart` times a few
+steps of the reference student here (:func:`machine_speed`) and scales every cost by the ratio. A job that starts
+beside the table later slows it beyond the estimate; the tiny scale's estimate is rougher (its experts are smaller
+than the costs assume: an upper bound).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -38,7 +41,7 @@ except ImportError:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-__all__ = ["STEP_SECONDS", "TableStart", "estimate_row", "row_sweep", "seed_sweep", "start_message"]
+__all__ = ["STEP_SECONDS", "TableStart", "estimate_row", "machine_speed", "row_sweep", "seed_sweep", "start_message"]
 
 DEFAULT_SEEDS = (42, 1, 2)
 
@@ -102,6 +105,31 @@ VALIDATION_SHARE = 0.12  # validation epochs (15 % of the data, forward only, me
 RUN_SECONDS = 20.0  # per run: building the model, the test's first batches, pictures, checkpoints, MLflow
 TEST_SECONDS_PER_INSTANCE = 0.03  # the test: predictions, APE / Hd19 / FID, the planner's decoding (README figures)
 DATA_SECONDS_PER_INSTANCE = 1 / 118  # generating a missing dataset (annotation, 118 instances/s with 2 workers)
+
+
+REFERENCE_KIND = "bc/medium"  # the step :func:`machine_speed` times on the machine at hand
+
+
+def machine_speed(runs: int = 2) -> float:
+    """How much slower than :data:`STEP_SECONDS`' machine this one trains: the median time of ``runs`` steps of a
+    fresh medium BC student (batch 32, 64 px, the torch threads a run gets, after one warm-up step) over
+    ``STEP_SECONDS["bc/medium"]``. 1.0 on the machine the costs were measured on, 2.0 on one half as fast (or
+    as busy); about 5 steps' time, some seconds on 2 cores."""
+    import torch
+
+    from spade.deploy.export import example_states
+    from spade.training.student_module import StudentModule
+    from spade.utils.timing import step_time
+
+    generator_state = torch.random.get_rng_state()
+    try:
+        torch.manual_seed(0)
+        batch = {"state": example_states(32, (64, 64), seed=0),
+                 "path": (torch.rand(32, 1, 64, 64) > 0.97).float()}
+        seconds = step_time(StudentModule(size="medium").train(), batch, runs=runs, warmup=1)["step_ms"] / 1000
+    finally:
+        torch.random.set_rng_state(generator_state)  # the table's runs seed themselves; leave no trace anyway
+    return seconds / STEP_SECONDS[REFERENCE_KIND]
 
 
 def _kind(cfg: DictConfig) -> str:
@@ -201,8 +229,9 @@ def _datasets(cfg: DictConfig, seen: dict[str, tuple[int, str]]) -> None:
             seen[str(directory)] = (n, note)
 
 
-def plan_table(config: DictConfig) -> dict[str, Any]:
-    """What a table's multirun will run: scale, rows, seeds, datasets, per-row and prerequisite costs, total."""
+def plan_table(config: DictConfig, speed: float = 1.0) -> dict[str, Any]:
+    """What a table's multirun will run: scale, rows, seeds, datasets, per-row and prerequisite costs and the
+    total, each on :data:`STEP_SECONDS`' machine times ``speed`` (:func:`machine_speed`)."""
     from spade.utils.config import compose_config
     from spade.experiments.registry import registry_name
 
@@ -236,17 +265,23 @@ def plan_table(config: DictConfig) -> dict[str, Any]:
         _datasets(cfg, datasets)
         walk(cfg)
     missing_data = sum(n for d, (n, _) in datasets.items() if not os.path.isdir(d))
+    if not speed > 0 or not math.isfinite(speed):
+        raise ValueError(f"speed={speed} must be a positive factor (1.0: the cost model's own machine)")
+    if speed != 1.0:
+        costs = {k: dataclasses.replace(c, seconds=c.seconds * speed) for k, c in costs.items()}
+        pending = {k: dataclasses.replace(c, seconds=c.seconds * speed) for k, c in pending.items()}
     total = (sum(c.seconds for c in costs.values()) * len(seeds) + sum(c.seconds for c in pending.values())
-             + missing_data * DATA_SECONDS_PER_INSTANCE)
+             + missing_data * DATA_SECONDS_PER_INSTANCE * speed)
     return {"scale": scale, "rows": rows, "seeds": seeds, "costs": costs, "pending": pending,
-            "datasets": datasets, "missing_data": missing_data, "total": total}
+            "datasets": datasets, "missing_data": missing_data, "total": total, "speed": speed}
 
 
-def start_message(config: DictConfig) -> str:
-    """The lines a table's multirun prints at its start (:func:`plan_table`)."""
+def start_message(config: DictConfig, speed: float | None = None) -> str:
+    """The lines a table's multirun prints at its start (:func:`plan_table`), its costs scaled by ``speed``
+    (``None``: the cost model's machine, unmeasured)."""
     from spade.experiments.tables import TINY_NOTICE
 
-    plan = plan_table(config)
+    plan = plan_table(config, 1.0 if speed is None else speed)
     seeds, rows = plan["seeds"], plan["rows"]
     lines = [f"SPADE table run: scale={plan['scale']}, {len(rows)} rows x {len(seeds)} seed(s) "
              f"({', '.join(map(str, seeds))}) = {len(rows) * len(seeds)} runs"]
@@ -264,8 +299,13 @@ def start_message(config: DictConfig) -> str:
             f"{c.row} (about {_minutes(c.seconds)})" for c in plan["pending"].values()))
     else:
         lines.append("  prerequisites: all registered (or none needed)")
-    lines.append(f"  estimated wall time: about {_minutes(plan['total'])} on 2 quiet CPU cores (a cost model, "
-                 "spade/experiments/multirun.py: measured step costs x steps; more on a shared machine)")
+    if speed is None:
+        where = "on 2 quiet CPU cores like the cost model's (not measured here)"
+    else:
+        where = (f"on this machine, which took {speed:.2f} x the cost model's {STEP_SECONDS[REFERENCE_KIND]:.2f} s "
+                 "for a medium BC step just now")
+    lines.append(f"  estimated wall time: about {_minutes(plan['total'])} {where} (a cost model, "
+                 "spade/experiments/multirun.py: measured step costs x steps; more if other jobs start)")
     return "\n".join(lines)
 
 
@@ -298,7 +338,9 @@ class TableStart(Callback):  # type: ignore[misc,valid-type]
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         check_sweep(config)
         try:
-            message = start_message(config)
+            # at tiny scale (tests, pipeline checks) the estimate is rough anyway: no timing steps
+            speed = None if str(OmegaConf.select(config, "scale.name")) == "tiny" else machine_speed()
+            message = start_message(config, speed)
         except Exception as exc:  # noqa: BLE001 - the message must never stop the table
             log.warning("could not estimate the table's run: %s", exc)
             return

@@ -13,7 +13,7 @@ from typing import Any
 
 import torch
 
-from spade.utils.timing import measure
+from spade.utils.timing import step_time
 
 
 def student_with_margin(size: str, expert: str | None = None, preset: str = "tiny", **margin: Any) -> Any:
@@ -34,19 +34,6 @@ def student_with_margin(size: str, expert: str | None = None, preset: str = "tin
         module.use_expert(expert_module, source=f"the {expert} expert")
         del expert_module  # the margin keeps the EMA denoiser, not the module's training weights
     return module.train()
-
-
-def step_time(module: Any, batch: dict[str, torch.Tensor], runs: int = 3, warmup: int = 1) -> dict[str, float]:
-    """Median (and min) ms of one optimisation step of ``module`` on ``batch``."""
-    optimizer = torch.optim.AdamW([p for p in module.parameters() if p.requires_grad], lr=1e-3)
-
-    def step() -> None:
-        optimizer.zero_grad(set_to_none=True)
-        module.losses(batch)["loss"].backward()
-        optimizer.step()
-
-    timing = measure(step, runs, warmup)
-    return {"step_ms": timing.median_ms, "step_min_ms": timing.min_ms, "runs": timing.runs}
 
 
 def training_step_times(student: str, image_size: int, batch_size: int, cond_presets: Sequence[str],

@@ -68,3 +68,19 @@ def cpu_model() -> str:
     except OSError:  # pragma: no cover - non-Linux
         pass
     return platform.processor() or "unknown"
+
+
+def step_time(module: Any, batch: dict[str, Any], runs: int = 3, warmup: int = 1) -> dict[str, float]:
+    """Median (and min) ms of one optimisation step of a module with ``losses(batch)["loss"]`` (a SPADE
+    student or expert) on ``batch``: loss, backward, AdamW step, no Lightning bookkeeping."""
+    import torch
+
+    optimizer = torch.optim.AdamW([p for p in module.parameters() if p.requires_grad], lr=1e-3)
+
+    def step() -> None:
+        optimizer.zero_grad(set_to_none=True)
+        module.losses(batch)["loss"].backward()
+        optimizer.step()
+
+    timing = measure(step, runs, warmup)
+    return {"step_ms": timing.median_ms, "step_min_ms": timing.min_ms, "runs": timing.runs}
