@@ -110,9 +110,9 @@ DATA_SECONDS_PER_INSTANCE = 1 / 118  # generating a missing dataset (annotation,
 REFERENCE_KIND = "bc/medium"  # the step :func:`machine_speed` times on the machine at hand
 
 
-def machine_speed(runs: int = 2) -> float:
+def machine_speed(runs: int = 3) -> float:
     """How much slower than :data:`STEP_SECONDS`' machine this one trains: the median time of ``runs`` steps of a
-    fresh medium BC student (batch 32, 64 px, the torch threads a run gets, after one warm-up step) over
+    fresh medium BC student (batch 32, 64 px, the torch threads a run gets, after two warm-up steps) over
     ``STEP_SECONDS["bc/medium"]``. 1.0 on the machine the costs were measured on, 2.0 on one half as fast (or
     as busy); about 5 steps' time, some seconds on 2 cores."""
     import torch
@@ -126,7 +126,7 @@ def machine_speed(runs: int = 2) -> float:
         torch.manual_seed(0)
         batch = {"state": example_states(32, (64, 64), seed=0),
                  "path": (torch.rand(32, 1, 64, 64) > 0.97).float()}
-        seconds = step_time(StudentModule(size="medium").train(), batch, runs=runs, warmup=1)["step_ms"] / 1000
+        seconds = step_time(StudentModule(size="medium").train(), batch, runs=runs, warmup=2)["step_ms"] / 1000
     finally:
         torch.random.set_rng_state(generator_state)  # the table's runs seed themselves; leave no trace anyway
     return seconds / STEP_SECONDS[REFERENCE_KIND]
