@@ -1,10 +1,11 @@
 """``python -m spade.report [table=table1|table2|table3|all] [scale=...]``: a paper table from the MLflow runs.
 
-Reads the runs of a table's MLflow experiment (one run per row, run name = row name; see
-:mod:`spade.experiments.tables`), prints the table in the paper's layout as markdown with the paper's
-headline comparisons, and writes ``<table>.md``, ``<table>.csv``, ``<table>_comparisons.csv`` and a
-``<table>.png`` chart into ``output_dir``. A row without a finished run is shown as missing, never dropped;
-a row with several runs uses the latest finished one, and the notes say so. The work is done by
+Reads the finished runs of a table's MLflow experiment (run name = row name; see
+:mod:`spade.experiments.tables`) at one scale, one run per distinct seed (the latest run of a seed counts),
+prints the table in the paper's layout as markdown, each cell the mean +/- sd over the seeds, with the
+paper's headline comparisons and pairwise tests (Welch's t-test over the per-seed values), and writes
+``<table>.md``, ``<table>.csv``, ``<table>_comparisons.csv`` and a ``<table>.png`` chart into
+``output_dir``. A row without a finished run is shown as missing, never dropped. The work is done by
 :mod:`spade.experiments.reporting` (:func:`~spade.experiments.reporting.build.report`); this is its entry point.
 """
 
