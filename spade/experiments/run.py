@@ -52,8 +52,8 @@ def run(cfg: DictConfig) -> float | None:
     succeeded: the missing metric is a warning and the result ``None``; under a Hydra multirun it is an error,
     since the sweeper needs the value.
     """
-    metrics, _ = train(cfg)
-    print(run_summary(cfg, metrics), flush=True)
+    metrics, objects = train(cfg)
+    print(run_summary(cfg, metrics, getattr(objects["model"], "margin_history", None)), flush=True)
     try:
         return optimized_value(cfg, metrics)
     except KeyError as exc:

@@ -41,11 +41,25 @@ from spade.models.diffusion import sample_timesteps
 from spade.training.errors import ExpertMismatchError
 from spade.training.expert_module import ExpertModule, denoise, expert_input
 
-__all__ = ["EXPERT_KINDS", "DiffusionMargin", "MarginConfig", "MarginOptionError", "legacy_margin_options",
+__all__ = ["AGENT_INPUTS", "EXPERT_KINDS", "SCORES", "DiffusionMargin", "MarginConfig", "MarginOptionError", "legacy_margin_options",
            "sample_timesteps"]
 
 #: ``MarginConfig.expert`` -> whether that method's expert is conditional (None: either).
 EXPERT_KINDS: dict[str | None, bool | None] = {"conditional": True, "unconditional": False, None: None}
+
+#: ``MarginConfig.score``: how one noise/timestep draw compares the agent's error e_a with the demonstration's e_d.
+#: ``difference`` e_a - e_d is the paper's; it is dominated by the large errors of high timesteps, where a
+#: squared-error denoiser predicts a blurred posterior mean and so rates soft images above crisp ones.
+#: ``log_ratio`` log(e_a / e_d) and ``relative`` (e_a - e_d) / e_d compare each draw relative to the
+#: demonstration's own error at that draw, so that the low timesteps, where a denoiser snaps off-manifold
+#: (soft) pixels back to a crisp path, weigh as much as the high ones (``spade.critic`` measures the effect).
+SCORES: tuple[str, ...] = ("difference", "log_ratio", "relative")
+#: ``MarginConfig.agent_input``: the student's probabilities as they are (the paper), or binarised at 0.5 in the
+#: forward pass with the probabilities' gradient (straight-through), so that the expert judges the path the
+#: student would commit to rather than its soft map.
+AGENT_INPUTS: tuple[str, ...] = ("probability", "straight_through")
+#: Floor (in the expert's own error units) under the demonstration's error in the scale-free scores.
+ERROR_FLOOR = 1e-6
 
 #: Keys of the options as checkpoints written before issue 19 store them (hyper-parameter ``guidance``) -> now.
 LEGACY_KEYS: dict[str, str] = {"weight": "lambda_dm"}
@@ -88,6 +102,10 @@ class MarginConfig:
     batch_terms: bool = False  # one expert forward over [agent; expert] (see the module docstring for when it pays)
     # Which expert the method needs: "conditional" (Cond-DBC), "unconditional" (DBC); None accepts either.
     expert: str | None = None
+    # How one draw compares the two terms (SCORES): the paper's difference, or a scale-free comparison.
+    score: str = "difference"
+    # How the student's probability map reaches the expert (AGENT_INPUTS).
+    agent_input: str = "probability"
 
     def __post_init__(self) -> None:
         lam = self.lambda_dm
@@ -98,6 +116,8 @@ class MarginConfig:
             raise MarginOptionError("lambda_dm", "{key}=" + f"{lam:g} is out of range; {fix}")
         self._choice("clip", ["sample", "batch"])
         self._choice("expert", [k for k in EXPERT_KINDS if k], none_ok=True)
+        self._choice("score", list(SCORES))
+        self._choice("agent_input", list(AGENT_INPUTS))
         for key in ("antithetic", "batch_terms"):
             if not isinstance(getattr(self, key), bool):
                 raise MarginOptionError(key, "{key}=" + f"{getattr(self, key)!r} is not a boolean; set "
@@ -193,6 +213,40 @@ class DiffusionMargin(nn.Module):
         self.expert.eval()
         return self
 
+    def agent_path(self, student_prob: torch.Tensor) -> torch.Tensor:
+        """The student's path as the expert sees it (``agent_input``): its probabilities, or their 0.5 threshold
+        with the probabilities' gradient (straight-through)."""
+        if self.config.agent_input == "straight_through":
+            hard = (student_prob > 0.5).to(student_prob.dtype)
+            return student_prob + (hard - student_prob).detach()
+        return student_prob
+
+    def draw_errors(self, agent_path: torch.Tensor, target: torch.Tensor, state: torch.Tensor, t: torch.Tensor,
+                    noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per-sample denoising errors (agent with autograd, demonstration without) for one shared noise and
+        timestep draw; ``agent_path`` is already what the expert sees (:meth:`agent_path`), ``noise`` has the
+        expert input's shape (:func:`~spade.training.expert_module.expert_input`)."""
+        agent_x0, cond = expert_input(state, agent_path, self.conditional)
+        expert_x0, _ = expert_input(state, target, self.conditional)
+        return self._errors(agent_x0, expert_x0, noise, t, cond)
+
+    def score(self, agent_err: torch.Tensor, expert_err: torch.Tensor) -> torch.Tensor:
+        """One draw's margin per sample (``score``): > 0 where the expert rates the agent worse."""
+        if self.config.score == "difference":
+            return agent_err - expert_err
+        floor = expert_err.detach().clamp_min(ERROR_FLOOR)
+        if self.config.score == "log_ratio":
+            return torch.log(agent_err.clamp_min(ERROR_FLOOR)) - torch.log(floor)
+        return (agent_err - expert_err) / floor
+
+    def draw(self, n: int, shape: tuple[int, ...], device: torch.device, dtype: torch.dtype,
+             generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """One (timesteps, noise) draw for ``n`` samples of expert input ``shape`` (C, H, W): timesteps in
+        [t_min, t_max), antithetic when configured."""
+        t = sample_timesteps(n, self.config.t_min, self.t_max, self.config.antithetic, device, generator)
+        noise = torch.randn((n, *shape), device=device, dtype=dtype, generator=generator)
+        return t, noise
+
     def _errors(self, agent_x0: torch.Tensor, expert_x0: torch.Tensor, noise: torch.Tensor, t: torch.Tensor,
                 cond: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
         """Per-sample denoising errors (agent with autograd, expert without) for one shared noise and timestep."""
@@ -210,21 +264,23 @@ class DiffusionMargin(nn.Module):
         agent_err = (out - self.prediction_target(agent_x0, noise, t)).pow(2).flatten(1).mean(1)
         return agent_err, expert_err
 
+    def margins(self, student_prob: torch.Tensor, target: torch.Tensor, state: torch.Tensor,
+                generator: torch.Generator | None = None) -> torch.Tensor:
+        """Per-sample margins (B,), averaged over ``num_noise`` draws, before clipping; with autograd."""
+        cfg = self.config
+        agent = self.agent_path(student_prob)
+        channels = 1 if self.conditional else state.shape[1] + 1
+        draws = []
+        for _ in range(cfg.num_noise):
+            t, noise = self.draw(agent.shape[0], (channels, *agent.shape[-2:]), agent.device, agent.dtype, generator)
+            draws.append(self.score(*self.draw_errors(agent, target, state, t, noise)))
+        return torch.stack(draws).mean(0)
+
     def forward(self, student_prob: torch.Tensor, target: torch.Tensor, state: torch.Tensor,
                 generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Return (L_DM, fraction of active margins). ``student_prob`` and ``target`` are (B, 1, H, W) in [0, 1]."""
-        cfg = self.config
-        agent_x0, cond = expert_input(state, student_prob, self.conditional)
-        expert_x0, _ = expert_input(state, target, self.conditional)
-        b = student_prob.shape[0]
-        margins = []
-        for _ in range(cfg.num_noise):
-            t = sample_timesteps(b, cfg.t_min, self.t_max, cfg.antithetic, student_prob.device, generator)
-            noise = torch.randn(agent_x0.shape, device=agent_x0.device, dtype=agent_x0.dtype, generator=generator)
-            agent_err, expert_err = self._errors(agent_x0, expert_x0, noise, t, cond)
-            margins.append(agent_err - expert_err)
-        margin = torch.stack(margins).mean(0)
-        if cfg.clip == "sample":
+        margin = self.margins(student_prob, target, state, generator)
+        if self.config.clip == "sample":
             loss = margin.clamp_min(0).mean()
         else:
             loss = margin.mean().clamp_min(0)

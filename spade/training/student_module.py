@@ -80,6 +80,10 @@ class StudentModule(PathPlanningModule):
                     "`python -m spade.train +experiment=<expert experiment>` and pass its checkpoint path"
                 )
         self._margin: list[DiffusionMargin] = []  # kept out of the module tree: never checkpointed or optimised
+        # Per-epoch guidance activity: (epoch, share of active margins, mean clipped margin) of every finished
+        # training epoch (on_train_epoch_end), logged as margin/active and margin/value with step = epoch.
+        self.margin_history: list[tuple[int, float, float]] = []
+        self._margin_sums = torch.zeros(3)  # sum of active shares x n, sum of L_DM x n, n
 
     def load_pretrained(self, ckpt: str | Path) -> None:
         """Initialise the network from another student's checkpoint (fine-tuning), checking it is the same net."""
@@ -161,8 +165,30 @@ class StudentModule(PathPlanningModule):
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         parts = self.losses(batch)
         self.check_finite(parts["loss"], parts)
-        self.log_dict({f"train/{k}": v for k, v in parts.items()}, prog_bar=True, batch_size=batch["state"].shape[0])
+        n = batch["state"].shape[0]
+        self.log_dict({f"train/{k}": v for k, v in parts.items()}, prog_bar=True, batch_size=n)
+        if "margin_active" in parts:
+            step = torch.stack([parts["margin_active"].detach() * n, parts["loss_dm"].detach() * n,
+                                torch.tensor(float(n), device=self.device)])
+            self._margin_sums = self._margin_sums.to(step) + step
         return parts["loss"]
+
+    def on_train_epoch_start(self) -> None:
+        self._margin_sums = torch.zeros(3, device=self.device)
+
+    def on_train_epoch_end(self) -> None:
+        """Log the epoch's guidance activity (``margin/active``: the share of samples whose margin was > 0;
+        ``margin/value``: the mean clipped margin, L_DM) with step = epoch, so that a reader sees whether the
+        margin still acted after the first epoch."""
+        if self.margin is None:
+            return
+        sums = self.trainer.strategy.reduce(self._margin_sums.clone(), reduce_op="sum")
+        if float(sums[2]) <= 0:
+            return
+        active, value = float(sums[0] / sums[2]), float(sums[1] / sums[2])
+        self.margin_history.append((int(self.current_epoch), active, value))
+        for logger in self.loggers:
+            logger.log_metrics({"margin/active": active, "margin/value": value}, step=int(self.current_epoch))
 
     def validation_losses(self, batch: dict) -> dict[str, torch.Tensor]:
         logits = self(batch["state"])

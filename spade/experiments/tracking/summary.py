@@ -38,9 +38,21 @@ def _find_run(cfg: DictConfig) -> RunRef | None:
     return RunRef(uri, experiment.experiment_id, runs[0].info.run_id, runs[0].info.run_name) if runs else None
 
 
-def run_summary(cfg: DictConfig, metrics: dict[str, Any]) -> str:
-    """The closing lines: test metrics next to the baselines, the ``mlflow ui`` command and URLs to the run and
-    to its experiment's runs table."""
+def guidance_line(history: list[tuple[int, float, float]] | None) -> str | None:
+    """One line saying whether the diffusion margin acted, epoch by epoch (``StudentModule.margin_history``)."""
+    if not history:
+        return None
+    epochs = "  ".join(f"{epoch}: {active:.0%}" for epoch, active, _ in history)
+    last = history[-1][1]
+    verdict = "acted to the end" if last > 0 else "stopped acting (the expert rates the student at least as " \
+        "well as the demonstration: a BC run from then on)"
+    return f"  guidance         : margin active by epoch  {epochs}  -> {verdict}"
+
+
+def run_summary(cfg: DictConfig, metrics: dict[str, Any],
+                margin_history: list[tuple[int, float, float]] | None = None) -> str:
+    """The closing lines: test metrics next to the baselines, the margin's activity by epoch (a guided student's
+    ``margin_history``), the ``mlflow ui`` command and URLs to the run and to its experiment's runs table."""
     lines = [f"run {cfg.get('run_name')} finished"]
     if (cfg.get("scale") or {}).get("name") == "tiny":  # issue 24: tiny figures are never read as results
         from spade.experiments.tables import TINY_NOTICE
@@ -55,6 +67,9 @@ def run_summary(cfg: DictConfig, metrics: dict[str, Any]) -> str:
         if vals:
             label = prefix.replace("test/baseline/", "baseline ")
             lines.append(f"  {label:17s}: " + "  ".join(vals))
+    guidance = guidance_line(margin_history)
+    if guidance:
+        lines.append(guidance)
     uri = str(cfg.paths.mlflow_tracking_uri)
     try:
         ref = _find_run(cfg)

@@ -1,0 +1,122 @@
+"""``python -m spade.critic ckpt_path=EXPERT [student_ckpt=STUDENT] [margin=NAME] [data.test_dir=DIR]``: the expert as a
+critic, measured (:mod:`spade.training.critic`).
+
+Scores the demonstration against a fixed, versioned set of corruptions (:mod:`spade.metrics.corruptions`) with the
+margin formulation of ``margin=`` (the paper's ``cond_dbc`` by default), per timestep band; prints the win rates,
+logs them (``critic/win/*``, ``critic/ratio/*``) and a picture to MLflow (experiment ``critic``).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
+
+__all__ = ["critic", "format_report"]
+
+log = logging.getLogger(__name__)
+
+
+def _test_loader(cfg: DictConfig):
+    """The test set of ``cfg.data`` (its ``test_shape`` only), without the training set a data module needs."""
+    from torch.utils.data import DataLoader, Subset
+
+    from spade.data import DatasetError, PathDataset
+
+    test_dir = cfg.data.get("test_dir")
+    if not test_dir or not (Path(str(test_dir)) / "manifest.json").is_file():
+        raise DatasetError(
+            f"data.test_dir={test_dir} holds no dataset: pass the test set the expert is judged on "
+            "(data.test_dir=DIR), or build it first (any `python -m spade.train +experiment=...` of this scale and "
+            "data generates it, or `python -m spade.annotate preset=test out_dir=DIR`)"
+        )
+    dataset = PathDataset(str(test_dir))
+    shape = cfg.data.get("test_shape")
+    idx = [i for i, s in enumerate(dataset.labels("shape")) if shape in (None, s)]
+    if not idx:
+        raise DatasetError(f"{test_dir}: no test instances of shape {shape!r}; set data.test_shape=null or another")
+    return DataLoader(Subset(dataset, idx), batch_size=int(cfg.critic.batch_size)), dataset
+
+
+def critic(cfg: DictConfig) -> dict[str, Any]:
+    """Measure ``cfg.ckpt_path``'s expert as a critic with ``cfg.model.margin``'s formulation; returns the figures."""
+    import torch
+
+    from spade.models.modelfile import load_lightning
+    from spade.training.critic import critic_report
+    from spade.training.expert_module import ExpertModule
+    from spade.training.margin import DiffusionMargin, MarginConfig, MarginOptionError
+
+    try:
+        config = MarginConfig.from_options(OmegaConf.to_container(cfg.model.margin, resolve=True) or {})
+    except MarginOptionError as exc:
+        raise ValueError(exc.at("model.margin.")) from None
+    torch.manual_seed(int(cfg.seed))
+    expert = load_lightning(ExpertModule, str(cfg.ckpt_path))
+    if getattr(expert, "role", None) != "expert":
+        raise ValueError(f"ckpt_path={cfg.ckpt_path} is not an expert checkpoint")
+    config.check_expert(expert.conditional, f"ckpt_path={cfg.ckpt_path}")
+    loader, dataset = _test_loader(cfg)
+    expert.check_compatible(in_channels=3, image_size=dataset.image_size, source=f"ckpt_path={cfg.ckpt_path}")
+    student = None
+    if cfg.get("student_ckpt"):
+        from spade.training.student_module import StudentModule
+
+        student = load_lightning(StudentModule, str(cfg.student_ckpt)).eval()
+    margin = DiffusionMargin.from_expert(expert, config)
+    c = cfg.critic
+    metrics, picture = critic_report(
+        margin, loader, robot_x=float(dataset.frame["robot_px"][0]), width_px=int(cfg.data.target_width_px),
+        student=student, draws_per_band=int(c.draws_per_band), bands=int(c.bands), seed=int(cfg.seed),
+        max_instances=c.max_instances, title=f"{Path(str(cfg.ckpt_path)).name}: score={config.score}, "
+        f"agent_input={config.agent_input}, t in [{config.t_min}, {margin.t_max})")
+    _log(cfg, config, metrics, picture)
+    return metrics
+
+
+def _log(cfg: DictConfig, config, metrics: dict[str, float], picture) -> None:
+    from dataclasses import asdict
+
+    from spade.training.instantiate import instantiate_loggers
+    from spade.training.logging_utils import log_image
+
+    loggers = instantiate_loggers(cfg.get("logger"))
+    for logger in loggers:
+        logger.log_hyperparams({"ckpt_path": str(cfg.ckpt_path), "student_ckpt": str(cfg.get("student_ckpt")),
+                                **{f"margin/{k}": v for k, v in asdict(config).items()}})
+        logger.log_metrics(metrics, step=0)
+        log_image(logger, picture, "critic/critic.png", Path(str(cfg.paths.output_dir)))
+        logger.finalize("success")
+    if not loggers:
+        log_image(None, picture, "critic/critic.png", Path(str(cfg.paths.output_dir)))
+
+
+def format_report(metrics: dict[str, float]) -> str:
+    """The figures as lines: each candidate's overall win rate, tie share and error ratio; then the student's."""
+    names = [k.split("/")[2] for k in metrics if k.startswith("critic/win/") and k.count("/") == 2]
+    lines = [f"{'candidate':12s} {'win':>6s} {'ties':>6s} {'ratio':>6s}"]
+    for name in names:
+        tie = metrics.get(f"critic/tie/{name}")
+        lines.append(f"{name:12s} {metrics[f'critic/win/{name}']:6.2f} {'' if tie is None else f'{tie:6.2f}':>6s} "
+                     f"{metrics[f'critic/ratio/{name}']:6.2f}")
+    for key in ("critic/win_min", "critic/student/margin", "critic/student/spearman_ape", "critic/student/ape_cm"):
+        if key in metrics:
+            lines.append(f"{key}: {metrics[key]:.4g}")
+    return "\n".join(lines)
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="critic")
+def main(cfg: DictConfig) -> None:
+    from spade.experiments.config_checks import exit_on_user_error
+
+    metrics = exit_on_user_error(critic)(cfg)
+    print(format_report(metrics))
+
+
+if __name__ == "__main__":
+    main()

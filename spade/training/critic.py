@@ -1,0 +1,225 @@
+"""The expert as a critic, measured: does the diffusion margin rank the demonstration above paths known to be worse?
+
+The margin teaches only where the frozen expert scores the student's path worse than the demonstration
+(:mod:`spade.training.margin`). This module measures that ranking on a test set, with the margin's own formulation
+(how the path reaches the expert, the timestep band, how one draw compares the two errors): for every instance,
+the demonstration and each corruption of :mod:`spade.metrics.corruptions` (and, given a student, the student's
+prediction as the margin sees it) go through the expert with *shared* noise and timestep draws, stratified over
+equal-width bands of the margin's timestep range. Reported, per candidate and per band:
+
+- ``critic/win/<candidate>``: the share of instances where the demonstration scores better, i.e. where the margin
+  of that candidate, averaged over the instance's draws, is > 0, among the instances where the corruption changes
+  the image by at least a pixel's worth (the mirror image or the straight line of a straight path *is* the
+  demonstration); ``critic/tie/<candidate>`` is the share of instances left out that way. For the student it is
+  the share of active margins, over every instance;
+- ``critic/ratio/<candidate>``: the candidate's mean denoising error over the demonstration's;
+- for a student, ``critic/student/margin`` (the mean clipped margin, an estimate of L_DM) and
+  ``critic/student/spearman_ape`` (the rank correlation of the instance's margin with its APE: a critic that
+  teaches gives the worse predictions the larger margins).
+
+The FID lesson (README): validate a measuring instrument against known corruptions before trusting what it
+measures. ``python -m spade.critic`` runs this on any expert checkpoint; every expert's training run logs it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from spade.data.augment import widen_path
+from spade.metrics.corruptions import CORRUPTION_SET_VERSION, CORRUPTIONS, corrupt
+from spade.training.expert_module import denoise, expert_input
+from spade.training.margin import DiffusionMargin
+
+__all__ = ["CriticErrors", "band_edges", "critic_metrics", "critic_report", "example_images", "measure_errors"]
+
+STUDENT = "student"
+
+
+def band_edges(t_min: int, t_max: int, bands: int) -> list[tuple[int, int]]:
+    """``bands`` contiguous, nearly equal-width timestep bands [lo, hi) covering [t_min, t_max)."""
+    if bands < 1:
+        raise ValueError(f"bands must be >= 1, got {bands}")
+    edges = np.linspace(t_min, t_max, min(bands, t_max - t_min) + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+@dataclass
+class CriticErrors:
+    """Denoising errors of one critic measurement: ``demo`` and each of ``candidates`` (N, D) for N instances and
+    D shared draws, whose timesteps are ``t`` (N, D) and bands ``band`` (D,) (an index into ``bands``);
+    ``ape_cm`` (N,) the student's per-instance APE score when a student was measured."""
+
+    t: torch.Tensor
+    band: torch.Tensor
+    bands: list[tuple[int, int]]
+    demo: torch.Tensor
+    candidates: dict[str, torch.Tensor]
+    ape_cm: torch.Tensor | None = None
+    differs: dict[str, torch.Tensor] = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def num_instances(self) -> int:
+        return int(self.demo.shape[0])
+
+
+@torch.no_grad()
+def _errors(margin: DiffusionMargin, x0s: list[torch.Tensor], cond: torch.Tensor | None, noise: torch.Tensor,
+            t: torch.Tensor) -> list[torch.Tensor]:
+    """Per-sample errors of each x0 in ``x0s`` under one shared (noise, t), in one expert forward."""
+    n = len(x0s)
+    b = x0s[0].shape[0]
+    x0 = torch.cat(x0s)
+    noise_n, t_n = noise.repeat(n, *([1] * (noise.dim() - 1))), t.repeat(n)
+    cond_n = None if cond is None else cond.repeat(n, 1, 1, 1)
+    out = denoise(margin.expert, margin.add_noise(x0, noise_n, t_n), t_n, cond_n)
+    err = (out - margin.prediction_target(x0, noise_n, t_n)).pow(2).flatten(1).mean(1)
+    return list(err.split(b))
+
+
+@torch.no_grad()
+def measure_errors(margin: DiffusionMargin, batches: Iterable[dict], robot_x: float, width_px: int,
+                   corruptions: Iterable[str] = CORRUPTIONS, student: torch.nn.Module | None = None,
+                   draws_per_band: int = 2, bands: int = 5, seed: int = 0, max_instances: int | None = None,
+                   device: torch.device | str = "cpu") -> CriticErrors:
+    """Denoising errors of the demonstration and of every candidate on ``batches`` (dicts with ``state``, ``path``,
+    ``waypoints`` and ``resolution``, as a test loader gives them): each candidate goes through
+    :meth:`DiffusionMargin.agent_path` (what the margin does to the student's map), the demonstration is the path
+    widened to ``width_px`` (the training target). ``student`` (a StudentModule or any module mapping a state to
+    logits) adds its predictions as candidate ``student`` and their APE. Draws are shared by all candidates of an
+    instance, ``draws_per_band`` in each of ``bands`` equal bands of the margin's [t_min, t_max)."""
+    from spade.metrics.ape import APE
+
+    names = list(corruptions)
+    edges = band_edges(margin.config.t_min, margin.t_max, bands)
+    gen = torch.Generator(device="cpu").manual_seed(int(seed))
+    ts, demo, apes = [], [], []
+    cands: dict[str, list[torch.Tensor]] = {name: [] for name in names + ([STUDENT] if student is not None else [])}
+    differs: dict[str, list[torch.Tensor]] = {name: [] for name in cands}
+    seen = 0
+    for batch in batches:
+        if max_instances is not None and seen >= max_instances:
+            break
+        take = slice(None) if max_instances is None else slice(0, max_instances - seen)
+        state = batch["state"][take].to(device).float()
+        path = batch["path"][take].to(device).float()
+        waypoints, resolution = batch["waypoints"][take], batch["resolution"]
+        if isinstance(resolution, torch.Tensor) and resolution.dim() > 0:
+            resolution = resolution[take]
+        b = state.shape[0]
+        target = widen_path(path, width_px)
+        images = {name: corrupt(name, target, waypoints, robot_x, width_px, seed=seed + seen) for name in names}
+        if student is not None:
+            prob = torch.sigmoid(student(state))
+            images[STUDENT] = prob
+            ape = APE()
+            ape.update(prob.cpu(), state.cpu(), waypoints.cpu(), resolution)
+            apes.append(torch.cat([s.reshape(-1) for s in ape.scores]).float())
+        agent = {name: margin.agent_path(img) for name, img in images.items()}
+        for name, img in agent.items():
+            differs[name].append(((img - margin.agent_path(target)).abs().flatten(1).sum(1) >= 1.0).cpu())
+        x_demo, cond = expert_input(state, target, margin.conditional)
+        x_cands = {name: expert_input(state, img, margin.conditional)[0] for name, img in agent.items()}
+        t_batch, e_demo, e_cand = [], [], {name: [] for name in agent}
+        for lo, hi in edges:
+            for _ in range(draws_per_band):
+                t = torch.randint(lo, hi, (b,), generator=gen).to(device)
+                noise = torch.randn(x_demo.shape, generator=gen).to(device)
+                errs = _errors(margin, [x_demo, *x_cands.values()], cond, noise, t)
+                t_batch.append(t.cpu())
+                e_demo.append(errs[0].cpu())
+                for name, err in zip(x_cands, errs[1:]):
+                    e_cand[name].append(err.cpu())
+        ts.append(torch.stack(t_batch, 1))
+        demo.append(torch.stack(e_demo, 1))
+        for name in agent:
+            cands[name].append(torch.stack(e_cand[name], 1))
+        seen += b
+    if not seen:
+        raise ValueError("the critic got no test instances: check data.test_dir (an empty or missing test set)")
+    band = torch.arange(len(edges)).repeat_interleave(draws_per_band)
+    return CriticErrors(
+        t=torch.cat(ts), band=band, bands=edges, demo=torch.cat(demo),
+        candidates={name: torch.cat(v) for name, v in cands.items()},
+        ape_cm=torch.cat(apes) if apes else None,
+        differs={name: torch.cat(v) for name, v in differs.items()},
+        meta={"corruption_set": CORRUPTION_SET_VERSION, "draws_per_band": draws_per_band, "seed": seed},
+    )
+
+
+def _spearman(a: torch.Tensor, b: torch.Tensor) -> float:
+    from scipy.stats import spearmanr
+
+    if len(a) < 3 or float(a.std()) == 0 or float(b.std()) == 0:
+        return float("nan")
+    return float(spearmanr(a.numpy(), b.numpy()).statistic)
+
+
+def critic_metrics(errors: CriticErrors, margin: DiffusionMargin, per_band: bool = True) -> dict[str, float]:
+    """The critic's figures (module docstring) from measured errors, with ``margin``'s score (its ``score``
+    option; the errors already went through its ``agent_path``)."""
+    out: dict[str, float] = {}
+    masks = [("", torch.ones_like(errors.band, dtype=torch.bool))]
+    if per_band and len(errors.bands) > 1:
+        masks += [(f"/t{lo:04d}-{hi:04d}", errors.band == i) for i, (lo, hi) in enumerate(errors.bands)]
+    for name, err in errors.candidates.items():
+        scores = margin.score(err, errors.demo)  # (N, D)
+        counted = torch.ones(errors.num_instances, dtype=torch.bool)
+        if name != STUDENT and name in errors.differs:
+            counted = errors.differs[name]
+            out[f"critic/tie/{name}"] = float(1.0 - counted.float().mean())
+        for suffix, mask in masks:
+            per_instance = scores[counted][:, mask].mean(1)
+            win = float((per_instance > 0).float().mean()) if len(per_instance) else float("nan")
+            out[f"critic/win/{name}{suffix}"] = win
+            out[f"critic/ratio/{name}{suffix}"] = float(err[:, mask].mean() / errors.demo[:, mask].mean())
+        if name == STUDENT:
+            per_instance = scores.mean(1)
+            out["critic/student/margin"] = float(per_instance.clamp_min(0).mean())
+            if errors.ape_cm is not None:
+                out["critic/student/spearman_ape"] = _spearman(per_instance, errors.ape_cm)
+                out["critic/student/ape_cm"] = float(errors.ape_cm.mean())
+    corruption_wins = [v for k, v in out.items() if k.startswith("critic/win/") and k.count("/") == 2
+                       and not k.endswith(f"/{STUDENT}") and v == v]
+    if corruption_wins:
+        out["critic/win_min"] = float(min(corruption_wins))
+    return out
+
+
+def example_images(batch: dict, robot_x: float, width_px: int, corruptions: Iterable[str] = CORRUPTIONS,
+                   student: torch.nn.Module | None = None, seed: int = 0) -> tuple[torch.Tensor, dict]:
+    """One instance of ``batch`` (the first whose path turns, so that every corruption shows) with its
+    demonstration, each corruption and the student's prediction: (state (3, H, W), name -> (1, H, W))."""
+    target = widen_path(batch["path"].float(), width_px)
+    names = list(corruptions)
+    radius = corrupt("radius", target, batch["waypoints"], robot_x, width_px) if "radius" in names else target
+    turns = ((radius - target).abs().flatten(1).sum(1) >= 1.0).nonzero().flatten()
+    i = int(turns[0]) if len(turns) else 0
+    one = slice(i, i + 1)
+    images = {"demonstration": target[one]}
+    for name in names:
+        images[name] = corrupt(name, target[one], batch["waypoints"][one], robot_x, width_px, seed=seed + i)
+    if student is not None:
+        with torch.no_grad():
+            images[STUDENT] = torch.sigmoid(student(batch["state"][one].float()))
+    return batch["state"][i], {k: v[0] for k, v in images.items()}
+
+
+def critic_report(margin: DiffusionMargin, loader: Iterable[dict], robot_x: float, width_px: int,
+                  student: torch.nn.Module | None = None, draws_per_band: int = 2, bands: int = 5, seed: int = 0,
+                  max_instances: int | None = None, title: str = "") -> tuple[dict[str, float], np.ndarray]:
+    """The critic's figures (:func:`critic_metrics` of :func:`measure_errors`) and their picture
+    (:func:`~spade.training.critic_picture.critic_picture`) for ``margin`` on ``loader``'s instances."""
+    from spade.training.critic_picture import critic_picture
+
+    errors = measure_errors(margin, loader, robot_x, width_px, student=student, draws_per_band=draws_per_band,
+                            bands=bands, seed=seed, max_instances=max_instances)
+    metrics = critic_metrics(errors, margin)
+    metrics["critic/instances"] = float(errors.num_instances)
+    state, images = example_images(next(iter(loader)), robot_x, width_px, student=student, seed=seed)
+    picture = critic_picture(metrics, errors.bands, list(errors.candidates), state, images, title=title)
+    return metrics, picture

@@ -1,0 +1,203 @@
+"""The expert as a critic: the corruption set, the critic's figures against critics of known behaviour, the margin's
+scores and straight-through input, and the per-epoch guidance activity of a guided student."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from spade.data.augment import widen_path
+from spade.metrics.baselines import draw_polylines
+from spade.metrics.corruptions import CORRUPTIONS, corrupt, gaussian_blur, shift_images, turn_point, wider_turn
+from spade.training.critic import band_edges, critic_metrics, measure_errors
+from spade.training.margin import DiffusionMargin, MarginConfig
+
+SIZE = 32
+ROBOT_X = 16.0
+
+
+def l_path(corner=(16.0, 8.0), start=(16.0, 24.0), goal=(28.0, 8.0), k: int = 24) -> np.ndarray:
+    """An L in window pixels: up from the robot, a right angle, then right to the goal, resampled to ``k`` points."""
+    from spade.data.polyline import resample_polyline
+
+    return resample_polyline(np.array([start, corner, goal], np.float64), k)
+
+
+def batch_of(paths: list[np.ndarray]) -> dict:
+    """A batch with these paths: occupancy free everywhere, start and goal discs, 1 px path, waypoints."""
+    n = len(paths)
+    path = draw_polylines(paths, SIZE, SIZE)
+    state = torch.zeros(n, 3, SIZE, SIZE)
+    state[:, 0] = 0.5
+    for i, p in enumerate(paths):
+        for channel, (x, y) in ((1, p[0]), (2, p[-1])):
+            state[i, channel, int(round(y)) - 1:int(round(y)) + 2, int(round(x)) - 1:int(round(x)) + 2] = 1.0
+    return {"state": state, "path": path, "waypoints": torch.tensor(np.stack(paths), dtype=torch.float32),
+            "resolution": torch.full((n,), 0.1)}
+
+
+# -- the corruptions --------------------------------------------------------------------------------------------
+def test_every_corruption_changes_an_l_and_keeps_the_value_range() -> None:
+    b = batch_of([l_path()])
+    target = widen_path(b["path"], 3)
+    for name in CORRUPTIONS:
+        out = corrupt(name, target, b["waypoints"], ROBOT_X, 3)
+        assert out.shape == target.shape and out.min() >= 0 and out.max() <= 1, name
+        assert (out - target).abs().sum() >= 1.0, f"{name} left the L unchanged"
+
+
+def test_blur_keeps_the_peak_and_spreads_the_path_faint_halves_it() -> None:
+    b = batch_of([l_path()])
+    target = widen_path(b["path"], 3)
+    blur = corrupt("blur", target, b["waypoints"], ROBOT_X, 3)
+    assert float(blur.max()) == pytest.approx(1.0)
+    assert int((blur > 0.05).sum()) > int((target > 0.5).sum())  # wider
+    assert torch.equal(corrupt("faint", target, b["waypoints"], ROBOT_X, 3), 0.5 * target)
+    assert float(gaussian_blur(target, 1.5).sum()) == pytest.approx(float(target.sum()), rel=0.02)  # mass kept
+
+
+def test_shift_moves_the_path_by_the_given_pixels() -> None:
+    image = torch.zeros(1, 1, 8, 8)
+    image[0, 0, 3, 3] = 1.0
+    moved = shift_images(image, torch.tensor([[2, -1]]))
+    assert moved[0, 0, 2, 5] == 1.0 and moved.sum() == 1.0
+    b = batch_of([l_path()])
+    target = widen_path(b["path"], 3)
+    shifted = corrupt("shift3", target, b["waypoints"], ROBOT_X, 3, seed=5)
+    ys, xs = torch.nonzero(target[0, 0] > 0.5, as_tuple=True)
+    ys2, xs2 = torch.nonzero(shifted[0, 0] > 0.5, as_tuple=True)
+    assert max(abs(float(xs2.float().mean() - xs.float().mean())), abs(float(ys2.float().mean() - ys.float().mean()))) \
+        == pytest.approx(3.0, abs=0.6)
+
+
+def test_a_straight_path_is_its_own_mirror_image_and_straight_line() -> None:
+    straight = l_path(corner=(16.0, 16.0), goal=(16.0, 4.0))
+    b = batch_of([straight])
+    target = widen_path(b["path"], 3)
+    for name in ("mirror", "straight", "radius"):
+        assert (corrupt(name, target, b["waypoints"], ROBOT_X, 3) - target).abs().sum() < 1.0, name
+    assert turn_point(straight) == 0.5
+
+
+def test_gap_is_cut_at_the_turn_and_the_wider_turn_keeps_the_ends() -> None:
+    p = l_path()
+    assert turn_point(p) == pytest.approx(16 / 28, abs=0.05)  # the corner: 16 px up, then 12 px right
+    b = batch_of([p])
+    target = widen_path(b["path"], 3)
+    gap = corrupt("gap", target, b["waypoints"], ROBOT_X, 3)
+    assert float(gap[0, 0, 8, 16]) == 0.0 and float(target[0, 0, 8, 16]) == 1.0  # the corner pixel is gone
+    assert float(gap[0, 0, 22, 16]) == 1.0  # the start of the path is kept
+    wide = wider_turn(p)
+    assert np.allclose(wide[0], p[0]) and np.allclose(wide[-1], p[-1])
+    corner_distance = np.min(np.linalg.norm(wide - np.array([16.0, 8.0]), axis=1))
+    assert corner_distance > 3.0  # the corner is cut wide
+
+
+def test_an_unknown_corruption_names_the_set() -> None:
+    b = batch_of([l_path()])
+    with pytest.raises(ValueError, match="unknown corruption 'fuzz'.*blur"):
+        corrupt("fuzz", b["path"], b["waypoints"], ROBOT_X, 3)
+
+
+# -- the critic against critics of known behaviour --------------------------------------------------------------
+class FixedPrediction(nn.Module):
+    """An x0-predicting 'expert' that always predicts ``image`` (in the model's [-1, 1] range), whatever its input:
+    its denoising error for a candidate x0 is ||image - x0||^2, so it ranks candidates by their distance to it."""
+
+    def __init__(self, image: torch.Tensor) -> None:
+        super().__init__()
+        self.register_buffer("image", image)
+
+    def forward(self, x, t, cond=None):  # the critic stacks candidates: [demo; c1; c2; ...] of one batch each
+        image = self.image if self.image.dim() else self.image.expand_as(x)
+        return image.repeat(x.shape[0] // image.shape[0], 1, 1, 1)
+
+
+def _margin(image: torch.Tensor, **options) -> DiffusionMargin:
+    return DiffusionMargin(FixedPrediction(image), lambda x0, noise, t: x0, 100, True, MarginConfig(**options),
+                           prediction_target=lambda x0, noise, t: x0)
+
+
+def _paths() -> list[np.ndarray]:
+    return [l_path(), l_path(goal=(4.0, 8.0)), l_path(corner=(16.0, 12.0), goal=(26.0, 12.0)),
+            l_path(corner=(16.0, 16.0), goal=(16.0, 4.0))]  # the last is straight
+
+
+def test_a_critic_that_predicts_the_demonstration_ranks_it_above_every_corruption() -> None:
+    b = batch_of(_paths())
+    demo = widen_path(b["path"], 3) * 2 - 1
+    errors = measure_errors(_margin(demo), [b], ROBOT_X, 3, draws_per_band=1, bands=4)
+    m = critic_metrics(errors, _margin(demo))
+    for name in CORRUPTIONS:
+        assert m[f"critic/win/{name}"] == 1.0, name
+    assert m["critic/tie/mirror"] == pytest.approx(0.25) and m["critic/tie/straight"] == pytest.approx(0.25)
+    assert m["critic/win_min"] == 1.0
+    assert errors.t.shape == (4, 4) and [lo for lo, _ in errors.bands] == [0, 25, 50, 75]
+    for i, (lo, hi) in enumerate(errors.bands):
+        assert ((errors.t[:, i] >= lo) & (errors.t[:, i] < hi)).all()
+
+
+def test_a_critic_that_prefers_blur_is_caught() -> None:
+    b = batch_of(_paths()[:3])
+    target = widen_path(b["path"], 3)
+    blurred = corrupt("blur", target, b["waypoints"], ROBOT_X, 3) * 2 - 1
+    soft = _margin(blurred)
+    m = critic_metrics(measure_errors(soft, [b], ROBOT_X, 3, corruptions=["blur", "shift3"], bands=2), soft)
+    assert m["critic/win/blur"] == 0.0 and m["critic/ratio/blur"] < 1.0
+    assert m["critic/win/shift3"] == 1.0 and m["critic/win_min"] == 0.0
+
+
+def test_a_students_margin_activity_and_its_rank_correlation_with_ape() -> None:
+    b = batch_of(_paths()[:3])
+    demo = widen_path(b["path"], 3)
+
+    class Student(nn.Module):  # the demonstration for the first instance, worse and worse after
+        def forward(self, state):
+            logits = (demo * 2 - 1) * 8
+            logits[1] = torch.roll(logits[1], 2, dims=-1)
+            logits[2] = torch.roll(logits[2], 5, dims=-1)
+            return logits
+
+    margin = _margin(demo * 2 - 1, agent_input="straight_through")  # the first prediction is then the demonstration
+    errors = measure_errors(margin, [b], ROBOT_X, 3, corruptions=[], student=Student(), bands=1)
+    m = critic_metrics(errors, margin)
+    assert m["critic/win/student"] == pytest.approx(2 / 3)
+    assert m["critic/student/margin"] > 0
+    assert m["critic/student/spearman_ape"] == pytest.approx(1.0)
+
+
+def test_band_edges_cover_the_range() -> None:
+    assert band_edges(0, 1000, 5) == [(0, 200), (200, 400), (400, 600), (600, 800), (800, 1000)]
+    assert band_edges(10, 13, 5) == [(10, 11), (11, 12), (12, 13)]
+    with pytest.raises(ValueError):
+        band_edges(0, 10, 0)
+
+
+# -- the margin's scores and input -------------------------------------------------------------------------------
+@pytest.mark.parametrize("score", ["difference", "log_ratio", "relative"])
+def test_every_score_is_zero_for_the_demonstration_and_agrees_in_sign(score: str) -> None:
+    margin = _margin(torch.zeros(1), score=score)
+    e_demo = torch.tensor([0.5, 0.5, 0.5])
+    e_agent = torch.tensor([0.5, 0.8, 0.2])
+    s = margin.score(e_agent, e_demo)
+    assert s[0] == 0 and s[1] > 0 and s[2] < 0
+
+
+def test_straight_through_input_is_binary_forward_and_passes_the_gradient() -> None:
+    margin = _margin(torch.zeros(1), agent_input="straight_through")
+    prob = torch.tensor([0.2, 0.6, 0.9], requires_grad=True)
+    out = margin.agent_path(prob)
+    assert out.tolist() == [0.0, 1.0, 1.0]
+    out.sum().backward()
+    assert prob.grad.tolist() == [1.0, 1.0, 1.0]
+
+
+def test_bad_formulation_options_name_the_option() -> None:
+    from spade.training.margin import MarginOptionError
+
+    with pytest.raises(MarginOptionError, match="score='ratio' is not one of"):
+        MarginConfig(score="ratio")
+    with pytest.raises(MarginOptionError, match="agent_input='hard' is not one of"):
+        MarginConfig(agent_input="hard")
