@@ -22,7 +22,7 @@ from typing import Any
 
 import hydra
 import lightning as L
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from spade.experiments.lifecycle import CarryBestCheckpoint, DeterministicTraining
 from spade.experiments.prerequisites import complete_prerequisite, pending_prerequisites
@@ -38,7 +38,8 @@ from spade.experiments.tracking.summary import run_summary
 from spade.models.modelfile import safe_loading
 from spade.training.instantiate import instantiate_callbacks, instantiate_loggers, run_id_from_checkpoint
 
-__all__ = ["from_checkpoint", "optimized_value", "rename_prefix", "run", "train", "untrained_test_metrics"]
+__all__ = ["from_checkpoint", "optimized_value", "rename_prefix", "run", "test_elsewhere", "train",
+           "untrained_test_metrics"]
 
 log = logging.getLogger(__name__)
 
@@ -129,6 +130,9 @@ def train(cfg: DictConfig, _depth: int = 0) -> tuple[dict[str, Any], dict[str, A
         metrics.update(baseline)
 
         finish_run(cfg, trainer, model, loggers)
+        if cfg.get("test", True):
+            for name, data in (cfg.get("also_test") or {}).items():
+                metrics.update(test_elsewhere(cfg, best or trainer.checkpoint_callback.last_model_path, name, data))
         if not cfg.get("train", True) and not cfg.get("test", True):
             for logger in loggers:  # no fit or test ran the trainer's teardown, which ends the MLflow run
                 logger.finalize("success")
@@ -136,6 +140,27 @@ def train(cfg: DictConfig, _depth: int = 0) -> tuple[dict[str, Any], dict[str, A
         mark_run_ended(loggers, exc)
         raise
     return metrics, {"cfg": cfg, "datamodule": datamodule, "model": model, "trainer": trainer, "loggers": loggers}
+
+
+def test_elsewhere(cfg: DictConfig, ckpt_path: str, name: str, data: str) -> dict[str, float]:
+    """Test the run's best checkpoint on another data config's test set (``also_test: {NAME: DATA}``, e.g.
+    ``{real: realmap_L}``: maps no training set uses) as ``python -m spade.evaluate`` does, in a run of its own named
+    ``<run_name>_<NAME>`` in the same MLflow experiment, carrying the run's seed (so that ``spade.report`` counts it
+    per seed, like a row). Returns its metrics as ``<NAME>/test/...``."""
+    from spade.evaluate import evaluate
+    from spade.utils.config import compose_config
+
+    overrides = [f"ckpt_path={ckpt_path}", f"data={data}", f"scale={cfg.scale.name}", f"run_name={cfg.run_name}_{name}",
+                 f"tags.table={cfg.tags.table}", f"tags.row={cfg.run_name}_{name}", f"seed={cfg.seed}",
+                 f"source_seed={cfg.seed}", f"paths.output_dir={cfg.paths.output_dir}/{name}",
+                 f"trainer.enable_progress_bar={bool(cfg.trainer.get('enable_progress_bar', True))}"]
+    if OmegaConf.select(cfg, "logger.mlflow") is None:
+        overrides.append("logger=none")
+    results = evaluate(compose_config("evaluate", overrides))
+    print(f"  {name} ({data}): " + "  ".join(f"{k.split('/', 1)[1]}={v:.4g}" for k, v in sorted(results.items())
+                                            if k in ("test/ape_cm", "test/over_20cm_rate", "test/failure_rate",
+                                                     "test/planner/ape_cm")), flush=True)
+    return {f"{name}/{k}": v for k, v in results.items()}
 
 
 def from_checkpoint(step: Callable[..., Any], ckpt_path: str | Path | None, **kwargs: Any) -> Any:

@@ -232,7 +232,22 @@ def _table3() -> Table:
     )
 
 
-TABLES: dict[str, Table] = {t.key: t for t in (_table1(), _table2(), _table3())}
+def _guidance() -> Table:
+    """Not a table of the paper: BC against the paper's Cond-DBC margin and SPADE's straight-through one
+    (``margin=cond_dbc_st``), with few demonstrations and with the scale's, on the held-out map (column L) and on
+    real maps no training set uses (column real: run ``<row>_real``, :func:`spade.experiments.run.test_elsewhere`)."""
+    lines = []
+    for regime in ("few", "full"):
+        for approach, slug in (("BC", "bc"), ("Cond-DBC", "conddbc"), ("Cond-DBC-ST", "conddbcst")):
+            row = f"g_{regime}_{slug}_L"
+            lines.append(Line((regime, approach), {"L": row, "real": f"{row}_real"}))
+    return Table("guidance", "Guidance: BC, the paper's margin (Cond-DBC) and the straight-through margin "
+                 "(Cond-DBC-ST), few (250) and all (2,000) training instances; tested on the held-out map (L) and "
+                 "on unseen real maps (real)", "guidance", "guidance", ("regime", "approach"), ("L", "real"),
+                 tuple(lines))
+
+
+TABLES: dict[str, Table] = {t.key: t for t in (_table1(), _table2(), _table3(), _guidance())}
 _ALIASES = {"1": "table1", "2": "table2", "3": "table3"} | {t.composition: t.key for t in TABLES.values()}
 
 

@@ -82,3 +82,49 @@ class ChannelsLast(Callback):
     def on_test_batch_start(self, trainer: L.Trainer, pl_module: L.LightningModule, batch: object,
                             batch_idx: int, dataloader_idx: int = 0) -> None:
         self.convert(batch)
+
+
+class CriticReport(Callback):
+    """At the end of an expert's test, the expert as a critic (:func:`spade.training.critic.critic_report`) on
+    the test set, for each margin formulation in ``formulations`` (name -> :class:`MarginConfig` options; the
+    paper's, ``{}``, logs ``critic/...``, any other ``critic_<name>/...``), with a picture per formulation.
+
+    Students and runs without a test are left alone; so is every rank but the first under DDP.
+    """
+
+    def __init__(self, formulations: dict[str, dict] | None = None, max_instances: int | None = 96,
+                 draws_per_band: int = 2, bands: int = 5, seed: int = 0) -> None:
+        self.formulations = dict(formulations if formulations is not None else {"paper": {}})
+        self.max_instances, self.draws_per_band, self.bands, self.seed = max_instances, draws_per_band, bands, seed
+
+    @staticmethod
+    def prefix(name: str) -> str:
+        return "critic/" if name == "paper" else f"critic_{name}/"
+
+    def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if getattr(pl_module, "role", None) != "expert" or not trainer.is_global_zero or trainer.sanity_checking:
+            return
+        from spade.training.critic import critic_report
+        from spade.training.logging_utils import log_image
+        from spade.training.margin import DiffusionMargin, MarginConfig
+
+        dm = trainer.datamodule
+        loader = dm.test_dataloader()
+        for name, options in self.formulations.items():
+            config = MarginConfig(**dict(options))
+            margin = DiffusionMargin.from_expert(pl_module, config)
+            with torch.inference_mode(False):
+                metrics, picture = critic_report(
+                    margin, loader, float(dm.frame["robot_px"][0]), dm.target_width_px, draws_per_band=self.draws_per_band,
+                    bands=self.bands, seed=self.seed, max_instances=self.max_instances,
+                    title=f"{name} margin: score={config.score}, agent_input={config.agent_input}")
+            prefix = self.prefix(name)
+            renamed = {prefix + k[len("critic/"):]: v for k, v in metrics.items()}
+            for logger in trainer.loggers:
+                logger.log_metrics(renamed, step=trainer.global_step)
+            log_image(pl_module.logger, picture, f"critic/{name}.png", trainer.log_dir)
+            worst = min(((v, k) for k, v in renamed.items() if k.count("/") == 2 and "/win/" in k and v == v),
+                        default=None)
+            if worst is not None:
+                print(f"critic ({name} margin): the demonstration beats every corruption on at least "
+                      f"{worst[0]:.0%} of test instances (weakest: {worst[1].split('/')[-1]})", flush=True)

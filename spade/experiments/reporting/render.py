@@ -133,10 +133,20 @@ def render_comparisons(comparisons: list[ComparisonResult]) -> str:
                             "seeds", "paper"], body)
 
 
+def _holm(c: ComparisonResult) -> str:
+    if c.p_holm is None:
+        return "-"
+    return f"p = {c.p_holm:.3g}" + (", significant" if c.p_holm < 0.05 else ", not significant")
+
+
 def render_pairwise(pairs: list[ComparisonResult]) -> str:
+    """The pairwise tests: the means, their change, Welch's test and the same p after Holm's correction over every
+    pairwise test of the table (significant only when that adjusted p is below 0.05)."""
     body = [[c.title, METRICS[c.metric].label, METRICS[c.metric].format(c.value),
-             METRICS[c.metric].format(c.baseline_value), _change(c), c.test, f"{c.n} / {c.baseline_n}"] for c in pairs]
-    return _markdown_table(["rows", "metric", "first (mean)", "second (mean)", "change", "Welch test", "seeds"], body)
+             METRICS[c.metric].format(c.baseline_value), _change(c), c.test, _holm(c), f"{c.n} / {c.baseline_n}"]
+            for c in pairs]
+    return _markdown_table(["rows", "metric", "first (mean)", "second (mean)", "change", "Welch test",
+                            "Holm-corrected", "seeds"], body)
 
 
 def significance_statement() -> str:
@@ -192,3 +202,22 @@ def render_notes(table: Table, results: dict[str, RowResult]) -> list[str]:
     if any(r.found and "fid" not in r.metrics for r in results.values()):
         notes.append("FID n/a: the run logged no test/fid (its test set is smaller than the FID extractor needs)")
     return notes
+
+
+def provenance(table: Table, results: dict[str, RowResult], command: str, commit: str | None, machine: str) -> list[str]:
+    """Where the page comes from: the command that printed it and the one that launches the table, the code's
+    commit, the date, the machine, and the wall time of the runs counted (their sum, and first start to last end)."""
+    import datetime
+
+    runs = [r for res in results.values() for r in res.runs]
+    spans = [(r.start_time, r.end_time) for r in runs if r.start_time and r.end_time]
+    lines = [f"- command: `{command}` (launch: `python -m spade.train +experiment={table.composition}`)",
+             f"- commit: {commit or 'unknown (not a git checkout)'}",
+             f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
+             f"- machine: {machine}"]
+    if spans:
+        total = sum(end - start for start, end in spans) / 1000.0
+        span = (max(e for _, e in spans) - min(s for s, _ in spans)) / 1000.0
+        lines.append(f"- wall time of the {len(spans)} runs counted: {total / 60:.0f} min in all, "
+                     f"{span / 3600:.1f} h from the first start to the last end")
+    return lines

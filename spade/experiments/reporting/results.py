@@ -42,6 +42,7 @@ class SeedRun:
     run_id: str
     end_time: int | None
     metrics: dict[str, float]
+    start_time: int | None = None
 
 
 @dataclass
@@ -107,6 +108,7 @@ class ComparisonResult:
     baseline_n: int = 0  # seeds of the baseline row
     p_value: float | None = None  # Welch's t-test; None when there is no test
     test: str = NO_TEST  # "p = 0.012", "n=1, no test", ...
+    p_holm: float | None = None  # Holm-adjusted over the table's pairwise tests (pairwise); None: not adjusted
 
     @property
     def significant(self) -> bool | None:
@@ -201,8 +203,8 @@ def fetch_results(table: Table, tracking_uri: str, scale: str | None = None) -> 
         for run in sorted(same_scale, key=ended):  # the latest run of each seed wins
             by_seed[_seed(run)] = run
         order = sorted(by_seed, key=lambda s: (s is None, s if s is not None else 0))
-        result.runs = [SeedRun(s, by_seed[s].info.run_id, by_seed[s].info.end_time, _run_metrics(by_seed[s]))
-                       for s in order]
+        result.runs = [SeedRun(s, by_seed[s].info.run_id, by_seed[s].info.end_time, _run_metrics(by_seed[s]),
+                               by_seed[s].info.start_time) for s in order]
         result.run_id, result.end_time = latest.info.run_id, latest.info.end_time
         keys = {k for r in result.runs for k in r.metrics}
         result.metrics = {k: _mean(v) for k in keys if (v := result.samples(k))}
@@ -229,10 +231,24 @@ def compare(table: Table, results: dict[str, RowResult]) -> list[ComparisonResul
     return out
 
 
+def holm(p_values: list[float | None]) -> list[float | None]:
+    """Holm's step-down adjustment of a family of p-values (None: no test, left out of the family and kept None):
+    the i-th smallest of m is multiplied by (m - i), made monotone and capped at 1. A test is significant at
+    :data:`ALPHA` after the correction when its adjusted p is below it."""
+    tested = sorted((p, i) for i, p in enumerate(p_values) if p is not None)
+    out: list[float | None] = [None] * len(p_values)
+    running = 0.0
+    for rank, (p, i) in enumerate(tested):
+        running = max(running, min(1.0, (len(tested) - rank) * p))
+        out[i] = running
+    return out
+
+
 def pairwise(table: Table, results: dict[str, RowResult], metric: str = "ape_cm") -> list[ComparisonResult]:
     """Every pair of found rows of one shape whose lines share all labels but the last (Table 1: the approaches of
     one size, the two experts; Tables 2 and 3: all their rows), on ``metric``: the change of the means and
-    Welch's t-test, as in :func:`compare`. It says which orderings of the table the seeds can tell apart."""
+    Welch's t-test, as in :func:`compare`, with Holm's correction over all of them (:func:`holm`). It says which
+    orderings of the table the seeds can tell apart."""
     out = []
     for shape in table.shapes:
         lines = [line for line in table.lines if shape in line.cells and results[line.cells[shape]].found]
@@ -251,4 +267,6 @@ def pairwise(table: Table, results: dict[str, RowResult], metric: str = "ape_cm"
                     title += f" ({shape})"
                 out.append(ComparisonResult(title, rb.row, ra.row, metric, vb, va, relative_change(vb, va), None, "",
                                             rb.n, ra.n, p, test))
+    for c, adjusted in zip(out, holm([c.p_value for c in out])):  # one family: the table's pairwise tests
+        c.p_holm = adjusted
     return out

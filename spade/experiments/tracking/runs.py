@@ -293,4 +293,6 @@ def finish_evaluation(cfg: DictConfig, trainer: L.Trainer, loggers: list[Logger]
     if ml is None:
         return
     bind_experiment(ml, cfg)
+    if cfg.get("source_seed") is not None:  # a training run's checkpoint tested elsewhere: counted under its seed
+        ml.experiment.log_param(ml.run_id, "cfg/seed", int(cfg.source_seed))
     describe_run(cfg, ml, getattr(trainer, "datamodule", None), contexts=("test",))
