@@ -9,6 +9,7 @@ logs them (``critic/win/*``, ``critic/ratio/*``) and a picture to MLflow (experi
 from __future__ import annotations
 
 import logging
+import time
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +17,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
+from spade.metrics.corruptions import CORRUPTION_SET_VERSION
 
 __all__ = ["critic", "format_report"]
 
@@ -47,6 +49,7 @@ def critic(cfg: DictConfig) -> dict[str, Any]:
     """Measure ``cfg.ckpt_path``'s expert as a critic with ``cfg.model.margin``'s formulation; returns the figures."""
     import torch
 
+    start = time.perf_counter()
     from spade.models.modelfile import load_lightning
     from spade.training.critic import critic_report
     from spade.training.expert_module import ExpertModule
@@ -76,7 +79,68 @@ def critic(cfg: DictConfig) -> dict[str, Any]:
         max_instances=c.max_instances, title=f"{Path(str(cfg.ckpt_path)).name}: score={config.score}, "
         f"agent_input={config.agent_input}, t in [{config.t_min}, {margin.t_max})")
     _log(cfg, config, metrics, picture)
+    _write_page(cfg, config, metrics, picture, time.perf_counter() - start)
     return metrics
+
+
+def _write_page(cfg: DictConfig, config, metrics: dict[str, float], picture, seconds: float) -> Path | None:
+    """The results page: the figures (:func:`format_report`), per band, with command, commit, date, machine and
+    wall time, next to its picture, in ``cfg.output_dir``."""
+    import datetime
+
+    from PIL import Image
+
+    from spade.utils.provenance import command_line, commit, machine
+
+    if not cfg.get("output_dir"):
+        return None
+    out = Path(str(cfg.output_dir))
+    out.mkdir(parents=True, exist_ok=True)
+    stem = f"critic_{Path(str(cfg.ckpt_path)).stem}_{config.agent_input}_{config.score}"
+    if cfg.get("student_ckpt"):
+        stem += "_student"
+    Image.fromarray(picture).save(out / f"{stem}.png")
+    bands = sorted({k.rsplit("/", 1)[1] for k in metrics if k.startswith("critic/win/") and k.count("/") == 3})
+    names = [k.split("/")[2] for k in metrics if k.startswith("critic/win/") and k.count("/") == 2]
+    header = "| candidate | win (all t) | " + " | ".join(b.replace("t", "t ", 1) for b in bands) + " | ties | error ratio |"
+    rows = [header, "|" + "---|" * (len(bands) + 4)]
+    for name in names:
+        tie = metrics.get(f"critic/tie/{name}")
+        rows.append(f"| {name} | {metrics[f'critic/win/{name}']:.2f} | "
+                    + " | ".join(f"{metrics.get(f'critic/win/{name}/{b}', float('nan')):.2f}" for b in bands)
+                    + f" | {'-' if tie is None else f'{tie:.2f}'} | {metrics[f'critic/ratio/{name}']:.2f} |")
+    student = [f"- {k}: {v:.4g}" for k, v in metrics.items() if k.startswith("critic/student/")]
+    text = "\n".join([
+        f"# The expert as a critic: {Path(str(cfg.ckpt_path)).name}",
+        "",
+        f"Margin formulation: score `{config.score}`, agent input `{config.agent_input}`, timesteps "
+        f"[{config.t_min}, {config.t_max if config.t_max is not None else 'T'}); test set `{cfg.data.test_dir}` "
+        f"(shape {cfg.data.get('test_shape')}), {int(metrics['critic/instances'])} instances, "
+        f"{cfg.critic.draws_per_band} shared noise/timestep draws in each of {cfg.critic.bands} bands, corruption set "
+        f"version {CORRUPTION_SET_VERSION}.",
+        "",
+        "Win: the share of instances where the demonstration scores better than the candidate (the margin of that "
+        "candidate is > 0), over the instances the corruption changes (ties: the share it leaves unchanged). "
+        "For `student` it is the share of active margins. Error ratio: the candidate's mean denoising error over "
+        "the demonstration's.",
+        "",
+        *rows,
+        "",
+        *(["Student:", *student, ""] if student else []),
+        f"![critic]({stem}.png)",
+        "",
+        "Provenance:",
+        f"- command: `{command_line('spade.critic')}`",
+        f"- commit: {commit() or 'unknown (not a git checkout)'}",
+        f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
+        f"- machine: {machine()}",
+        f"- wall time: {seconds:.0f} s",
+        "",
+    ])
+    page = out / f"{stem}.md"
+    page.write_text(text)
+    print(f"results page: {page}")
+    return page
 
 
 def _log(cfg: DictConfig, config, metrics: dict[str, float], picture) -> None:

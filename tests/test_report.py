@@ -26,7 +26,7 @@ def _experiment_yaml(name: str) -> dict:
 @pytest.mark.parametrize("key", sorted(TABLES))
 def test_table_layouts_match_the_experiment_configs(key: str) -> None:
     table = TABLES[key]
-    for row in table.rows:
+    for row in table.experiments:
         cfg = _experiment_yaml(row)
         assert cfg["run_name"] == row and cfg["tags"]["table"] == table.experiment, row
     from omegaconf import OmegaConf
@@ -35,14 +35,19 @@ def test_table_layouts_match_the_experiment_configs(key: str) -> None:
 
     sweep = _experiment_yaml(table.composition)["hydra"]["sweeper"]["params"]["experiment"]
     launched = OmegaConf.create({"rows": None, "experiment": sweep}).experiment.split(",")  # rows=null: all
-    assert sorted(launched) == sorted(table.rows)
+    assert sorted(launched) == sorted(table.experiments)
+    for column in table.tested_elsewhere:  # another test of a row's checkpoint: the row asks for it (also_test)
+        for line in table.lines:
+            base = line.cells[table.shapes[0]]
+            assert line.cells[column] == f"{base}_{column}"
+            assert column in yaml.safe_load((CONF_DIR / "experiment" / "g_base.yaml").read_text())["also_test"]
     for comp in table.comparisons:
         assert {comp.row, comp.baseline} <= set(table.rows)
 
 
 def test_every_row_of_the_paper_is_in_a_table() -> None:
     rows = {p.stem for p in (CONF_DIR / "experiment").glob("*.yaml") if p.stem.startswith(("t1_", "t2_", "t3_", "expert_"))}
-    assert rows == {r for t in TABLES.values() for r in t.rows} and len(rows) == 27
+    assert rows == {r for t in TABLES.values() if t.key != "guidance" for r in t.rows} and len(rows) == 27
 
 
 def test_get_table_accepts_aliases_and_names_the_choices() -> None:
@@ -288,3 +293,37 @@ def test_tiny_scale_report_says_pipeline_check(seeded: dict) -> None:
     assert TINY_NOTICE in build_report(TABLES["table2"], seeded["uri"]).text
     assert "pipeline check, not a result" in TINY_NOTICE
     assert TINY_NOTICE not in build_report(TABLES["table2"], seeded["uri"], scale="cpu").text
+
+
+def test_holm_correction_against_hand_computed_values() -> None:
+    from spade.experiments.reporting.results import holm
+
+    # sorted: 0.01 x 3 = 0.03; 0.03 x 2 = 0.06; 0.04 x 1 = 0.04 -> kept monotone at 0.06; None stays out
+    assert holm([0.01, 0.04, None, 0.03]) == pytest.approx([0.03, 0.06, None, 0.06])
+    assert holm([0.5, 0.9]) == pytest.approx([1.0, 1.0])
+    assert holm([]) == []
+
+
+def test_guidance_report_tests_pairs_with_holm_and_states_its_provenance(tmp_path: Path) -> None:
+    """Three seeds of two guidance rows on the held-out map: the pairwise test is Welch's, Holm-corrected over the
+    table's tests, and the page names its command, commit, date, machine and the runs' wall time."""
+    from mlflow import MlflowClient
+
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    client = MlflowClient(tracking_uri=uri)
+    exp = client.create_experiment("guidance")
+    for seed, (bc, st) in {1: (5.0, 4.0), 2: (5.2, 4.1), 3: (5.4, 4.2)}.items():
+        _log_run(client, exp, "g_few_bc_L", _cell_metrics(bc, 0, 0), seed=seed)
+        _log_run(client, exp, "g_few_conddbcst_L", _cell_metrics(st, 0, 0), seed=seed)
+        _log_run(client, exp, "g_few_bc_L_real", _cell_metrics(bc + 1, 0, 0), seed=seed)
+    rep = build_report(TABLES["guidance"], uri, tmp_path, chart=False)
+    pair = next(c for c in rep.pairs if c.row == "g_few_conddbcst_L" and c.baseline == "g_few_bc_L")
+    from scipy.stats import ttest_ind
+
+    p = ttest_ind([4.0, 4.1, 4.2], [5.0, 5.2, 5.4], equal_var=False).pvalue
+    assert pair.p_value == pytest.approx(p) and pair.p_holm == pytest.approx(min(1.0, p * sum(
+        c.p_value is not None for c in rep.pairs)))
+    assert rep.results["g_few_bc_L_real"].value("ape_cm") == pytest.approx(6.2)
+    text = rep.text
+    assert "Holm-corrected" in text and "- commit: " in text and "- machine: " in text and "wall time" in text
+    assert "The paper's figures" not in text  # not a table of the paper

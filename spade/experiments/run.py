@@ -147,7 +147,7 @@ def test_elsewhere(cfg: DictConfig, ckpt_path: str, name: str, data: str) -> dic
     ``{real: realmap_L}``: maps no training set uses) as ``python -m spade.evaluate`` does, in a run of its own named
     ``<run_name>_<NAME>`` in the same MLflow experiment, carrying the run's seed (so that ``spade.report`` counts it
     per seed, like a row). Returns its metrics as ``<NAME>/test/...``."""
-    from spade.evaluate import evaluate
+    from spade.experiments.evaluation import evaluate
     from spade.utils.config import compose_config
 
     overrides = [f"ckpt_path={ckpt_path}", f"data={data}", f"scale={cfg.scale.name}", f"run_name={cfg.run_name}_{name}",

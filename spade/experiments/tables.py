@@ -127,11 +127,20 @@ class Table:
     shapes: tuple[str, ...]
     lines: tuple[Line, ...]
     comparisons: tuple[Comparison, ...] = ()
+    # Columns whose cells are not experiments but another test of a row's checkpoint (``also_test``: run
+    # ``<row>_<column>``, :func:`spade.experiments.run.test_elsewhere`).
+    tested_elsewhere: tuple[str, ...] = ()
 
     @property
     def rows(self) -> list[str]:
-        """Every row (experiment and run name) of the table, in layout order."""
+        """Every row (run name) of the table, in layout order."""
         return [line.cells[s] for line in self.lines for s in self.shapes if s in line.cells]
+
+    @property
+    def experiments(self) -> list[str]:
+        """The rows that are experiments (``conf/experiment/<row>.yaml``): all but the ``tested_elsewhere`` cells."""
+        return [line.cells[s] for line in self.lines for s in self.shapes
+                if s in line.cells and s not in self.tested_elsewhere]
 
     def describe(self) -> str:
         """A description for the MLflow experiment (shown on its page in the UI)."""
@@ -244,7 +253,7 @@ def _guidance() -> Table:
     return Table("guidance", "Guidance: BC, the paper's margin (Cond-DBC) and the straight-through margin "
                  "(Cond-DBC-ST), few (250) and all (2,000) training instances; tested on the held-out map (L) and "
                  "on unseen real maps (real)", "guidance", "guidance", ("regime", "approach"), ("L", "real"),
-                 tuple(lines))
+                 tuple(lines), tested_elsewhere=("real",))
 
 
 TABLES: dict[str, Table] = {t.key: t for t in (_table1(), _table2(), _table3(), _guidance())}

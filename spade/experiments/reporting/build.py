@@ -24,6 +24,7 @@ from spade.experiments.reporting.render import (
 )
 from spade.experiments.reporting.results import ComparisonResult, RowResult, compare, fetch_results, pairwise
 from spade.experiments.tables import TABLES, Table, get_table
+from spade.utils.provenance import command_line, commit, machine
 
 
 @dataclass
@@ -60,7 +61,7 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
                   render_comparisons(comparisons)]
     if pairs:
         parts += ["", "Pairwise, APE (which orderings the seeds tell apart):", "", render_pairwise(pairs)]
-    parts += ["", "Provenance:", *provenance(table, results, _command(), _commit(), _machine())]
+    parts += ["", "Provenance:", *provenance(table, results, command_line("spade.report"), commit(), machine())]
     if paper and any(line.paper for line in table.lines):
         parts += ["", "The paper's figures (its dataset; compare orderings and ratios, not values):", "",
                   render_paper_table(table)]
@@ -84,38 +85,6 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
     links = publish_report(table, results, tracking_uri, files, log_to_runs)  # UI links; chart into the runs
     parts += ["", *links] if links else []
     return Report(table, results, comparisons, "\n".join(parts), files, pairs)
-
-
-def _command() -> str:
-    import shlex
-    import sys
-
-    argv = [a for a in sys.argv[1:]]
-    return "python -m spade.report " + " ".join(shlex.quote(a) for a in argv) if argv else "python -m spade.report"
-
-
-def _commit() -> str | None:
-    """The checkout's commit (with ``+changes`` when the tree differs from it); None outside a git checkout."""
-    import subprocess
-
-    root = Path(__file__).resolve().parents[3]
-    try:
-        head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short=12", "HEAD"], capture_output=True,
-                              text=True, timeout=10, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return head + (" +changes" if dirty else "")
-
-
-def _machine() -> str:
-    import os
-    import platform
-
-    from spade.utils.timing import cpu_model
-
-    return f"{platform.node()}: {cpu_model()}, {os.cpu_count()} cores, {platform.system()} {platform.release()}"
 
 
 def report(cfg: DictConfig) -> list[Report]:
