@@ -50,7 +50,7 @@ def critic(cfg: DictConfig) -> dict[str, Any]:
     import torch
 
     start = time.perf_counter()
-    from spade.models.modelfile import load_lightning
+    from spade.models.modelfile import load_lightning, read_info
     from spade.training.critic import critic_report
     from spade.training.expert_module import ExpertModule
     from spade.training.margin import DiffusionMargin, MarginConfig, MarginOptionError
@@ -60,9 +60,11 @@ def critic(cfg: DictConfig) -> dict[str, Any]:
     except MarginOptionError as exc:
         raise ValueError(exc.at("model.margin.")) from None
     torch.manual_seed(int(cfg.seed))
+    role = read_info(str(cfg.ckpt_path), checkpoint=True, required=False).get("role")
+    if role != "expert":
+        raise ValueError(f"ckpt_path={cfg.ckpt_path} is a {role or 'non-SPADE'} checkpoint, not an expert's: pass a "
+                         "diffusion expert (python -m spade.train +experiment=expert_*, or spade/models/weights/)")
     expert = load_lightning(ExpertModule, str(cfg.ckpt_path))
-    if getattr(expert, "role", None) != "expert":
-        raise ValueError(f"ckpt_path={cfg.ckpt_path} is not an expert checkpoint")
     config.check_expert(expert.conditional, f"ckpt_path={cfg.ckpt_path}")
     loader, dataset = _test_loader(cfg)
     expert.check_compatible(in_channels=3, image_size=dataset.image_size, source=f"ckpt_path={cfg.ckpt_path}")

@@ -201,3 +201,79 @@ def test_bad_formulation_options_name_the_option() -> None:
         MarginConfig(score="ratio")
     with pytest.raises(MarginOptionError, match="agent_input='hard' is not one of"):
         MarginConfig(agent_input="hard")
+
+
+def test_the_run_summary_says_whether_guidance_acted_to_the_end() -> None:
+    from spade.experiments.tracking.summary import guidance_line
+
+    assert guidance_line(None) is None and guidance_line([]) is None
+    died = guidance_line([(0, 1.0, 0.5), (1, 0.0, 0.0)])
+    assert "0: 100%" in died and "1: 0%" in died and "stopped acting" in died
+    assert "acted to the end" in guidance_line([(0, 1.0, 0.5), (1, 0.42, 0.01)])
+
+
+# -- the command -------------------------------------------------------------------------------------------------
+def _critic_cfg(spade_home, *overrides: str):
+    from omegaconf import open_dict
+
+    from spade.utils.config import compose_config
+
+    cfg = compose_config("critic", ["scale=tiny", "logger=none", "critic.max_instances=6", "critic.bands=2",
+                                    "critic.draws_per_band=1", f"output_dir={spade_home}/critic", *overrides])
+    with open_dict(cfg):
+        cfg.paths.output_dir = str(spade_home / "critic_out")
+    return cfg
+
+
+def test_critic_command_scores_an_expert_and_a_student_and_writes_its_page(spade_home, tiny_checkpoints) -> None:
+    from spade.critic import critic, format_report
+
+    cfg = _critic_cfg(spade_home, f"ckpt_path={tiny_checkpoints['cond']}", f"student_ckpt={tiny_checkpoints['student']}",
+                      "margin=cond_dbc_st")
+    metrics = critic(cfg)
+    assert metrics["critic/instances"] == 6.0
+    for name in CORRUPTIONS:
+        assert 0.0 <= metrics[f"critic/ratio/{name}"] and f"critic/win/{name}/t0000-0500" in metrics
+    assert 0.0 <= metrics["critic/win/student"] <= 1.0 and "critic/student/spearman_ape" in metrics
+    pages = list((spade_home / "critic").glob("critic_*_straight_through_difference_student.md"))
+    assert len(pages) == 1 and (pages[0].with_suffix(".png")).is_file()
+    text = pages[0].read_text()
+    assert "| blur |" in text and "- commit: " in text and "- wall time: " in text
+    assert "blur" in format_report(metrics)
+
+
+def test_critic_command_refuses_a_student_as_expert_and_a_missing_test_set(spade_home, tiny_checkpoints) -> None:
+    from spade.critic import critic
+    from spade.data import DatasetError
+
+    with pytest.raises(ValueError, match="not an expert checkpoint|expert"):
+        critic(_critic_cfg(spade_home, f"ckpt_path={tiny_checkpoints['student']}"))
+    with pytest.raises(DatasetError, match="data.test_dir=.*holds no dataset"):
+        critic(_critic_cfg(spade_home, f"ckpt_path={tiny_checkpoints['cond']}", f"data.test_dir={spade_home}/none"))
+    with pytest.raises(Exception, match="agent_input"):
+        critic(_critic_cfg(spade_home, f"ckpt_path={tiny_checkpoints['cond']}", "+model.margin.agent_input=soft"))
+
+
+@pytest.mark.slow
+def test_a_guidance_row_tests_its_checkpoint_on_real_maps_as_a_run_of_its_seed(spade_home, maps_dir) -> None:
+    """also_test: the best checkpoint tested on data=realmap_L as run <row>_real in the same MLflow experiment,
+    carrying the row's seed, so that spade.report counts it per seed."""
+    from mlflow import MlflowClient
+
+    from spade.experiments.run import train
+    from training_helpers import compose_row
+
+    cfg = compose_row("g_few_conddbcst_L", spade_home, "trainer.max_epochs=1", "data.max_train_instances=32",
+                      "seed=7", "trainer.enable_progress_bar=false", "model.grid_size=0",
+                      "callbacks.model_info.latency_runs=0")
+    metrics, objects = train(cfg)
+    assert "real/test/ape_cm" in metrics and "test/ape_cm" in metrics
+    assert objects["model"].margin_history and objects["model"].margin_history[0][0] == 0
+    client = MlflowClient(tracking_uri=str(cfg.paths.mlflow_tracking_uri))
+    exp = client.get_experiment_by_name("guidance")
+    runs = {r.info.run_name: r for r in client.search_runs([exp.experiment_id])}
+    real = runs["g_few_conddbcst_L_real"]
+    assert real.info.status == "FINISHED" and real.data.params["cfg/seed"] == "7"
+    assert real.data.metrics["test/ape_cm"] == pytest.approx(metrics["real/test/ape_cm"])
+    history = client.get_metric_history(runs["g_few_conddbcst_L"].info.run_id, "margin/active")
+    assert [m.step for m in history] == [0]

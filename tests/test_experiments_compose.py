@@ -61,6 +61,9 @@ def test_row_composes_instantiates_and_runs_fast_dev_run(row: str, spade_home: P
     if cfg.model.get("margin"):
         assert model.margin is not None
         assert all(not p.requires_grad for p in model.margin.expert.parameters())
+        if cfg.get("train", True) and model.margin_cfg.lambda_dm > 0:  # the epoch's guidance activity, step = epoch
+            assert [epoch for epoch, _, _ in model.margin_history] == [0]
+            assert 0.0 <= model.margin_history[0][1] <= 1.0
 
 
 def test_scale_presets_compose(spade_home: Path) -> None:
@@ -265,3 +268,24 @@ def test_table_runs_every_seed_and_trains_its_prerequisite_once(tmp_path: Path) 
     client = MlflowClient(tracking_uri=uri)
     experts = [m for m in client.search_registered_models() if m.name.startswith("spade-cond_expert-L")]
     assert len(experts) == 1 and len(client.search_model_versions(f"name='{experts[0].name}'")) == 1
+
+
+@pytest.mark.parametrize("row", ["g_few_bc_L", "g_few_conddbc_L", "g_few_conddbcst_L", "g_full_conddbcst_L"])
+def test_guidance_rows_differ_only_in_the_margin_and_test_on_real_maps_too(row: str, spade_home: Path) -> None:
+    cfg = compose_row(row, spade_home, "scale=quickstart")
+    assert cfg.tags.table == "guidance" and cfg.run_name == row and cfg.model.size == "medium"
+    assert dict(cfg.also_test) == {"real": "realmap_L"}
+    assert cfg.data.max_train_instances == (250 if "_few_" in row else None)
+    margin = cfg.model.margin
+    if row.endswith("bc_L"):
+        assert not margin
+    else:
+        assert margin.lambda_dm == 0.3 and margin.expert_ckpt.endswith("cond_expert_L_cpu_lite_x0.ckpt")
+        assert margin.agent_input == ("straight_through" if "conddbcst" in row else "probability")
+
+
+def test_guidance_composition_launches_its_six_rows(spade_home: Path) -> None:
+    cfg = compose_row("guidance", spade_home, hydra_config=True)
+    rows = cfg.hydra.sweeper.params.experiment.split(",")
+    assert sorted(rows) == sorted(f"g_{r}_{a}_L" for r in ("few", "full") for a in ("bc", "conddbc", "conddbcst"))
+    assert list(cfg.seeds) == [42, 1, 2, 3, 4]
