@@ -277,7 +277,7 @@ def test_guidance_rows_differ_only_in_the_margin_and_test_on_real_maps_too(row: 
     assert dict(cfg.also_test) == {"real": "realmap_L"}
     assert cfg.data.max_train_instances == (250 if "_few_" in row else None)
     margin = cfg.model.margin
-    if row.endswith("bc_L"):
+    if row.endswith("_bc_L"):
         assert not margin
     else:
         assert margin.lambda_dm == 0.3 and margin.expert_ckpt.endswith("cond_expert_L_cpu_lite_x0.ckpt")
