@@ -29,24 +29,28 @@ def critic_picture(metrics: dict[str, float], bands: list[tuple[int, int]], cand
                       + [metrics.get(f"critic/win/{c}/t{lo:04d}-{hi:04d}", np.nan) for lo, hi in bands]
                       for c in names])
     shown = list(images or {})
-    fig = plt.figure(figsize=(max(7.0, 1.0 * len(shown) + 0.5), 2.2 + 0.32 * len(names)), dpi=110)
-    top = 0.58 if shown else 0.0
-    if shown:
-        for i, name in enumerate(shown):
-            ax = fig.add_axes([0.02 + i * 0.96 / len(shown), 1 - top + 0.02, 0.96 / len(shown) - 0.01, top - 0.12])
-            ax.imshow(overlay(state, images[name].new_zeros(images[name].shape), images[name]))
-            ax.set_title(name, fontsize=8)
-            ax.axis("off")
-    ax = fig.add_axes([0.2, 0.06, 0.72, (1 - top) - 0.16 if shown else 0.8])
+    panel_in, title_in, bottom_in = (1.25 if shown else 0.0), 0.35, 0.6
+    table_in = 0.26 * len(names) + 0.3
+    height = title_in + panel_in + 0.35 + table_in + bottom_in
+    width = max(7.0, 1.05 * len(shown) + 0.3)
+    fig = plt.figure(figsize=(width, height), dpi=110)
+    for i, name in enumerate(shown):  # one row of panels under the title
+        w = 0.98 / len(shown)
+        ax = fig.add_axes([0.01 + i * w, 1 - (title_in + panel_in) / height, w - 0.008, (panel_in - 0.2) / height])
+        ax.imshow(overlay(state, images[name].new_zeros(images[name].shape), images[name]))
+        ax.set_title(name, fontsize=8)
+        ax.axis("off")
+    ax = fig.add_axes([0.16, bottom_in / height, 0.8, table_in / height])
     ax.imshow(np.nan_to_num(table, nan=0.5), cmap="RdYlGn", vmin=0.5, vmax=1.0, aspect="auto")
     for r in range(table.shape[0]):
         for c in range(table.shape[1]):
             ax.text(c, r, "-" if np.isnan(table[r, c]) else f"{table[r, c]:.2f}", ha="center", va="center", fontsize=7)
     ax.set_yticks(range(len(names)), names, fontsize=8)
-    ax.set_xticks(range(len(cols)), cols, fontsize=7, rotation=30)
-    ax.set_xlabel("timestep band: share of instances where the demonstration scores better", fontsize=8)
+    ax.set_xticks(range(len(cols)), [f"t {c}" if c != "all" else "all t" for c in cols], fontsize=7)
+    ax.set_xlabel("share of instances where the demonstration scores better (green: the critic ranks it first)",
+                  fontsize=8)
     if title:
-        fig.suptitle(title, fontsize=9, y=0.995)
+        fig.suptitle(title, fontsize=9, y=1 - 0.08 / height)
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     plt.close(fig)
