@@ -136,6 +136,10 @@ class Table:
         """Every row (run name) of the table, in layout order."""
         return [line.cells[s] for line in self.lines for s in self.shapes if s in line.cells]
 
+    def column_label(self, shape: str) -> str:
+        """How a column is headed: ``L-shape`` for a shape, the column's name for a test elsewhere."""
+        return f"{shape} maps (another test)" if shape in self.tested_elsewhere else f"{shape}-shape"
+
     @property
     def experiments(self) -> list[str]:
         """The rows that are experiments (``conf/experiment/<row>.yaml``): all but the ``tested_elsewhere`` cells."""

@@ -44,7 +44,7 @@ def plot_table(table: Table, results: dict[str, RowResult], path: Path, paper: b
         ax.set_ylim(bottom=0)
         ax.grid(axis="y", alpha=0.3)
     axes[-1, 0].set_xticks(x, labels, rotation=30, ha="right", fontsize=8)
-    handles = [Patch(color=f"C{j}", label=f"{s}-shape (measured)") for j, s in enumerate(table.shapes)]
+    handles = [Patch(color=f"C{j}", label=f"{table.column_label(s)} (measured)") for j, s in enumerate(table.shapes)]
     if paper:
         handles.append(Line2D([], [], color="black", marker="_", linestyle="none", markersize=10, mew=2, label="paper"))
     axes[0, 0].legend(handles=handles, fontsize=7, loc="upper right")

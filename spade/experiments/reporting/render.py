@@ -68,7 +68,7 @@ def _markdown_table(header: list[str], body: list[list[str]]) -> str:
 def _header(table: Table, seeds: bool = False) -> list[str]:
     cell = " / ".join(METRICS[k].label for k in CELL_METRICS)
     extra = ["seeds"] if seeds else []
-    return [*table.label_columns, *(f"{s}-shape: {cell}" for s in table.shapes), "params", *extra]
+    return [*table.label_columns, *(f"{table.column_label(s)}: {cell}" for s in table.shapes), "params", *extra]
 
 
 def _seeds_cell(results: list[RowResult]) -> str:
