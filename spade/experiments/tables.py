@@ -63,6 +63,8 @@ METRICS: dict[str, Metric] = {
         Metric("planner_over_20cm_rate", "test/planner/over_20cm_rate", "planner > 20 cm", ".1%"),
         Metric("planner_low_confidence_rate", "test/planner/low_confidence_rate", "planner low confidence", ".1%"),
         Metric("params", "model/params", "params", "params"),
+        # a guided row's share of active margins in its last training epoch (StudentModule.margin_history)
+        Metric("margin_active", "margin/active", "margin active in the last epoch", ".0%"),
     )
 }
 CELL_METRICS = ("fid", "ape_cm", "hd19", "failure_rate", "over_20cm_rate", "planner_ape_cm", "planner_over_20cm_rate")

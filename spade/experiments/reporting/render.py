@@ -190,6 +190,13 @@ def render_notes(table: Table, results: dict[str, RowResult]) -> list[str]:
     counts = sorted({r.n for r in results.values() if r.found})
     if len(counts) > 1:
         notes.append(f"rows have different numbers of seeds ({', '.join(map(str, counts))}); see the seeds column")
+    for row in table.rows:  # whether guidance still acted at the end of training (guided rows only)
+        r = results[row]
+        if r.found and r.value("margin_active") is not None:
+            sd = r.sd("margin_active")
+            notes.append(f"{row}: margin active in its last training epoch on {r.value('margin_active'):.0%} of "
+                         f"samples" + (f" (sd {sd:.0%} over {r.n} seeds)" if sd is not None else "")
+                         + (": guidance had stopped acting, a BC run by then" if r.value("margin_active") == 0 else ""))
     failed = [row for row in table.rows if results[row].found and results[row].value("ape_cm") is None]
     if failed:
         notes.append(f"APE n/a: no path could be extracted from any test prediction of {', '.join(failed)} "
