@@ -120,8 +120,9 @@ def measure_errors(margin: DiffusionMargin, batches: Iterable[dict], robot_x: fl
             ape.update(prob.cpu(), state.cpu(), waypoints.cpu(), resolution)
             apes.append(torch.cat([s.reshape(-1) for s in ape.scores]).float())
         agent = {name: margin.agent_path(img) for name, img in images.items()}
+        demo_seen = margin.agent_path(target)  # the demonstration as the margin would see it, once per batch
         for name, img in agent.items():
-            differs[name].append(((img - margin.agent_path(target)).abs().flatten(1).sum(1) >= 1.0).cpu())
+            differs[name].append(((img - demo_seen).abs().flatten(1).sum(1) >= 1.0).cpu())
         x_demo, cond = expert_input(state, target, margin.conditional)
         x_cands = {name: expert_input(state, img, margin.conditional)[0] for name, img in agent.items()}
         t_batch, e_demo, e_cand = [], [], {name: [] for name in agent}
