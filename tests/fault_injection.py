@@ -41,3 +41,21 @@ def env_with_tests(env: dict[str, str]) -> dict[str, str]:
     """``env`` with ``tests/`` on ``PYTHONPATH``, so that a subprocess can import this module."""
     path = env.get("PYTHONPATH")
     return {**env, "PYTHONPATH": str(TESTS) + (os.pathsep + path if path else "")}
+
+
+class FailAt(Callback):
+    """Raise ``RuntimeError("injected failure ...")`` when batch ``batch`` of epoch ``epoch`` starts: a crash at a
+    known place, in-process (the run ends FAILED, its epoch-end checkpoints stay)."""
+
+    def __init__(self, epoch: int, batch: int) -> None:
+        self.epoch, self.batch = int(epoch), int(batch)
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx: int) -> None:
+        if trainer.current_epoch == self.epoch and batch_idx == self.batch:
+            raise RuntimeError(f"injected failure at epoch {self.epoch}, batch {self.batch}")
+
+
+def fail_at(epoch: int, batch: int) -> list[str]:
+    """The ``spade.train`` overrides that add :class:`FailAt` to a run's callbacks."""
+    return ["+callbacks.fail_at._target_=fault_injection.FailAt", f"+callbacks.fail_at.epoch={epoch}",
+            f"+callbacks.fail_at.batch={batch}"]

@@ -83,7 +83,7 @@ def _check_ui(experiment_url: str, run_url: str, run_name: str, dataset: str, de
     """What a person must see: the runs table with the run, its dataset and the metric columns; the run page with
     its description (holding ``described``), metrics and datasets; a prediction picture through the Artifacts tab."""
     run_id = re.search(r"/runs/([0-9a-f]{32})\?", run_url).group(1)
-    with browser_page() as page:
+    with browser_page(width=1800) as page:  # the runs table draws only the columns in view
         page.set_default_timeout(90_000)
         # 1. The experiment URL lands on the runs table (not MLflow 3's GenAI overview).
         page.goto(experiment_url)

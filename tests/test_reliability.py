@@ -25,7 +25,7 @@ from spade.experiments.config_checks import (
 )
 from spade.data import DatasetError
 from spade.utils.config import compose_config
-from fault_injection import env_with_tests, kill_at
+from fault_injection import env_with_tests, fail_at, kill_at
 from training_helpers import compose_row
 
 REPO = Path(__file__).resolve().parents[1]
@@ -172,6 +172,8 @@ def test_folder_without_manifest_names_the_fix(spade_home: Path, tmp_path: Path)
     ("scale.annotate.window.size_px=7", "scale.annotate.window.size_px=7 is not a window size"),
     ("scale.annotate.window.size_px=12", "scale.annotate.window.size_px=12 is too small for a L manoeuvre"),
     ("ckpt_path=/nowhere/last.ckpt", "ckpt_path=/nowhere/last.ckpt does not exist"),
+    ("scale.train_maps=[warehous:1]", "scale.train_maps: maps entry 'warehous:1' is neither an existing folder"),
+    ("scale.train_maps=[/nowhere/site.yaml]", "maps entry '/nowhere/site.yaml' is neither an existing folder"),
 ])
 def test_config_errors_are_one_line_naming_key_value_and_fix(spade_home: Path, override: str, message: str) -> None:
     with pytest.raises(ConfigError) as err:
@@ -353,13 +355,30 @@ def test_resume_continues_the_run_with_the_uninterrupted_numbers(data_dir: Path,
         train(compose_row(ROW, tmp_path, *common, f"run_name={name}", f"paths.output_dir={tmp_path / out}", *extra))
 
     run("whole", "whole")
-    run("part", "part", "trainer.max_epochs=1")
+    with pytest.raises(RuntimeError, match="injected failure"):  # a crash at the start of its second epoch
+        run("part", "part", *fail_at(1, 0))
     resume = tmp_path / "resume.ckpt"
     resume.write_bytes((tmp_path / "part" / "checkpoints" / "last.ckpt").read_bytes())
-    run("part", "part2", f"ckpt_path={resume}")
-
     client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path}/mlflow.db")
-    runs = {r.info.run_name: r for r in client.search_runs([client.get_experiment_by_name("resume").experiment_id])}
+    experiment = client.get_experiment_by_name("resume").experiment_id
+
+    def state() -> dict[str, tuple]:
+        return {r.info.run_name: (r.info.status, r.data.tags, r.data.params)
+                for r in client.search_runs([experiment])}
+
+    before = state()
+    assert before["part"][0] == "FAILED" and before["whole"][0] == "FINISHED"
+    # refused before any work, and neither run is touched: another row's (or seed's) config, a FINISHED run
+    with pytest.raises(ConfigError, match=r"run_name: checkpoint's run 'part', this config 'other'.*seed: "
+                                          r"checkpoint's run '7', this config '8'"):
+        run("other", "other", f"ckpt_path={resume}", "seed=8")
+    whole_last = tmp_path / "whole" / "checkpoints" / "last.ckpt"
+    with pytest.raises(ConfigError, match="which FINISHED: a resume would log into a finished run.*model.init_ckpt"):
+        run("whole", "whole2", f"ckpt_path={whole_last}")
+    assert state() == before and not (tmp_path / "other").exists() and not (tmp_path / "whole2").exists()
+
+    run("part", "part2", f"ckpt_path={resume}")
+    runs = {r.info.run_name: r for r in client.search_runs([experiment])}
     assert sorted(runs) == ["part", "whole"]  # resumed into its own run, not a third one
     assert runs["part"].info.status == "FINISHED"
     val = {k: _history(client, r.info.run_id, "val/loss_bc") for k, r in runs.items()}

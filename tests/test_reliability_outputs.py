@@ -239,6 +239,31 @@ def test_report_refuses_a_store_that_does_not_exist(tmp_path: Path, run_main) ->
     assert not store.parent.exists() and not (tmp_path / "rep").exists()
 
 
+@pytest.mark.parametrize("kind", ["foreign_sqlite", "garbage"])
+def test_report_reads_without_writing_into_a_file_that_is_not_an_mlflow_store(tmp_path: Path, run_main,
+                                                                              kind: str) -> None:
+    """Issue 35: with SPADE_HOME holding someone else's SQLite file named ``mlflow.db``, ``spade.report`` created
+    about 40 MLflow tables in it. A reader refuses it in one line, the file byte for byte unchanged."""
+    import sqlite3
+
+    store = tmp_path / "mlflow.db"
+    if kind == "foreign_sqlite":
+        db = sqlite3.connect(store)
+        db.execute("CREATE TABLE notes (id INTEGER PRIMARY KEY, text TEXT)")
+        db.execute("INSERT INTO notes (text) VALUES ('mine')")
+        db.commit()
+        db.close()
+        expected = "is an SQLite database but not an MLflow store"
+    else:
+        store.write_bytes(b"not a database at all\n" * 100)
+        expected = "is not an SQLite database"
+    before = store.read_bytes()
+    code, err = run_main("spade.report", [f"tracking_uri=sqlite:///{store}", f"output_dir={tmp_path / 'rep'}"])
+    assert code == 2, err
+    assert expected in one_error_line(err)
+    assert store.read_bytes() == before and not (tmp_path / "rep").exists()
+
+
 # -- 10. every key that shapes the data is checked before any data or prerequisite -------------------------------------
 def test_image_size_window_and_unet_downsampling_must_agree(spade_home: Path, tmp_path: Path) -> None:
     """Case 10: ``scale.image_size=62`` alone was ignored (data stayed 64 px); with the window at 62 px too the run

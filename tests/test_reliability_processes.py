@@ -94,7 +94,10 @@ def test_kill_9_and_resume_tests_the_uninterrupted_runs_best_checkpoint(tmp_path
             "+callbacks.kill.batch=1"]
     code, out = _run([*args, *kill, f"hydra.run.dir={run_b}"], home_b)
     assert code == -signal.SIGKILL, out[-4000:]  # killed in epoch 2, after the checkpoints of epochs 0 and 1
-    assert (run_b / "checkpoints" / "last.ckpt").is_file()
+    from spade.models.modelfile import load_checkpoint
+
+    # last.ckpt is epoch 1's, although epoch 1 did not improve (Lightning's save_last rewrites it only on improvement)
+    assert load_checkpoint(run_b / "checkpoints" / "last.ckpt")["epoch"] == 1
     code, out = _run([*args, f"ckpt_path={run_b / 'checkpoints' / 'last.ckpt'}", f"hydra.run.dir={run_b2}"], home_b)
     assert code == 0, out[-4000:]
 
@@ -109,6 +112,8 @@ def test_kill_9_and_resume_tests_the_uninterrupted_runs_best_checkpoint(tmp_path
 
     assert figures(a) and any(k.startswith("test/planner/") for k in figures(a)) and figures(b) == figures(a)
     assert b.info.status == "FINISHED"
+    val_steps = [m.step for m in client_b.get_metric_history(b.info.run_id, "val/loss_bc")]
+    assert len(val_steps) == 4 and len(set(val_steps)) == 4, val_steps  # resumed after epoch 1: no step twice
     assert (run_b / "checkpoints" / best_a[0].rsplit("/", 1)[-1]).is_file()  # the interrupted run's folder is intact
 
 

@@ -97,6 +97,36 @@ def test_the_page_itself_and_scripts_may_change_state(served) -> None:
     assert r.status_code == 200 and "access-control-allow-origin" not in r.headers  # the browser keeps it from them
 
 
+def test_oversized_requests_are_refused_in_one_line_before_they_are_read(served) -> None:
+    """Issue 35: a 47 MB POST of 2.5 M waypoints ran 28 s and kept 0.7 GB. The body's length is checked before a
+    byte of it is read (413), a body without a length is not read (411), a list past the waypoint cap is a 422 that
+    does not echo the request; nothing is saved."""
+    import json as jsonlib
+
+    from spade.sketching.api import MAX_WAYPOINTS
+    from spade.sketching.app import MAX_BODY_BYTES
+
+    client, out = served["client"], served["out"]
+    before = digest(out / "sketches.yaml") if (out / "sketches.yaml").exists() else None
+    huge = jsonlib.dumps({"shape": "L", "waypoints": [[1.0, 2.0]] * 2_500_000}).encode()
+    assert len(huge) > 25 * MAX_BODY_BYTES
+    r = client.post("/api/sketches", content=huge, headers={"Content-Type": "application/json"})
+    assert r.status_code == 413 and "at most" in r.json()["error"] and "\n" not in r.json()["error"]
+
+    def chunks():
+        yield b'{"shape": "L", '
+        yield b'"waypoints": [[1.0, 2.0]]}'
+
+    r = client.post("/api/execute", content=chunks(), headers={"Content-Type": "application/json"})
+    assert r.status_code == 411 and "Content-Length" in r.json()["error"]
+    many = {"shape": "L", "waypoints": [[1.0, 2.0]] * (MAX_WAYPOINTS + 1)}
+    r = client.post("/api/sketches", json=many)
+    assert r.status_code == 422 and f"at most {MAX_WAYPOINTS} items" in r.json()["error"], r.text
+    assert len(r.text) < 2000  # the refusal does not echo the request
+    after = digest(out / "sketches.yaml") if (out / "sketches.yaml").exists() else None
+    assert after == before
+
+
 # -- model loading ---------------------------------------------------------------------------------------------------
 @pytest.fixture
 def no_planner(monkeypatch) -> list:

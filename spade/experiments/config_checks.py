@@ -290,10 +290,27 @@ def _check_data(cfg: DictConfig) -> None:
         scaled = _get(cfg, "scale.annotate") not in (_MISSING, None)
         check_window_holds_manoeuvre(settings, "scale.annotate" if scaled else f"data.{name}_generate")
         _check_window_size(cfg, settings, "scale.annotate" if scaled else f"data.{name}_generate")
+        _check_map_entries(cfg, name, settings.get("maps"))
         num = settings.get("num_instances")
         if num is not None and (not _is_int(num) or num < 1):
             raise ConfigError(f"data.{name}_generate num_instances={num!r} must be an integer >= 1; set "
                               f"scale.{name}_instances")
+
+
+def _check_map_entries(cfg: DictConfig, name: str, maps: Any) -> None:
+    """Every map a dataset is generated from exists (a yaml, a folder of them or a ``kind:seed`` generator spec):
+    an unknown entry is named before any work, never reported as a dataset "generated with other settings"."""
+    if maps is None:
+        return
+    from spade.annotation.sources import expand_map_specs
+
+    try:
+        expand_map_specs(maps)
+    except (FileNotFoundError, ValueError) as exc:
+        where = "scale.train_maps" if name == "train" and _get(cfg, "scale.train_maps") not in (_MISSING, None) \
+            else f"data.{name}_generate"
+        raise ConfigError(f"{where}: {exc.args[0] if exc.args else exc}; fix that entry, e.g. warehouse:1 or the path "
+                          "of a ROS map yaml (nothing was generated or changed)") from None
 
 
 def model_downsampling(cfg: DictConfig) -> tuple[int, str] | None:
@@ -396,6 +413,7 @@ def _check_checkpoints(cfg: DictConfig) -> None:
         fix = "pass checkpoints/last.ckpt of an interrupted run of this experiment (under its logs/runs/ folder)"
         info = _check_checkpoint("ckpt_path", ckpt, role, fix)
         _check_geometry("ckpt_path", ckpt, info, cfg, train_data)
+        _check_resume(cfg, ckpt, info)
     init = _get(cfg, "model.init_ckpt")
     if init is not _MISSING:
         info = _check_checkpoint("model.init_ckpt", init, "student",
@@ -408,6 +426,52 @@ def _check_checkpoints(cfg: DictConfig) -> None:
                                  "the experiment's requires.expert finds or trains one")
         _check_geometry("model.margin.expert_ckpt", expert, info, cfg, train_data)
         _check_expert_kind(cfg, expert, info)
+
+
+# What a resumed run must share with the run its checkpoint was written under: (config key, MLflow parameter).
+RESUME_KEYS = (("run_name", "cfg/run_name"), ("seed", "cfg/seed"), ("model.size", "cfg/model/size"),
+               ("scale.name", "cfg/scale/name"))
+
+
+def _check_resume(cfg: DictConfig, ckpt: Any, info: dict[str, Any] | None) -> None:
+    """``ckpt_path`` resumes the MLflow run the checkpoint was written under. Refused before any work (so that no
+    command changes a run it did not start): a run this store does not hold, a FINISHED run, and a checkpoint of
+    another row, seed, size or scale (each named with both values)."""
+    if not _get(cfg, "train") in (True, _MISSING) or not ckpt:
+        return  # train=false: the checkpoint's weights are tested, nothing is resumed
+    run_id = (info or {}).get("mlflow_run_id")
+    uri = _get(cfg, "logger.mlflow.tracking_uri")
+    if not run_id or _unset(uri):
+        return  # written without MLflow, or MLflow off: nothing to continue
+    uri = str(uri)
+    new_run = ("start a new run instead (drop ckpt_path" + (", or start from its weights with model.init_ckpt="
+                                                              f"{ckpt}" if _model_role(cfg) == "student" else "") + ")")
+    path = _store_path(uri)
+    if path is not None and not path.exists():
+        raise ConfigError(f"ckpt_path={ckpt} was written under MLflow run {run_id}, but there is no store at {uri}; "
+                          f"resume with the store it was logged to (SPADE_HOME or paths.mlflow_tracking_uri), or "
+                          f"{new_run}")
+    check_store_file("logger.mlflow.tracking_uri", uri)
+    from mlflow import MlflowClient
+
+    try:
+        run = MlflowClient(tracking_uri=uri).get_run(run_id)
+    except Exception:  # noqa: BLE001 - not in this store (or unreachable): say which run and where
+        raise ConfigError(f"ckpt_path={ckpt} was written under MLflow run {run_id}, which the store {uri} does not "
+                          f"hold; resume with the store it was logged to (SPADE_HOME or paths.mlflow_tracking_uri), "
+                          f"or {new_run}") from None
+    name = run.info.run_name
+    if run.info.status == "FINISHED":
+        raise ConfigError(f"ckpt_path={ckpt} belongs to run {name!r} ({run_id}), which FINISHED: a resume would log "
+                          f"into a finished run; {new_run}")
+    params = run.data.params
+    differ = [f"{key}: checkpoint's run {params[param]!r}, this config {str(_get(cfg, key))!r}"
+              for key, param in RESUME_KEYS
+              if param in params and _get(cfg, key) is not _MISSING and params[param] != str(_get(cfg, key))]
+    if differ:
+        raise ConfigError(f"ckpt_path={ckpt} is a checkpoint of run {name!r} ({run_id}), not of this experiment "
+                          f"({'; '.join(differ)}); resume it with the config it was started with (+experiment="
+                          f"{params.get('cfg/run_name', name)} and the same overrides), or {new_run}")
 
 
 def _check_expert_kind(cfg: DictConfig, expert: Any, info: dict[str, Any] | None) -> None:
@@ -682,6 +746,30 @@ def _store_path(uri: str) -> Path | None:
     return Path(uri)
 
 
+def check_store_file(key: str, uri: str) -> None:
+    """An existing SQLite store at ``uri`` must be an MLflow store: read-only, before MLflow opens it (MLflow
+    creates its tables in any SQLite file it is given, so a reader would write into someone else's database)."""
+    import sqlite3
+
+    path = _store_path(uri)
+    if path is None or not uri.startswith("sqlite:") or not path.is_file():
+        return
+    try:
+        db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=30)
+        try:
+            tables = {row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        finally:
+            db.close()
+    except sqlite3.DatabaseError as exc:
+        raise ConfigError(f"{key}={uri}: {path} is not an SQLite database ({exc}); point {key} (or SPADE_HOME / "
+                          "MLFLOW_TRACKING_URI) at the MLflow store the runs were logged to") from None
+    missing = {"experiments", "runs", "metrics", "alembic_version"} - tables
+    if missing:
+        raise ConfigError(f"{key}={uri}: {path} is an SQLite database but not an MLflow store (no "
+                          f"{', '.join(sorted(missing))} table); it is left untouched. Point {key} (or SPADE_HOME / "
+                          "MLFLOW_TRACKING_URI) at the MLflow store the runs were logged to")
+
+
 def validate_report_config(cfg: DictConfig) -> None:
     """``spade.report``'s checks: the table exists and the MLflow store is there (a missing one would be created
     empty and every row reported missing)."""
@@ -704,6 +792,7 @@ def validate_report_config(cfg: DictConfig) -> None:
     if path is not None and str(uri).startswith("sqlite:") and path.is_dir():
         raise ConfigError(f"tracking_uri={uri}: {path} is a directory, not an MLflow SQLite store; point it at the "
                           "store file, e.g. sqlite:///PATH/logs/mlflow.db")
+    check_store_file("tracking_uri", str(uri))
     out = _get(cfg, "output_dir")
     if not _unset(out) and Path(str(out)).is_file():
         raise ConfigError(f"output_dir={out} is a file; give a folder for the report files")

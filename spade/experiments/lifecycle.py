@@ -115,6 +115,21 @@ class DeterministicTraining(Callback):
 
 
 # -- resume ---------------------------------------------------------------------------------------------------------
+def last_checkpoint_path(trainer: L.Trainer) -> str:
+    """The run's newest epoch-end checkpoint (``checkpoints/last.ckpt``), ``""`` when none was written.
+
+    ``conf/callbacks/default.yaml`` writes it with a second, unmonitored ``ModelCheckpoint`` (``last_checkpoint``),
+    whose only checkpoint is its ``best_model_path``; a config that uses ``save_last`` instead has it as
+    ``last_model_path``.
+    """
+    for cb in trainer.checkpoint_callbacks:
+        if getattr(cb, "last_model_path", ""):
+            return str(cb.last_model_path)
+        if getattr(cb, "monitor", "unset") is None and getattr(cb, "best_model_path", ""):
+            return str(cb.best_model_path)
+    return ""
+
+
 class CarryBestCheckpoint(Callback):
     """Keep the interrupted run's best checkpoint and score when a run resumes from ``ckpt_path``.
 

@@ -24,7 +24,7 @@ import hydra
 import lightning as L
 from omegaconf import DictConfig, OmegaConf
 
-from spade.experiments.lifecycle import CarryBestCheckpoint, DeterministicTraining
+from spade.experiments.lifecycle import CarryBestCheckpoint, DeterministicTraining, last_checkpoint_path
 from spade.experiments.prerequisites import complete_prerequisite, pending_prerequisites
 from spade.experiments.tracking.runs import (
     finish_run,
@@ -132,7 +132,7 @@ def train(cfg: DictConfig, _depth: int = 0) -> tuple[dict[str, Any], dict[str, A
         finish_run(cfg, trainer, model, loggers)
         if cfg.get("test", True):
             for name, data in (cfg.get("also_test") or {}).items():
-                metrics.update(test_elsewhere(cfg, best or trainer.checkpoint_callback.last_model_path, name, data))
+                metrics.update(test_elsewhere(cfg, best or last_checkpoint_path(trainer), name, data))
         if not cfg.get("train", True) and not cfg.get("test", True):
             for logger in loggers:  # no fit or test ran the trainer's teardown, which ends the MLflow run
                 logger.finalize("success")

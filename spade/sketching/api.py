@@ -22,9 +22,14 @@ class _Body(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
+MAX_WAYPOINTS = 2000  # a drawn sketch has tens to a few hundred points; more is refused (422)
+
+
 class SketchBody(_Body):
     shape: str = Field(description="shape label: L or U")
-    waypoints: list[list[float]] = Field(description="[[x, y], ...] map-frame metres, in driving order, goal last")
+    waypoints: list[list[float]] = Field(max_length=MAX_WAYPOINTS,
+                                         description="[[x, y], ...] map-frame metres, in driving order, goal last "
+                                                     f"(at most {MAX_WAYPOINTS})")
 
 
 class SaveBody(SketchBody):
@@ -128,6 +133,14 @@ def router(ws: SketchWorkspace) -> APIRouter:
     return api
 
 
+def _short(value: Any, limit: int = 80) -> str:
+    """``repr(value)`` cut to ``limit`` characters: an error never echoes a whole oversized request."""
+    if isinstance(value, (list, tuple)) and len(value) > 8:
+        return f"a list of {len(value):,} items"
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
 def _where(loc: tuple[Any, ...]) -> str:
     parts = [str(p) for p in loc if p != "body"]
     return ".".join(parts) or "body"
@@ -149,7 +162,7 @@ async def validation_error(request: Request, exc: RequestValidationError) -> JSO
         elif e.get("type") == "extra_forbidden":
             lines.append(f"{where}: unknown field")
         else:
-            lines.append(f"{where}: {e.get('msg')} (got {e.get('input')!r})")
+            lines.append(f"{where}: {e.get('msg')} (got {_short(e.get('input'))})")
     return JSONResponse({"error": "invalid request: " + "; ".join(lines), "details": errors and [
         {"loc": list(e.get("loc", ())), "msg": e.get("msg"), "type": e.get("type")} for e in errors]},
                         status_code=422)

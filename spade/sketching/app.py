@@ -29,6 +29,9 @@ STATIC_DIR = Path(__file__).resolve().parent / "static"
 
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 SAFE_METHODS = ("GET", "HEAD", "OPTIONS")
+# The largest request body the API reads: a sketch of MAX_WAYPOINTS points is about 40 kB of JSON, so 1 MiB is
+# generous; a larger body is refused (413) from its Content-Length before a byte of it is read.
+MAX_BODY_BYTES = 1 << 20
 
 
 def allowed_hosts(hosts: Sequence[str] = ()) -> frozenset[str]:
@@ -57,6 +60,25 @@ def _refused(message: str) -> JSONResponse:
     return JSONResponse({"error": message}, status_code=403)
 
 
+def _body_refusal(request: Request) -> JSONResponse | None:
+    """413 for a body over :data:`MAX_BODY_BYTES`, 411 for a body sent without a length (chunked), else None."""
+    length = request.headers.get("content-length")
+    if length is None:
+        if request.headers.get("transfer-encoding"):
+            return JSONResponse({"error": "a request body needs a Content-Length header (chunked bodies are not "
+                                          "read); send the JSON with its length"}, status_code=411)
+        return None
+    try:
+        size = int(length)
+    except ValueError:
+        return JSONResponse({"error": f"Content-Length {length!r} is not a number"}, status_code=400)
+    if size > MAX_BODY_BYTES:
+        return JSONResponse({"error": f"request body of {size:,} bytes refused: the API reads at most "
+                                      f"{MAX_BODY_BYTES:,} bytes (a sketch is a few kB); send fewer waypoints"},
+                            status_code=413)
+    return None
+
+
 def create_app(workspace: SketchWorkspace, hosts: Sequence[str] = ()) -> FastAPI:
     """The app around one workspace (map, sketch file, dataset, planner); ``hosts``: host names it answers to
     besides 127.0.0.1, localhost and ::1 (the address it is bound to)."""
@@ -82,6 +104,8 @@ def create_app(workspace: SketchWorkspace, hosts: Sequence[str] = ()) -> FastAPI
             if site is not None and site not in ("same-origin", "none"):
                 return _refused(f"cross-site {request.method} refused (Sec-Fetch-Site: {site}); use the page this "
                                 "server serves")
+            if (refusal := _body_refusal(request)) is not None:
+                return refusal
         return await call_next(request)
     app.add_exception_handler(RequestValidationError, validation_error)  # type: ignore[arg-type]
     app.add_exception_handler(RequestError, request_error)  # type: ignore[arg-type]

@@ -22,10 +22,14 @@ VIEW_TAG = f"mlflow.sharedViewState.{VIEW_KEY}"  # the runs-table view that ?vie
 
 
 def runs_view_state() -> str:
-    """The runs table as SPADE shows it: Dataset, the paper's test metrics and the parameter count as columns."""
+    """The runs table as SPADE shows it: Dataset, the paper's test metrics and the parameter count as columns.
+
+    Training diagnostics (``margin/active``) stay out: the UI orders metric columns by name and draws only those in
+    view, so a ``margin/`` column would push the test metrics off a laptop's screen."""
     from spade.experiments.tables import METRICS
 
-    columns = ["attributes.`Dataset`", *(f"metrics.`{m.mlflow_key}`" for m in METRICS.values())]
+    columns = ["attributes.`Dataset`",
+               *(f"metrics.`{m.mlflow_key}`" for m in METRICS.values() if m.mlflow_key.startswith(("test/", "model/")))]
     return json.dumps({"selectedColumns": columns, "orderByKey": "attributes.start_time", "orderByAsc": False})
 
 

@@ -266,13 +266,14 @@ def finish_run(cfg: DictConfig, trainer: L.Trainer, model: L.LightningModule, lo
     ml = mlflow_logger(loggers)
     if ml is None:
         return
+    from spade.experiments.lifecycle import last_checkpoint_path
+
     ckpt_cb = trainer.checkpoint_callback
     paths = {}
-    if ckpt_cb is not None:
-        if ckpt_cb.best_model_path:
-            paths["best"] = ckpt_cb.best_model_path
-        if getattr(ckpt_cb, "last_model_path", ""):
-            paths["last"] = ckpt_cb.last_model_path
+    if ckpt_cb is not None and ckpt_cb.best_model_path:
+        paths["best"] = ckpt_cb.best_model_path
+    if last := last_checkpoint_path(trainer):
+        paths["last"] = last
     for kind, path in paths.items():
         ml.experiment.log_artifact(ml.run_id, path, artifact_path=f"checkpoints/{kind}")
     uses, metrics = describe_run(cfg, ml, getattr(trainer, "datamodule", None))
