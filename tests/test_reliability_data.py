@@ -145,3 +145,34 @@ def test_stale_partial_rules(tmp_path: Path) -> None:
     finally:
         live.kill()
         live.wait()
+
+
+def test_a_tampered_manifest_is_refused_by_verify_and_by_loading(tmp_path: Path) -> None:
+    """Issue 35: ``spade.data.verify`` answered "OK ... verified" for a manifest whose ``resolution`` was edited
+    (0.05 -> 0.1 m/px rescales every cm metric). The manifest's own checksum refuses the edit; a manifest whose
+    checksum was recomputed after the edit is still refused where its geometry disagrees with its own records."""
+    import json
+
+    from spade.data import DatasetError, PathDataset
+    from spade.data.format import MANIFEST_CHECKSUM, manifest_checksum
+    from spade.data.verify import verify
+
+    from factories import write_synthetic
+
+    root = tmp_path / "ds"
+    write_synthetic(root, n=4)
+    assert verify(root) == []
+    manifest = root / "manifest.json"
+    raw = json.loads(manifest.read_text())
+    assert raw[MANIFEST_CHECKSUM] == manifest_checksum(raw)
+    raw["resolution"] = 0.1
+    manifest.write_text(json.dumps(raw))
+    (problem,) = verify(root)
+    assert "changed after it was written" in problem and str(manifest) in problem
+    with pytest.raises(DatasetError, match="changed after it was written"):
+        PathDataset(root)
+    raw["resolution"], raw["frame"]["size_px"] = 0.05, raw["image_size"][1] * 2  # a consistent checksum, wrong frame
+    raw[MANIFEST_CHECKSUM] = manifest_checksum(raw)
+    manifest.write_text(json.dumps(raw))
+    with pytest.raises(DatasetError, match=r"image_size .* disagrees with frame.size_px"):
+        PathDataset(root)

@@ -20,6 +20,7 @@ Array files are raw C-order arrays whose shapes follow from the manifest, so tha
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +33,15 @@ from spade.data.packing import bit_nbytes, two_bit_nbytes
 FORMAT_NAME = "spade-path-dataset"
 FORMAT_VERSION = 2
 MANIFEST = "manifest.json"
+# The manifest's own checksum: the sha256 of the rest of it as canonical JSON. A field edited after writing (the
+# resolution rescales every cm metric) is refused, not verified. Manifests written before it have none.
+MANIFEST_CHECKSUM = "manifest_sha256"
+
+
+def manifest_checksum(raw: dict[str, Any]) -> str:
+    """The sha256 of a manifest without its :data:`MANIFEST_CHECKSUM` field, as canonical JSON (sorted keys)."""
+    body = {k: v for k, v in raw.items() if k != MANIFEST_CHECKSUM}
+    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
 LABEL_KEYS = ("shape", "map_id", "scenario_id")
 BINARY_CHANNELS = ("start", "goal", "path")
 
@@ -128,6 +138,30 @@ def read_manifest_json(root: str | Path) -> dict[str, Any]:
     return raw
 
 
+def _check_generator_record(raw: dict[str, Any], path: Path, height: int, width: int, resolution: float,
+                            num_waypoints: int) -> None:
+    """The manifest's geometry agrees with its own ``generator`` record and window frame, where they state it."""
+    generator = raw.get("generator") if isinstance(raw.get("generator"), dict) else {}
+    window = generator.get("window") if isinstance(generator.get("window"), dict) else {}
+
+    def number(value: Any) -> float | None:
+        return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+
+    # an import (SKIPP layout, rosbag) keeps its recording's resolution: the window's records only what was drawn
+    drawn = (raw.get("extra") or {}).get("source") in ("templates", "sketches")
+    pairs = [("resolution", resolution, "generator.window.resolution_m",
+              number(window.get("resolution_m")) if drawn else None),
+             ("image_size", width, "generator.window.size_px", number(window.get("size_px"))),
+             ("num_waypoints", num_waypoints, "generator.num_waypoints", number(generator.get("num_waypoints"))),
+             ("image_size", width, "frame.size_px", number((raw.get("frame") or {}).get("size_px")))]
+    for key, value, where, recorded in pairs:
+        _require(recorded is None or abs(recorded - value) <= 1e-9 * max(1.0, abs(value)), path,
+                 f"{key} {value} disagrees with {where} {recorded:g} (the manifest was edited, or written by a "
+                 "broken writer)" if recorded is not None else "")
+    _require(window.get("size_px") is None or height == width, path, f"image_size {height} x {width} is not square, "
+             "but the generator's windows are")
+
+
 def read_manifest(root: str | Path) -> Manifest:
     """Read and validate ``root/manifest.json``; raise :class:`DatasetError` naming the problem."""
     root = Path(root)
@@ -157,6 +191,10 @@ def read_manifest(root: str | Path) -> Manifest:
         files = raw["files"]
     except (KeyError, TypeError, ValueError) as exc:
         raise DatasetError(f"{path}: a required field is missing or malformed ({exc!r}). Re-generate it.") from exc
+    stated = raw.get(MANIFEST_CHECKSUM)
+    _require(stated is None or stated == manifest_checksum(raw), path,
+             f"the manifest was changed after it was written ({MANIFEST_CHECKSUM} does not match its content; a "
+             "field such as resolution would rescale every metric)")
     _require(height > 0 and width > 0, path, f"image_size must be positive, got {height} x {width}")
     _require(resolution > 0, path, f"resolution must be > 0 m/px, got {resolution}")
     _require(num_waypoints >= 2, path, f"num_waypoints must be >= 2, got {num_waypoints}")
@@ -176,8 +214,14 @@ def read_manifest(root: str | Path) -> Manifest:
     frame = raw.get("frame")
     _require(isinstance(frame, dict) and frame.get("kind") == "robot", path,
              "the window frame (frame.kind = robot) is missing")
-    for name in array_specs(height, width, num_waypoints):
-        _require(isinstance(files.get(name), dict) and "sha256" in files[name], path, f"files.{name} is missing")
+    for name, spec in array_specs(height, width, num_waypoints).items():
+        entry = files.get(name)
+        _require(isinstance(entry, dict) and "sha256" in entry, path, f"files.{name} is missing")
+        recorded = entry.get("row_shape")
+        _require(recorded is None or [int(v) for v in recorded] == list(spec.row_shape), path,
+                 f"files.{name}.row_shape {recorded} does not fit image_size {height} x {width} and num_waypoints "
+                 f"{num_waypoints} (expected {list(spec.row_shape)})")
+    _check_generator_record(raw, path, height, width, resolution, num_waypoints)
     return Manifest(
         root=root,
         height=height,

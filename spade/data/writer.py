@@ -16,7 +16,10 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from spade.data.format import FORMAT_NAME, FORMAT_VERSION, LABEL_KEYS, MANIFEST, ArraySpec, DatasetError, array_specs
+from spade.data.format import (
+    FORMAT_NAME, FORMAT_VERSION, LABEL_KEYS, MANIFEST, MANIFEST_CHECKSUM, ArraySpec, DatasetError, array_specs,
+    manifest_checksum,
+)
 from spade.data.packing import pack_bits, pack_two_bit
 from spade.utils.processes import pid_alive
 
@@ -279,6 +282,7 @@ class DatasetWriter:
             "extra": self._extra,
             "files": files,
         }
+        manifest[MANIFEST_CHECKSUM] = manifest_checksum(json.loads(json.dumps(manifest)))  # as it will be read
         # The manifest is written last: a directory without one is never taken for a dataset.
         (self._tmp / MANIFEST).write_text(json.dumps(manifest, indent=1, sort_keys=True))
         if not self.overwrite:
