@@ -20,7 +20,7 @@ import pytest
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import open_dict
 
-from spade.data import DatasetWriter
+from spade.data import DatasetWriter, PathDataset
 from spade.experiments.config_checks import ConfigError, validate_train_config
 
 from factories import site_map, synthetic_instance
@@ -119,6 +119,33 @@ def test_annotate_overwrite_refuses_a_folder_or_file_that_is_not_a_dataset(tmp_p
     assert tree(folder) == before
 
 
+def test_annotate_overwrite_replaces_only_a_spade_dataset_and_nothing_added_to_it(tmp_path: Path, run_main) -> None:
+    """Issue 35: a web app's folder holding a ``manifest.json`` (and ``important.txt``) was deleted by ``annotate
+    overwrite=true``, as was a user's ``NOTES.md`` inside a real dataset. Both are refused in one line naming what
+    is kept; a dataset that holds only its own files is still replaced."""
+    from factories import write_synthetic
+
+    webapp = tmp_path / "webapp"
+    webapp.mkdir()
+    (webapp / "manifest.json").write_text('{"name": "my app", "start_url": "/"}')
+    (webapp / "important.txt").write_text("keep me")
+    dataset = tmp_path / "dataset"
+    write_synthetic(dataset, n=3)
+    (dataset / "NOTES.md").write_text("where these demonstrations come from")
+    args = ["overwrite=true", "num_instances=5", "maps=[warehouse:1]", "progress=false"]
+    for out, expected in ((webapp, "not a SPADE dataset's"), (dataset, "NOTES.md")):
+        before = tree(out)
+        code, err = run_main("spade.annotate", [*args, f"out_dir={out}"])
+        assert code == 2, err
+        line = one_error_line(err)
+        assert expected in line and str(out) in line
+        assert tree(out) == before
+    (dataset / "NOTES.md").unlink()
+    with DatasetWriter(dataset, image_size=32, resolution=0.05, num_waypoints=16, overwrite=True) as w:
+        w.add(**synthetic_instance(np.random.default_rng(0), 32, 16), shape="L", map_id="m", scenario_id="m/0")
+    assert len(PathDataset(dataset)) == 1
+
+
 # -- 2. export never writes onto its checkpoint -----------------------------------------------------------------------
 def test_export_never_writes_onto_its_checkpoint(tmp_path: Path, run_main) -> None:
     """Case 2: ``ckpt_path=s.pt format=torchscript`` (or ``out_path`` = ``ckpt_path``) overwrote the checkpoint."""
@@ -150,6 +177,40 @@ def test_plan_never_writes_onto_its_map_or_model(tmp_path: Path, run_main) -> No
         assert code == 2, err
         assert "overwrite" in one_error_line(err) or "must end with .png" in err
     assert {p: digest(p) for p in before} == before
+
+
+def test_plan_and_export_replace_only_their_own_files_and_only_when_asked(tmp_path: Path, run_main) -> None:
+    """Issue 35: ``plan out=`` replaced an existing picture and ``export out_path=`` an existing file, with no flag
+    and no warning. A file SPADE did not write is refused whatever ``overwrite`` says; one it wrote (a plan picture
+    carries SPADE's PNG marker) is replaced only with ``overwrite=true``."""
+    from PIL import Image
+
+    from spade.deploy.outputs import save_png, written_by_spade
+
+    yaml_path = site_map(tmp_path)
+    model = student_checkpoint(tmp_path / "student.ckpt")
+    holiday = tmp_path / "holiday.png"
+    Image.new("RGB", (8, 8), "red").save(holiday)
+    ours = save_png(Image.new("RGB", (8, 8), "blue"), tmp_path / "plan.png")
+    assert written_by_spade(ours) and not written_by_spade(holiday)
+    foreign_export = tmp_path / "notes.onnx"
+    foreign_export.write_text("my notes, not a model")
+    before = {p: digest(p) for p in (holiday, ours, foreign_export)}
+    query = [f"map={yaml_path}", "start=[0.0,1.0,0.0]", "goal=[2.0,1.0]", f"model_path={model}"]
+    cases = [("spade.plan", [*query, f"out={holiday}", "overwrite=true"], "was not written by SPADE"),
+             ("spade.plan", [*query, f"out={ours}"], "pass overwrite=true"),
+             ("spade.plan", [*query, f"out={ours}", "overwrite=maybe"], "is not a boolean"),
+             ("spade.export", [f"ckpt_path={model}", f"out_path={foreign_export}", "overwrite=true"],
+              "was not written by SPADE")]
+    for module, args, expected in cases:
+        code, err = run_main(module, args)
+        assert code == 2, err
+        assert expected in one_error_line(err), err
+    assert {p: digest(p) for p in before} == before
+    from spade.experiments.config_checks import validate_plan_config
+    from spade.utils.config import compose_config
+
+    validate_plan_config(compose_config("plan", [*query, f"out={ours}", "overwrite=true"]))  # its own: replaced
 
 
 # -- 6. a full disk leaves nothing behind and says how much is needed --------------------------------------------------

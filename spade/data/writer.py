@@ -18,7 +18,7 @@ import numpy as np
 
 from spade.data.format import (
     FORMAT_NAME, FORMAT_VERSION, LABEL_KEYS, MANIFEST, MANIFEST_CHECKSUM, ArraySpec, DatasetError, array_specs,
-    manifest_checksum,
+    manifest_checksum, read_manifest_json,
 )
 from spade.data.packing import pack_bits, pack_two_bit
 from spade.utils.processes import pid_alive
@@ -53,6 +53,9 @@ class DiskFullError(DatasetError, OSError):
     space the dataset needs."""
 
 
+DATASET_EXTRAS = ("preview.png",)  # written beside the arrays (spade.annotation.preview), not in the manifest
+
+
 def check_output_dir(root: str | Path, overwrite: bool, key: str = "out_dir") -> None:
     """Refuse an output folder that must not be written: an existing path that is not a SPADE dataset (a file, a
     folder without ``manifest.json``: nothing of the user's is ever replaced), or an existing dataset without
@@ -67,9 +70,29 @@ def check_output_dir(root: str | Path, overwrite: bool, key: str = "out_dir") ->
         what = "an empty folder" if not any(root.iterdir()) else "a folder that is not a SPADE dataset"
         raise DatasetExistsError(f"{key}={root} is {what} (no {MANIFEST}): overwrite=true replaces only a SPADE "
                                  f"dataset, never other files; choose another {key} (a new or dataset folder)")
+    try:
+        raw = read_manifest_json(root)
+    except DatasetError:
+        raw = {}
+    if raw.get("format") != FORMAT_NAME:
+        raise DatasetExistsError(f"{key}={root} holds a {MANIFEST} that is not a SPADE dataset's (format "
+                                 f"{raw.get('format')!r}): it is never replaced, not even with overwrite=true; choose "
+                                 f"another {key}")
     if not overwrite:
         raise DatasetExistsError(f"{key}={root} already holds a dataset; choose another {key} or pass "
                                  "overwrite=true to replace it (the old dataset is kept until the new one is complete)")
+    foreign = sorted(p.name for p in root.iterdir() if p.name not in dataset_files(raw))
+    if foreign:
+        shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+        raise DatasetExistsError(f"{key}={root} holds files its dataset does not list ({shown}): overwrite=true "
+                                 f"never deletes them; move them out of the folder, or choose another {key}")
+
+
+def dataset_files(manifest: dict[str, Any]) -> set[str]:
+    """The names a dataset folder's own writers put there: the manifest, the array files it lists, the preview."""
+    files = manifest.get("files") if isinstance(manifest.get("files"), dict) else {}
+    listed = {str(entry.get("file")) for entry in files.values() if isinstance(entry, dict) and entry.get("file")}
+    return {MANIFEST, *DATASET_EXTRAS, *listed}
 
 
 def _free_mib(path: Path) -> str:
@@ -303,10 +326,10 @@ class DatasetWriter:
         # dataset at root and nothing of its own left beside it.
         for attempt in range(20):
             backup = None
+            if self.root.exists():
+                check_output_dir(self.root, True)  # still a dataset, with nothing of the user's added meanwhile
             try:
                 if self.root.exists():
-                    if not (self.root / MANIFEST).is_file():  # replaced meanwhile by something of the user's
-                        check_output_dir(self.root, True)
                     backup = self.root.parent / f".{self.root.name}.old-{uuid.uuid4().hex[:8]}"
                     os.replace(self.root, backup)
                 os.replace(self._tmp, self.root)

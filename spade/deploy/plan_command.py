@@ -8,6 +8,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from spade.deploy.outputs import save_png
 from spade.deploy.plan_picture import load_map, plan_image
 from spade.deploy.planner import Planner, PlanResult
 
@@ -65,5 +66,5 @@ def run_plan(cfg: DictConfig) -> tuple[PlanResult, Path]:
     out = Path(cfg.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     pic = cfg.picture
-    plan_image(m, result, float(pic.context_m), int(pic.width_px), bool(pic.probability)).save(out)
+    save_png(plan_image(m, result, float(pic.context_m), int(pic.width_px), bool(pic.probability)), out)
     return result, out

@@ -489,14 +489,20 @@ def _check_expert_kind(cfg: DictConfig, expert: Any, info: dict[str, Any] | None
         raise ConfigError(str(exc)) from None
 
 
+def _check_bool(cfg: DictConfig, key: str) -> None:
+    """The one boolean check of every entry point: ``true`` / ``false`` (null or unset: the default), nothing else
+    (Hydra reads ``maybe`` or ``1`` as a string or a number, which Python would take as true)."""
+    value = _get(cfg, key)
+    if value is not _MISSING and value is not None and not isinstance(value, bool):
+        raise ConfigError(f"{key}={value!r} is not a boolean; set {key}=true or {key}=false")
+
+
 def validate_train_config(cfg: DictConfig) -> None:
     """Every check of ``spade.train``'s config that needs no training: raises :class:`ConfigError` (one line)."""
     _check_int(cfg, "seed", 0, 2**32 - 1, none_ok=True, fix=", e.g. seed=42")
     _check_choice(cfg, "prerequisites", ["train", "error"])
     for key in ("train", "test", "test_untrained"):
-        value = _get(cfg, key)
-        if value is not _MISSING and value is not None and not isinstance(value, bool):
-            raise ConfigError(f"{key}={value!r} is not a boolean; set {key}=true or {key}=false")
+        _check_bool(cfg, key)
     metric = _get(cfg, "optimized_metric")
     if metric not in (_MISSING, None) and not isinstance(metric, str):
         raise ConfigError(f"optimized_metric={metric!r} must be a metric name such as val/loss_bc")
@@ -586,8 +592,9 @@ def _input_file(key: str, value: Any, fix: str, suffixes: tuple[str, ...] = ()) 
 
 
 def _output_file(key: str, value: Any, inputs: Mapping[str, Path | None], fix: str,
-                 suffixes: tuple[str, ...] = ()) -> Path:
-    """An output file at ``key``: not a folder, not one of the ``inputs`` (nothing of the user's is overwritten)."""
+                 suffixes: tuple[str, ...] = (), overwrite: Any = _MISSING) -> Path:
+    """An output file at ``key``: not a folder, not one of the ``inputs``, and, when it exists, replaced only with
+    ``overwrite=true`` and only when SPADE wrote it (:mod:`spade.deploy.outputs`)."""
     path = Path(str(value)).expanduser()
     if path.is_dir():
         raise ConfigError(f"{key}={value} is a directory; give the path of a file to write ({fix})")
@@ -596,6 +603,10 @@ def _output_file(key: str, value: Any, inputs: Mapping[str, Path | None], fix: s
             raise ConfigError(f"{key}={value} is the input {in_key}: writing it would overwrite that file; {fix}")
     if suffixes and path.suffix.lower() not in suffixes:
         raise ConfigError(f"{key}={value} must end with {' or '.join(suffixes)}; {fix}")
+    from spade.deploy.outputs import replace_refusal
+
+    if (refusal := replace_refusal(key, path, overwrite is True)) is not None:
+        raise ConfigError(refusal)
     return path
 
 
@@ -639,9 +650,8 @@ def validate_annotate_config(cfg: Mapping[str, Any] | DictConfig) -> None:
     cfg = cfg if isinstance(cfg, DictConfig) else OmegaConf.create(dict(cfg))
     if _unset(_get(cfg, "out_dir")):
         raise ConfigError("out_dir is not set; pass out_dir=FOLDER (a new folder, or a dataset with overwrite=true)")
+    _check_bool(cfg, "overwrite")
     overwrite = _get(cfg, "overwrite")
-    if overwrite not in (_MISSING, None) and not isinstance(overwrite, bool):
-        raise ConfigError(f"overwrite={overwrite!r} is not a boolean; set overwrite=true or overwrite=false")
     out_dir = Path(str(_get(cfg, "out_dir"))).expanduser()
     check_output_dir(out_dir, bool(overwrite))
     _check_int(cfg, "seed", 0, 2**32 - 1, fix=", e.g. seed=0")
@@ -691,6 +701,8 @@ def validate_export_config(cfg: DictConfig) -> None:
     _check_choice(cfg, "format", list(SUFFIXES))
     fmt = _get(cfg, "format")
     fmt = "onnx" if fmt in (_MISSING, None) else fmt
+    _check_bool(cfg, "overwrite")
+    overwrite = _get(cfg, "overwrite")
     out = _get(cfg, "out_path")
     suffix = SUFFIXES[fmt]
     if _unset(out):
@@ -699,7 +711,8 @@ def validate_export_config(cfg: DictConfig) -> None:
             raise ConfigError(f"ckpt_path={ckpt} ends with {suffix}: format={fmt} would write its export onto the "
                               f"checkpoint itself; set out_path={ckpt.with_name(ckpt.stem + '.' + fmt + suffix)}")
     else:
-        _output_file("out_path", out, {"ckpt_path": ckpt}, f"set out_path to a new {suffix} file", (suffix,))
+        _output_file("out_path", out, {"ckpt_path": ckpt}, f"set out_path to a new {suffix} file", (suffix,),
+                     overwrite)
     _check_int(cfg, "opset", 7, fix=", e.g. opset=17")
     _check_int(cfg, "parity_batch", 1)
     _check_int(cfg, "latency_runs", 0)
@@ -707,7 +720,7 @@ def validate_export_config(cfg: DictConfig) -> None:
     _check_number(cfg, "tolerance", 0, none_ok=True, fix=" (null: only report)")
     report = _get(cfg, "report_path")
     if not _unset(report):
-        _output_file("report_path", report, {"ckpt_path": ckpt}, "give a new .json file")
+        _output_file("report_path", report, {"ckpt_path": ckpt}, "give a new .json file", overwrite=overwrite)
 
 
 def validate_plan_config(cfg: DictConfig) -> None:
@@ -724,7 +737,9 @@ def validate_plan_config(cfg: DictConfig) -> None:
     if math.hypot(goal[0] - start[0], goal[1] - start[1]) < 1e-9:
         raise ConfigError(f"goal={goal[0]:g},{goal[1]:g} is the robot's own position (start); give a goal elsewhere")
     inputs = {"model_path": model, **{("map" if i == 0 else "the map's image"): p for i, p in enumerate(maps)}}
-    _output_file("out", _get(cfg, "out"), inputs, "set out=plan.png (a new picture file)", (".png",))
+    _check_bool(cfg, "overwrite")
+    _output_file("out", _get(cfg, "out"), inputs, "set out=plan.png (a new picture file)", (".png",),
+                 _get(cfg, "overwrite"))
     _check_choice(cfg, "planner.far_goal", ["fail", "clip"])
     _check_number(cfg, "planner.threshold", 0, 1, low_open=True, high_open=True)
     _check_int(cfg, "planner.num_waypoints", 2)
