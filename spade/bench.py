@@ -30,6 +30,9 @@ from spade.perf.report import format_report, write_json
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="bench")
 def main(cfg: DictConfig) -> None:
+    from spade.experiments.config_checks import exit_on_user_error, validate_bench_config
+
+    exit_on_user_error(validate_bench_config)(cfg, SECTIONS)  # a bad value: one `error:` line, exit 2, before any section
     results = bench(cfg)
     path = write_json(results, cfg.out_json)
     print(format_report(results))

@@ -172,6 +172,8 @@ def test_folder_without_manifest_names_the_fix(spade_home: Path, tmp_path: Path)
     ("scale.annotate.window.size_px=7", "scale.annotate.window.size_px=7 is not a window size"),
     ("scale.annotate.window.size_px=12", "scale.annotate.window.size_px=12 is too small for a L manoeuvre"),
     ("ckpt_path=/nowhere/last.ckpt", "ckpt_path=/nowhere/last.ckpt does not exist"),
+    ("ckpt_path=''", "ckpt_path='' is empty"),
+    ("paths.data_dir=/dev/null", "/dev/null is a file, not a folder"),
     ("scale.train_maps=[warehous:1]", "scale.train_maps: maps entry 'warehous:1' is neither an existing folder"),
     ("scale.train_maps=[/nowhere/site.yaml]", "maps entry '/nowhere/site.yaml' is neither an existing folder"),
 ])

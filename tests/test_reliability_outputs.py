@@ -323,6 +323,10 @@ def test_report_reads_without_writing_into_a_file_that_is_not_an_mlflow_store(tm
     assert code == 2, err
     assert expected in one_error_line(err)
     assert store.read_bytes() == before and not (tmp_path / "rep").exists()
+    # a run logging there is refused the same way, before any work
+    with pytest.raises(ConfigError, match=expected):
+        validate_train_config(compose_row("t1_small_bc_L", tmp_path, f"logger.mlflow.tracking_uri=sqlite:///{store}"))
+    assert store.read_bytes() == before
 
 
 # -- 10. every key that shapes the data is checked before any data or prerequisite -------------------------------------
@@ -425,6 +429,8 @@ def inputs(tmp_path: Path) -> dict[str, Path]:
            "file": tmp_path / "notes.txt", "dataset": tmp_path / "ds", "missing": tmp_path / "missing.ckpt"}
     out["dir"].mkdir()
     out["file"].write_text("not a model, not a map")
+    out["tagged"] = tmp_path / "tagged.yaml"  # a sketch file whose tag would run a command under an unsafe loader
+    out["tagged"].write_text("map: warehouse:1\nscenarios: !!python/object/apply:os.system ['echo pwned']\n")
     write_synthetic(out["dataset"], n=3)
     return out
 
@@ -469,6 +475,10 @@ PROBES = [
     ("spade.sketch", ["map={map}", "model_path={expert}"], "is an expert checkpoint"),
     ("spade.sketch", ["map={map}", "out_dir={file}"], "is a file"),
     ("spade.sketch", ["map={map}", "++annotate.window.size_px=20"], "too small"),
+    ("spade.annotate", ["sketches={tagged}", "out_dir={dir}/new"], "not a plain YAML sketch file (line 2)"),
+    ("spade.bench", ["quick=maybe"], "quick='maybe' is not a boolean"),
+    ("spade.bench", ["quick=true", "sections=[nosuch]"], "sections: unknown nosuch"),
+    ("spade.annotate", ["overwrite=maybe", "out_dir={dir}/new"], "overwrite='maybe' is not a boolean"),
 ]
 
 

@@ -47,10 +47,17 @@ def load_sketch_file(path: str | Path) -> SketchFile:
     path = Path(path).expanduser()
     if not path.is_file():
         raise FileNotFoundError(f"sketch file {path} does not exist")
-    doc = yaml.safe_load(path.read_text())
-    example = "map: my_map.yaml\nscenarios:\n  - shape: L\n    waypoints: [[0.0, 0.0], [2.0, 0.0], [2.0, 1.5]]"
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:  # a syntax error, or a tag that would build a Python object (refused, not run)
+        problem = str(getattr(exc, "problem", None) or exc).splitlines()[0]
+        mark = getattr(exc, "problem_mark", None)
+        where = f" (line {mark.line + 1})" if mark is not None else ""
+        raise SketchFileError(f"{path}: not a plain YAML sketch file{where}: {problem}; write plain YAML with keys "
+                              "'map' and 'scenarios' (no !!python tags)") from None
+    example = "{map: my_map.yaml, scenarios: [{shape: L, waypoints: [[0.0, 0.0], [2.0, 0.0], [2.0, 1.5]]}]}"
     if not isinstance(doc, dict) or "map" not in doc or "scenarios" not in doc:
-        raise SketchFileError(f"{path}: expected keys 'map' and 'scenarios', e.g.\n{example}")
+        raise SketchFileError(f"{path}: expected keys 'map' and 'scenarios', e.g. {example}")
     map_ref = str(doc["map"])
     if parse_procedural(map_ref) is None:
         map_path = Path(map_ref).expanduser()
@@ -61,12 +68,12 @@ def load_sketch_file(path: str | Path) -> SketchFile:
         map_ref = str(map_path)
     entries = doc["scenarios"]
     if not isinstance(entries, list) or not entries:
-        raise SketchFileError(f"{path}: 'scenarios' must be a non-empty list, e.g.\n{example}")
+        raise SketchFileError(f"{path}: 'scenarios' must be a non-empty list, e.g. {example}")
     sketches, names = [], set()
     counts: dict[str, int] = {}
     for i, entry in enumerate(entries):
         if not isinstance(entry, dict) or "shape" not in entry or "waypoints" not in entry:
-            raise SketchFileError(f"{path}: scenario #{i} needs 'shape' and 'waypoints', e.g.\n{example}")
+            raise SketchFileError(f"{path}: scenario #{i} needs 'shape' and 'waypoints', e.g. {example}")
         shape = check_shape(str(entry["shape"]))
         wp = np.asarray(entry["waypoints"], dtype=np.float64)
         if wp.ndim != 2 or wp.shape[1] != 2 or len(wp) < 2 or not np.isfinite(wp).all():

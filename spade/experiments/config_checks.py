@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -282,6 +282,7 @@ def _check_data(cfg: DictConfig) -> None:
         _check_int(cfg, f"scale.{key}", 1, none_ok=True)
     _check_number(cfg, "scale.resolution_m", 0, low_open=True, none_ok=True)
     for name in ("train", "test"):
+        _check_folder_path(f"data.{name}_dir", _get(cfg, f"data.{name}_dir"))
         generate = _get(cfg, f"data.{name}_generate")
         if generate is _MISSING or generate is None:
             continue
@@ -295,6 +296,19 @@ def _check_data(cfg: DictConfig) -> None:
         if num is not None and (not _is_int(num) or num < 1):
             raise ConfigError(f"data.{name}_generate num_instances={num!r} must be an integer >= 1; set "
                               f"scale.{name}_instances")
+
+
+def _check_folder_path(key: str, value: Any) -> None:
+    """A folder SPADE reads or creates: no part of its path may be an existing file."""
+    if _unset(value):
+        return
+    path = Path(str(value)).expanduser()
+    for part in (path, *path.parents):
+        if part.exists():
+            if not part.is_dir():
+                raise ConfigError(f"{key}={value}: {part} is a file, not a folder; set paths.data_dir (or {key}) "
+                                  "to a folder")
+            return
 
 
 def _check_map_entries(cfg: DictConfig, name: str, maps: Any) -> None:
@@ -409,6 +423,9 @@ def _check_checkpoints(cfg: DictConfig) -> None:
     role = _model_role(cfg)
     train_data = ("train_dir", "test_dir")
     ckpt = _get(cfg, "ckpt_path")
+    if isinstance(ckpt, str) and not ckpt.strip():
+        raise ConfigError("ckpt_path='' is empty; pass checkpoints/last.ckpt of an interrupted run to resume it, or "
+                          "leave ckpt_path unset (ckpt_path=null) to start a new run")
     if ckpt is not _MISSING and role is not None:
         fix = "pass checkpoints/last.ckpt of an interrupted run of this experiment (under its logs/runs/ folder)"
         info = _check_checkpoint("ckpt_path", ckpt, role, fix)
@@ -503,6 +520,9 @@ def validate_train_config(cfg: DictConfig) -> None:
     _check_choice(cfg, "prerequisites", ["train", "error"])
     for key in ("train", "test", "test_untrained"):
         _check_bool(cfg, key)
+    uri = _get(cfg, "logger.mlflow.tracking_uri")
+    if not _unset(uri):
+        check_store_file("logger.mlflow.tracking_uri", str(uri))  # someone else's SQLite file is never written
     metric = _get(cfg, "optimized_metric")
     if metric not in (_MISSING, None) and not isinstance(metric, str):
         raise ConfigError(f"optimized_metric={metric!r} must be a metric name such as val/loss_bc")
@@ -537,6 +557,9 @@ def validate_evaluate_config(cfg: DictConfig) -> None:
     if info.get("role") not in ("student", "expert"):
         raise ConfigError(f"ckpt_path={ckpt} is not a SPADE student or expert checkpoint (role "
                           f"{info.get('role')!r}); {fix}")
+    uri = _get(cfg, "logger.mlflow.tracking_uri")
+    if not _unset(uri):
+        check_store_file("logger.mlflow.tracking_uri", str(uri))
     _check_data(cfg)
     for name in ("train", "test"):
         check_dataset(_dir(cfg, f"data.{name}_dir"), _opt(cfg, f"data.{name}_generate"), f"data.{name}_dir")
@@ -665,6 +688,12 @@ def validate_annotate_config(cfg: Mapping[str, Any] | DictConfig) -> None:
         path = _input_file("sketches", sketches, "give a sketch file written by python -m spade.sketch (sketches.yaml)")
         if _same_file(path.parent, out_dir) or out_dir in path.parents:
             raise ConfigError(f"out_dir={out_dir} holds the input sketches={sketches}; choose another out_dir")
+        from spade.annotation.sketch_file import SketchFileError, load_sketch_file
+
+        try:
+            load_sketch_file(path)  # parsed and validated before any map is loaded or any instance made
+        except SketchFileError as exc:
+            raise ConfigError(f"sketches={sketches}: {exc}") from None
     elif not _unset(rosbag):
         for item in rosbag if isinstance(rosbag, list) else [rosbag]:
             if not Path(str(item)).expanduser().exists():
@@ -783,6 +812,21 @@ def check_store_file(key: str, uri: str) -> None:
         raise ConfigError(f"{key}={uri}: {path} is an SQLite database but not an MLflow store (no "
                           f"{', '.join(sorted(missing))} table); it is left untouched. Point {key} (or SPADE_HOME / "
                           "MLFLOW_TRACKING_URI) at the MLflow store the runs were logged to")
+
+
+def validate_bench_config(cfg: DictConfig, known_sections: Sequence[str]) -> None:
+    """``spade.bench``'s checks before any section runs: ``quick`` a boolean, ``sections`` among ``known_sections``
+    (:data:`spade.perf.bench.SECTIONS`, passed in: the benchmark sits on a higher floor), a thread count."""
+    _check_bool(cfg, "quick")
+    sections = _get(cfg, "sections")
+    if sections is not _MISSING and sections is not None:
+        if isinstance(sections, str) or not isinstance(sections, list):
+            raise ConfigError(f"sections={sections!r} is not a list; use sections=[{','.join(list(known_sections)[:2])}]")
+        unknown = sorted({str(x) for x in sections} - set(known_sections))
+        if unknown:
+            raise ConfigError(f"sections: unknown {', '.join(unknown)}; use sections=[...] with some of "
+                              f"{', '.join(known_sections)}")
+    _check_int(cfg, "threads", 1, none_ok=True, fix=" (null: all cores)")
 
 
 def validate_report_config(cfg: DictConfig) -> None:
