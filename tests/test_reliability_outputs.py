@@ -491,6 +491,8 @@ def test_every_entry_point_fails_in_one_line_with_exit_2(inputs, run_main, modul
     assert words in one_error_line(err)
     assert {k: tree(v) if v.is_dir() else digest(v) for k, v in inputs.items() if v.exists()} == before
     assert not inputs["missing"].exists()
+    hydra_dir = inputs["dir"].parent / "hydra"  # run_main's hydra.run.dir: a refusal leaves no run folder
+    assert not hydra_dir.exists(), sorted(p.name for p in hydra_dir.iterdir())
 
 
 @pytest.mark.parametrize("args, words", [

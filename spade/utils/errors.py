@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import functools
 import os
+import shutil
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 
@@ -20,6 +22,23 @@ class ConfigError(ValueError):
 
 
 Errors = tuple[type[BaseException], ...]
+
+
+def remove_untouched_run_dir() -> None:
+    """Remove the Hydra run folder of a refused command when it holds only what Hydra itself put there (``.hydra/``
+    and the job's log): a refusal leaves no run folder behind. A folder holding anything else is kept."""
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        if not HydraConfig.initialized():
+            return
+        hydra_cfg = HydraConfig.get()
+        out = Path(str(hydra_cfg.runtime.output_dir))
+        own = {".hydra", f"{hydra_cfg.job.name}.log"}
+        if out.is_dir() and {p.name for p in out.iterdir()} <= own:
+            shutil.rmtree(out, ignore_errors=True)
+    except Exception:  # noqa: BLE001 - tidying must never hide the error being reported
+        return
 
 
 def exit_on_errors(errors: Errors | Callable[[], Errors]) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
@@ -40,6 +59,7 @@ def exit_on_errors(errors: Errors | Callable[[], Errors]) -> Callable[[Callable[
                 if os.environ.get("HYDRA_FULL_ERROR") == "1":
                     raise
                 print(f"error: {exc}", file=sys.stderr, flush=True)
+                remove_untouched_run_dir()
                 raise SystemExit(2) from None
 
         return wrapper
