@@ -64,8 +64,9 @@ def check_dataset(root: str | Path | None, generate: Any, key: str = "data.train
         more = f" (and {len(diff) - 8} more)" if len(diff) > 8 else ""
         raise DatasetSettingsError(
             f"{key}={root} was generated with other settings (dataset {settings_fingerprint(recorded)}, config "
-            f"{settings_fingerprint(wanted)}): {shown}{more}. Delete {root} to regenerate it, or set paths.data_dir "
-            f"(or {key}) to another folder"
+            f"{settings_fingerprint(wanted)}): {shown}{more}. The dataset is kept as it is: set paths.data_dir "
+            f"(or {key}) to another folder to generate these settings there, or change the config back to the "
+            "dataset's settings"
         )
 
 
