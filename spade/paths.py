@@ -25,3 +25,18 @@ def _run_uid() -> str:
 # ``${run_uid:}`` in a run folder name (conf/hydra/default.yaml): cached per config like Hydra's ``${now:}`` (and
 # copied to a multirun's jobs with it), so every use within one run gives the same id and no two runs share one.
 OmegaConf.register_new_resolver("run_uid", _run_uid, use_cache=True, replace=True)
+
+
+def _experiment_name(table: str, train_generate: object, train_dir: object) -> str:
+    """The MLflow experiment of a training run: its table's (``tags.table``) when the run trains on data SPADE
+    generates; ``own_<training folder>`` when it trains on a user's own datasets (``data=own``: no generator), so
+    that such runs never join a paper table's experiment (``spade.report`` reads a table from its experiment)."""
+    if train_generate is None:
+        name = Path(str(train_dir)).name or "data"
+        return f"own_{name}"
+    return str(table)
+
+
+# ``${spade_experiment:${tags.table},${oc.select:data.train_generate,null},${oc.select:data.train_dir,null}}``
+# (conf/logger/mlflow.yaml).
+OmegaConf.register_new_resolver("spade_experiment", _experiment_name, replace=True)

@@ -289,3 +289,38 @@ def test_guidance_composition_launches_its_six_rows(spade_home: Path) -> None:
     rows = cfg.hydra.sweeper.params.experiment.split(",")
     assert sorted(rows) == sorted(f"g_{r}_{a}_L" for r in ("few", "full") for a in ("bc", "conddbc", "conddbcst"))
     assert list(cfg.seeds) == [42, 1, 2, 3, 4]
+
+
+def test_run_summary_says_when_a_student_did_not_learn_and_how_to_use_its_checkpoint(spade_home: Path) -> None:
+    """Issue 32: a student that extracted nothing (failures 100 %) or lost to the heading template was reported
+    like any other; the end of a run did not name the checkpoint that evaluate, export and plan need."""
+    from spade.experiments.tracking import run_summary
+
+    cfg = compose_row("t1_small_bc_L", spade_home, "logger=none")
+    nothing = {"test/failure_rate": 1.0, "test/ape_cm": float("nan"), "test/baseline/heading/ape_cm": 10.5}
+    losing = {"test/failure_rate": 0.0, "test/ape_cm": 12.0, "test/baseline/heading/ape_cm": 10.5}
+    winning = {"test/failure_rate": 0.0, "test/ape_cm": 5.0, "test/baseline/heading/ape_cm": 10.5}
+    assert "has not learned yet" in run_summary(cfg, nothing)
+    assert "loses to the heading template (12.00 vs 10.50 cm APE)" in run_summary(cfg, losing)
+    text = run_summary(cfg, winning, checkpoint="/runs/x/checkpoints/epoch004.ckpt")
+    assert "verdict" not in text
+    assert "best checkpoint  : /runs/x/checkpoints/epoch004.ckpt" in text
+    assert "python -m spade.evaluate ckpt_path=/runs/x/checkpoints/epoch004.ckpt scale=" in text
+    assert "python -m spade.plan model_path=/runs/x/checkpoints/epoch004.ckpt" in text
+    own = compose_row("t1_small_bc_L", spade_home, "logger=none", "data=own", "data.train_dir=/d/site_train",
+                      "data.test_dir=/d/site_test")
+    assert ("spade.evaluate ckpt_path=/c.ckpt data=own data.train_dir=/d/site_train data.test_dir=/d/site_test"
+            in run_summary(own, winning, checkpoint="/c.ckpt"))
+
+
+def test_runs_on_own_data_log_to_their_own_experiment_never_a_paper_tables(spade_home: Path) -> None:
+    """Issue 32: a run on a user's own datasets went into ``table1`` and ``spade.report table=table1`` listed it as
+    a paper row. ``data=own`` (no generator) logs to ``own_<training folder>``."""
+    from spade.experiments.tables import get_table
+
+    paper = compose_row("t1_small_bc_L", spade_home)
+    own = compose_row("t1_small_bc_L", spade_home, "data=own", "data.train_dir=/d/site_train",
+                      "data.test_dir=/d/site_test")
+    assert paper.logger.mlflow.experiment_name == get_table("table1").experiment
+    assert own.logger.mlflow.experiment_name == "own_site_train"
+    assert own.data.train_generate is None and own.data.test_generate is None

@@ -54,7 +54,10 @@ def run(cfg: DictConfig) -> float | None:
     since the sweeper needs the value.
     """
     metrics, objects = train(cfg)
-    print(run_summary(cfg, metrics, getattr(objects["model"], "margin_history", None)), flush=True)
+    trainer = objects["trainer"]
+    best = (trainer.checkpoint_callback.best_model_path if trainer.checkpoint_callback else "") or \
+        last_checkpoint_path(trainer)
+    print(run_summary(cfg, metrics, getattr(objects["model"], "margin_history", None), best or None), flush=True)
     try:
         return optimized_value(cfg, metrics)
     except KeyError as exc:
