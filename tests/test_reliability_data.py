@@ -176,3 +176,25 @@ def test_a_tampered_manifest_is_refused_by_verify_and_by_loading(tmp_path: Path)
     manifest.write_text(json.dumps(raw))
     with pytest.raises(DatasetError, match=r"image_size .* disagrees with frame.size_px"):
         PathDataset(root)
+
+
+def test_a_leak_is_found_by_content_not_by_scenario_names(tmp_path: Path) -> None:
+    """Issue 32: two datasets made on one map always "shared scenarios" (ids are per-map counters such as
+    site/L000), whatever their seeds. Now a test set on the same map with other demonstrations is accepted and a
+    test window identical to a training window is refused, naming its scenario."""
+    import shutil
+
+    from spade.data import DatasetError
+    from spade.data.datamodule import PathDataModule
+
+    from factories import write_synthetic
+
+    write_synthetic(tmp_path / "train", n=9, seed=0)
+    write_synthetic(tmp_path / "test", n=6, seed=1)  # the same scenario ids (map0/s0 ...), other demonstrations
+    dm = PathDataModule(tmp_path / "train", tmp_path / "test", val_fraction=0.3, batch_size=2)
+    dm.setup("test")
+    assert len(dm.test_set) == 6
+    shutil.copytree(tmp_path / "train", tmp_path / "copy")
+    dm = PathDataModule(tmp_path / "train", tmp_path / "copy", val_fraction=0.3, batch_size=2)
+    with pytest.raises(DatasetError, match=r"9 test instances are identical to training instances .* a leak"):
+        dm.setup("test")

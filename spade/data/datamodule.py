@@ -144,9 +144,17 @@ class PathDataModule(L.LightningDataModule):
                 f"{self.test_dir}: test instances are {test.image_size} at {test.resolution} m/px, training ones "
                 f"{train.image_size} at {train.resolution} m/px; regenerate one of them with the other's window"
             )
-        shared = set(test.labels("scenario_id")) & set(train.labels("scenario_id"))
-        if shared:
-            raise DatasetError(f"{self.test_dir}: shares {len(shared)} scenarios with {self.train_dir} (leak)")
+        # A leak is a test window that *is* a training window (same map content, same demonstration, same place),
+        # found by content: scenario ids are per-map counters (site/L000), so two datasets made on one map with
+        # other seeds or sketches share ids but no scenario.
+        train_digests = set(train.instance_digests())
+        leaked = [i for i, d in enumerate(test.instance_digests()) if d in train_digests]
+        if leaked:
+            ids = sorted({test.labels("scenario_id")[i] for i in leaked})
+            shown = ", ".join(ids[:5]) + (f" and {len(ids) - 5} more" if len(ids) > 5 else "")
+            raise DatasetError(f"{self.test_dir}: {len(leaked)} test instances are identical to training instances in "
+                               f"{self.train_dir} (scenarios {shown}): a leak. Make the test set from other "
+                               "demonstrations (another seed, other sketches or another map)")
 
     @property
     def image_size(self) -> tuple[int, int]:

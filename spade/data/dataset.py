@@ -104,6 +104,16 @@ class PathDataset(Dataset):
         """The window frame of the manifest (robot pixel, heading up; spade.maps.frame)."""
         return dict(self.manifest.frame)
 
+    def instance_digests(self) -> list[bytes]:
+        """A digest of each instance's content (its packed occupancy, start, goal and path rows): what the instance
+        *is*, whatever its labels say, so that two datasets can be checked for shared windows by content."""
+        import hashlib
+
+        arrays = self._arrays()
+        names = [n for n in ("occupancy", "start", "goal", "path") if n in arrays]
+        return [hashlib.blake2b(b"".join(np.asarray(arrays[n][i]).tobytes() for n in names),
+                                digest_size=16).digest() for i in range(len(self))]
+
     def labels(self, key: str) -> list[str]:
         """The per-instance values of label ``key`` ("shape", "map_id" or "scenario_id")."""
         values, index = self.manifest.labels[key], self.manifest.label_index[key]
