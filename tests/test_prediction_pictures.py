@@ -64,3 +64,25 @@ def test_run_description_figures_are_rounded_to_a_tenth_of_a_centimetre() -> Non
 
     text = figures_table({"test/ape_cm": 10.1234, "test/baseline/straight/ape_cm": 25.0149, "test/hd19": 3.0})
     assert "| 10.1 |" in text and "| 25.0 |" in text and "10.12" not in text
+
+
+def test_the_epoch_picture_shows_distinct_scenarios_in_wide_readable_panels() -> None:
+    """Issue 39: the per-epoch pictures were 180 x 900 px with about 64 px panels, the legend cut, and all eight
+    rows from the same map window. Now: the first instance of each new scenario, in validation order (the same
+    ones every epoch), one column each, panels of at least 128 px, the whole legend."""
+    from types import SimpleNamespace
+
+    from spade.training.base import PathPlanningModule
+    from spade.training.visualize import MIN_PANEL_PX
+
+    module = SimpleNamespace(grid_size=8)
+    for start in (0, 6):  # two validation batches of 6 instances, 2 instances per scenario
+        b = _batch(6, 64, seed=start)
+        b["scenario_id"] = [f"site/L{(start + i) // 2:03d}" for i in range(6)]
+        PathPlanningModule._pick_for_picture(module, b, b["path"] * 0.9)
+    picks = module._picture_picks
+    assert [p[0] for p in picks] == [f"site/L{k:03d}" for k in range(6)]
+    stack = [torch.stack([p[k] for p in picks]) for k in (1, 2, 3, 4)]
+    picture = prediction_grid(*stack, torch.tensor([p[5] for p in picks]), titles=[p[0] for p in picks])
+    height, width = picture.shape[:2]
+    assert width >= 6 * MIN_PANEL_PX and height <= MAX_HEIGHT_PX and height < width

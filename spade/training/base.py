@@ -84,16 +84,37 @@ class PathPlanningModule(L.LightningModule):
             return
         prob = self.predict_paths(batch)
         self.val_metrics.update(prob, batch)
-        if batch_idx == 0 and self.grid_size > 0 and not self.trainer.sanity_checking:
-            n = min(self.grid_size, prob.shape[0])
-            grid = prediction_grid(batch["state"][:n], batch["path"][:n], prob[:n], batch["waypoints"][:n],
-                                   batch["resolution"][:n])
-            log_image(self.logger, grid, f"predictions/epoch{self.current_epoch:03d}.png", self.trainer.log_dir)
+        if self.grid_size > 0 and not self.trainer.sanity_checking:
+            self._pick_for_picture(batch, prob)
+
+    def _pick_for_picture(self, batch: dict, prob: torch.Tensor) -> None:
+        """Keep the first instance of each new scenario (validation batches come in a fixed order, so the picture
+        shows the same ``grid_size`` scenarios every epoch, each a different one: a scenario's instances are
+        near-duplicates)."""
+        picks = self.__dict__.setdefault("_picture_picks", [])
+        ids = batch.get("scenario_id")
+        for i in range(prob.shape[0]):
+            if len(picks) >= self.grid_size:
+                return
+            scenario = str(ids[i]) if ids is not None and i < len(ids) else f"#{len(picks) + 1}"
+            if any(scenario == p[0] for p in picks):
+                continue
+            picks.append((scenario, batch["state"][i].detach().cpu(), batch["path"][i].detach().cpu(),
+                          prob[i].detach().cpu(), batch["waypoints"][i].detach().cpu(),
+                          float(batch["resolution"][i])))
+
+    def on_validation_epoch_start(self) -> None:
+        self._picture_picks: list[tuple] = []
 
     def validation_losses(self, batch: dict) -> dict[str, torch.Tensor]:
         return {}
 
     def on_validation_epoch_end(self) -> None:
+        picks = self.__dict__.pop("_picture_picks", None)
+        if picks and not self.trainer.sanity_checking:
+            stack = [torch.stack([p[k] for p in picks]) for k in (1, 2, 3, 4)]
+            grid = prediction_grid(*stack, torch.tensor([p[5] for p in picks]), titles=[p[0] for p in picks])
+            log_image(self.logger, grid, f"predictions/epoch{self.current_epoch:03d}.png", self.trainer.log_dir)
         if self.val_metrics.ape.total > 0:
             self.log_dict({f"val/{k}": v for k, v in self.val_metrics.compute().items()}, sync_dist=False)
         self.val_metrics.reset()

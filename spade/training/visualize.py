@@ -1,6 +1,6 @@
 """Pictures of predictions a person can read: per instance, the state with the demonstration, and the prediction.
 
-Each instance is one row of two panels, upscaled: left, the occupancy (unknown dark, free grey, obstacles white)
+Each instance is one row of two panels (one column of two when a picture holds more than ``ROWS_MAX``), upscaled: left, the occupancy (unknown dark, free grey, obstacles white)
 with the demonstrated path (green), the robot (blue) and the goal (red); right, the predicted path probability as a
 heat map over the dimmed occupancy, with the path extracted from it (cyan, which no value of the heat map's
 black-red-yellow scale takes) and the demonstration (green, thin) for comparison. The row's title gives the
@@ -20,6 +20,9 @@ import torch
 from spade.data.polyline import resample_polyline
 
 MAX_HEIGHT_PX = 900
+MAX_WIDTH_PX = 1800  # the wide layout (more than ROWS_MAX instances): one column per instance
+ROWS_MAX = 4
+MIN_PANEL_PX = 128
 EXTRACTED_COLOUR = "#00e5ff"  # cyan: stands out on the inferno heat map (black, purple, red, yellow)
 
 
@@ -53,7 +56,9 @@ def _instance_ape(prob: np.ndarray, state: np.ndarray, waypoints: np.ndarray, re
 def prediction_grid(state: torch.Tensor, target: torch.Tensor, prob: torch.Tensor,
                     waypoints: torch.Tensor | None = None, resolution: torch.Tensor | float = 0.1,
                     titles: list[str] | None = None, upscale: int = 4) -> np.ndarray:
-    """An RGB uint8 picture of a batch (B, ...): one row per instance (see the module docstring)."""
+    """An RGB uint8 picture of a batch (B, ...) (see the module docstring): up to ``ROWS_MAX`` instances one row
+    each; more (the per-epoch validation picture) one column each, so that every panel keeps at least
+    ``MIN_PANEL_PX`` pixels and the legend and titles stay whole."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -63,9 +68,18 @@ def prediction_grid(state: torch.Tensor, target: torch.Tensor, prob: torch.Tenso
     b, _, h, w = state.shape
     res = np.broadcast_to(np.asarray(resolution.cpu() if isinstance(resolution, torch.Tensor) else resolution,
                                      dtype=np.float64).reshape(-1), (b,))
+    wide = b > ROWS_MAX
     inch = max(1.6, upscale * w / 100.0)
-    inch = max(0.5, min(inch, (MAX_HEIGHT_PX / 100.0 - 0.6) / b - 0.35))  # at most MAX_HEIGHT_PX tall
-    fig, axes = plt.subplots(b, 2, figsize=(2 * inch + 0.4, b * (inch + 0.35) + 0.6), squeeze=False, dpi=100)
+    if wide:  # one column per instance, at most MAX_WIDTH_PX wide, never under MIN_PANEL_PX a panel
+        inch = max(MIN_PANEL_PX / 100.0, min(inch, (MAX_WIDTH_PX / 100.0 - 0.4) / b - 0.15))
+        fig, grid = plt.subplots(2, b, figsize=(b * (inch + 0.15) + 0.4, 2 * (inch + 0.35) + 0.9), squeeze=False,
+                                 dpi=100)
+        axes = grid.T  # axes[i] = (state panel, prediction panel) of instance i
+        total_height = 2 * (inch + 0.35) + 0.9
+    else:
+        inch = max(0.5, min(inch, (MAX_HEIGHT_PX / 100.0 - 0.6) / b - 0.35))  # at most MAX_HEIGHT_PX tall
+        fig, axes = plt.subplots(b, 2, figsize=(2 * inch + 0.4, b * (inch + 0.35) + 0.6), squeeze=False, dpi=100)
+        total_height = b * (inch + 0.35) + 0.6
     for i in range(b):
         st = state[i].float().cpu().numpy()
         p = prob[i, 0].float().cpu().numpy().clip(0, 1)
@@ -89,15 +103,24 @@ def prediction_grid(state: torch.Tensor, target: torch.Tensor, prob: torch.Tenso
         for ax in axes[i]:
             ax.set_xticks([])
             ax.set_yticks([])
-        axes[i, 0].set_title("state + demonstration", fontsize=8)
-        axes[i, 1].set_title(label or "prediction", fontsize=8)
+        if wide:
+            axes[i, 0].set_title(titles[i] if titles else f"#{i + 1}", fontsize=8)
+            axes[i, 1].set_title((label or "prediction").replace(titles[i] if titles else "", "").strip() or
+                                 "prediction", fontsize=8)
+        else:
+            axes[i, 0].set_title("state + demonstration", fontsize=8)
+            axes[i, 1].set_title(label or "prediction", fontsize=8)
+    if wide:
+        axes[0, 0].set_ylabel("state + demonstration", fontsize=8)
+        axes[0, 1].set_ylabel("prediction", fontsize=8)
     handles = [Line2D([], [], color="#28c83c", lw=2, label="demonstration"),
                Line2D([], [], color=EXTRACTED_COLOUR, lw=2, label="extracted prediction"),
                Line2D([], [], marker="o", color="#285aff", lw=0, label="robot (heading up)"),
                Line2D([], [], marker="o", color="#f02828", lw=0, label="goal")]
-    top = 0.5 / (b * (inch + 0.35) + 0.6)  # the legend's share of the height, at the top (two rows of two)
+    top = (0.4 if wide else 0.5) / total_height  # the legend's share of the height, at the top
     fig.tight_layout(rect=(0, 0, 1, 1 - top))
-    fig.legend(handles=handles, loc="upper center", ncol=2, fontsize=7, facecolor="#777777", framealpha=1.0)
+    fig.legend(handles=handles, loc="upper center", ncol=4 if wide else 2, fontsize=7, facecolor="#777777",
+               framealpha=1.0)
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     plt.close(fig)
