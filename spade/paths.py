@@ -27,16 +27,12 @@ def _run_uid() -> str:
 OmegaConf.register_new_resolver("run_uid", _run_uid, use_cache=True, replace=True)
 
 
-def _experiment_name(table: str, train_generate: object, train_dir: object) -> str:
-    """The MLflow experiment of a training run: its table's (``tags.table``) when the run trains on data SPADE
-    generates; ``own_<training folder>`` when it trains on a user's own datasets (``data=own``: no generator), so
-    that such runs never join a paper table's experiment (``spade.report`` reads a table from its experiment)."""
-    if train_generate is None:
-        name = Path(str(train_dir)).name or "data"
-        return f"own_{name}"
-    return str(table)
+
+def _own_experiment(train_dir: object) -> str:
+    """``own_<training folder>``: the MLflow experiment of runs on a user's own datasets (``conf/data/own.yaml``),
+    so that such runs never join a paper table's experiment (``spade.report`` reads a table from its experiment)."""
+    return f"own_{Path(str(train_dir)).name or 'data'}"
 
 
-# ``${spade_experiment:${tags.table},${oc.select:data.train_generate,null},${oc.select:data.train_dir,null}}``
-# (conf/logger/mlflow.yaml).
-OmegaConf.register_new_resolver("spade_experiment", _experiment_name, replace=True)
+# ``${spade_own_experiment:${.train_dir}}`` (conf/data/own.yaml).
+OmegaConf.register_new_resolver("spade_own_experiment", _own_experiment, replace=True)

@@ -41,6 +41,8 @@ class PathDataModule(L.LightningDataModule):
     configs: ``prepare_data`` builds a missing dataset with them, so a fresh machine needs no manual step.
     ``generator`` builds it: ``generator(dataset directory, *_generate entry)``; the data configs give the
     annotation tool's (``conf/data/generator/annotate.yaml``: :func:`spade.annotation.run.generate_dataset`).
+    ``experiment`` is not the data module's: ``conf/data/own.yaml`` names there the MLflow experiment of runs on a
+    user's own datasets (read by ``conf/logger/mlflow.yaml``), so it is accepted and kept, never used here.
     """
 
     def __init__(
@@ -62,8 +64,10 @@ class PathDataModule(L.LightningDataModule):
         max_test_instances: int | None = None,
         test_shape: str | None = None,
         generator: Generator | None = None,
+        experiment: str | None = None,
     ) -> None:
         super().__init__()
+        self.experiment = experiment
         if batch_size < 1:
             raise ValueError(f"data.batch_size must be >= 1, got {batch_size}")
         if num_workers < 0:
