@@ -196,5 +196,6 @@ def test_a_leak_is_found_by_content_not_by_scenario_names(tmp_path: Path) -> Non
     assert len(dm.test_set) == 6
     shutil.copytree(tmp_path / "train", tmp_path / "copy")
     dm = PathDataModule(tmp_path / "train", tmp_path / "copy", val_fraction=0.3, batch_size=2)
-    with pytest.raises(DatasetError, match=r"9 test instances are identical to training instances .* a leak"):
+    with pytest.raises(DatasetError, match=r"9 test scenarios \(map0/s0, .* and 4 more\) are training scenarios .* a "
+                                           r"leak"):
         dm.setup("test")
