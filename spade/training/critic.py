@@ -31,7 +31,7 @@ import torch
 
 from spade.data.augment import widen_path
 from spade.metrics.corruptions import CORRUPTION_SET_VERSION, CORRUPTIONS, corrupt
-from spade.training.expert_module import denoise, expert_input
+from spade.training.expert_module import expert_input
 from spade.training.margin import DiffusionMargin
 
 __all__ = ["CriticErrors", "band_edges", "critic_metrics", "critic_report", "example_images", "measure_errors"]
@@ -76,9 +76,7 @@ def _errors(margin: DiffusionMargin, x0s: list[torch.Tensor], cond: torch.Tensor
     x0 = torch.cat(x0s)
     noise_n, t_n = noise.repeat(n, *([1] * (noise.dim() - 1))), t.repeat(n)
     cond_n = None if cond is None else cond.repeat(n, 1, 1, 1)
-    out = denoise(margin.expert, margin.add_noise(x0, noise_n, t_n), t_n, cond_n)
-    err = (out - margin.prediction_target(x0, noise_n, t_n)).pow(2).flatten(1).mean(1)
-    return list(err.split(b))
+    return list(margin.denoising_error(x0, noise_n, t_n, cond_n).split(b))
 
 
 @torch.no_grad()

@@ -247,22 +247,25 @@ class DiffusionMargin(nn.Module):
         noise = torch.randn((n, *shape), device=device, dtype=dtype, generator=generator)
         return t, noise
 
+    def denoising_error(self, x0: torch.Tensor, noise: torch.Tensor, t: torch.Tensor,
+                        cond: torch.Tensor | None) -> torch.Tensor:
+        """The expert's per-sample denoising error of ``x0`` (mean squared error of its prediction against its
+        target, epsilon or x0) under ``noise`` at timesteps ``t``: the one formula the margin and the critic
+        (:mod:`spade.training.critic`) score with."""
+        out = denoise(self.expert, self.add_noise(x0, noise, t), t, cond)
+        return (out - self.prediction_target(x0, noise, t)).pow(2).flatten(1).mean(1)
+
     def _errors(self, agent_x0: torch.Tensor, expert_x0: torch.Tensor, noise: torch.Tensor, t: torch.Tensor,
                 cond: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
         """Per-sample denoising errors (agent with autograd, expert without) for one shared noise and timestep."""
         if self.config.batch_terms:
             b = agent_x0.shape[0]
             x0, noise2, t2 = torch.cat([agent_x0, expert_x0.detach()]), torch.cat([noise, noise]), torch.cat([t, t])
-            out = denoise(self.expert, self.add_noise(x0, noise2, t2), t2,
-                          None if cond is None else torch.cat([cond, cond]))
-            err = (out - self.prediction_target(x0, noise2, t2)).pow(2).flatten(1).mean(1)
+            err = self.denoising_error(x0, noise2, t2, None if cond is None else torch.cat([cond, cond]))
             return err[:b], err[b:].detach()
         with torch.no_grad():
-            out = denoise(self.expert, self.add_noise(expert_x0, noise, t), t, cond)
-            expert_err = (out - self.prediction_target(expert_x0, noise, t)).pow(2).flatten(1).mean(1)
-        out = denoise(self.expert, self.add_noise(agent_x0, noise, t), t, cond)
-        agent_err = (out - self.prediction_target(agent_x0, noise, t)).pow(2).flatten(1).mean(1)
-        return agent_err, expert_err
+            expert_err = self.denoising_error(expert_x0, noise, t, cond)
+        return self.denoising_error(agent_x0, noise, t, cond), expert_err
 
     def margins(self, student_prob: torch.Tensor, target: torch.Tensor, state: torch.Tensor,
                 generator: torch.Generator | None = None) -> torch.Tensor:
