@@ -212,6 +212,17 @@ def test_the_run_summary_says_whether_guidance_acted_to_the_end() -> None:
     assert "acted to the end" in guidance_line([(0, 1.0, 0.5), (1, 0.42, 0.01)])
 
 
+def test_the_run_description_says_in_words_whether_guidance_acted(spade_home) -> None:
+    """Issue 39: whether guidance acted was hidden in the 10th chart section; the MLflow description says it."""
+    from spade.experiments.tracking import run_description
+    from training_helpers import compose_row
+
+    cfg = compose_row("t1_small_conddbc_L", spade_home, "logger=none")
+    text = run_description(cfg, {"test/ape_cm": 5.0}, [], [], margin_history=[(0, 1.0, 0.5), (1, 0.0, 0.0)])
+    assert "Guidance: margin active by epoch  0: 100%  1: 0%  -> stopped acting" in text
+    assert "Guidance" not in run_description(cfg, {"test/ape_cm": 5.0}, [], [])
+
+
 # -- the command -------------------------------------------------------------------------------------------------
 def _critic_cfg(spade_home, *overrides: str):
     from omegaconf import open_dict

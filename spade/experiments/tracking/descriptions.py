@@ -135,9 +135,22 @@ def _what(tags: dict[str, Any]) -> str:
     return approach or role or "model"
 
 
+def guidance_verdict(history: list[tuple[int, float, float]] | None) -> str | None:
+    """Whether the diffusion margin acted, epoch by epoch (``StudentModule.margin_history``, or the run's
+    ``margin/active`` per epoch), in words; None for an unguided run."""
+    if not history:
+        return None
+    epochs = "  ".join(f"{epoch}: {active:.0%}" for epoch, active, _ in history)
+    last = history[-1][1]
+    verdict = "acted to the end" if last > 0 else "stopped acting (the expert rates the student at least as " \
+        "well as the demonstration: a BC run from then on)"
+    return f"margin active by epoch  {epochs}  -> {verdict}"
+
+
 def run_description(cfg: DictConfig, metrics: dict[str, float], uses: list[DatasetUse],
                     prerequisites: list[PrerequisiteUse], pictures: list[str] | None = None,
-                    run: tuple[str, str] | None = None) -> str:
+                    run: tuple[str, str] | None = None,
+                    margin_history: list[tuple[int, float, float]] | None = None) -> str:
     """A run's one-paragraph summary (markdown): row, approach, data, prerequisites, test figures and baselines."""
     tags = dict(cfg.get("tags") or {})
     row = cfg.get("run_name") or tags.get("row") or "run"
@@ -174,6 +187,9 @@ def run_description(cfg: DictConfig, metrics: dict[str, float], uses: list[Datas
                 item += f" (checkpoint `{p.checkpoint}`)"
             items.append(item)
         parts.append("Prerequisites: " + "; ".join(items) + ".")
+    guidance = guidance_verdict(margin_history)
+    if guidance:
+        parts.append(f"Guidance: {guidance}.")
     command = regenerate_command(cfg)
     if command:
         parts.append(f"Regenerate: `{command}`.")

@@ -252,8 +252,13 @@ def describe_run(cfg: DictConfig, ml: MLFlowLogger, datamodule: Any, contexts: t
         log.warning("datasets not logged as MLflow inputs: %s", exc)
     run = client.get_run(run_id)
     metrics = dict(run.data.metrics)
+    history = None
+    if "margin/active" in metrics:  # a guided student: its margin's activity per epoch (step = epoch)
+        values = {m.step: m.value for m in client.get_metric_history(run_id, "margin/value")}
+        history = [(m.step, m.value, values.get(m.step, float("nan")))
+                   for m in sorted(client.get_metric_history(run_id, "margin/active"), key=lambda m: m.step)]
     description = run_description(cfg, metrics, uses, prerequisite_uses(cfg, client), _picture_paths(client, run_id),
-                                  (str(run.info.experiment_id), run_id))
+                                  (str(run.info.experiment_id), run_id), history)
     client.set_tag(run_id, NOTE_TAG, description)
     global _last_run
     _last_run = RunRef(str(client.tracking_uri), str(run.info.experiment_id), run_id, str(run.info.run_name))

@@ -13,6 +13,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from spade.experiments.tracking.descriptions import guidance_verdict
 from spade.experiments.tracking.links import ui_lines
 from spade.experiments.tracking.runs import RunRef, last_run
 
@@ -40,13 +41,8 @@ def _find_run(cfg: DictConfig) -> RunRef | None:
 
 def guidance_line(history: list[tuple[int, float, float]] | None) -> str | None:
     """One line saying whether the diffusion margin acted, epoch by epoch (``StudentModule.margin_history``)."""
-    if not history:
-        return None
-    epochs = "  ".join(f"{epoch}: {active:.0%}" for epoch, active, _ in history)
-    last = history[-1][1]
-    verdict = "acted to the end" if last > 0 else "stopped acting (the expert rates the student at least as " \
-        "well as the demonstration: a BC run from then on)"
-    return f"  guidance         : margin active by epoch  {epochs}  -> {verdict}"
+    verdict = guidance_verdict(history)
+    return f"  guidance         : {verdict}" if verdict else None
 
 
 def learning_verdict(metrics: dict[str, Any]) -> str | None:
