@@ -17,6 +17,8 @@ from __future__ import annotations
 import sys
 
 import hydra
+
+from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
 from omegaconf import DictConfig, OmegaConf
 
 from spade.annotation.run import alias_preset as _alias_preset
@@ -33,7 +35,7 @@ def _checked_annotate(cfg: DictConfig) -> dict:
     return annotate(cfg)
 
 
-@hydra.main(config_path="../conf", config_name="annotate", version_base="1.3")
+@hydra.main(config_path=CONFIG_PATH, config_name="annotate", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     from spade.experiments.config_checks import exit_on_user_error
 

@@ -24,11 +24,12 @@ import hydra
 from omegaconf import DictConfig
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
+from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
 from spade.perf.bench import SECTIONS, bench  # noqa: F401  (also registers the ${quick_or:} resolver)
 from spade.perf.report import format_report, write_json
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="bench")
+@hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="bench")
 def main(cfg: DictConfig) -> None:
     from spade.experiments.config_checks import exit_on_user_error, validate_bench_config
 

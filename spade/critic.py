@@ -17,6 +17,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
+from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
 from spade.metrics.corruptions import CORRUPTION_SET_VERSION
 
 __all__ = ["critic", "format_report"]
@@ -176,7 +177,7 @@ def format_report(metrics: dict[str, float]) -> str:
     return "\n".join(lines)
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="critic")
+@hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="critic")
 def main(cfg: DictConfig) -> None:
     from spade.experiments.config_checks import exit_on_user_error
 

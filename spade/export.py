@@ -15,6 +15,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
+from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
 from spade.deploy.export import ExportReport, export_student
 from spade.experiments.config_checks import exit_on_user_error, validate_export_config
 
@@ -49,7 +50,7 @@ def export(cfg: DictConfig) -> ExportReport:
     return report
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="export")
+@hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="export")
 def main(cfg: DictConfig) -> None:
     print(exit_on_user_error(export)(cfg).summary())  # a user error: one `error:` line, exit 2
 

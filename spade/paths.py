@@ -7,8 +7,11 @@ from pathlib import Path
 from omegaconf import OmegaConf
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
-CONF_DIR = PROJECT_ROOT / "conf"
 PACKAGE_DIR = Path(__file__).resolve().parent
+# The Hydra configs: the repository's conf/ (a checkout, an editable install, PYTHONPATH=.), else the copy an
+# installed wheel carries as spade/conf (pyproject's package data), so that every entry point runs from any folder.
+CONF_DIR = PROJECT_ROOT / "conf" if (PROJECT_ROOT / "conf" / "train.yaml").is_file() else PACKAGE_DIR / "conf"
+CONFIG_PATH = str(CONF_DIR)  # hydra.main's config_path (an absolute folder)
 
 OmegaConf.register_new_resolver("cwd", os.getcwd, replace=True)
 # ``${spade_package:}``: the installed package's folder, where the files SPADE ships live (conf/paths: weights_dir).

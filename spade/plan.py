@@ -24,6 +24,7 @@ import hydra
 from omegaconf import DictConfig
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
+from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
 from spade.deploy.plan_command import rewrite_argv, run_plan
 from spade.deploy.plan_picture import plan_text
 
@@ -36,7 +37,7 @@ def _checked_plan(cfg: DictConfig):  # noqa: ANN202
     return run_plan(cfg)
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="plan")
+@hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="plan")
 def main(cfg: DictConfig) -> None:
     from spade.experiments.config_checks import exit_on_user_error
 

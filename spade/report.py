@@ -15,10 +15,11 @@ import hydra
 from omegaconf import DictConfig
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
+from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
 from spade.experiments.reporting import report
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="report")
+@hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="report")
 def main(cfg: DictConfig) -> None:
     from spade.experiments.config_checks import exit_on_user_error
 

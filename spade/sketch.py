@@ -15,6 +15,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
+from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
 
 OmegaConf.register_new_resolver("sketch_dir", lambda m: re.sub(r"[^A-Za-z0-9_.-]+", "-", Path(str(m)).stem),
                                 replace=True)
@@ -44,7 +45,7 @@ def _checked_app(cfg: DictConfig):  # noqa: ANN202
                      hosts=[str(cfg.host), *(cfg.get("allowed_hosts") or [])], models=cfg.get("models"))
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="sketch")
+@hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="sketch")
 def main(cfg: DictConfig) -> None:
     from spade.experiments.config_checks import exit_on_user_error
     from spade.sketching import serve

@@ -15,6 +15,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
+from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
 from spade.experiments.lifecycle import install_signal_handlers
 from spade.experiments.run import run
 from spade.experiments.config_checks import exit_on_user_error
@@ -22,7 +23,7 @@ from spade.experiments.config_checks import exit_on_user_error
 log = logging.getLogger(__name__)
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="train")
+@hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="train")
 def main(cfg: DictConfig) -> float | None:
     log.debug("Config:\n%s", OmegaConf.to_yaml(cfg))
     install_signal_handlers()

@@ -19,12 +19,13 @@ from lightning.pytorch.loggers import MLFlowLogger
 from omegaconf import DictConfig, OmegaConf
 
 from spade.data.fingerprint import dataset_fingerprint
+from spade.paths import CONF_DIR
 from spade.experiments.tracking.dataset_inputs import DatasetUse
 from spade.experiments.tracking.links import artifact_url, relative_run_link
 
 log = logging.getLogger(__name__)
 
-REPO_CONF = Path(__file__).resolve().parents[3] / "conf"  # the repository's: a row is conf/experiment/<row>.yaml
+REPO_CONF = CONF_DIR  # the configs (spade.paths): a row is conf/experiment/<row>.yaml
 # the test figures a description shows, in this order
 FIGURES = ("ape_cm", "fid", "hd19", "failure_rate", "over_20cm_rate", "planner/ape_cm", "planner/over_20cm_rate")
 
