@@ -468,3 +468,18 @@ def test_plan_command_prints_waypoints_and_writes_the_picture(trained_student: s
     noyaw = subprocess.run([*base, f"start={pose[0]},{pose[1]}", f"goal={goal[0]},{goal[1]}"], cwd=repo,
                            capture_output=True, text=True, timeout=300)
     assert noyaw.returncode != 0 and "start=X,Y,YAW" in noyaw.stderr, noyaw.stderr[-2000:]
+
+
+def test_a_plan_picture_carries_its_legend() -> None:
+    """Issue 32: ``plan.png`` had no legend. Every colour of the picture is named in a strip below it."""
+    import numpy as np
+    from PIL import Image
+
+    from spade.deploy.plan_picture import LEGEND, with_legend
+
+    out = np.asarray(with_legend(Image.new("RGB", (640, 300), (255, 255, 255))))
+    assert out.shape[1] == 640 and out.shape[0] > 300
+    strip = out[300:].reshape(-1, 3)
+    for _, colour, _ in LEGEND:
+        if colour is not None:
+            assert (np.abs(strip.astype(int) - colour).sum(axis=1) < 10).any(), colour

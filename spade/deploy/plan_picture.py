@@ -85,7 +85,49 @@ def plan_image(m: OccupancyMap, result: PlanResult, context_m: float = 1.0, widt
         if point is not None:
             x, y = screen(point)
             draw.ellipse([x - radius, y - radius, x + radius, y + radius], fill=colour, outline=(0, 0, 0))
-    return img
+    return with_legend(img)
+
+
+LEGEND = (("plan", (0, 170, 0), "line"), ("low-confidence plan", (255, 140, 0), "line"),
+          ("student's window", (40, 90, 255), "box"), ("robot + heading", (30, 60, 255), "dot"),
+          ("goal", (230, 30, 30), "dot"), ("path probability", (230, 0, 200), "shade"),
+          ("free / occupied / unknown", None, "cells"))
+
+
+def with_legend(img: Image.Image) -> Image.Image:
+    """``img`` with a legend strip below it: what each colour of a plan picture means."""
+    from PIL import ImageFont
+
+    font = ImageFont.load_default()
+    row_h = 18
+    x, rows, widths = 6, [[]], []
+    for label, colour, kind in LEGEND:  # lay the entries out in rows as wide as the picture
+        w = 22 + int(ImageDraw.Draw(img).textlength(label, font=font)) + 14
+        if x + w > img.width and rows[-1]:
+            rows.append([])
+            x = 6
+        rows[-1].append((x, label, colour, kind))
+        x += w
+    out = Image.new("RGB", (img.width, img.height + row_h * len(rows) + 6), (255, 255, 255))
+    out.paste(img, (0, 0))
+    draw = ImageDraw.Draw(out)
+    for r, row in enumerate(rows):
+        y = img.height + 4 + r * row_h + row_h // 2
+        for x0, label, colour, kind in row:
+            if kind == "line":
+                draw.line([(x0, y), (x0 + 16, y)], fill=colour, width=3)
+            elif kind == "box":
+                draw.rectangle([x0, y - 5, x0 + 16, y + 5], outline=colour, width=2)
+            elif kind == "dot":
+                draw.ellipse([x0 + 3, y - 5, x0 + 13, y + 5], fill=colour, outline=(0, 0, 0))
+            elif kind == "shade":
+                draw.rectangle([x0, y - 5, x0 + 16, y + 5], fill=colour)
+            else:
+                for i, shade in enumerate((255, 0, 150)):  # the map's free, occupied and unknown cells
+                    draw.rectangle([x0 + 6 * i, y - 5, x0 + 6 * i + 5, y + 5], fill=(shade, shade, shade),
+                                   outline=(120, 120, 120))
+            draw.text((x0 + 22, y - 6), label, fill=(0, 0, 0), font=font)
+    return out
 
 
 def plan_text(result: PlanResult, map_name: str, png: Path | None = None) -> str:
