@@ -327,3 +327,21 @@ def test_guidance_report_tests_pairs_with_holm_and_states_its_provenance(tmp_pat
     text = rep.text
     assert "Holm-corrected" in text and "- commit: " in text and "- machine: " in text and "wall time" in text
     assert "The paper's figures" not in text  # not a table of the paper
+
+
+def test_a_cell_with_a_nan_seed_says_how_many_seeds_it_is_over() -> None:
+    """Issue 32: a cell where one of two seeds logged NaN (no path extracted) showed the other seed's value as if
+    it were the row's, with no spread and no count."""
+    import math
+
+    from spade.experiments.reporting.render import _mean_sd
+    from spade.experiments.reporting.results import RowResult, SeedRun
+    from spade.experiments.tables import METRICS
+
+    row = RowResult("r", runs=[SeedRun(1, "a", 1, {"ape_cm": 294.14}), SeedRun(2, "b", 2, {"ape_cm": math.nan})],
+                    run_id="b")
+    row.metrics = {"ape_cm": 294.14}
+    assert _mean_sd(METRICS["ape_cm"], row, "ape_cm").endswith("(1 of 2 seeds; NaN counted as failure)")
+    whole = RowResult("r", runs=[SeedRun(1, "a", 1, {"ape_cm": 4.0}), SeedRun(2, "b", 2, {"ape_cm": 6.0})],
+                      run_id="b", metrics={"ape_cm": 5.0})
+    assert "of 2 seeds" not in _mean_sd(METRICS["ape_cm"], whole, "ape_cm")

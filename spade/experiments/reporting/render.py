@@ -9,15 +9,19 @@ from spade.experiments.tables import BASELINE_LABELS, CELL_METRICS, METRICS, TIN
 
 
 def _mean_sd(metric: Metric, result: RowResult, key: str) -> str:
-    """``12.34 ± 1.20`` over two or more seeds, the value alone over one (or for a baseline, which has no spread)."""
+    """``12.34 ± 1.20`` over two or more seeds, the value alone over one (or for a baseline, which has no spread);
+    ``(1 of 2 seeds; ...)`` when some seeds logged NaN (an APE without any extracted path), never a silent mean."""
     mean, sd = result.value(key), result.sd(key)
     text = metric.format(mean)
+    logged = sum(1 for r in result.runs if key in r.metrics)
+    undefined = logged - len(result.samples(key))  # seeds whose value is NaN (for APE: no path extracted at all)
+    of = f" ({logged - undefined} of {logged} seeds; NaN counted as failure)" if undefined else ""
     if mean is None or sd is None:
-        return text
+        return text + of
     spread = metric.format(sd)
     if spread.endswith("%") and text.endswith("%"):
-        return f"{text[:-1]} ± {spread}"
-    return f"{text} ± {spread}"
+        return f"{text[:-1]} ± {spread}{of}"
+    return f"{text} ± {spread}{of}"
 
 
 def _cell(result: RowResult, prefix: str = "") -> str:
