@@ -324,3 +324,22 @@ def test_runs_on_own_data_log_to_their_own_experiment_never_a_paper_tables(spade
     assert paper.logger.mlflow.experiment_name == get_table("table1").experiment
     assert own.logger.mlflow.experiment_name == "own_site_train"
     assert own.data.train_generate is None and own.data.test_generate is None
+
+
+def test_the_regenerate_command_keeps_the_runs_data_and_seed(spade_home: Path, monkeypatch) -> None:
+    """Issue 32: one run's MLflow description gave a "regenerate" command without its data overrides (it would
+    train on procedural maps). The command keeps the command line's overrides, the seed, and drops a sweep's keys."""
+    from types import SimpleNamespace
+
+    from hydra.core.hydra_config import HydraConfig
+
+    from spade.experiments.tracking.descriptions import regenerate_command
+
+    task = ["+experiment=t1_small_bc_L", "scale=quickstart", "data=own", "data.train_dir=/d/train",
+            "data.test_dir=/d/test", "seed=3", "rows=[t1_small_bc_L]"]
+    monkeypatch.setattr(HydraConfig, "initialized", staticmethod(lambda: True))
+    monkeypatch.setattr(HydraConfig, "get", staticmethod(lambda: SimpleNamespace(overrides=SimpleNamespace(task=task))))
+    cfg = compose_row("t1_small_bc_L", spade_home, "scale=quickstart", "data=own", "data.train_dir=/d/train",
+                      "data.test_dir=/d/test", "seed=3")
+    assert regenerate_command(cfg) == ("python -m spade.train +experiment=t1_small_bc_L scale=quickstart seed=3 "
+                                       "data=own data.train_dir=/d/train data.test_dir=/d/test")

@@ -118,12 +118,18 @@ def regenerate_command(cfg: DictConfig) -> str | None:
     (``task_name``: train, evaluate) with the command line's overrides."""
     run_name = str(cfg.get("run_name") or "")
     scale = OmegaConf.select(cfg, "scale.name", default=None)
-    if run_name and (REPO_CONF / "experiment" / f"{run_name}.yaml").is_file():
-        return f"python -m spade.train +experiment={run_name}" + (f" scale={scale}" if scale else "")
     from hydra.core.hydra_config import HydraConfig
 
-    if HydraConfig.initialized():
-        overrides = list(HydraConfig.get().overrides.task)
+    overrides = list(HydraConfig.get().overrides.task) if HydraConfig.initialized() else []
+    if run_name and (REPO_CONF / "experiment" / f"{run_name}.yaml").is_file():
+        # the row at its scale and seed, with the command line's other overrides (its data, above all: a run on
+        # the user's datasets regenerates on them, not on the built-in ones); a sweep's own keys are dropped
+        dropped = ("+experiment=", "experiment=", "scale=", "seed=", "rows=", "seeds=", "hydra.")
+        seed = cfg.get("seed")
+        rest = [o for o in overrides if not o.startswith(dropped)]
+        return " ".join([f"python -m spade.train +experiment={run_name}", *([f"scale={scale}"] if scale else []),
+                         *([f"seed={seed}"] if seed is not None else []), *rest])
+    if overrides or HydraConfig.initialized():
         return " ".join([f"python -m spade.{cfg.get('task_name') or 'train'}", *overrides])  # train, evaluate
     return None
 
