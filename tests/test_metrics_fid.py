@@ -364,3 +364,14 @@ def test_training_is_deterministic_from_its_seed() -> None:
     finally:
         torch.set_num_threads(threads)
     assert hashes[0] == hashes[1]
+
+
+def test_a_garbage_weights_file_is_named_without_numpys_pickle_hint(tmp_path) -> None:
+    """Issue 35: a garbage FID feature file got numpy's "load it unsafely using allow_pickle" hint."""
+    from spade.metrics.shape_features import ShapeFeatures
+
+    garbage = tmp_path / "features.npz"
+    garbage.write_bytes(b"not an npz" * 50)
+    with pytest.raises(ValueError, match="is not a weights file") as info:
+        ShapeFeatures(weights_path=garbage)
+    assert "allow_pickle" not in str(info.value)

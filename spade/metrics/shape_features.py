@@ -130,8 +130,13 @@ class ShapeFeatures(nn.Module):
                 "(spade/metrics/shape_features_v1.npz, see pyproject's package-data); rebuild it with "
                 "python -m spade.metrics.train_shape_features"
             )
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {k: data[k] for k in data.files}
+        except (ValueError, OSError, EOFError) as exc:  # not an .npz of plain arrays (numpy would hint at pickles)
+            raise ValueError(f"FID extractor 'shape': {path} is not a weights file (an .npz of plain arrays: "
+                             f"{type(exc).__name__}); restore the shipped file, or rebuild it with "
+                             "python -m spade.metrics.train_shape_features") from None
         self.sha256 = weights_sha256(arrays)
         if expected_sha256 is not None and self.sha256 != expected_sha256:
             raise RuntimeError(
