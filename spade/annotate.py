@@ -19,6 +19,7 @@ import sys
 import hydra
 
 from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
+from spade.utils.errors import run_entry_point, task
 from omegaconf import DictConfig, OmegaConf
 
 from spade.annotation.run import alias_preset as _alias_preset
@@ -36,6 +37,7 @@ def _checked_annotate(cfg: DictConfig) -> dict:
 
 
 @hydra.main(config_path=CONFIG_PATH, config_name="annotate", version_base="1.3")
+@task
 def main(cfg: DictConfig) -> None:
     from spade.experiments.config_checks import exit_on_user_error
 
@@ -45,4 +47,4 @@ def main(cfg: DictConfig) -> None:
 
 if __name__ == "__main__":
     sys.argv = [sys.argv[0], *_alias_preset(sys.argv[1:])]
-    main()
+    run_entry_point(main)

@@ -25,11 +25,13 @@ from omegaconf import DictConfig
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
 from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
+from spade.utils.errors import run_entry_point, task
 from spade.perf.bench import SECTIONS, bench  # noqa: F401  (also registers the ${quick_or:} resolver)
 from spade.perf.report import format_report, write_json
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="bench")
+@task
 def main(cfg: DictConfig) -> None:
     from spade.experiments.config_checks import exit_on_user_error, validate_bench_config
 
@@ -41,4 +43,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_entry_point(main)

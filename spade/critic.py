@@ -18,6 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
 from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
+from spade.utils.errors import run_entry_point, task
 from spade.metrics.corruptions import CORRUPTION_SET_VERSION
 
 __all__ = ["critic", "format_report"]
@@ -178,6 +179,7 @@ def format_report(metrics: dict[str, float]) -> str:
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="critic")
+@task
 def main(cfg: DictConfig) -> None:
     from spade.experiments.config_checks import exit_on_user_error
 
@@ -186,4 +188,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_entry_point(main)

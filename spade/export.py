@@ -16,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
 from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
+from spade.utils.errors import run_entry_point, task
 from spade.deploy.export import ExportReport, export_student
 from spade.experiments.config_checks import exit_on_user_error, validate_export_config
 
@@ -51,9 +52,10 @@ def export(cfg: DictConfig) -> ExportReport:
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="export")
+@task
 def main(cfg: DictConfig) -> None:
     print(exit_on_user_error(export)(cfg).summary())  # a user error: one `error:` line, exit 2
 
 
 if __name__ == "__main__":
-    main()
+    run_entry_point(main)

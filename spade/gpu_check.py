@@ -14,11 +14,13 @@ from omegaconf import DictConfig, OmegaConf
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
 from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
+from spade.utils.errors import run_entry_point, task
 from spade.perf.gpu import DeviceUnavailableError, format_gpu_report, gpu_check, write_json
 from spade.utils.errors import exit_on_errors
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="gpu_check")
+@task
 def main(cfg: DictConfig) -> None:
     settings = {k: OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v
                 for k, v in cfg.items() if k not in ("paths", "hydra", "out_json")}
@@ -29,4 +31,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_entry_point(main)

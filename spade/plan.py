@@ -25,6 +25,7 @@ from omegaconf import DictConfig
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
 from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
+from spade.utils.errors import run_entry_point, task
 from spade.deploy.plan_command import rewrite_argv, run_plan
 from spade.deploy.plan_picture import plan_text
 
@@ -38,6 +39,7 @@ def _checked_plan(cfg: DictConfig):  # noqa: ANN202
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="plan")
+@task
 def main(cfg: DictConfig) -> None:
     from spade.experiments.config_checks import exit_on_user_error
 
@@ -49,4 +51,4 @@ def main(cfg: DictConfig) -> None:
 
 if __name__ == "__main__":
     sys.argv = [sys.argv[0], *rewrite_argv(sys.argv[1:])]
-    main()
+    run_entry_point(main)

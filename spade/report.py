@@ -16,10 +16,12 @@ from omegaconf import DictConfig
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
 from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
+from spade.utils.errors import run_entry_point, task
 from spade.experiments.reporting import report
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="report")
+@task
 def main(cfg: DictConfig) -> None:
     from spade.experiments.config_checks import exit_on_user_error
 
@@ -28,4 +30,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_entry_point(main)

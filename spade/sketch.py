@@ -16,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
 from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
+from spade.utils.errors import run_entry_point, task
 
 OmegaConf.register_new_resolver("sketch_dir", lambda m: re.sub(r"[^A-Za-z0-9_.-]+", "-", Path(str(m)).stem),
                                 replace=True)
@@ -46,6 +47,7 @@ def _checked_app(cfg: DictConfig):  # noqa: ANN202
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="sketch")
+@task
 def main(cfg: DictConfig) -> None:
     from spade.experiments.config_checks import exit_on_user_error
     from spade.sketching import serve
@@ -56,4 +58,4 @@ def main(cfg: DictConfig) -> None:
 
 if __name__ == "__main__":
     sys.argv = [sys.argv[0], *rewrite_argv(sys.argv[1:])]
-    main()
+    run_entry_point(main)

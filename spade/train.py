@@ -16,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 
 import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
 from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
+from spade.utils.errors import run_entry_point, task
 from spade.experiments.lifecycle import install_signal_handlers
 from spade.experiments.run import run
 from spade.experiments.config_checks import exit_on_user_error
@@ -24,6 +25,7 @@ log = logging.getLogger(__name__)
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="train")
+@task
 def main(cfg: DictConfig) -> float | None:
     log.debug("Config:\n%s", OmegaConf.to_yaml(cfg))
     install_signal_handlers()
@@ -31,4 +33,4 @@ def main(cfg: DictConfig) -> float | None:
 
 
 if __name__ == "__main__":
-    main()
+    run_entry_point(main)

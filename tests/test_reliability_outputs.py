@@ -516,3 +516,14 @@ def test_hydra_full_error_shows_the_traceback(inputs, run_main, monkeypatch) -> 
             runpy.run_module("spade.plan", run_name="__main__", alter_sys=True)
     finally:
         GlobalHydra.instance().clear()
+
+
+@pytest.mark.parametrize("module, args", [("spade.train", ["+experiment=nosuch"]),
+                                          ("spade.report", ["nosuch_key=1"]),
+                                          ("spade.plan", ["planner=[unbalanced"])])
+def test_hydras_own_composition_errors_exit_2_like_every_user_error(run_main, module: str, args: list[str]) -> None:
+    """Issue 35: Hydra's own errors (an unknown experiment, a key without its +, a malformed override) exited 1,
+    where every other user error exits 2. Hydra's message is kept; the status is SPADE's."""
+    code, err = run_main(module, args)
+    assert code == 2, err
+    assert "Traceback" not in err and err.strip(), err

@@ -65,3 +65,33 @@ def exit_on_errors(errors: Errors | Callable[[], Errors]) -> Callable[[Callable[
         return wrapper
 
     return decorate
+
+
+# -- Hydra's own errors -------------------------------------------------------------------------------------------
+_task_started = False
+
+
+def task(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """Mark an entry point's task function (under ``@hydra.main``) as started: Hydra composed its config."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        global _task_started
+        _task_started = True
+        return fn(*args, **kwargs)
+
+    return wrapper
+
+
+def run_entry_point(main: Callable[[], Any]) -> None:
+    """Run a ``@hydra.main`` function. An error Hydra reports before the task starts (composing the config: an
+    unknown ``+experiment=``, a key without its ``+``, a malformed override) exits with status 2, as every user
+    error does, instead of Hydra's 1; its message is Hydra's own."""
+    global _task_started
+    _task_started = False
+    try:
+        main()
+    except SystemExit as exc:
+        if exc.code == 1 and not _task_started:
+            raise SystemExit(2) from None
+        raise
