@@ -17,13 +17,12 @@ from __future__ import annotations
 import sys
 
 import hydra
-
-from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
-from spade.utils.errors import run_entry_point, task
 from omegaconf import DictConfig, OmegaConf
 
 from spade.annotation.run import alias_preset as _alias_preset
 from spade.annotation.run import annotate
+from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
+from spade.utils.errors import run_entry_point, task
 
 __all__ = ["annotate", "main"]
 

@@ -14,8 +14,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
-from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
+from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
 from spade.utils.errors import run_entry_point, task
 from spade.deploy.export import ExportReport, export_student
 from spade.experiments.config_checks import exit_on_user_error, validate_export_config

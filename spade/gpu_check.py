@@ -12,8 +12,7 @@ from __future__ import annotations
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
-from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
+from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
 from spade.utils.errors import run_entry_point, task
 from spade.perf.gpu import DeviceUnavailableError, format_gpu_report, gpu_check, write_json
 from spade.utils.errors import exit_on_errors

@@ -30,7 +30,6 @@ def _run_uid() -> str:
 OmegaConf.register_new_resolver("run_uid", _run_uid, use_cache=True, replace=True)
 
 
-
 def _own_experiment(train_dir: object) -> str:
     """``own_<training folder>``: the MLflow experiment of runs on a user's own datasets (``conf/data/own.yaml``),
     so that such runs never join a paper table's experiment (``spade.report`` reads a table from its experiment)."""

@@ -23,8 +23,7 @@ import sys
 import hydra
 from omegaconf import DictConfig
 
-import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
-from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
+from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
 from spade.utils.errors import run_entry_point, task
 from spade.deploy.plan_command import rewrite_argv, run_plan
 from spade.deploy.plan_picture import plan_text

@@ -14,8 +14,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-import spade.paths  # noqa: F401  (registers the ${cwd:} resolver)
-from spade.paths import CONFIG_PATH  # the configs: the repository's conf/ or the installed copy
+from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
 from spade.utils.errors import run_entry_point, task
 
 OmegaConf.register_new_resolver("sketch_dir", lambda m: re.sub(r"[^A-Za-z0-9_.-]+", "-", Path(str(m)).stem),

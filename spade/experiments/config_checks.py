@@ -454,7 +454,7 @@ def _check_resume(cfg: DictConfig, ckpt: Any, info: dict[str, Any] | None) -> No
     """``ckpt_path`` resumes the MLflow run the checkpoint was written under. Refused before any work (so that no
     command changes a run it did not start): a run this store does not hold, a FINISHED run, and a checkpoint of
     another row, seed, size or scale (each named with both values)."""
-    if not _get(cfg, "train") in (True, _MISSING) or not ckpt:
+    if _get(cfg, "train") not in (True, _MISSING) or not ckpt:
         return  # train=false: the checkpoint's weights are tested, nothing is resumed
     run_id = (info or {}).get("mlflow_run_id")
     uri = _get(cfg, "logger.mlflow.tracking_uri")
@@ -468,8 +468,7 @@ def _check_resume(cfg: DictConfig, ckpt: Any, info: dict[str, Any] | None) -> No
         raise ConfigError(f"ckpt_path={ckpt} was written under MLflow run {run_id}, but there is no store at {uri}; "
                           f"resume with the store it was logged to (SPADE_HOME or paths.mlflow_tracking_uri), or "
                           f"{new_run}")
-    check_store_file("logger.mlflow.tracking_uri", uri)
-    from mlflow import MlflowClient
+    from mlflow import MlflowClient  # the store itself was checked by validate_train_config (_check_logger_store)
 
     try:
         run = MlflowClient(tracking_uri=uri).get_run(run_id)
@@ -506,6 +505,14 @@ def _check_expert_kind(cfg: DictConfig, expert: Any, info: dict[str, Any] | None
         raise ConfigError(str(exc)) from None
 
 
+def _check_logger_store(cfg: DictConfig) -> None:
+    """The store a run logs to, when it is an existing SQLite file, must be an MLflow store
+    (:func:`check_store_file`): someone else's database is never written."""
+    uri = _get(cfg, "logger.mlflow.tracking_uri")
+    if not _unset(uri):
+        check_store_file("logger.mlflow.tracking_uri", str(uri))
+
+
 def _check_bool(cfg: DictConfig, key: str) -> None:
     """The one boolean check of every entry point: ``true`` / ``false`` (null or unset: the default), nothing else
     (Hydra reads ``maybe`` or ``1`` as a string or a number, which Python would take as true)."""
@@ -520,9 +527,7 @@ def validate_train_config(cfg: DictConfig) -> None:
     _check_choice(cfg, "prerequisites", ["train", "error"])
     for key in ("train", "test", "test_untrained"):
         _check_bool(cfg, key)
-    uri = _get(cfg, "logger.mlflow.tracking_uri")
-    if not _unset(uri):
-        check_store_file("logger.mlflow.tracking_uri", str(uri))  # someone else's SQLite file is never written
+    _check_logger_store(cfg)
     metric = _get(cfg, "optimized_metric")
     if metric not in (_MISSING, None) and not isinstance(metric, str):
         raise ConfigError(f"optimized_metric={metric!r} must be a metric name such as val/loss_bc")
@@ -557,9 +562,7 @@ def validate_evaluate_config(cfg: DictConfig) -> None:
     if info.get("role") not in ("student", "expert"):
         raise ConfigError(f"ckpt_path={ckpt} is not a SPADE student or expert checkpoint (role "
                           f"{info.get('role')!r}); {fix}")
-    uri = _get(cfg, "logger.mlflow.tracking_uri")
-    if not _unset(uri):
-        check_store_file("logger.mlflow.tracking_uri", str(uri))
+    _check_logger_store(cfg)
     _check_data(cfg)
     for name in ("train", "test"):
         check_dataset(_dir(cfg, f"data.{name}_dir"), _opt(cfg, f"data.{name}_generate"), f"data.{name}_dir")

@@ -130,6 +130,12 @@ def last_checkpoint_path(trainer: L.Trainer) -> str:
     return ""
 
 
+def best_checkpoint_path(trainer: L.Trainer) -> str:
+    """The run's best checkpoint by its monitored metric (the first ``ModelCheckpoint``'s), ``""`` when none."""
+    callback = trainer.checkpoint_callback
+    return str(callback.best_model_path or "") if callback is not None else ""
+
+
 class CarryBestCheckpoint(Callback):
     """Keep the interrupted run's best checkpoint and score when a run resumes from ``ckpt_path``.
 

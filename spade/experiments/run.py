@@ -24,7 +24,9 @@ import hydra
 import lightning as L
 from omegaconf import DictConfig, OmegaConf
 
-from spade.experiments.lifecycle import CarryBestCheckpoint, DeterministicTraining, last_checkpoint_path
+from spade.experiments.lifecycle import (
+    CarryBestCheckpoint, DeterministicTraining, best_checkpoint_path, last_checkpoint_path,
+)
 from spade.experiments.prerequisites import complete_prerequisite, pending_prerequisites
 from spade.experiments.tracking.runs import (
     finish_run,
@@ -55,9 +57,8 @@ def run(cfg: DictConfig) -> float | None:
     """
     metrics, objects = train(cfg)
     trainer = objects["trainer"]
-    best = (trainer.checkpoint_callback.best_model_path if trainer.checkpoint_callback else "") or \
-        last_checkpoint_path(trainer)
-    print(run_summary(cfg, metrics, getattr(objects["model"], "margin_history", None), best or None), flush=True)
+    checkpoint = best_checkpoint_path(trainer) or last_checkpoint_path(trainer)
+    print(run_summary(cfg, metrics, getattr(objects["model"], "margin_history", None), checkpoint or None), flush=True)
     try:
         return optimized_value(cfg, metrics)
     except KeyError as exc:
@@ -125,7 +126,7 @@ def train(cfg: DictConfig, _depth: int = 0) -> tuple[dict[str, Any], dict[str, A
         metrics: dict[str, Any] = {k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1}
 
         if cfg.get("test", True):
-            best = (trainer.checkpoint_callback.best_model_path if trainer.checkpoint_callback else None) or None
+            best = best_checkpoint_path(trainer) or None
             if best is None and cfg.get("train", True):
                 log.warning("No best checkpoint found: testing the last weights")
             from_checkpoint(trainer.test, best, model=model, datamodule=datamodule)

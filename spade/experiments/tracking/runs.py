@@ -271,14 +271,10 @@ def finish_run(cfg: DictConfig, trainer: L.Trainer, model: L.LightningModule, lo
     ml = mlflow_logger(loggers)
     if ml is None:
         return
-    from spade.experiments.lifecycle import last_checkpoint_path
+    from spade.experiments.lifecycle import best_checkpoint_path, last_checkpoint_path
 
-    ckpt_cb = trainer.checkpoint_callback
-    paths = {}
-    if ckpt_cb is not None and ckpt_cb.best_model_path:
-        paths["best"] = ckpt_cb.best_model_path
-    if last := last_checkpoint_path(trainer):
-        paths["last"] = last
+    paths = {kind: path for kind, path in (("best", best_checkpoint_path(trainer)),
+                                           ("last", last_checkpoint_path(trainer))) if path}
     for kind, path in paths.items():
         ml.experiment.log_artifact(ml.run_id, path, artifact_path=f"checkpoints/{kind}")
     uses, metrics = describe_run(cfg, ml, getattr(trainer, "datamodule", None))
