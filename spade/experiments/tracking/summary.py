@@ -54,8 +54,7 @@ def learning_verdict(metrics: dict[str, Any]) -> str | None:
         return None
     if failures >= 0.999:
         return ("  verdict          : the student extracted no path on any test instance: it has not learned yet. "
-                "Train longer (trainer.max_epochs) or on more demonstrations (the training set's num_instances; on "
-                "one real map about 1,500 instances and 10 epochs learn, 400 and 6 do not)")
+                "Train longer (trainer.max_epochs) or on more demonstrations (the training set's num_instances)")
     if ape is not None and template is not None and ape == ape and float(ape) > float(template):
         return (f"  verdict          : the student loses to the heading template ({float(ape):.2f} vs "
                 f"{float(template):.2f} cm APE): give it more demonstrations or epochs before trusting it")
