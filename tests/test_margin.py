@@ -330,3 +330,28 @@ def test_a_student_checkpoint_saved_with_guidance_hparams_loads_with_its_margin(
     assert all(torch.equal(v, student.state_dict()[k]) for k, v in loaded.state_dict().items())
     with pytest.raises(ValueError, match="not also under their old name guidance"):
         StudentModule(size="small", margin={"expert_ckpt": str(expert)}, guidance=old)
+
+
+@pytest.mark.parametrize("conditional", [True, False], ids=["cond_dbc", "dbc"])
+def test_the_expert_follows_its_student_through_casts_and_moves(conditional: bool, tmp_path) -> None:
+    """The frozen expert moves and casts with the student (``.double()`` here; ``.to(device)`` and ``.half()`` take
+    the same path, ``nn.Module._apply``), yet stays out of the student's checkpoint and optimiser."""
+    from spade.training.student_module import StudentModule
+
+    ckpt = tmp_path / "expert.ckpt"
+    _expert_checkpoint(ckpt, conditional, "sample", 1)
+    student = StudentModule(size="small", margin={"expert_ckpt": str(ckpt), "lambda_dm": 1.0,
+                                                  "expert": "conditional" if conditional else "unconditional"})
+    student.load_margin((16, 16))
+    student = student.double()
+    assert all(p.dtype == torch.float64 for p in student.margin.expert.parameters())
+    batch = {k: v.double() for k, v in _regression_batch().items()}
+    parts = student.losses(batch)
+    assert parts["loss"].dtype == torch.float64 and torch.isfinite(parts["loss"])
+    parts["loss"].backward()
+    assert all(p.grad is None for p in student.margin.expert.parameters())
+    assert not any(k.startswith(("_margin", "margin")) for k in student.state_dict())
+    expert_params = {id(p) for p in student.margin.expert.parameters()}
+    assert not expert_params & {id(p) for p in student.parameters()}
+    student = student.float()
+    assert all(p.dtype == torch.float32 for p in student.margin.expert.parameters())

@@ -19,13 +19,17 @@ class SinusoidalTimeEmbedding(nn.Module):
         if dim < 4 or dim % 2:
             raise ValueError(f"time embedding dim must be an even number >= 4, got {dim}")
         self.dim = dim
+        half = dim // 2
+        freqs = torch.exp(torch.arange(half, dtype=torch.float32) * -(math.log(10000.0) / (half - 1)))
+        # A non-persistent buffer (never in a checkpoint) so that the embedding's output follows the module's
+        # device and dtype (``.to()``, ``.double()``, ``.half()``) like the layers after it.
+        self.register_buffer("freqs", freqs, persistent=False)
 
     def forward(self, t: torch.Tensor) -> torch.Tensor:
-        half = self.dim // 2
-        scale = math.log(10000.0) / (half - 1)
-        freqs = torch.exp(torch.arange(half, device=t.device, dtype=torch.float32) * -scale)
-        args = t.float()[:, None] * freqs[None, :]
-        return torch.cat((args.sin(), args.cos()), dim=-1)
+        # Arguments up to T x f_0 = 1000 need float32 (half precision rounds them to 0.5); the result takes the
+        # module's dtype.
+        args = t.float()[:, None] * self.freqs.float()[None, :]
+        return torch.cat((args.sin(), args.cos()), dim=-1).to(self.freqs.dtype)
 
 
 def time_mlp(dim: int, activation: type[nn.Module] = nn.Mish) -> nn.Sequential:

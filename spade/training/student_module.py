@@ -124,16 +124,25 @@ class StudentModule(PathPlanningModule):
             raise ValueError("this student has no margin options (margin=null): nothing to use an expert for")
         expert.check_compatible(in_channels=self.net.in_channels, image_size=image_size, source=source)
         self.margin_cfg.check_expert(expert.conditional, source)
-        self._margin[:] = [DiffusionMargin.from_expert(expert, self.margin_cfg).to(self.device)]
+        margin = DiffusionMargin.from_expert(expert, self.margin_cfg)
+        self._margin[:] = [margin.to(device=self.device, dtype=self.dtype)]
 
     def setup(self, stage: str) -> None:
         if stage == "fit" and self.margin_cfg is not None:
             dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
             self.load_margin(getattr(dm, "image_size", None))
 
-    def on_fit_start(self) -> None:
-        if self.margin is not None:
-            self.margin.to(self.device)
+    def _apply(self, fn: Callable, recurse: bool = True) -> StudentModule:
+        """Move and cast the frozen expert with the student (``.to(device)``, ``.to(dtype)``, ``.double()``,
+        ``.half()``, ``.cuda()``: every one of them goes through ``nn.Module._apply``). The margin is held outside
+        the module tree so that it stays out of ``state_dict`` (checkpoints) and ``parameters()`` (the optimiser);
+        registering it as a submodule would put the expert's weights into every student checkpoint. Lightning has
+        no public hook that sees every cast (``on_fit_start`` runs once, after the trainer's move), so the
+        override is torch's own extension point for modules holding state outside ``_modules``."""
+        super()._apply(fn, recurse)
+        for margin in getattr(self, "_margin", ()):  # absent while nn.Module.__init__ runs
+            margin._apply(fn, recurse)
+        return self
 
     # -- steps ---------------------------------------------------------------------------------------------
     def forward(self, state: torch.Tensor) -> torch.Tensor:
