@@ -14,7 +14,7 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 $(VENV)/.installed-dev: $(VENV)/.installed
-	$(PY) -m pip install -q "$(TORCH)" -e ".[onnx,sweeps,sketch,dev]"
+	$(PY) -m pip install -q "$(TORCH)" -e ".[onnx,sweeps,sketch,dev,docs]"
 	touch $@
 
 # The browser tests drive Debian's chromium through Playwright (Playwright's own browser download is not
