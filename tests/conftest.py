@@ -57,18 +57,36 @@ def tiny_checkpoints(spade_home: Path) -> dict[str, str]:
     return out
 
 
-@pytest.fixture(autouse=True)
-def _isolated_mlflow_tracking_uri():
-    """Each test starts without ``MLFLOW_TRACKING_URI`` and leaves none behind.
+#: Environment variables that the libraries a test drives set themselves: ``mlflow.set_tracking_uri`` exports
+#: the URI so that child processes inherit it, Lightning's ``seed_everything`` records the seed. They are
+#: restored after each test, not reported: a later test's ``spade.train`` subprocess must not log into an earlier
+#: test's store.
+LIBRARY_SET_ENV = ("MLFLOW_TRACKING_URI", "PL_GLOBAL_SEED", "PL_SEED_WORKERS")
+#: Set by pytest itself around every phase of a test: neither restored nor reported.
+PYTEST_ENV = "PYTEST_CURRENT_TEST"
 
-    ``mlflow.set_tracking_uri`` (called by in-process training) exports the URI into ``os.environ`` so that
-    child processes inherit it; without this a later test's ``spade.train`` subprocess would log into an
-    earlier test's store instead of the one its ``SPADE_HOME`` names.
+
+@pytest.fixture(autouse=True)
+def _environment_left_as_found():
+    """Each test starts without ``MLFLOW_TRACKING_URI`` and leaves ``os.environ`` as it found it.
+
+    A test that sets a variable itself must use ``monkeypatch.setenv`` (undone after it); one that leaves a change
+    fails, naming the variables, after the environment is restored for the tests that follow. Session fixtures
+    (``spade_home``) are set up before this snapshot and undo their own change.
     """
-    old = os.environ.pop("MLFLOW_TRACKING_URI", None)
+    old_uri = os.environ.pop("MLFLOW_TRACKING_URI", None)
+    before = dict(os.environ)
     try:
         yield
     finally:
-        os.environ.pop("MLFLOW_TRACKING_URI", None)
-        if old is not None:
-            os.environ["MLFLOW_TRACKING_URI"] = old
+        after = dict(os.environ)
+        for key in set(after) - set(before) - {PYTEST_ENV}:
+            del os.environ[key]
+        os.environ.update({k: v for k, v in before.items() if k != PYTEST_ENV})
+        if old_uri is not None:
+            os.environ["MLFLOW_TRACKING_URI"] = old_uri
+    changed = sorted(k for k in set(before) | set(after)
+                     if before.get(k) != after.get(k) and k not in (*LIBRARY_SET_ENV, PYTEST_ENV))
+    if changed:
+        pytest.fail(f"the test left os.environ changed ({', '.join(changed)}); set variables with "
+                    "monkeypatch.setenv so that they are undone")

@@ -65,8 +65,7 @@ def test_ddp_two_cpu_processes_sync_metrics_through_the_entry_point(spade_home: 
     assert ckpt.is_file(), sorted(p.name for p in run_dir.rglob("*"))
     from spade.evaluate import evaluate
 
-    os.environ["SPADE_HOME"] = str(spade_home)
-    cfg = compose_config("evaluate", [f"ckpt_path={ckpt}", "scale=tiny", "data=lshape", "logger=none",
+    cfg = compose_config("evaluate", [f"ckpt_path={ckpt}", f"paths.root_dir={spade_home}", "scale=tiny", "data=lshape", "logger=none",
                                       f"+data.max_test_instances={n_test}", "trainer.enable_progress_bar=false",
                                       f"paths.output_dir={tmp_path}/eval"])
     single = evaluate(cfg)

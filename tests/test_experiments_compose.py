@@ -96,13 +96,11 @@ def test_every_data_config_builds_a_missing_dataset_with_the_annotation_tool(tmp
 # -- a table is rows x seeds in one multirun, at scale=cpu unless told, announced at its start (issue 24) ---------
 def _table_config(table: str, home: Path, *overrides: str):
     """The table's composition as `python -m spade.train +experiment=TABLE ...` sees it (no scale forced)."""
-    import os
-
     import spade.experiments.multirun  # noqa: F401  (registers ${spade_sweep:}, as the table's Hydra callback does)
     from spade.utils.config import compose_config
 
-    os.environ["SPADE_HOME"] = str(home)
-    return compose_config("train", [f"+experiment={table}", *overrides], return_hydra_config=True)
+    return compose_config("train", [f"+experiment={table}", f"paths.root_dir={home}", *overrides],
+                          return_hydra_config=True)
 
 
 def _jobs(cfg) -> list[list[str]]:
