@@ -1,0 +1,52 @@
+"""``python -m spade.ros [model=PATH] [domain_id=N] [key=value ...]``: the planner node on ROS 2's DDS topics.
+
+See ``conf/ros.yaml`` for the options and :mod:`spade.ros` for the modules; ``docs/deployment.md`` for a robot.
+A user error (a missing model, a bad option) is one ``error:`` line and exit status 2.
+
+Examples::
+
+    python -m spade.ros model=student.onnx                        # /map, /amcl_pose, /goal_pose -> /plan
+    python -m spade.ros model=student.onnx topics.plan=/spade/plan domain_id=7 record=session_bag
+    python -m spade.ros model=student.onnx replay=robot_bag replay_out=replanned_bag
+"""
+
+from __future__ import annotations
+
+import sys
+
+import hydra
+from omegaconf import DictConfig
+
+from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
+from spade.utils.errors import ConfigError, exit_on_errors, run_entry_point, task
+
+
+def user_errors() -> tuple[type[BaseException], ...]:
+    """What the node reports as one line: config errors, missing files, model files it cannot use, bad bags.
+    (Not :func:`spade.experiments.config_checks.user_errors`, which imports the training stack.)"""
+    errors: list[type[BaseException]] = [ConfigError, FileNotFoundError]
+    for module, name in (("spade.models.modelfile", "ModelFileError"), ("spade.deploy.onnx_runtime", "ModelFileError"),
+                         ("spade.ros.recording", "BagError"), ("spade.deploy.registry", "RegistryError")):
+        mod = sys.modules.get(module)
+        if mod is not None and hasattr(mod, name):
+            errors.append(getattr(mod, name))
+    return tuple(errors)
+
+
+@hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="ros")
+@task
+def main(cfg: DictConfig) -> None:
+    from spade.ros.app import run
+
+    exit_on_errors(user_errors)(run)(cfg)
+
+
+def cli() -> None:
+    """The ``spade-ros`` console script."""
+    sys.argv = [sys.argv[0], *(("model_path=" + a[len("model="):]) if a.startswith("model=") else a
+                                for a in sys.argv[1:])]
+    run_entry_point(main)
+
+
+if __name__ == "__main__":
+    cli()

@@ -1,0 +1,247 @@
+"""What the planner node does with each message, without any transport: a map, a pose and a goal in, plans out.
+
+:class:`PlannerCore` keeps the latest map (``nav_msgs/OccupancyGrid``, converted by
+:func:`spade.ros.convert.grid_to_map`), the robot's latest pose and the active goal, and plans with a
+:class:`spade.planner.Planner` when
+
+- a new goal arrives (once a map and a pose are known; a goal that arrives first waits for them);
+- the robot leaves the current plan: its pose lies farther than ``replan_distance_m`` from the plan's polyline (or,
+  after a failed attempt, that far from where it was tried);
+- the robot nears the end of a plan to a sub-goal (``far_goal: clip``: the goal lay beyond the student's window),
+  within ``subgoal_replan_m`` of it;
+- a new map arrives while a goal is active (``replan_on_map``; a rolling costmap replans at its own rate).
+
+The goal is dropped once the robot is within ``goal_reached_m`` of it, and after a query that cannot succeed
+however the robot moves (a goal off the map or on an obstacle). Every message that cannot be used (malformed, in
+another frame than the map's: the node has no TF) is logged and dropped; nothing a message holds raises out of a
+``handle_*`` method. The DDS node (:mod:`spade.ros.node`) and the offline replay (:mod:`spade.ros.replay`) feed it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from spade.maps.occupancy import OccupancyMap
+from spade.ros.convert import MessageError, grid_to_map, pose_from_msg
+
+__all__ = ["CoreSettings", "PlanEvent", "PlannerCore", "distance_to_polyline"]
+
+log = logging.getLogger("spade.ros")
+
+# A query that fails with one of these fails the same way from any pose: the goal is dropped.
+GOAL_FAILURES = ("goal_outside_map", "goal_not_free")
+
+
+@dataclass(frozen=True)
+class CoreSettings:
+    replan_distance_m: float = 0.5       # the robot this far from the plan: plan again
+    goal_reached_m: float = 0.25         # the robot this near the goal: the goal is done
+    subgoal_replan_m: float = 1.0        # this near the end of a plan to a sub-goal: plan on towards the goal
+    replan_on_map: bool = True           # a new map while a goal is active: plan again
+    min_replan_interval_s: float = 0.5   # pose-triggered plans at most this often
+    lethal_threshold: int = 100          # OccupancyGrid values at or above it are obstacles (Nav2's default)
+    map_frame: str | None = None         # None: the map message's frame_id ("map" when it is empty)
+
+
+@dataclass
+class PlanEvent:
+    """One planning attempt: why it ran, its :class:`~spade.planner.PlanResult`, the frame and stamp to publish
+    the path with, and how long the query took."""
+
+    trigger: str
+    result: Any
+    frame_id: str
+    stamp_ns: int
+    seconds: float
+    goal_yaw: float | None = None
+
+    @property
+    def success(self) -> bool:
+        return bool(self.result.success)
+
+    @property
+    def confidence(self) -> float:
+        """1 - the share of the path's length through pixels the network gave p < 0.5 (NaN when unknown)."""
+        share = float(getattr(self.result, "low_share", float("nan")))
+        return 1.0 - share if math.isfinite(share) else float("nan")
+
+
+def distance_to_polyline(point: np.ndarray, line: np.ndarray) -> float:
+    """The distance (same units) from ``point`` (2,) to the polyline ``line`` (K, 2)."""
+    p = np.asarray(point, dtype=np.float64)[:2]
+    pts = np.asarray(line, dtype=np.float64).reshape(-1, 2)
+    if len(pts) == 0:
+        return math.inf
+    if len(pts) == 1:
+        return float(np.linalg.norm(pts[0] - p))
+    a, b = pts[:-1], pts[1:]
+    d = b - a
+    den = np.maximum((d * d).sum(axis=1), 1e-18)
+    t = np.clip(((p - a) * d).sum(axis=1) / den, 0.0, 1.0)
+    return float(np.linalg.norm(a + t[:, None] * d - p, axis=1).min())
+
+
+@dataclass
+class _State:
+    map: OccupancyMap | None = None
+    frame: str = "map"
+    pose: np.ndarray | None = None
+    goal: np.ndarray | None = None      # (x, y, yaw)
+    plan: np.ndarray | None = None      # waypoints of the last successful plan to the active goal
+    subgoal: bool = False
+    tried_at: np.ndarray | None = None  # the pose of the last attempt
+    tried_time: float = -math.inf
+    counts: dict[str, int] = field(default_factory=dict)
+
+
+class PlannerCore:
+    """The node's logic (see the module docstring). ``planner``: a :class:`spade.planner.Planner` (anything with its
+    ``plan(map, pose, goal)``); ``clock``: seconds, monotonic (tests pass their own); ``now_ns``: the stamp of the
+    published paths (wall-clock nanoseconds, as ROS's system time)."""
+
+    def __init__(self, planner: Any, settings: CoreSettings | None = None, *,
+                 clock: Callable[[], float] = time.monotonic, now_ns: Callable[[], int] = time.time_ns) -> None:
+        self.planner = planner
+        self.settings = settings or CoreSettings()
+        self.clock, self.now_ns = clock, now_ns
+        self.state = _State()
+
+    # -- bookkeeping ---------------------------------------------------------------------------------------------
+    def _count(self, key: str) -> None:
+        self.state.counts[key] = self.state.counts.get(key, 0) + 1
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages and outcomes so far: ``map``, ``pose``, ``goal``, ``malformed``, ``wrong_frame``, ``plan``,
+        ``no_path``, ``reached``."""
+        return dict(self.state.counts)
+
+    def _frame_ok(self, frame: str, what: str) -> bool:
+        if frame in ("", self.state.frame):
+            return True
+        self._count("wrong_frame")
+        log.warning("%s in frame %r ignored: the map is in frame %r and this node has no TF; publish the %s in the "
+                    "map frame", what, frame, self.state.frame, what)
+        return False
+
+    # -- messages ------------------------------------------------------------------------------------------------
+    def handle_map(self, msg: Any) -> PlanEvent | None:
+        """A ``nav_msgs/OccupancyGrid``: the map to plan on from now on (a malformed one is logged, the previous
+        map kept)."""
+        try:
+            m = grid_to_map(msg, lethal_threshold=self.settings.lethal_threshold)
+        except MessageError as err:
+            self._count("malformed")
+            log.warning("malformed map ignored (keeping the previous one): %s", err)
+            return None
+        except Exception as err:  # noqa: BLE001 - a message must never stop the node
+            self._count("malformed")
+            log.warning("unreadable map ignored: %s: %s", type(err).__name__, err)
+            return None
+        self._count("map")
+        first = self.state.map is None
+        self.state.map = m
+        self.state.frame = self.settings.map_frame or str(msg.header.frame_id) or "map"
+        level = logging.INFO if first or self.state.counts["map"] % 50 == 0 else logging.DEBUG
+        log.log(level, "map received: %d x %d cells at %.3f m/cell, origin (%.2f, %.2f), frame %r", m.width, m.height,
+                m.resolution, m.origin[0], m.origin[1], self.state.frame)
+        if self.state.goal is not None and (first or self.settings.replan_on_map):
+            return self._plan("map")
+        return None
+
+    def handle_pose(self, msg: Any) -> PlanEvent | None:
+        """A ``geometry_msgs/PoseWithCovarianceStamped`` (AMCL) or ``PoseStamped``: the robot's pose."""
+        try:
+            frame, pose = pose_from_msg(msg)
+        except MessageError as err:
+            self._count("malformed")
+            log.warning("malformed pose ignored: %s", err)
+            return None
+        if not self._frame_ok(frame, "pose"):
+            return None
+        self._count("pose")
+        first = self.state.pose is None
+        self.state.pose = pose
+        if first:
+            log.info("robot pose received: (%.2f, %.2f) m, yaw %.2f rad", *pose)
+        s = self.state
+        if s.goal is None:
+            return None
+        if np.linalg.norm(pose[:2] - s.goal[:2]) <= self.settings.goal_reached_m:
+            self._count("reached")
+            log.info("goal (%.2f, %.2f) reached", s.goal[0], s.goal[1])
+            s.goal, s.plan = None, None
+            return None
+        if first:
+            return self._plan("pose")
+        if self.clock() - s.tried_time < self.settings.min_replan_interval_s:
+            return None
+        if s.plan is not None:
+            off = distance_to_polyline(pose[:2], s.plan)
+            if off > self.settings.replan_distance_m:
+                return self._plan(f"off the plan by {off:.2f} m")
+            if s.subgoal and np.linalg.norm(pose[:2] - s.plan[-1]) <= self.settings.subgoal_replan_m:
+                return self._plan("near the sub-goal")
+            return None
+        if s.tried_at is not None and np.linalg.norm(pose[:2] - s.tried_at[:2]) > self.settings.replan_distance_m:
+            return self._plan("moved since the last attempt")
+        return None
+
+    def handle_goal(self, msg: Any) -> PlanEvent | None:
+        """A ``geometry_msgs/PoseStamped`` goal (RViz2's "2D Goal Pose"): plan to it."""
+        try:
+            frame, goal = pose_from_msg(msg)
+        except MessageError as err:
+            self._count("malformed")
+            log.warning("malformed goal ignored: %s", err)
+            return None
+        if not self._frame_ok(frame, "goal"):
+            return None
+        self._count("goal")
+        self.state.goal, self.state.plan, self.state.subgoal = goal, None, False
+        log.info("goal received: (%.2f, %.2f) m", goal[0], goal[1])
+        if self.state.map is None or self.state.pose is None:
+            log.info("waiting for %s before planning", " and ".join(
+                w for w, v in (("a map", self.state.map), ("the robot's pose", self.state.pose)) if v is None))
+            return None
+        return self._plan("goal")
+
+    # -- planning ------------------------------------------------------------------------------------------------
+    def _plan(self, trigger: str) -> PlanEvent | None:
+        s = self.state
+        assert s.goal is not None
+        if s.map is None or s.pose is None:
+            return None
+        s.tried_at, s.tried_time = s.pose.copy(), self.clock()
+        t0 = time.perf_counter()
+        try:
+            result = self.planner.plan(s.map, s.pose, s.goal[:2])
+        except Exception as err:  # noqa: BLE001 - a query the planner cannot take must not stop the node
+            self._count("no_path")
+            log.error("planning failed (%s): %s: %s", trigger, type(err).__name__, err)
+            s.plan = None
+            return None
+        seconds = time.perf_counter() - t0
+        event = PlanEvent(trigger, result, s.frame, self.now_ns(), seconds, goal_yaw=float(s.goal[2]))
+        if not result.success:
+            self._count("no_path")
+            s.plan = None
+            dropped = result.code in GOAL_FAILURES
+            log.warning("no path (%s, %.0f ms): %s: %s%s", trigger, 1000 * seconds, result.code, result.reason,
+                        "; goal dropped" if dropped else "")
+            if dropped:
+                s.goal = None
+            return event
+        self._count("plan")
+        s.plan, s.subgoal = np.asarray(result.waypoints, dtype=np.float64), bool(result.subgoal)
+        log.info("plan (%s): %d poses, %.2f m%s, confidence %.2f%s, %.0f ms", trigger, len(result.waypoints),
+                 result.length_m, " to a sub-goal" if result.subgoal else "", event.confidence,
+                 " (shortest-path fallback)" if result.fallback else "", 1000 * seconds)
+        return event

@@ -1,0 +1,193 @@
+"""The planner node on the wire: ROS 2's DDS topics with ``cyclonedds``, no ROS install.
+
+A ROS 2 topic ``/plan`` of type ``nav_msgs/msg/Path`` is the DDS topic ``rt/plan`` of type
+``nav_msgs::msg::dds_::Path_`` (:mod:`spade.ros.messages`); any ROS 2 node on the same domain id (``ROS_DOMAIN_ID``)
+whose RMW reaches this participant (Cyclone DDS natively; Fast DDS over UDP) exchanges messages with it. QoS follows
+Nav2: the map is read reliable + transient-local (map_server latches it), AMCL's pose reliable + transient-local (AMCL
+latches it too), a ``PoseStamped`` pose and the goal reliable + volatile (RViz2's goal publisher is volatile; a
+transient-local reader would not match a volatile writer), the plan is written reliable + transient-local (a late
+subscriber gets the last plan; volatile subscribers such as RViz2's Path display match too).
+
+:class:`PlannerNode` reads the three topics in one thread (a DDS wait set), hands each sample to
+:class:`spade.ros.core.PlannerCore` and publishes what it plans: the ``nav_msgs/Path`` in the map frame (every pose
+stamped, oriented along the path, the last one at the goal's yaw) and its confidence (``std_msgs/Float32``). A
+sample the DDS layer cannot decode is logged and dropped like a malformed message.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import signal
+import threading
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.pub import DataWriter
+from cyclonedds.qos import Policy, Qos
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
+
+from spade.ros import messages as M
+from spade.ros.core import PlanEvent, PlannerCore
+
+__all__ = ["PlannerNode", "Topics", "make_qos", "ros_topic"]
+
+log = logging.getLogger("spade.ros")
+
+POSE_TYPES = {"amcl": M.PoseWithCovarianceStamped, "PoseWithCovarianceStamped": M.PoseWithCovarianceStamped,
+              "stamped": M.PoseStamped, "PoseStamped": M.PoseStamped}
+
+
+def ros_topic(name: str) -> str:
+    """The DDS topic of a ROS 2 topic name: ``/plan`` and ``plan`` -> ``rt/plan``; ``rt/plan`` stays."""
+    name = str(name).strip()
+    if name.startswith("rt/"):
+        return name
+    return "rt/" + name.lstrip("/")
+
+
+def make_qos(reliable: bool = True, transient_local: bool = False, depth: int = 1) -> Qos:
+    """A DDS QoS as a ROS 2 profile states it: reliability, durability, keep-last depth."""
+    return Qos(Policy.Reliability.Reliable(duration(seconds=1)) if reliable else Policy.Reliability.BestEffort,
+               Policy.Durability.TransientLocal if transient_local else Policy.Durability.Volatile,
+               Policy.History.KeepLast(int(depth)))
+
+
+@dataclass(frozen=True)
+class Topics:
+    """ROS 2 topic names (with or without the ``rt/`` prefix)."""
+
+    map: str = "/map"
+    pose: str = "/amcl_pose"
+    goal: str = "/goal_pose"
+    plan: str = "/plan"
+    confidence: str = "/plan_confidence"  # empty: not published
+
+
+def _qos(spec: Mapping[str, Any] | None, default: Qos) -> Qos:
+    if not spec:
+        return default
+    return make_qos(str(spec.get("reliability", "reliable")) == "reliable",
+                    str(spec.get("durability", "volatile")) == "transient_local", int(spec.get("depth", 1)))
+
+
+class PlannerNode:
+    """The DDS side of the planner node (see the module docstring).
+
+    Args:
+        core: the node's logic, with its planner.
+        domain_id: the DDS domain (ROS 2's ``ROS_DOMAIN_ID``).
+        topics: the ROS topic names.
+        pose_type: ``amcl`` (``PoseWithCovarianceStamped``, default) or ``stamped`` (``PoseStamped``).
+        qos: per-topic overrides, e.g. ``{"map": {"reliability": "reliable", "durability": "transient_local",
+            "depth": 1}}``.
+    """
+
+    def __init__(self, core: PlannerCore, *, domain_id: int = 0, topics: Topics | None = None,
+                 pose_type: str = "amcl", qos: Mapping[str, Mapping[str, Any]] | None = None,
+                 recorder: Any = None) -> None:
+        if pose_type not in POSE_TYPES:
+            raise ValueError(f"pose_type must be one of {sorted(POSE_TYPES)}, got {pose_type!r}")
+        self.core = core
+        self.topics = topics or Topics()
+        self.recorder = recorder
+        qos = dict(qos or {})
+        self.participant = DomainParticipant(int(domain_id))
+        p = self.participant
+        # AMCL latches its pose (transient-local): a robot standing still publishes no new one, so the node reads the
+        # last one; a PoseStamped source is taken to be volatile (a transient-local reader would not match it).
+        amcl = POSE_TYPES[pose_type] is M.PoseWithCovarianceStamped
+        defaults = {"map": make_qos(True, True, 1), "pose": make_qos(True, amcl, 1), "goal": make_qos(True, False, 10),
+                    "plan": make_qos(True, True, 1), "confidence": make_qos(True, True, 1)}
+        q = {k: _qos(qos.get(k), v) for k, v in defaults.items()}
+        self.map_reader = DataReader(p, Topic(p, ros_topic(self.topics.map), M.OccupancyGrid), qos=q["map"])
+        self.pose_reader = DataReader(p, Topic(p, ros_topic(self.topics.pose), POSE_TYPES[pose_type]), qos=q["pose"])
+        self.goal_reader = DataReader(p, Topic(p, ros_topic(self.topics.goal), M.PoseStamped), qos=q["goal"])
+        self.plan_writer = DataWriter(p, Topic(p, ros_topic(self.topics.plan), M.Path), qos=q["plan"])
+        self.confidence_writer = (DataWriter(p, Topic(p, ros_topic(self.topics.confidence), M.Float32),
+                                             qos=q["confidence"]) if self.topics.confidence else None)
+        self.waitset = WaitSet(p)
+        mask = SampleState.Any | ViewState.Any | InstanceState.Any
+        self._readers = [("map", self.map_reader, core.handle_map), ("pose", self.pose_reader, core.handle_pose),
+                         ("goal", self.goal_reader, core.handle_goal)]
+        self._conditions = [ReadCondition(r, mask) for _, r, _ in self._readers]
+        for c in self._conditions:
+            self.waitset.attach(c)
+        self.stop_event = threading.Event()
+        self.published = 0
+
+    # -- publishing ----------------------------------------------------------------------------------------------
+    def publish(self, event: PlanEvent) -> None:
+        """Publish a successful plan (a failed one publishes nothing: the failure is logged by the core)."""
+        if not event.success:
+            return
+        result = event.result
+        goal_yaw = None if result.subgoal else event.goal_yaw
+        msg = M.path(result.waypoints, event.frame_id, event.stamp_ns, goal_yaw)
+        self.plan_writer.write(msg)
+        if self.confidence_writer is not None and math.isfinite(event.confidence):
+            self.confidence_writer.write(M.Float32(float(event.confidence)))
+        self.published += 1
+        if self.recorder is not None:
+            self.recorder.plan(event)
+
+    # -- the loop ------------------------------------------------------------------------------------------------
+    def spin_once(self, timeout_s: float = 0.1) -> int:
+        """Wait up to ``timeout_s`` for samples, handle them; returns how many were taken."""
+        self.waitset.wait(duration(seconds=timeout_s))
+        taken = 0
+        for name, reader, handle in self._readers:
+            try:
+                samples = reader.take(N=64)
+            except Exception as err:  # noqa: BLE001 - an undecodable sample must not stop the node
+                log.warning("undecodable %s sample(s) dropped: %s: %s", name, type(err).__name__, err)
+                continue
+            # Maps and poses: only the latest one matters; every goal is handled in order (the last one wins).
+            samples = [s for s in samples if s is not None and not _is_invalid(s)]
+            if name in ("map", "pose"):
+                samples = samples[-1:]
+            for sample in samples:
+                taken += 1
+                if self.recorder is not None:
+                    self.recorder.message(name, sample)
+                try:
+                    event = handle(sample)
+                except Exception as err:  # noqa: BLE001 - the core logs and survives; this is its last guard
+                    log.exception("handling a %s message failed: %s", name, err)
+                    continue
+                if event is not None:
+                    self.publish(event)
+        return taken
+
+    def spin(self, max_seconds: float | None = None) -> None:
+        """Run until :meth:`stop`, SIGINT/SIGTERM (in the main thread) or ``max_seconds``."""
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, lambda *_: self.stop_event.set())
+        end = None if max_seconds is None else time.monotonic() + float(max_seconds)
+        while not self.stop_event.is_set() and (end is None or time.monotonic() < end):
+            self.spin_once(0.1)
+
+    def stop(self) -> None:
+        self.stop_event.set()
+
+    def close(self) -> None:
+        for c in self._conditions:
+            try:
+                self.waitset.detach(c)
+            except Exception:  # noqa: BLE001 - tearing down
+                pass
+        # Entities are deleted with the participant when it is garbage-collected.
+        self._readers.clear()
+
+
+def _is_invalid(sample: Any) -> bool:
+    """A sample that only carries an instance state change (a disposed or unregistered writer), no data."""
+    info = getattr(sample, "sample_info", None)
+    return info is not None and not getattr(info, "valid_data", True)
