@@ -4,13 +4,16 @@ Loads a student (checkpoint or export; ``model=``, short for ``model_path=``, or
 environment variable), plans from the robot pose ``start`` (map-frame metres, yaw in radians as in ROS) to
 ``goal`` (metres) on the map with :class:`spade.planner.Planner`, prints the waypoints (one ``x y`` line each,
 metres) and writes a PNG: the map around the student's robot-frame window, the window, the predicted path
-probabilities, the robot and its heading (blue), the goal (red) and the waypoints (green). Exits with status 1
-when no path was found (the PNG is written all the same, for debugging).
+probabilities, the robot and its heading (blue), the goal (red) and the waypoints (green). ``mcap=PATH`` also writes
+the plan as a ROS 2 MCAP recording (map, robot pose, goal, path, window, confidence as ROS 2 messages, for Foxglove,
+``ros2 bag play`` and ``mcap-ros2-support``; :func:`spade.ros.recording.write_plan_bag`). Exits with status 1
+when no path was found (the PNG and the recording are written all the same, for debugging).
 
 Examples::
 
     python -m spade.plan ../shared/maps/turtlebot3/turtlebot3_world.yaml start=-2,-0.5,1.57 goal=-1.5,1 model=s.ckpt
     python -m spade.plan warehouse:101 start=3,4,0 goal=6,6 model=student.onnx out=plan.png planner.far_goal=clip
+    python -m spade.plan MAP.yaml start=-2,-0.5,1.57 goal=-1.5,1 model=student.onnx mcap=plan.mcap
 
 A leading positional map becomes ``map=...`` and ``start=X,Y,YAW`` becomes ``start=[X,Y,YAW]``
 (:func:`spade.deploy.plan_command.rewrite_argv`); the work is :func:`spade.deploy.plan_command.run_plan`.
@@ -19,14 +22,29 @@ A leading positional map becomes ``map=...`` and ``start=X,Y,YAW`` becomes ``sta
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig
 
 from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
-from spade.utils.errors import run_entry_point, task
+from spade.utils.errors import ConfigError, run_entry_point, task
 from spade.deploy.plan_command import rewrite_argv, run_plan
 from spade.deploy.plan_picture import plan_text
+
+
+def _check_mcap(cfg: DictConfig) -> Path | None:
+    """``mcap=``: a new path (a recording is never written over), in an existing folder."""
+    value = cfg.get("mcap")
+    if value in (None, ""):
+        return None
+    path = Path(str(value)).expanduser()
+    if path.exists():
+        raise ConfigError(f"mcap={value} exists: a recording is never written over; choose a new path (a .mcap file, "
+                          "or a folder name for a rosbag2 folder)")
+    if not path.parent.is_dir():
+        raise ConfigError(f"mcap={value}: its folder {path.parent} does not exist; create it or choose another path")
+    return path
 
 
 def _checked_plan(cfg: DictConfig):  # noqa: ANN202
@@ -34,7 +52,14 @@ def _checked_plan(cfg: DictConfig):  # noqa: ANN202
     from spade.experiments.config_checks import validate_plan_config
 
     validate_plan_config(cfg)  # map and model files, pose and goal, a picture that is none of the inputs
-    return run_plan(cfg)
+    mcap = _check_mcap(cfg)
+    result, png = run_plan(cfg)
+    if mcap is not None:
+        from spade.deploy.plan_picture import load_map
+        from spade.ros.recording import write_plan_bag
+
+        write_plan_bag(mcap, load_map(cfg.map), [result])
+    return result, png, mcap
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="plan")
@@ -42,8 +67,10 @@ def _checked_plan(cfg: DictConfig):  # noqa: ANN202
 def main(cfg: DictConfig) -> None:
     from spade.experiments.config_checks import exit_on_user_error
 
-    result, png = exit_on_user_error(_checked_plan)(cfg)
+    result, png, mcap = exit_on_user_error(_checked_plan)(cfg)
     print(plan_text(result, str(cfg.map), png), flush=True)
+    if mcap is not None:
+        print(f"# recording: {mcap}", flush=True)
     if not result.success:
         raise SystemExit(1)
 

@@ -139,7 +139,8 @@ def test_the_node_plans_on_dds_and_survives_bad_messages(maps_dir: Path, tmp_pat
     domain = unique_domain()
     log = tmp_path / "node.log"
     with open(log, "w") as out:
-        node = subprocess.Popen([sys.executable, "-m", "spade.ros", f"model={onnx}", f"domain_id={domain}"],
+        node = subprocess.Popen([sys.executable, "-m", "spade.ros", f"model={onnx}", f"domain_id={domain}",
+                                 f"record={tmp_path / 'session.mcap'}"],
                                 cwd=tmp_path, env=env, stdout=out, stderr=subprocess.STDOUT)
     try:
         robot = Robot(domain)
@@ -197,7 +198,28 @@ def test_the_node_plans_on_dds_and_survives_bad_messages(maps_dir: Path, tmp_pat
     assert node.returncode == 0, out
     assert "Traceback" not in out, out
     assert "spade.ros node stopped" in out and "'plan': 2" in out and "'malformed': 1" in out, out
-    return  # the session bag is checked in tests/test_mcap_ros.py
+
+    # The session's recording: what the node took and published, as ROS 2 messages (mcap-ros2-support decodes it).
+    mcap_ros2 = pytest.importorskip("mcap_ros2.reader")
+    recorded = [(r.channel.topic, r.ros_msg) for r in mcap_ros2.read_ros2_messages(str(tmp_path / "session.mcap"))]
+    topics = [t for t, _ in recorded]
+    assert topics.count("/map") == 2 and topics.count("/goal_pose") == 3 and topics.count("/plan") == 2
+    assert topics.count("/amcl_pose") == 1 and topics.count("/plan_confidence") == 2
+    plans = [msg for t, msg in recorded if t == "/plan"]
+    np.testing.assert_allclose([[p.pose.position.x, p.pose.position.y] for p in plans[0].poses], xy)
+
+    # Replayed offline through the planner (python -m spade.ros replay=...): the same plans, no DDS.
+    run = subprocess.run([sys.executable, "-m", "spade.ros", f"model={onnx}", f"replay={tmp_path / 'session.mcap'}",
+                          f"replay_out={tmp_path / 'replayed'}"], cwd=tmp_path, env=env, capture_output=True,
+                         text=True, timeout=120)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "malformed map ignored" in run.stdout and "goal_outside_map" in run.stdout
+    replayed = [r.ros_msg for r in mcap_ros2.read_ros2_messages(str(next((tmp_path / "replayed").glob("*.mcap"))))
+                if r.channel.topic == "/plan"]
+    assert len(replayed) == 2
+    for a, b in zip(plans, replayed):
+        np.testing.assert_allclose([[p.pose.position.x, p.pose.position.y] for p in a.poses],
+                                   [[p.pose.position.x, p.pose.position.y] for p in b.poses], atol=1e-9)
 
 
 @pytest.mark.parametrize("args, message", [

@@ -131,11 +131,14 @@ class PlannerNode:
         goal_yaw = None if result.subgoal else event.goal_yaw
         msg = M.path(result.waypoints, event.frame_id, event.stamp_ns, goal_yaw)
         self.plan_writer.write(msg)
-        if self.confidence_writer is not None and math.isfinite(event.confidence):
-            self.confidence_writer.write(M.Float32(float(event.confidence)))
-        self.published += 1
         if self.recorder is not None:
-            self.recorder.plan(event)
+            self.recorder.message("plan", msg)
+        if self.confidence_writer is not None and math.isfinite(event.confidence):
+            confidence = M.Float32(float(event.confidence))
+            self.confidence_writer.write(confidence)
+            if self.recorder is not None:
+                self.recorder.message("confidence", confidence)
+        self.published += 1
 
     # -- the loop ------------------------------------------------------------------------------------------------
     def spin_once(self, timeout_s: float = 0.1) -> int:

@@ -1,0 +1,170 @@
+"""ROS 2 MCAP recordings: plans written with rosbags and decoded with mcap-ros2-support (as Foxglove reads them), and
+recordings of a robot's map, pose and goals replayed through the planner node's logic offline."""
+
+from __future__ import annotations
+
+import logging
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from spade.maps import generate_map
+from spade.planner import PlanResult
+from spade.ros.convert import grid_to_map, quaternion_to_yaw
+from spade.ros.core import CoreSettings, PlannerCore
+from spade.ros.recording import BagError, BagWriter, _Msgs, replay_bag, write_plan_bag
+
+mcap_ros2 = pytest.importorskip("mcap_ros2.reader")
+REPO = Path(__file__).resolve().parents[1]
+
+
+def decode(path: Path) -> list[tuple[str, str, object, int]]:
+    """(topic, type, message, log time) of every message of an MCAP file, decoded by mcap-ros2-support."""
+    return [(m.channel.topic, m.schema.name, m.ros_msg, m.log_time_ns) for m in mcap_ros2.read_ros2_messages(str(path))]
+
+
+def mcap_file(path: Path) -> Path:
+    return path if path.suffix == ".mcap" else next(path.glob("*.mcap"))
+
+
+def a_plan() -> PlanResult:
+    pts = np.column_stack([np.linspace(2.0, 4.0, 16), np.linspace(3.0, 3.5, 16)])
+    return PlanResult(success=True, waypoints=pts, pose=np.array([2.0, 3.0, 0.2]), start=pts[0], goal=pts[-1],
+                      low_share=0.25)
+
+
+@pytest.mark.parametrize("name", ["plan.mcap", "plan_bag"])
+def test_a_plan_bag_decodes_with_mcap_ros2_support(tmp_path: Path, name: str) -> None:
+    m = generate_map("warehouse", 2)
+    failed = PlanResult(success=False, waypoints=np.zeros((0, 2)), code="goal_outside_map", reason="off the map",
+                        pose=np.array([2.0, 3.0, 0.0]), goal=np.array([99.0, 99.0]))
+    out = write_plan_bag(tmp_path / name, m, [a_plan(), failed], start_ns=1_700_000_000_000_000_000,
+                         goal_yaws=[0.5, 0.0])
+    assert out == tmp_path / name
+    if name == "plan_bag":  # a rosbag2 folder, as ros2 bag record -s mcap writes one
+        assert (out / "metadata.yaml").is_file() and "offered_qos_profiles" in (out / "metadata.yaml").read_text()
+    assert not list(tmp_path.glob(".spade-bag-*")), "the temporary folder was left behind"
+    got = decode(mcap_file(out))
+    topics = [(t, s) for t, s, _, _ in got]
+    assert topics == [("/map", "nav_msgs/msg/OccupancyGrid"), ("/start_pose", "geometry_msgs/msg/PoseStamped"),
+                      ("/goal_pose", "geometry_msgs/msg/PoseStamped"), ("/plan", "nav_msgs/msg/Path"),
+                      ("/plan_confidence", "std_msgs/msg/Float32"), ("/start_pose", "geometry_msgs/msg/PoseStamped"),
+                      ("/goal_pose", "geometry_msgs/msg/PoseStamped")]  # the failed plan: its poses, no path
+    grid = got[0][2]
+    np.testing.assert_array_equal(grid_to_map(grid).grid, m.grid)  # the map as ROS 2 carries it, rows and all
+    path = got[3][2]
+    assert path.header.frame_id == "map" and len(path.poses) == 16
+    assert (path.header.stamp.sec, path.header.stamp.nanosec) == (1_700_000_000, 0)
+    xy = np.array([[p.pose.position.x, p.pose.position.y] for p in path.poses])
+    np.testing.assert_allclose(xy, a_plan().waypoints)
+    q = path.poses[-1].pose.orientation
+    assert quaternion_to_yaw(q.x, q.y, q.z, q.w) == pytest.approx(0.5)
+    assert got[4][2].data == pytest.approx(0.75)
+    assert [t for *_, t in got] == sorted(t for *_, t in got) and got[-1][3] == 1_700_000_001_000_000_000
+    with pytest.raises(BagError, match="never written over"):
+        write_plan_bag(out, m, [a_plan()])
+
+
+class LinePlanner:
+    def plan(self, m, pose, goal):  # noqa: ANN001, ANN201
+        pts = np.linspace(pose[:2], goal, 8)
+        return PlanResult(success=True, waypoints=pts, pose=np.asarray(pose), goal=np.asarray(goal), low_share=0.0)
+
+
+def robot_bag(path: Path, frame: str = "map") -> Path:
+    """A recording as a robot makes one: a latched map, AMCL poses at 10 Hz driving off the plan, two goals."""
+    m = generate_map("warehouse", 2)
+    t0 = 1_700_000_000_000_000_000
+    with BagWriter(path) as bag:
+        msgs = _Msgs(bag.typestore)
+        T = bag.typestore.types
+        bag.write("/map", "nav_msgs/msg/OccupancyGrid", msgs.grid(m, "map", t0), t0)
+
+        def amcl(x: float, y: float, ns: int) -> object:
+            cov = np.zeros(36)
+            return T["geometry_msgs/msg/PoseWithCovarianceStamped"](
+                msgs.header(frame, ns), T["geometry_msgs/msg/PoseWithCovariance"](msgs.pose(x, y, 0.0), cov))
+
+        bag.write("/amcl_pose", "geometry_msgs/msg/PoseWithCovarianceStamped", amcl(2.0, 3.0, t0), t0)
+        bag.write("/goal_pose", "geometry_msgs/msg/PoseStamped", msgs.pose_stamped([4.0, 3.0, 0.0], "map", t0 + 1),
+                  t0 + 1)
+        for i in range(1, 10):  # drifting sideways: 0.1 m per second, off the plan by > 0.5 m after 6 s
+            ns = t0 + i * 1_000_000_000
+            bag.write("/amcl_pose", "geometry_msgs/msg/PoseWithCovarianceStamped", amcl(2.0 + 0.1 * i, 3.0 + 0.1 * i,
+                                                                                        ns), ns)
+        bag.write("/goal_pose", "geometry_msgs/msg/PoseStamped", msgs.pose_stamped([99.0, 3.0, 0.0], "map", ns + 1),
+                  ns + 1)
+        bag.write("/scan_unrelated", "std_msgs/msg/Float32", msgs.float32(1.0), ns + 2)
+    return path
+
+
+@pytest.mark.parametrize("name", ["robot.mcap", "robot_bag"])
+def test_replaying_a_recording_through_the_node_logic(tmp_path: Path, name: str,
+                                                     caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.INFO, logger="spade.ros")
+    bag = robot_bag(tmp_path / name)
+
+    class OffMap(LinePlanner):
+        def plan(self, m, pose, goal):  # noqa: ANN001, ANN201
+            if goal[0] > 50:
+                return PlanResult(success=False, waypoints=np.zeros((0, 2)), code="goal_outside_map", reason="off")
+            return super().plan(m, pose, goal)
+
+    core = PlannerCore(OffMap(), CoreSettings(replan_distance_m=0.5, min_replan_interval_s=0.0))
+    counts = replay_bag(core, bag, {"map": "/map", "pose": "/amcl_pose", "goal": "/goal_pose"},
+                        out=tmp_path / "replayed.mcap")
+    # One plan for the goal, one when the drift took the robot 0.5 m off it, none for the goal off the map.
+    assert counts == {"map": 1, "pose": 10, "goal": 2, "plan": 2, "no_path": 1}
+    got = decode(tmp_path / "replayed.mcap")
+    plans = [(msg, t) for topic, _, msg, t in got if topic == "/plan"]
+    assert len(plans) == 2
+    first, second = plans
+    assert first[1] == 1_700_000_000_000_000_001  # planned when the goal arrived, stamped with the recording's clock
+    assert (first[0].header.stamp.sec, first[0].header.stamp.nanosec) == (1_700_000_000, 1)
+    assert second[0].poses[0].pose.position.x == pytest.approx(2.6) and second[1] == 1_700_000_006_000_000_000
+    assert {topic for topic, *_ in got} == {"/map", "/amcl_pose", "/goal_pose", "/plan"}
+    assert "off the plan by 0.60 m" in caplog.text and "goal_outside_map" in caplog.text
+
+
+def test_replay_refuses_what_it_cannot_replay(tmp_path: Path) -> None:
+    core = PlannerCore(LinePlanner())
+    with pytest.raises(BagError, match="does not exist"):
+        replay_bag(core, tmp_path / "nothing.mcap")
+    (tmp_path / "junk.mcap").write_bytes(b"not a bag")
+    with pytest.raises(BagError, match="cannot be read as a rosbag2"):
+        replay_bag(core, tmp_path / "junk.mcap")
+    bag = robot_bag(tmp_path / "robot.mcap")
+    with pytest.raises(BagError, match=r"has no /costmap topic \(topics: /amcl_pose"):
+        replay_bag(core, bag, {"map": "/costmap"})
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_plan_command_writes_an_mcap(tmp_path: Path, maps_dir: Path) -> None:
+    """python -m spade.plan ... mcap=plan.mcap: the plan a robotics person opens in Foxglove."""
+    pytest.importorskip("onnxruntime")
+    from test_ros_node import GOAL, MAP, POSE, loopback_env, student_files
+
+    _, onnx = student_files(tmp_path)
+    env = loopback_env(tmp_path)
+    args = [sys.executable, "-m", "spade.plan", str(maps_dir.joinpath(*MAP)), "start={},{},{}".format(*POSE),
+            "goal={},{}".format(*GOAL[:2]), f"model={onnx}", f"out={tmp_path / 'plan.png'}"]
+    run = subprocess.run([*args, f"mcap={tmp_path / 'plan.mcap'}"], cwd=tmp_path, env=env, capture_output=True,
+                         text=True, timeout=180)
+    assert run.returncode == 0, run.stderr
+    assert f"# recording: {tmp_path / 'plan.mcap'}" in run.stdout
+    got = {topic: msg for topic, _, msg, _ in decode(tmp_path / "plan.mcap")}
+    assert set(got) == {"/map", "/start_pose", "/goal_pose", "/plan", "/plan_window", "/plan_confidence"}
+    waypoints = [line.split() for line in run.stdout.splitlines() if line and not line.startswith("#")]
+    xy = np.array([[p.pose.position.x, p.pose.position.y] for p in got["/plan"].poses])
+    np.testing.assert_allclose(xy, np.array(waypoints, dtype=float), atol=1e-3)  # the printed waypoints (3 decimals)
+    assert len(got["/plan_window"].polygon.points) == 4
+    # A recording is never written over: refused before planning, one line, exit 2.
+    again = subprocess.run([*args, "overwrite=true", f"mcap={tmp_path / 'plan.mcap'}"], cwd=tmp_path, env=env,
+                           capture_output=True, text=True, timeout=180)
+    assert again.returncode == 2 and again.stderr.startswith("error: mcap=") and "never written over" in again.stderr
+    assert math.isfinite(got["/plan_confidence"].data)
