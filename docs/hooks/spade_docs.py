@@ -7,6 +7,9 @@ A page that holds one of these markers gets it replaced by Markdown built from t
 - ``<!-- spade:entry-points -->``: every ``python -m spade...`` entry point (the modules with a ``__main__``
   block), its console script from ``pyproject.toml`` and the first paragraph of its docstring.
 
+The results index (``docs/results/README.md``, written by code like every page there) gets a list of links to
+the pages beside it, at build time only: the file itself is not changed.
+
 So the reference follows ``conf/`` and the code: a new key or group appears on the next build.
 """
 
@@ -258,8 +261,25 @@ def entry_points() -> str:
     return "\n".join(out) + "\n"
 
 
+def results_listing(results_dir: Path, index: str) -> str:
+    """Links to every results page beside the index (the pages are written by spade.report, spade.critic...)."""
+    lines = ["", "## Pages", ""]
+    for path in sorted(results_dir.glob("*.md")):
+        if path.name == index:
+            continue
+        title = next((line.lstrip("#").strip() for line in path.read_text().splitlines() if line.startswith("#")),
+                     path.stem)
+        lines.append(f"- [`{path.name}`]({path.name}): {_cell(title)}")
+    return "\n".join(lines) + "\n"
+
+
 # --------------------------------------------------------------------------------------------------------- hook
 def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ANN001  (MkDocs' hook signature)
+    src = Path(page.file.src_uri)
+    if src.parent.as_posix() == "results" and src.name in ("README.md", "index.md"):
+        # The results pages are files the code writes (never edited by hand): the site links each of them here, at
+        # build time, so that a new page needs no edit of the index or of mkdocs.yml.
+        markdown += results_listing(Path(config["docs_dir"]) / "results", src.name)
     if CONFIG_MARKER in markdown:
         markdown = markdown.replace(CONFIG_MARKER, config_reference())
     if ENTRY_MARKER in markdown:
