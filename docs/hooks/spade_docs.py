@@ -209,7 +209,8 @@ def _entry_modules() -> list[str]:
     for path in sorted(SPADE.rglob("*.py")):
         if '__name__ == "__main__"' in path.read_text():
             rel = path.relative_to(ROOT).with_suffix("")
-            found.append(".".join(rel.parts))
+            parts = rel.parts[:-1] if rel.name == "__main__" else rel.parts  # spade/ros/__main__.py: python -m spade.ros
+            found.append(".".join(parts))
     top = [m for m in found if m.count(".") == 1]
     return top + [m for m in found if m.count(".") > 1]
 
@@ -230,7 +231,9 @@ def _scripts() -> dict[str, str]:
 
 
 def _script_module(module: str, attr: str) -> str:
-    """The ``python -m`` module a console script stands for (``spade.cli:plan`` -> ``spade.plan``)."""
+    """The ``python -m`` module a console script stands for (``spade.cli:plan`` -> ``spade.plan``,
+    ``spade.ros.__main__:cli`` -> ``spade.ros``)."""
+    module = module.removesuffix(".__main__")
     if module == "spade.cli":
         source = (SPADE / "cli.py").read_text()
         m = re.search(rf"^{re.escape(attr)}\s*=\s*_module\(\"([\w.]+)\"\)", source, re.M)
@@ -250,6 +253,8 @@ def entry_points() -> str:
     out = ["| command | console script | config | what it does |", "|---|---|---|---|"]
     for module in _entry_modules():
         path = ROOT / (module.replace(".", "/") + ".py")
+        if not path.is_file():
+            path = ROOT / module.replace(".", "/") / "__main__.py"
         tree = ast.parse(path.read_text())
         doc = _first_paragraph(ast.get_docstring(tree) or "")
         config = ""
