@@ -31,7 +31,7 @@ quickstart: install
 	$(PY) -m spade.train +experiment=quickstart
 
 test: install-dev browser
-	$(PY) -m pytest
+	$(PY) -m pytest --durations=15
 
 clean:
 	rm -rf $(VENV) outputs logs multirun .pytest_cache

@@ -11,14 +11,18 @@ from __future__ import annotations
 
 import logging
 
-import hydra
-from omegaconf import DictConfig, OmegaConf
+from spade.utils.threads import configure_threads, prefer_passive_wait
 
-from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
-from spade.utils.errors import run_entry_point, task
-from spade.experiments.lifecycle import install_signal_handlers
-from spade.experiments.run import run
-from spade.experiments.config_checks import exit_on_user_error
+prefer_passive_wait()  # before torch is imported (below): idle OpenMP threads yield their core to other runs
+
+import hydra  # noqa: E402
+from omegaconf import DictConfig, OmegaConf  # noqa: E402
+
+from spade.paths import CONFIG_PATH  # noqa: E402  (the configs, conf/ or the installed copy; registers resolvers)
+from spade.utils.errors import run_entry_point, task  # noqa: E402
+from spade.experiments.lifecycle import install_signal_handlers  # noqa: E402
+from spade.experiments.run import run  # noqa: E402
+from spade.experiments.config_checks import exit_on_user_error  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -28,6 +32,8 @@ log = logging.getLogger(__name__)
 def main(cfg: DictConfig) -> float | None:
     log.debug("Config:\n%s", OmegaConf.to_yaml(cfg))
     install_signal_handlers()
+    threads = exit_on_user_error(configure_threads)(cfg.get("threads"))
+    log.info("torch intra-op threads: %d (threads=%s)", threads, cfg.get("threads"))
     return exit_on_user_error(run)(cfg)
 
 

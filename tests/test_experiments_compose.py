@@ -41,16 +41,17 @@ def _fill_requirements(cfg, ckpts: dict[str, str]) -> list[str]:
     return out
 
 
-# One row per code path runs in the default selection (an expert through its test stage, the conditional one is
-# fitted by the tiny_checkpoints fixture; BC, DBC and Cond-DBC students; a fine-tuned ablation row with the margin);
-# the others, the large students among them, are slow.
-FAST_ROWS = {"expert_uncond_U", "t1_small_bc_L", "t1_small_dbc_U", "t1_small_conddbc_L", "t2_augbc_finetune_conddbc_U"}
+# One row per code path runs through fast_dev_run (an expert through its test stage, the conditional one is fitted
+# by the tiny_checkpoints fixture; BC, DBC and Cond-DBC students; a fine-tuned ablation row with the margin); every
+# row composes and instantiates (the test after it): the other rows differ from these only in sizes and shapes,
+# which that covers without fitting a 31M-parameter student on a CPU.
+FAST_ROWS = ["expert_uncond_U", "t1_small_bc_L", "t1_small_dbc_U", "t1_small_conddbc_L", "t2_augbc_finetune_conddbc_U"]
 # One batch of each stage, small batches, two prediction pictures, two latency runs: every code path, in seconds.
 FDR = ["debug=fdr", "logger=none", "data.batch_size=4", "data.eval_batch_size=8", "model.grid_size=2",
        "callbacks.model_info.latency_runs=2"]
 
 
-@pytest.mark.parametrize("row", [r if r in FAST_ROWS else pytest.param(r, marks=pytest.mark.slow) for r in ROWS])
+@pytest.mark.parametrize("row", FAST_ROWS)
 def test_row_composes_instantiates_and_runs_fast_dev_run(row: str, spade_home: Path, tiny_checkpoints: dict) -> None:
     cfg = compose_row(row, spade_home)
     cfg = compose_row(row, spade_home, *FDR, *_fill_requirements(cfg, tiny_checkpoints))
@@ -64,6 +65,27 @@ def test_row_composes_instantiates_and_runs_fast_dev_run(row: str, spade_home: P
         if cfg.get("train", True) and model.margin_cfg.lambda_dm > 0:  # the epoch's guidance activity, step = epoch
             assert [epoch for epoch, _, _ in model.margin_history] == [0]
             assert 0.0 <= model.margin_history[0][1] <= 1.0
+
+
+def test_every_row_composes_validates_and_instantiates(spade_home: Path, tiny_checkpoints: dict) -> None:
+    """Every row of every table: its config passes the checks of spade.train, and its data module, model (with
+    the student's size, the margin's expert kind, a pretrained student) and trainer are built."""
+    from spade.experiments.config_checks import validate_train_config
+
+    sizes = {"small": 1e5, "medium": 1e6, "large": 3e7}
+    for row in ROWS:
+        cfg = compose_row(row, spade_home)
+        cfg = compose_row(row, spade_home, "logger=none", *_fill_requirements(cfg, tiny_checkpoints))
+        validate_train_config(cfg)
+        hydra.utils.instantiate(cfg.data)
+        model = hydra.utils.instantiate(cfg.model)
+        hydra.utils.instantiate(cfg.trainer)
+        if cfg.model.get("size"):
+            assert sum(p.numel() for p in model.net.parameters()) > sizes[cfg.model.size], row
+        if cfg.model.get("margin"):
+            model.load_margin((cfg.scale.image_size, cfg.scale.image_size))
+            assert model.margin.conditional == (cfg.model.margin.expert == "conditional"), row
+        assert cfg.tags.row == row and cfg.tags.table in ("table1", "table2", "table3"), row
 
 
 def test_scale_presets_compose(spade_home: Path) -> None:
@@ -341,3 +363,64 @@ def test_the_regenerate_command_keeps_the_runs_data_and_seed(spade_home: Path, m
                       "data.test_dir=/d/test", "seed=3")
     assert regenerate_command(cfg) == ("python -m spade.train +experiment=t1_small_bc_L scale=quickstart seed=3 "
                                        "data=own data.train_dir=/d/train data.test_dir=/d/test")
+
+
+# -- recipes apart from budgets (issue 37): scale= sizes a run, recipe= holds the method --------------------------
+SCALE_KEYS = {"name", "image_size", "resolution_m", "annotate", "train_instances", "test_instances",
+              "transfer_instances", "train_maps", "max_epochs", "expert_max_epochs", "batch_size", "cond_expert_preset",
+              "uncond_expert_preset", "ema_decay", "ddim_steps", "val_metric_batches", "defaults"}
+
+
+def test_scales_hold_only_sizes_and_budgets() -> None:
+    import yaml
+
+    from spade.paths import CONF_DIR
+
+    for path in sorted((Path(CONF_DIR) / "scale").glob("*.yaml")):
+        extra = set(yaml.safe_load(path.read_text())) - SCALE_KEYS
+        assert not extra, f"{path.name} sets method knobs {sorted(extra)}: they belong in conf/recipe"
+
+
+def _method(cfg) -> dict:
+    """What a student row trains with, apart from sizes and budgets."""
+    from omegaconf import OmegaConf
+
+    model = OmegaConf.to_container(cfg.model, resolve=True)
+    return {"bc_pos_weight": model["bc_pos_weight"], "optimizer": model["optimizer"],
+            "lr_scheduler": model["lr_scheduler"], "margin": {**model["margin"], "expert_ckpt": None},
+            "target_width_px": cfg.data.target_width_px, "augment": cfg.data.augment}
+
+
+def test_a_row_is_the_same_method_at_every_scale_and_the_recipe_changes_it(tmp_path) -> None:
+    from spade.utils.config import compose_config
+
+    def row(*overrides):
+        return compose_config("train", ["+experiment=t1_medium_conddbc_L", f"paths.root_dir={tmp_path}", *overrides])
+
+    cpu, paper, tiny = row("scale=cpu"), row("scale=paper"), row("scale=tiny")
+    assert _method(cpu) == _method(paper) == _method(tiny)
+    assert cpu.model.margin.lambda_dm == cpu.recipe.lambda_dm
+    quick = compose_config("train", ["+experiment=quickstart", f"paths.root_dir={tmp_path}"])
+    assert _method(quick) == _method(cpu)  # the quickstart is Table 1's row, smaller
+    paper_recipe = row("scale=cpu", "recipe=paper")
+    assert paper_recipe.model.bc_pos_weight is None and paper_recipe.data.target_width_px == 1
+    assert _method(paper_recipe) != _method(cpu)
+    expert = compose_config("train", ["+experiment=expert_cond_L", "recipe=paper", f"paths.root_dir={tmp_path}"])
+    assert expert.model.prediction_type == "epsilon" and expert.model.optimizer.lr == 1e-4
+
+
+def test_cfg_job_shows_the_method_and_lambda(tmp_path) -> None:
+    import os
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "spade.train", "+experiment=t1_medium_conddbc_L", "scale=cpu",
+                          "--cfg", "job", "--resolve"], capture_output=True, text=True, cwd=tmp_path,
+                         env={**os.environ, "SPADE_HOME": str(tmp_path)}, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    import yaml
+
+    job = yaml.safe_load(out.stdout)
+    assert job["recipe"]["name"] == "spade" and job["model"]["margin"]["lambda_dm"] == job["recipe"]["lambda_dm"]
+    assert job["model"]["bc_pos_weight"] == job["recipe"]["bc_pos_weight"]
+    assert job["requires"]["expert"]["experiment"] == "expert_cond_L"

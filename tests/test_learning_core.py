@@ -215,7 +215,7 @@ def test_trained_student_beats_untrained_and_the_straight_line(spade_home) -> No
     from training_helpers import compose_row
 
     cfg = compose_row("t1_small_bc_L", spade_home, "logger=none", "scale.train_instances=800", "trainer.max_epochs=8",
-                      "model.bc_pos_weight=4", "scale.student_lr=3e-3", "scale.target_width_px=3",
+                      "model.bc_pos_weight=4", "recipe.student_lr=3e-3", "recipe.target_width_px=3",
                       "test_untrained=true", "paths.data_dir=" + str(spade_home / "data_slow"))
     metrics, _ = train(cfg)
     assert metrics["test/score_cm"] < 0.5 * metrics["untrained/score_cm"], metrics

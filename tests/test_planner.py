@@ -401,7 +401,7 @@ def trained_student(spade_home: Path) -> str:
     from training_helpers import compose_row
 
     cfg = compose_row("t1_small_bc_L", spade_home, "logger=none", "callbacks=none", "test=false",
-                      "model.bc_pos_weight=4", "trainer.max_epochs=30", "scale.student_lr=3e-3",
+                      "model.bc_pos_weight=4", "trainer.max_epochs=30", "recipe.student_lr=3e-3",
                       "+trainer.limit_val_batches=0", "model.grid_size=0", "trainer.enable_progress_bar=false")
     _, objects = train(cfg)
     path = spade_home / "planner_student.ckpt"

@@ -371,13 +371,15 @@ def test_an_expert_fetched_from_the_registry_is_checked_like_an_explicit_path(sp
     """Case 12: a prerequisite from the Model Registry skipped the role, kind and geometry checks (they ran before
     the registry filled the path in)."""
     from spade.experiments import prerequisites
+    from spade.experiments.registry import RegisteredCheckpoint
     from spade.experiments.run import train
 
     wrong_role = student_checkpoint(tmp_path / "cache" / "student.ckpt")
     wrong_size = student_checkpoint(tmp_path / "cache" / "expert32.ckpt", role="expert", size=32)
     for fetched, message in ((wrong_role, "is a student checkpoint, this key takes an expert"),
                              (wrong_size, "32 x 32 px")):
-        monkeypatch.setattr(prerequisites, "fetch_checkpoint", lambda *a, _p=fetched, **k: _p)
+        monkeypatch.setattr(prerequisites, "fetch_registered",
+                            lambda *a, _p=fetched, **k: RegisteredCheckpoint("expert", 1, "run", _p))
         cfg = compose_row("t1_small_conddbc_L", spade_home, "logger=none", f"paths.output_dir={tmp_path / 'out'}", FID)
         with pytest.raises(ConfigError, match=message) as info:
             train(cfg)
@@ -396,6 +398,7 @@ def test_a_registry_expert_of_the_wrong_kind_is_refused_before_training(spade_ho
     from spade.maps.frame import RobotFrame
     from spade.experiments import prerequisites
     from spade.experiments import run as run_module
+    from spade.experiments.registry import RegisteredCheckpoint
     from spade.models import build_model
 
     net = build_model("uncond_expert", "tiny")
@@ -404,7 +407,8 @@ def test_a_registry_expert_of_the_wrong_kind_is_refused_before_training(spade_ho
     torch.save({"spade": {"role": "expert", "config": dict(net.config), "data": {
         "image_size": [64, 64], "resolution_m": 0.1, "frame": RobotFrame.for_size(64).to_json()}}}, uncond)
     fetched = []
-    monkeypatch.setattr(prerequisites, "fetch_checkpoint", lambda *a, **k: fetched.append(a) or uncond)
+    monkeypatch.setattr(prerequisites, "fetch_registered",
+                        lambda *a, **k: fetched.append(a) or RegisteredCheckpoint("expert", 1, "run", uncond))
     row = ("t1_small_conddbc_L", spade_home, "logger=none", f"paths.output_dir={tmp_path / 'out'}", FID)
     cfg = compose_row(*row)
     built = []

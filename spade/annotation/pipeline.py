@@ -3,6 +3,11 @@
 Scenarios are enumerated round-robin (for k = 0, 1, ...: for every map: for every shape) and consumed strictly
 in that order, however many workers compute them, until ``num_instances`` are collected; every scenario
 draws from its own seeded generator, so the output bytes never depend on the worker count.
+
+The work is split below the scenario: a worker plans a scenario (its accepted executed path and first instance),
+then the path's other robot states go to the workers in tasks of ``states_per_task`` states, so a set with few
+long scenarios (one real map, a few hundred instances) keeps every worker busy. A state's instance depends only on
+the map, the path and the state's index, so the chunking never changes the output either.
 """
 
 from __future__ import annotations
@@ -11,27 +16,31 @@ import logging
 import multiprocessing
 import os
 from collections import Counter, deque
-from concurrent.futures import Executor, Future, ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping
+
+import numpy as np
 
 from spade.annotation.execution import ExecutedPath, Rejection, execute_sketch
 from spade.annotation.scenarios import (
     MapContext,
     ScenarioResult,
-    generate_scenario,
     instances_along,
+    plan_scenario,
     prepare_map,
+    rasterise_states,
     window_frame,
 )
 from spade.annotation.templates import SHAPES, check_shape
 from spade.data.rasterize import Instance, fits_robot_frame
+from spade.utils.errors import UserError
 
 log = logging.getLogger(__name__)
 
 
-class NotEnoughInstancesError(RuntimeError):
+class NotEnoughInstancesError(UserError, RuntimeError):
     """The maps cannot give as many instances as were asked for."""
 
 
@@ -62,6 +71,15 @@ class RunStats:
             "scenarios_accepted": len(self.scenarios),
             "scenarios": self.scenarios,
         }
+
+
+def states_per_task(cfg: Mapping[str, Any]) -> int:
+    """``states_per_task``: robot states rasterised per worker task (8 when the config has no such key)."""
+    value = cfg.get("states_per_task")
+    value = 8 if value is None else int(value)
+    if value < 1:
+        raise ValueError(f"states_per_task must be >= 1, got {value}")
+    return value
 
 
 def shapes_of(cfg: Mapping[str, Any]) -> list[str]:
@@ -108,8 +126,14 @@ def exit_with_parent(parent: int, interval_s: float = 0.5) -> None:
     threading.Thread(target=watch, name="spade-parent-watchdog", daemon=True).start()
 
 
-def _run_scenario(map_index: int, shape: str, index: int) -> ScenarioResult:
-    return generate_scenario(_WORKER["contexts"][map_index], shape, index, _WORKER["cfg"])
+def _plan_task(map_index: int, shape: str, index: int) -> ScenarioResult:
+    return plan_scenario(_WORKER["contexts"][map_index], shape, index, _WORKER["cfg"])
+
+
+def _states_task(map_index: int, points: np.ndarray, indices: np.ndarray) -> tuple[list[Instance], Counter]:
+    skipped: Counter = Counter()
+    instances, _ = rasterise_states(_WORKER["contexts"][map_index], points, indices, _WORKER["cfg"], skipped)
+    return instances, skipped
 
 
 class _InlineExecutor(Executor):
@@ -132,24 +156,103 @@ def _executor(workers: int, start_method: str, contexts: list[MapContext], cfg: 
                                initializer=_init_worker, initargs=(contexts, cfg, os.getpid()))
 
 
-def ordered_results(executor: Executor, tasks: Iterable[tuple[int, str, int]], window: int
+@dataclass
+class _Slot:
+    """One scenario on its way through the pool: its plan, then its chunks of states."""
+
+    map_index: int
+    shape: str
+    plan: Future
+    result: ScenarioResult | None = None
+    todo: deque = field(default_factory=deque)  # chunks of state indices not submitted yet
+    chunks: list[Future] = field(default_factory=list)
+
+
+def state_chunks(pending: np.ndarray, size: int) -> list[np.ndarray]:
+    """``pending`` state indices in consecutive chunks of at most ``size`` (one worker task each)."""
+    size = max(1, int(size))
+    return [pending[i:i + size] for i in range(0, len(pending), size)]
+
+
+def ordered_results(executor: Executor, tasks: Iterable[tuple[int, str, int]], workers: int, states_per_task: int,
+                    lookahead: int | None = None, needed: Callable[[int, str], bool] = lambda m, s: True
                     ) -> Iterator[tuple[int, ScenarioResult]]:
-    """(map index, result) of ``tasks`` in task order, at most ``window`` in flight; stops submitting when the
-    consumer stops iterating."""
-    pending: deque[tuple[int, Future]] = deque()
+    """(map index, complete result) of the scenario ``tasks`` in task order, however the work was split.
+
+    Each scenario is one plan task (:func:`plan_scenario`: its accepted path and first instance), then its
+    remaining robot states in tasks of ``states_per_task`` (:func:`rasterise_states`), so that the workers share
+    the states of one scenario instead of waiting on a few long ones. At most ``2 * workers`` tasks are in
+    flight (one in this process); chunks of earlier scenarios go before the plans of later ones, and at most
+    ``lookahead`` scenarios (default ``3 * workers``, one in this process) are planned ahead of the consumer. ``needed(map index, shape)`` false: the
+    scenario's states are not rasterised (the consumer will skip it). Submitting stops when the consumer stops
+    iterating; a task's error is raised when its scenario is reached, as if computed in order.
+    """
+    capacity = 1 if workers <= 1 else 2 * workers
+    lookahead = max(1, (1 if workers <= 1 else 3 * workers) if lookahead is None else lookahead)
+    slots: deque[_Slot] = deque()
+    plans: dict[Future, _Slot] = {}
+    in_flight: set[Future] = set()
     it = iter(tasks)
-    for task in it:
-        pending.append((task[0], executor.submit(_run_scenario, *task)))
-        if len(pending) >= window:
-            break
-    while pending:
-        map_index, future = pending.popleft()
-        result = future.result()
-        for task in it:
-            pending.append((task[0], executor.submit(_run_scenario, *task)))
-            break
-        yield map_index, result
+    exhausted = False
+
+    def planned(slot: _Slot) -> None:
+        if slot.plan.exception() is not None:
+            return  # raised when the slot is consumed
+        slot.result = slot.plan.result()
+        if slot.result.executed is not None and len(slot.result.pending) and needed(slot.map_index, slot.shape):
+            slot.todo.extend(state_chunks(slot.result.pending, states_per_task))
+
+    def fill() -> None:
+        nonlocal exhausted
+        while len(in_flight) < capacity:
+            slot = next((s for s in slots if s.todo), None)
+            if slot is not None:
+                fut = executor.submit(_states_task, slot.map_index, slot.result.executed.points, slot.todo.popleft())
+                slot.chunks.append(fut)
+                in_flight.add(fut)
+                continue
+            if exhausted or len(slots) >= lookahead:
+                return
+            task = next(it, None)
+            if task is None:
+                exhausted = True
+                return
+            fut = executor.submit(_plan_task, *task)
+            slot = _Slot(task[0], task[1], fut)
+            slots.append(slot)
+            plans[fut] = slot
+            in_flight.add(fut)
+
+    def collect() -> None:
+        for fut in [f for f in in_flight if f.done()]:
+            in_flight.discard(fut)
+            slot = plans.pop(fut, None)
+            if slot is not None:
+                planned(slot)
+
+    while True:
+        collect()
+        fill()
+        if not slots:  # every task planned and consumed
+            return
+        head = slots[0]
+        if head.plan not in plans and not head.todo and all(f.done() for f in head.chunks):
+            slots.popleft()
+            yield head.map_index, _assembled(head)
+            continue
+        wait(in_flight, return_when=FIRST_COMPLETED)
     # Futures still queued when the consumer stops are cancelled by the executor's shutdown.
+
+
+def _assembled(slot: _Slot) -> ScenarioResult:
+    """The slot's scenario with every chunk's instances appended in state order (raises a task's error)."""
+    result = slot.plan.result()
+    result.pending = result.pending[:0]
+    for fut in slot.chunks:
+        instances, skipped = fut.result()
+        result.instances.extend(instances)
+        result.skipped.update(skipped)
+    return result
 
 
 def scenario_tasks(n_maps: int, shapes: list[str], max_per_map: int, first_index: int = 0
@@ -178,12 +281,14 @@ def template_instances(contexts: list[MapContext], cfg: Mapping[str, Any], stats
     max_failures = int(cfg["scenario"]["max_failures"])
     failures: Counter = Counter()
     dead: set[tuple[int, str]] = set()
+    per_task = states_per_task(cfg)
     executor = _executor(workers, str(cfg["start_method"]), contexts, cfg)
     produced = 0
     tasks = (t for t in scenario_tasks(len(contexts), shapes, max_per_map, int(cfg["scenario"].get("first_index", 0)))
              if (t[0], t[1]) not in dead)  # only saves work; correctness comes from the check below
+    results = ordered_results(executor, tasks, workers, per_task, needed=lambda m, shape: (m, shape) not in dead)
     try:
-        for map_index, result in ordered_results(executor, tasks, window=max(1, 3 * workers)):
+        for map_index, result in results:
             pair = (map_index, result.shape)
             if pair in dead:
                 continue

@@ -3,7 +3,10 @@ instances rasterised along it.
 
 Every scenario draws its randomness from its own generator, seeded by (dataset seed, map id, shape, scenario
 index) through ``numpy.random.SeedSequence``, so scenarios can be computed in any order and in any number of
-processes without changing a byte of the output.
+processes without changing a byte of the output. Below the scenario, each robot state's instance is a pure
+function of the map, the executed path and the state's index: :func:`plan_scenario` finds the accepted path (and
+its first instance), and the remaining states can be rasterised in chunks by any number of processes
+(:func:`rasterise_states`), which is how the pipeline keeps every worker busy on a set of few scenarios.
 """
 
 from __future__ import annotations
@@ -11,7 +14,7 @@ from __future__ import annotations
 import zlib
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 from scipy.cluster.vq import kmeans2
@@ -21,9 +24,10 @@ from spade.annotation.templates import SHAPES, check_shape, place_template, samp
 from spade.data.rasterize import Instance, fits_robot_frame, robot_instance, state_indices
 from spade.maps.costmap import Costmap, build_costmap
 from spade.maps.frame import RobotFrame, yaw_from_heading
+from spade.utils.errors import UserError
 
 
-class NoFreeAreaError(ValueError):
+class NoFreeAreaError(UserError, ValueError):
     """A map has no free cell with the clearance a scenario's goal needs."""
 
 
@@ -125,6 +129,8 @@ class ScenarioResult:
     instances: list[Instance] = field(default_factory=list)
     executed: ExecutedPath | None = None
     sketch: np.ndarray | None = None  # keypoints, map pixel coords
+    # indices into executed.points of the robot states still to rasterise (plan_scenario leaves them to workers)
+    pending: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
 def scenario_area(ctx: MapContext, index: int, cfg: Mapping[str, Any]) -> int:
@@ -162,25 +168,35 @@ def _placement(ctx: MapContext, shape: str, goal: np.ndarray, cfg: Mapping[str, 
     return None
 
 
-def instances_along(ctx: MapContext, executed: ExecutedPath, cfg: Mapping[str, Any],
-                    skipped: Counter | None = None) -> list[Instance]:
-    """Rasterise robot states every ``instances.spacing_m`` along an executed path, each in its robot frame.
+def state_indices_along(ctx: MapContext, executed: ExecutedPath, cfg: Mapping[str, Any]) -> np.ndarray:
+    """Indices into ``executed.points`` of the robot states sampled every ``instances.spacing_m`` along it."""
+    res = ctx.costmap.resolution
+    return state_indices(len(executed.points), executed.step_px, float(cfg["instances"]["spacing_m"]) / res,
+                         float(cfg["instances"]["min_remaining_m"]) / res)
+
+
+def rasterise_states(ctx: MapContext, points: np.ndarray, indices: Iterable[int], cfg: Mapping[str, Any],
+                     skipped: Counter | None = None, first_only: bool = False) -> tuple[list[Instance], int]:
+    """Instances of the robot states ``points[i]`` for ``i`` in ``indices`` (an executed path's points), in order.
 
     A state is skipped, and counted in ``skipped``, when its remaining path leaves the window
     (``outside_window``) or a path pixel falls on a cell the conservative rotation of the occupancy marks as
-    non-free (``path_off_free``: a path that hugs a wall, at the window's pixel size).
+    non-free (``path_off_free``: a path that hugs a wall, at the window's pixel size). Every state is a pure
+    function of the map, the path and its index, so the states of one path can be rasterised in any chunks, in
+    any process. Returns the instances and how many states were looked at (with ``first_only``, up to and
+    including the first that fits).
     """
     res = ctx.costmap.resolution
     frame = window_frame(cfg)
     margin = float(cfg["window"]["margin_m"]) / res
-    idx = state_indices(len(executed.points), executed.step_px, float(cfg["instances"]["spacing_m"]) / res,
-                        float(cfg["instances"]["min_remaining_m"]) / res)
+    disc = float(cfg["instances"]["disc_radius_m"]) / res
+    k = int(cfg["num_waypoints"])
     skipped = skipped if skipped is not None else Counter()
-    out = []
-    for i in idx:
-        inst = robot_instance(ctx.costmap.grid, executed.points[i:], frame, margin,
-                              float(cfg["instances"]["disc_radius_m"]) / res, int(cfg["num_waypoints"]),
-                              to_world=ctx.world_pose)
+    out: list[Instance] = []
+    seen = 0
+    for i in indices:
+        seen += 1
+        inst = robot_instance(ctx.costmap.grid, points[int(i):], frame, margin, disc, k, to_world=ctx.world_pose)
         if inst is None:
             skipped["outside_window"] += 1
             continue
@@ -188,12 +204,27 @@ def instances_along(ctx: MapContext, executed: ExecutedPath, cfg: Mapping[str, A
             skipped["path_off_free"] += 1
             continue
         out.append(inst)
-    return out
+        if first_only:
+            break
+    return out, seen
 
 
-def generate_scenario(ctx: MapContext, shape: str, index: int, cfg: Mapping[str, Any]) -> ScenarioResult:
-    """Scenario ``index`` of ``shape`` on one map: up to ``scenario.max_attempts`` goal/sketch draws, each
-    executed and checked; the first accepted one yields the instances."""
+def instances_along(ctx: MapContext, executed: ExecutedPath, cfg: Mapping[str, Any],
+                    skipped: Counter | None = None) -> list[Instance]:
+    """Rasterise robot states every ``instances.spacing_m`` along an executed path, each in its robot frame
+    (:func:`rasterise_states`: states that do not fit are counted in ``skipped``)."""
+    return rasterise_states(ctx, executed.points, state_indices_along(ctx, executed, cfg), cfg, skipped)[0]
+
+
+def plan_scenario(ctx: MapContext, shape: str, index: int, cfg: Mapping[str, Any]) -> ScenarioResult:
+    """Scenario ``index`` of ``shape`` on one map, up to its first instance: up to ``scenario.max_attempts``
+    goal/sketch draws, each executed and checked; the first accepted one whose path has a state that fits is
+    kept, with that state's instance in ``instances`` and the later states in ``pending``.
+
+    :func:`complete_scenario` (or :func:`rasterise_states` on chunks of ``pending``, in other processes) adds the
+    rest; the outcome is :func:`generate_scenario`'s whatever the split, since an attempt is accepted exactly
+    when one of its states fits and every state is a pure function of the path.
+    """
     check_shape(shape)
     result = ScenarioResult(f"{ctx.map_id}/{shape}{index:03d}", ctx.map_id, shape, index)
     rng = scenario_rng(int(cfg["seed"]), ctx.map_id, shape, index)
@@ -216,12 +247,29 @@ def generate_scenario(ctx: MapContext, shape: str, index: int, cfg: Mapping[str,
         if not fits_robot_frame(executed.points, frame, margin):
             result.rejections["window"] += 1
             continue
-        result.executed, result.sketch = executed, keypoints
-        result.instances = instances_along(ctx, executed, cfg, result.skipped)
-        if not result.instances:
+        states = state_indices_along(ctx, executed, cfg)
+        first, seen = rasterise_states(ctx, executed.points, states, cfg, result.skipped, first_only=True)
+        if not first:
             result.rejections["no_state_fits"] += 1
-            result.executed = result.sketch = None
             continue
+        result.executed, result.sketch = executed, keypoints
+        result.instances, result.pending = first, states[seen:]
         return result
     result.rejections["scenario_failed"] += 1
     return result
+
+
+def complete_scenario(ctx: MapContext, result: ScenarioResult, cfg: Mapping[str, Any]) -> ScenarioResult:
+    """Rasterise a planned scenario's ``pending`` states in this process (see :func:`plan_scenario`)."""
+    if result.executed is not None and len(result.pending):
+        more, _ = rasterise_states(ctx, result.executed.points, result.pending, cfg, result.skipped)
+        result.instances.extend(more)
+    result.pending = np.zeros(0, dtype=np.int64)
+    return result
+
+
+def generate_scenario(ctx: MapContext, shape: str, index: int, cfg: Mapping[str, Any]) -> ScenarioResult:
+    """Scenario ``index`` of ``shape`` on one map: up to ``scenario.max_attempts`` goal/sketch draws, each
+    executed and checked; the first accepted one yields the instances (:func:`plan_scenario`, then
+    :func:`complete_scenario`)."""
+    return complete_scenario(ctx, plan_scenario(ctx, shape, index, cfg), cfg)

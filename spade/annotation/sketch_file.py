@@ -22,9 +22,10 @@ import yaml
 
 from spade.annotation.sources import parse_procedural
 from spade.annotation.templates import check_shape
+from spade.utils.errors import UserError
 
 
-class SketchFileError(ValueError):
+class SketchFileError(UserError, ValueError):
     """A sketch file is malformed; the message names the entry and the fix."""
 
 

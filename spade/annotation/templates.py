@@ -12,11 +12,13 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from spade.utils.errors import UserError
+
 SHAPES: dict[str, float] = {"L": 90.0, "U": 180.0}
 """Known shape labels and the net heading change (degrees) that defines each."""
 
 
-class UnknownShapeError(ValueError):
+class UnknownShapeError(UserError, ValueError):
     """A shape label other than the known ones was asked for."""
 
 

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from spade.data.packing import bit_nbytes, two_bit_nbytes
+from spade.utils.errors import UserError
 
 FORMAT_NAME = "spade-path-dataset"
 FORMAT_VERSION = 2
@@ -46,7 +47,7 @@ LABEL_KEYS = ("shape", "map_id", "scenario_id")
 BINARY_CHANNELS = ("start", "goal", "path")
 
 
-class DatasetError(RuntimeError):
+class DatasetError(UserError, RuntimeError):
     """A dataset directory that is missing, incomplete, corrupt or of another format."""
 
 

@@ -24,7 +24,7 @@ from omegaconf import DictConfig, OmegaConf
 from spade.data.checks import check_dataset, data_geometry
 from spade.data.format import DatasetError
 from spade.data.settings import dataset_settings
-from spade.utils.errors import ConfigError, exit_on_errors
+from spade.utils.errors import ConfigError, UserError, exit_on_errors
 
 _MISSING = object()
 
@@ -898,26 +898,9 @@ def validate_sketch_config(cfg: DictConfig) -> None:
 
 # -- reporting ------------------------------------------------------------------------------------------------------
 def user_errors() -> tuple[type[BaseException], ...]:
-    """Exceptions that mean the user must change something (reported without a traceback)."""
-    from spade.annotation.pipeline import NotEnoughInstancesError
-    from spade.experiments.prerequisites import PrerequisiteMissing
-    from spade.training.errors import ExpertMismatchError
-
-    errors: list[type[BaseException]] = [ConfigError, DatasetError, PrerequisiteMissing, ExpertMismatchError,
-                                         NotEnoughInstancesError]
-    # Inputs the user gave that turn out wrong once read: a model file of the wrong kind, a map, a sketch file, an
-    # import source, a map without free space for goals.
-    for module, name in (("spade.models.modelfile", "ModelFileError"), ("spade.maps.ros_io", "MapFormatError"),
-                         ("spade.annotation.sketch_file", "SketchFileError"),
-                         ("spade.annotation.templates", "UnknownShapeError"),
-                         ("spade.annotation.scenarios", "NoFreeAreaError"),
-                         ("spade.annotation.importers.rosbag", "RosbagImportError"),
-                         ("spade.annotation.importers.skipp", "SkippImportError")):
-        try:
-            errors.append(getattr(__import__(module, fromlist=[name]), name))
-        except (ImportError, AttributeError):  # an optional importer's dependency is missing
-            pass
-    return tuple(errors)
+    """Exceptions that mean the user must change something (reported without a traceback): every package's user
+    errors derive from :class:`spade.utils.errors.UserError`."""
+    return (UserError,)
 
 
 def exit_on_user_error(fn: Callable[..., Any]) -> Callable[..., Any]:

@@ -214,7 +214,7 @@ def _passed_overrides(config: DictConfig) -> list[str]:
         task = list(config.hydra.overrides.task)
     except Exception:  # noqa: BLE001
         return []
-    skip = ("experiment", "seed", "seeds", "rows", "hydra", "scale")
+    skip = ("experiment", "seed", "seeds", "rows", "hydra", "scale", "recipe")
     return [o for o in task if not o.split("=", 1)[0].lstrip("+~").startswith(skip)]
 
 
@@ -241,7 +241,7 @@ def plan_table(config: DictConfig, speed: float = 1.0) -> dict[str, Any]:
     given = [o.split("=", 1)[1] for o in task if o.split("=", 1)[0].lstrip("+~") == "seed"]  # seed=7 wins
     seeds = [int(s) for s in (given[-1] if given else str(params.get("seed", config.get("seed", 42)))).split(",")]
     scale = str(config.scale.name)
-    overrides = [f"scale={scale}", *_passed_overrides(config)]
+    overrides = [f"scale={scale}", f"recipe={config.recipe.name}", *_passed_overrides(config)]
     costs: dict[str, RowCost] = {}
     pending: dict[str, RowCost] = {}  # registry name -> cost of a prerequisite to train
     datasets: dict[str, tuple[int, str]] = {}

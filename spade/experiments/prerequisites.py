@@ -6,11 +6,16 @@ An experiment names what it needs in its ``requires`` section::
       expert:
         experiment: expert_cond_L          # the experiment that trains it
         target: model.margin.expert_ckpt   # the config key its checkpoint fills
+        version: champion                  # which registered version: an alias, a number, or latest
 
 When ``target`` is already set (an explicit checkpoint path) nothing happens. Otherwise the requirement's
-config is composed with the parent's scale, paths, trainer and logger overrides, its registry name is derived
-(role, shape, size and data fingerprint), and the newest registered version is used. If none is registered,
-``prerequisites=train`` (default) has it trained first, and ``prerequisites=error`` stops with the exact command.
+config is composed with the parent's scale, recipe, paths, trainer and logger overrides, its registry name is
+derived (role, shape, size and data fingerprint), and the version ``version`` names is used: by default the
+``champion`` alias, which the first registered version receives and later ones do not take
+(:mod:`spade.experiments.registry`), so a row re-run after another expert was trained uses the same expert. The
+version used is written into the run's config as ``requires.<key>.resolved`` (name, version, run id: logged with
+the run's parameters). If none is registered, ``prerequisites=train`` (default) has it trained first, and
+``prerequisites=error`` stops with the exact command.
 
 This module never trains anything itself (it imports neither :mod:`spade.train` nor :mod:`spade.experiments.run`):
 :func:`pending_prerequisites` fills what is registered and returns what must be trained;
@@ -27,16 +32,17 @@ from pathlib import Path
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from spade.experiments.registry import fetch_checkpoint, registry_name
+from spade.experiments.registry import CHAMPION, RegisteredCheckpoint, fetch_registered, registry_name
 from spade.utils.config import compose_config
+from spade.utils.errors import UserError
 
 log = logging.getLogger(__name__)
 
 # Parent overrides that a prerequisite inherits (so it runs at the same scale, into the same store).
-INHERITED = ("scale", "paths", "trainer", "logger", "seed", "data.num_workers", "prerequisites")
+INHERITED = ("scale", "recipe", "paths", "trainer", "logger", "seed", "data.num_workers", "prerequisites")
 
 
-class PrerequisiteMissing(RuntimeError):
+class PrerequisiteMissing(UserError, RuntimeError):
     """A required model is not registered and ``prerequisites=error``."""
 
 
@@ -68,9 +74,12 @@ def compose_experiment(name: str, overrides: list[str]) -> DictConfig:
     return compose_config("train", [f"+experiment={name}", *overrides])
 
 
-def _fill(cfg: DictConfig, target: str, ckpt: Path) -> None:
+def _fill(cfg: DictConfig, key: str, target: str, found: RegisteredCheckpoint) -> None:
+    """Fill ``target`` with the downloaded checkpoint and record which registered version it is."""
     with open_dict(cfg):
-        OmegaConf.update(cfg, target, str(ckpt), merge=False)
+        OmegaConf.update(cfg, target, str(found.path), merge=False)
+        cfg.requires[key].resolved = {"name": found.name, "version": found.version, "run_id": found.run_id}
+    log.info("Prerequisite %s: %s, %s", key, found.describe(), found.path)
 
 
 def pending_prerequisites(cfg: DictConfig, depth: int = 0) -> list[Prerequisite]:
@@ -86,18 +95,17 @@ def pending_prerequisites(cfg: DictConfig, depth: int = 0) -> list[Prerequisite]
             continue
         if depth > 4:
             raise RecursionError(f"prerequisite chain too deep at {key} ({req.experiment})")
-        overrides = [o for o in _parent_overrides() if not o.lstrip("+~").startswith("scale=")]
-        overrides.append(f"scale={cfg.scale.name}")
+        overrides = [o for o in _parent_overrides() if not o.lstrip("+~").startswith(("scale=", "recipe="))]
+        overrides += [f"scale={cfg.scale.name}", f"recipe={cfg.recipe.name}"]
         out_dir = f"{cfg.paths.output_dir}/prerequisites/{req.experiment}"
         sub = compose_experiment(req.experiment, [*overrides, f"paths.output_dir={out_dir}"])
         name = registry_name(sub)
         if name is None:
             raise ValueError(f"experiment {req.experiment} registers no model (registry.prefix unset)")
         tracking_uri = cfg.paths.mlflow_tracking_uri
-        ckpt = fetch_checkpoint(tracking_uri, name, cfg.paths.registry_cache_dir)
-        if ckpt is not None:
-            log.info("Prerequisite %s: %s", key, ckpt)
-            _fill(cfg, target, ckpt)
+        found = fetch_registered(tracking_uri, name, cfg.paths.registry_cache_dir, req.get("version") or CHAMPION)
+        if found is not None:
+            _fill(cfg, str(key), target, found)
             continue
         command = " ".join(["python -m spade.train", f"+experiment={req.experiment}", *overrides])
         if cfg.get("prerequisites", "train") == "error":
@@ -110,11 +118,12 @@ def pending_prerequisites(cfg: DictConfig, depth: int = 0) -> list[Prerequisite]
 
 def complete_prerequisite(cfg: DictConfig, prerequisite: Prerequisite) -> Path:
     """After ``prerequisite`` was trained: fetch its registered checkpoint and fill its target key of ``cfg``."""
-    ckpt = fetch_checkpoint(cfg.paths.mlflow_tracking_uri, prerequisite.name, cfg.paths.registry_cache_dir)
-    if ckpt is None:
+    version = cfg.requires[prerequisite.key].get("version") or CHAMPION
+    found = fetch_registered(cfg.paths.mlflow_tracking_uri, prerequisite.name, cfg.paths.registry_cache_dir,
+                             version)
+    if found is None:
         raise PrerequisiteMissing(
             f"{prerequisite.key}: training {prerequisite.experiment} registered no model {prerequisite.name}"
         )
-    log.info("Prerequisite %s: %s", prerequisite.key, ckpt)
-    _fill(cfg, prerequisite.target, ckpt)
-    return ckpt
+    _fill(cfg, prerequisite.key, prerequisite.target, found)
+    return found.path

@@ -1,8 +1,15 @@
-"""Models in the MLflow Model Registry under deterministic names tied to role, shape, size and data."""
+"""Models in the MLflow Model Registry under deterministic names tied to role, shape, size and data.
+
+Which version a run uses is pinned, not "the newest": the first version registered under a name gets the alias
+``champion`` (:data:`CHAMPION`), and a run that needs that model resolves the alias (or an exact version its
+config names). Registering another version later does not move the alias unless asked (``registry.promote=true``),
+so re-running a student row after another expert was trained uses the same expert.
+"""
 
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +19,22 @@ from omegaconf import DictConfig, OmegaConf
 from spade.data.fingerprint import fingerprint
 
 log = logging.getLogger(__name__)
+
+#: The registry alias a prerequisite resolves by default (``requires.<key>.version``).
+CHAMPION = "champion"
+
+
+@dataclass(frozen=True)
+class RegisteredCheckpoint:
+    """One registered model version, downloaded: what a run that used it records."""
+
+    name: str
+    version: int
+    run_id: str
+    path: Path
+
+    def describe(self) -> str:
+        return f"{self.name} v{self.version} (run {self.run_id})"
 
 
 def data_fingerprint(cfg: DictConfig) -> str:
@@ -29,11 +52,13 @@ def registry_name(cfg: DictConfig) -> str | None:
 
 def register_checkpoint(ml: MLFlowLogger, name: str, artifact_path: str, tags: dict[str, Any],
                         data_fingerprint: str | None = None, description: str | None = None,
-                        version_description: str | None = None) -> None:
-    """Register the run's checkpoint artifact (a directory holding one .ckpt) as a new version of ``name``.
+                        version_description: str | None = None, promote: bool = False) -> int:
+    """Register the run's checkpoint artifact (a directory holding one .ckpt) as a new version of ``name``; return
+    its version number.
 
     The registered model carries ``description`` and the ``data_fingerprint`` tag (its name ends in it); an
     older registration without them gets them. Each version carries the same tags and ``version_description``.
+    The new version becomes the :data:`CHAMPION` when the name has none yet or when ``promote``.
     """
     client = ml.experiment
     from mlflow.exceptions import MlflowException
@@ -61,28 +86,62 @@ def register_checkpoint(ml: MLFlowLogger, name: str, artifact_path: str, tags: d
         description=version_description,
     )
     log.info("Registered %s version %s from run %s", name, version.version, ml.run_id)
+    aliases = (model.aliases if model is not None else None) or {}
+    if promote or CHAMPION not in aliases:
+        client.set_registered_model_alias(name, CHAMPION, version.version)
+        log.info("%s@%s is version %s", name, CHAMPION, version.version)
+    return int(version.version)
 
 
-def fetch_checkpoint(tracking_uri: str, name: str, cache_dir: str | Path) -> Path | None:
-    """Download the newest version of registered model ``name``; None when it is not registered."""
-    from mlflow import MlflowClient
+def resolve_version(client: Any, name: str, version: str | int = CHAMPION) -> Any | None:
+    """The ModelVersion of ``name`` that ``version`` names: an alias (default :data:`CHAMPION`), a version number,
+    or ``latest`` (the newest, unpinned). None when ``name`` is not registered. A name registered before aliases
+    existed has no champion: its newest version is made the champion now, so that it stays the one used."""
     from mlflow.exceptions import MlflowException
 
-    client = MlflowClient(tracking_uri=tracking_uri)
     try:
         versions = client.search_model_versions(f"name='{name}'")
     except MlflowException:
         return None
     if not versions:
         return None
+    if str(version) == "latest":
+        return max(versions, key=lambda v: int(v.version))
+    if str(version).isdigit():
+        found = [v for v in versions if int(v.version) == int(version)]
+        if not found:
+            raise ValueError(f"registered model {name} has no version {version}; its versions are "
+                             f"{sorted(int(v.version) for v in versions)} (or use the alias {CHAMPION} / latest)")
+        return found[0]
+    try:
+        return client.get_model_version_by_alias(name, str(version))
+    except MlflowException:
+        if str(version) != CHAMPION:
+            raise ValueError(f"registered model {name} has no alias @{version}; set one in the MLflow UI or name a "
+                             f"version number (requires.<key>.version=N)") from None
     newest = max(versions, key=lambda v: int(v.version))
-    dst = Path(cache_dir) / name / f"v{newest.version}"
+    client.set_registered_model_alias(name, CHAMPION, newest.version)
+    log.info("%s had no @%s: pinned its newest version %s", name, CHAMPION, newest.version)
+    return newest
+
+
+def fetch_registered(tracking_uri: str, name: str, cache_dir: str | Path,
+                     version: str | int = CHAMPION) -> RegisteredCheckpoint | None:
+    """Download the version of registered model ``name`` that ``version`` names (:func:`resolve_version`); None
+    when ``name`` is not registered."""
+    from mlflow import MlflowClient
+
+    client = MlflowClient(tracking_uri=tracking_uri)
+    chosen = resolve_version(client, name, version)
+    if chosen is None:
+        return None
+    dst = Path(cache_dir) / name / f"v{chosen.version}"
     ckpts = sorted(dst.rglob("*.ckpt")) if dst.is_dir() else []
     if not ckpts:
         dst.mkdir(parents=True, exist_ok=True)
-        artifact_path = newest.tags.get("artifact_path", "checkpoints/best")
-        client.download_artifacts(newest.run_id, artifact_path, str(dst))
+        artifact_path = (chosen.tags or {}).get("artifact_path", "checkpoints/best")
+        client.download_artifacts(chosen.run_id, artifact_path, str(dst))
         ckpts = sorted(dst.rglob("*.ckpt"))
     if not ckpts:
-        raise FileNotFoundError(f"registered model {name} v{newest.version} holds no .ckpt under {dst}")
-    return ckpts[0]
+        raise FileNotFoundError(f"registered model {name} v{chosen.version} holds no .ckpt under {dst}")
+    return RegisteredCheckpoint(name, int(chosen.version), str(chosen.run_id), ckpts[0])

@@ -154,7 +154,7 @@ def test_elsewhere(cfg: DictConfig, ckpt_path: str, name: str, data: str) -> dic
     from spade.experiments.evaluation import evaluate
     from spade.utils.config import compose_config
 
-    overrides = [f"ckpt_path={ckpt_path}", f"data={data}", f"scale={cfg.scale.name}", f"run_name={cfg.run_name}_{name}",
+    overrides = [f"ckpt_path={ckpt_path}", f"data={data}", f"scale={cfg.scale.name}", f"recipe={cfg.recipe.name}", f"run_name={cfg.run_name}_{name}",
                  f"tags.table={cfg.tags.table}", f"tags.row={cfg.run_name}_{name}", f"seed={cfg.seed}",
                  f"source_seed={cfg.seed}", f"paths.output_dir={cfg.paths.output_dir}/{name}",
                  f"trainer.enable_progress_bar={bool(cfg.trainer.get('enable_progress_bar', True))}"]

@@ -40,6 +40,7 @@ import yaml
 from PIL import Image, UnidentifiedImageError
 
 from spade.maps.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap
+from spade.utils.errors import UserError
 
 MODES = ("trinary", "scale", "raw")
 
@@ -51,7 +52,7 @@ SAVE_OCCUPIED_THRESH = 0.65
 SAVE_FREE_THRESH = 0.196
 
 
-class MapFormatError(ValueError):
+class MapFormatError(UserError, ValueError):
     """A ROS map yaml or its image cannot be read; the message names the file and the fix."""
 
 

@@ -46,6 +46,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from spade.utils.errors import UserError
+
 __all__ = [
     "INPUT_ENCODING", "SAFE_GLOBALS", "ModelFileError", "ModelRunner", "UnsafeModelFileError", "build_network",
     "checkpoint_entry", "export_metadata", "file_format", "load_checkpoint", "load_lightning", "load_network",
@@ -91,7 +93,7 @@ def _safe_globals() -> list[Any]:
 SAFE_GLOBALS: list[Any] = _safe_globals()
 
 
-class ModelFileError(ValueError):
+class ModelFileError(UserError, ValueError):
     """A model file SPADE cannot use as it is; the message names the file and the fix."""
 
 

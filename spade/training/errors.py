@@ -3,6 +3,8 @@ each other)."""
 
 from __future__ import annotations
 
+from spade.utils.errors import UserError
 
-class ExpertMismatchError(ValueError):
+
+class ExpertMismatchError(UserError, ValueError):
     """An expert for the diffusion margin that does not fit the student's data or the method (DBC / Cond-DBC)."""

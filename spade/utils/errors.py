@@ -17,7 +17,13 @@ from pathlib import Path
 from typing import Any
 
 
-class ConfigError(ValueError):
+class UserError(Exception):
+    """Something the user must change (a key, a file, a folder): every entry point reports it as one line, without a
+    traceback, and exits with status 2. Each package's user errors derive from it (and keep their builtin base,
+    ``ValueError`` or ``RuntimeError``, for callers that catch those)."""
+
+
+class ConfigError(UserError, ValueError):
     """A user error in the config, reported as one line (key, value, fix) without a traceback."""
 
 

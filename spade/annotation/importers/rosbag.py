@@ -27,11 +27,12 @@ from spade.data.polyline import polyline_length, resample_polyline
 from spade.data.rasterize import Instance, robot_instance
 from spade.maps.frame import RobotFrame, yaw_from_heading
 from spade.maps.ros_io import codes_from_values
+from spade.utils.errors import UserError
 
 WAYPOINT_TYPES = {"nav_msgs/msg/Path", "geometry_msgs/msg/PoseArray"}
 
 
-class RosbagImportError(ValueError):
+class RosbagImportError(UserError, ValueError):
     """A recording cannot be imported; the message names what is missing and the setting to change."""
 
 

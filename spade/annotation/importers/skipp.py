@@ -31,12 +31,13 @@ from spade.annotation.scenarios import ScenarioResult
 from spade.annotation.templates import check_shape
 from spade.data.rasterize import Instance, robot_instance
 from spade.maps.frame import RobotFrame, yaw_from_heading
+from spade.utils.errors import UserError
 
 SKIPP_SIZE = 256
 UNKNOWN_MAX, FREE_MAX = 60, 140  # SKIPP's threshold_obs
 
 
-class SkippImportError(ValueError):
+class SkippImportError(UserError, ValueError):
     """The folder does not follow SKIPP's layout; the message says what is missing."""
 
 

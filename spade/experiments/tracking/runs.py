@@ -285,7 +285,8 @@ def finish_run(cfg: DictConfig, trainer: L.Trainer, model: L.LightningModule, lo
         tags = {**dict(cfg.get("tags") or {}), **dict((cfg.get("registry") or {}).get("tags") or {})}
         register_checkpoint(ml, name, f"checkpoints/{'best' if 'best' in paths else 'last'}", tags=tags,
                             data_fingerprint=data_fingerprint(cfg), description=model_description(cfg, uses),
-                            version_description=version_description(cfg, ml, metrics))
+                            version_description=version_description(cfg, ml, metrics),
+                            promote=bool((cfg.get("registry") or {}).get("promote", False)))
 
 
 @rank_zero_only
