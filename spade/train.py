@@ -13,7 +13,8 @@ import logging
 
 from spade.utils.threads import configure_threads, prefer_passive_wait
 
-prefer_passive_wait()  # before torch is imported (below): idle OpenMP threads yield their core to other runs
+if __name__ == "__main__":  # the command, not an import: before torch is (below), idle OpenMP threads then yield
+    prefer_passive_wait()   # their core to other runs (spade/utils/threads.py)
 
 import hydra  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402

@@ -57,13 +57,17 @@ def tiny_checkpoints(spade_home: Path) -> dict[str, str]:
     return out
 
 
-#: Environment variables that the libraries a test drives set themselves: ``mlflow.set_tracking_uri`` exports
-#: the URI so that child processes inherit it, Lightning's ``seed_everything`` records the seed. They are
-#: restored after each test, not reported: a later test's ``spade.train`` subprocess must not log into an earlier
-#: test's store.
-LIBRARY_SET_ENV = ("MLFLOW_TRACKING_URI", "PL_GLOBAL_SEED", "PL_SEED_WORKERS")
-#: Set by pytest itself around every phase of a test: neither restored nor reported.
+#: Environment variables that the libraries a test drives set themselves (names or prefixes): Lightning's
+#: ``seed_everything`` records the seed, torch sets its own on the first import of some modules. Neither restored
+#: nor reported. ``MLFLOW_TRACKING_URI`` (exported by ``mlflow.set_tracking_uri`` for child processes) is removed
+#: after each test: a later test's ``spade.train`` subprocess must not log into an earlier test's store.
+LIBRARY_SET_ENV = ("PL_GLOBAL_SEED", "PL_SEED_WORKERS", "PYTORCH_", "TORCHINDUCTOR_", "TORCH_", "KMP_")
+#: Set by pytest itself around every phase of a test.
 PYTEST_ENV = "PYTEST_CURRENT_TEST"
+
+
+def _owned_by_a_library(key: str) -> bool:
+    return key == PYTEST_ENV or key.startswith(LIBRARY_SET_ENV)
 
 
 @pytest.fixture(autouse=True)
@@ -79,14 +83,17 @@ def _environment_left_as_found():
     try:
         yield
     finally:
+        os.environ.pop("MLFLOW_TRACKING_URI", None)
         after = dict(os.environ)
-        for key in set(after) - set(before) - {PYTEST_ENV}:
-            del os.environ[key]
-        os.environ.update({k: v for k, v in before.items() if k != PYTEST_ENV})
+        changed = sorted(k for k in set(before) | set(after)
+                         if before.get(k) != after.get(k) and not _owned_by_a_library(k))
+        for key in changed:
+            if key in before:
+                os.environ[key] = before[key]
+            else:
+                del os.environ[key]
         if old_uri is not None:
             os.environ["MLFLOW_TRACKING_URI"] = old_uri
-    changed = sorted(k for k in set(before) | set(after)
-                     if before.get(k) != after.get(k) and k not in (*LIBRARY_SET_ENV, PYTEST_ENV))
     if changed:
         pytest.fail(f"the test left os.environ changed ({', '.join(changed)}); set variables with "
                     "monkeypatch.setenv so that they are undone")
