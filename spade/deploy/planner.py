@@ -28,7 +28,9 @@ to map-frame metres (``WindowPose.to_map`` then ``pixel_to_world``). Every way a
 computed (window, probabilities) for debugging.
 
 Model files: a checkpoint from ``python -m spade.train``, or its ONNX / TorchScript export
-(``python -m spade.export``), opened by :func:`spade.models.modelfile.open_model` (one device policy).
+(``python -m spade.export``), opened by :func:`spade.models.modelfile.open_model` (one device policy). Where torch
+is not installed (a deploy install, :mod:`spade.deploy.lean`) ONNX students are opened by
+:mod:`spade.deploy.onnx_runtime` (onnxruntime alone) and importing this module imports no torch.
 """
 
 from __future__ import annotations
@@ -41,14 +43,22 @@ from typing import Any, Union
 
 import numpy as np
 
-from spade.data.rasterize import render
-from spade.maps import FREE, OCCUPIED, OccupancyMap, load_ros_map
-from spade.maps.frame import RobotFrame, WindowPose, heading_from_yaw
-from spade.metrics import ExtractedPath, extract_path
-from spade.metrics.baselines import shortest_path
-from spade.data.polyline import resample_polyline
-from spade.metrics.decoding import DecodedPath, PathDecoder
-from spade.models.modelfile import ModelFileError, UnsafeModelFileError, open_model, robot_frame
+from spade.deploy.lean import LEAN, defer_package_inits
+
+if LEAN:  # no torch here (a deploy install): the packages' torch-importing __init__s are not run
+    defer_package_inits("spade.data", "spade.metrics", "spade.models")
+
+from spade.data.rasterize import render  # noqa: E402 - after the deploy install's package set-up
+from spade.maps import FREE, OCCUPIED, OccupancyMap, load_ros_map  # noqa: E402
+from spade.maps.frame import RobotFrame, WindowPose, heading_from_yaw  # noqa: E402
+from spade.metrics.extraction import ExtractedPath, extract_path  # noqa: E402
+from spade.data.polyline import resample_polyline  # noqa: E402
+from spade.metrics.decoding import DecodedPath, PathDecoder  # noqa: E402
+
+if LEAN:  # ONNX students through onnxruntime alone
+    from spade.deploy.onnx_runtime import ModelFileError, UnsafeModelFileError, open_model, robot_frame
+else:
+    from spade.models.modelfile import ModelFileError, UnsafeModelFileError, open_model, robot_frame
 
 __all__ = ["PlanResult", "PlanWindow", "Planner", "PlannerConfigError"]
 
@@ -273,6 +283,9 @@ class Planner:
                                      f"paper's extraction), got {decode!r}")
         if fallback not in (None, "none", "shortest"):
             raise PlannerConfigError(f"fallback must be null or 'shortest', got {fallback!r}")
+        if LEAN and fallback == "shortest":
+            raise PlannerConfigError("fallback='shortest' needs torch (spade.metrics.baselines), which this deploy "
+                                     "install lacks; use fallback=null or install torch")
         if not 0.0 <= float(low_confidence_share) <= 1.0:
             raise PlannerConfigError(f"low_confidence_share must lie in [0, 1], got {low_confidence_share}")
         self.decode = decode
@@ -460,6 +473,8 @@ class Planner:
         result = dict(low_share=found.low_share, min_probability=found.min_prob, low_confidence=low,
                       blocked=_blocked(codes, found.points, start_px, goal_px))
         if low and self.fallback == "shortest":
+            from spade.metrics.baselines import shortest_path  # imports torch: only for this fallback
+
             line = shortest_path(codes, start_px, goal_px, self.resolution)
             if line is not None:  # from the grid cells of the ends to the exact robot and goal positions
                 points = resample_polyline(np.vstack([start_px, line[1:-1], goal_px]), self.num_waypoints)

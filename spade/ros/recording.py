@@ -163,8 +163,8 @@ class _Msgs:
 
 
 def write_plan_bag(path: str | Path, m: Any, results: Sequence[Any], *, frame_id: str = "map",
-                   start_ns: int | None = None, period_ns: int = 1_000_000_000, goal_yaws: Sequence[float] | None = None,
-                   topics: Mapping[str, str] | None = None) -> Path:
+                   start_ns: int | None = None, period_ns: int = 1_000_000_000,
+                   goal_yaws: Sequence[float] | None = None, topics: Mapping[str, str] | None = None) -> Path:
     """Write plans on map ``m`` as a ROS 2 MCAP bag (see the module docstring); ``results``: :class:`PlanResult`
     objects (a failed one writes its poses, no path), one every ``period_ns`` from ``start_ns`` (now). Returns
     the path written."""
