@@ -45,8 +45,12 @@ def test_quick_bench_measures_the_default_sections(tmp_path: Path) -> None:
     assert [(r["sampler"], r["steps"]) for r in rows] == [("ddim", 2), ("ddim", 5), ("ddpm", 50)]
     assert all(r["samples"] == 4 and r["seconds_per_sample"] > 0 for r in rows)
     assert any(t["target"].startswith("Cond-DBC") for t in results["targets"])
+    scaling = results["annotation_scaling"]["rows"]
+    assert [(r["window_px"], r["workers"]) for r in scaling] == [(64, 1), (64, 2)]
+    assert all(r["instances"] == 16 and r["instances_per_s_per_worker"] > 0 and r["same_as_first"] for r in scaling)
 
-    for heading in ("Student latency", "Expert sampling", "DDIM vs DDPM", "Training step", "Metrics", "Data", "Targets"):
+    for heading in ("Student latency", "Expert sampling", "DDIM vs DDPM", "Training step", "Metrics", "Data",
+                    "Annotation scaling", "Targets"):
         assert f"### {heading}" in proc.stdout
 
 
@@ -137,6 +141,34 @@ def test_quick_and_full_settings_come_from_one_config() -> None:
     assert list(quick.student.sizes) == ["small"] and quick.experts.cond_preset == "tiny"
     assert full.annotation.num_instances is None and quick.dataset.instances == 64 and full.maps.seeds == 10
     assert quick.student.runs == 7 and quick.threads == 1 and full.threads is None
+
+
+def _scaling_row(px: int, workers: int, seconds: float, same: bool = True) -> dict:
+    return {"preset": "test", "window_px": px, "resolution_m": 6.4 / px, "workers": workers, "instances": 256,
+            "scenarios": 4, "seconds": seconds, "instances_per_s": 256 / seconds,
+            "instances_per_s_per_worker": 256 / seconds / workers, "startup_s": 0.0 if workers == 1 else 3.0,
+            "instances_per_s_per_worker_after_startup": 256 / (seconds - (0 if workers == 1 else 3.0)) / workers,
+            "cpu_s": seconds * workers, "instances_per_cpu_s": 256 / (seconds * workers), "dataset_sha256": "x",
+            "same_as_first": same}
+
+
+def test_annotation_scaling_is_a_default_section_at_64_and_128_px_with_1_and_2_workers() -> None:
+    import spade.bench  # noqa: F401  (registers the quick_or resolver)
+    from spade.utils.config import compose_config
+
+    full = compose_config("bench", [])
+    assert "annotation_scaling" in full.sections and full.annotation_scaling.preset == "test"
+    assert list(full.annotation_scaling.image_sizes) == [64, 128] and list(full.annotation_scaling.workers) == [1, 2]
+    assert full.annotation_scaling.num_instances == 256
+    quick = compose_config("bench", ["quick=true"])
+    assert list(quick.annotation_scaling.image_sizes) == [64] and quick.annotation_scaling.num_instances == 16
+    rows = [_scaling_row(64, 1, 4.0), _scaling_row(64, 2, 5.0), _scaling_row(128, 1, 8.0),
+            _scaling_row(128, 2, 7.0, same=False)]
+    table = format_report({"mode": "full", "machine": {}, "annotation_scaling": {
+        "preset": "test", "maps": "the preset's procedural map", "states_per_task": None, "rows": rows}})
+    assert "### Annotation scaling (preset test" in table and "instances/s per worker" in table
+    assert "| 128 | 0.05 | 2 | 256 | 4 | 7.0 | 3.0 | 36.6 | 18.3 | 32.0 | 18.3 | NO |" in table
+    assert "| 64 | 0.1 | 1 | 256 | 4 | 4.0 | 0.0 | 64.0 | 64.0 | 64.0 | 64.0 | yes |" in table
 
 
 def test_unknown_sections_are_refused() -> None:

@@ -175,17 +175,21 @@ def state_chunks(pending: np.ndarray, size: int) -> list[np.ndarray]:
 
 
 def ordered_results(executor: Executor, tasks: Iterable[tuple[int, str, int]], workers: int, states_per_task: int,
-                    lookahead: int | None = None, needed: Callable[[int, str], bool] = lambda m, s: True
-                    ) -> Iterator[tuple[int, ScenarioResult]]:
+                    lookahead: int | None = None, needed: Callable[[int, str], bool] = lambda m, s: True,
+                    remaining: Callable[[], float] = lambda: float("inf")) -> Iterator[tuple[int, ScenarioResult]]:
     """(map index, complete result) of the scenario ``tasks`` in task order, however the work was split.
 
     Each scenario is one plan task (:func:`plan_scenario`: its accepted path and first instance), then its
     remaining robot states in tasks of ``states_per_task`` (:func:`rasterise_states`), so that the workers share
     the states of one scenario instead of waiting on a few long ones. At most ``2 * workers`` tasks are in
-    flight (one in this process); chunks of earlier scenarios go before the plans of later ones, and at most
-    ``lookahead`` scenarios (default ``3 * workers``, one in this process) are planned ahead of the consumer. ``needed(map index, shape)`` false: the
-    scenario's states are not rasterised (the consumer will skip it). Submitting stops when the consumer stops
-    iterating; a task's error is raised when its scenario is reached, as if computed in order.
+    flight (one in this process); chunks of earlier scenarios go before the plans of later ones. Scenarios are
+    planned ahead of the consumer while they are likely to be needed: at most ``lookahead`` of them (default
+    ``3 * workers``, one in this process), and no more once the planned ones promise the ``remaining()``
+    instances the consumer still wants (plans in flight count as the mean scenario so far; before any is known,
+    at most ``workers`` plans are in flight). ``needed(map index, shape)`` false: the scenario's states are not
+    rasterised (the consumer will skip it). Submitting stops when the consumer stops iterating; a task's error
+    is raised when its scenario is reached, as if computed in order. What is computed ahead never changes what
+    is yielded.
     """
     capacity = 1 if workers <= 1 else 2 * workers
     lookahead = max(1, (1 if workers <= 1 else 3 * workers) if lookahead is None else lookahead)
@@ -194,24 +198,40 @@ def ordered_results(executor: Executor, tasks: Iterable[tuple[int, str, int]], w
     in_flight: set[Future] = set()
     it = iter(tasks)
     exhausted = False
+    known = [0, 0]  # scenarios planned so far, and the instances they promise
+
+    def promised(slot: _Slot) -> int:
+        r = slot.result
+        return 0 if r is None or r.executed is None else len(r.instances) + len(r.pending)
 
     def planned(slot: _Slot) -> None:
         if slot.plan.exception() is not None:
             return  # raised when the slot is consumed
         slot.result = slot.plan.result()
+        known[0] += 1
+        known[1] += promised(slot)
         if slot.result.executed is not None and len(slot.result.pending) and needed(slot.map_index, slot.shape):
             slot.todo.extend(state_chunks(slot.result.pending, states_per_task))
+
+    def worth_planning() -> bool:
+        if len(slots) >= lookahead:
+            return False
+        if not known[0]:
+            return len(plans) < max(1, workers)
+        expected = sum(promised(s) for s in slots) + len(plans) * known[1] / known[0]
+        return expected < remaining()
 
     def fill() -> None:
         nonlocal exhausted
         while len(in_flight) < capacity:
             slot = next((s for s in slots if s.todo), None)
             if slot is not None:
+                assert slot.result is not None and slot.result.executed is not None
                 fut = executor.submit(_states_task, slot.map_index, slot.result.executed.points, slot.todo.popleft())
                 slot.chunks.append(fut)
                 in_flight.add(fut)
                 continue
-            if exhausted or len(slots) >= lookahead:
+            if exhausted or not worth_planning():
                 return
             task = next(it, None)
             if task is None:
@@ -286,7 +306,8 @@ def template_instances(contexts: list[MapContext], cfg: Mapping[str, Any], stats
     produced = 0
     tasks = (t for t in scenario_tasks(len(contexts), shapes, max_per_map, int(cfg["scenario"].get("first_index", 0)))
              if (t[0], t[1]) not in dead)  # only saves work; correctness comes from the check below
-    results = ordered_results(executor, tasks, workers, per_task, needed=lambda m, shape: (m, shape) not in dead)
+    results = ordered_results(executor, tasks, workers, per_task, needed=lambda m, shape: (m, shape) not in dead,
+                              remaining=lambda: wanted - produced)
     try:
         for map_index, result in results:
             pair = (map_index, result.shape)

@@ -22,7 +22,8 @@ from spade.utils.timing import machine_info
 
 log = logging.getLogger(__name__)
 
-SECTIONS = ("student", "experts", "training", "metrics", "decoder", "data", "quality", "annotation", "dataset", "maps")
+SECTIONS = ("student", "experts", "training", "metrics", "decoder", "data", "quality", "annotation_scaling",
+            "annotation", "dataset", "maps")
 _KEYS = ("quick", "sections", "out_json", "work_dir", "expert_ckpt", "seed", "threads", *SECTIONS)
 
 
@@ -83,6 +84,8 @@ def bench(cfg: DictConfig) -> dict[str, Any]:
                                "read": dataset_read_throughput(datasets["train_dir"])}
         if "quality" in sections:
             results["quality"] = _quality(c["quality"], c.get("expert_ckpt"), datasets, work, c["seed"])
+        if "annotation_scaling" in sections:
+            results["annotation_scaling"] = _annotation_scaling(c["annotation_scaling"], work)
         if "annotation" in sections:
             results["annotation"] = _annotation(c["annotation"], work)
         if "dataset" in sections:
@@ -166,6 +169,18 @@ def _annotation(a: dict[str, Any], work: Path) -> dict[str, Any]:
     instances, seconds = sum(r["instances"] for r in rows), sum(r["seconds"] for r in rows)
     return {"maps": a.get("maps") or "the presets' procedural maps", "presets": rows, "instances": instances,
             "seconds": seconds, "instances_per_s": instances / seconds if seconds else 0.0}
+
+
+def _annotation_scaling(a: dict[str, Any], work: Path) -> dict[str, Any]:
+    """Annotation instances/s per worker on a set of few scenarios, per window size and worker count."""
+    from spade.perf.throughput import annotation_scaling
+
+    log.info("annotation scaling: preset %s, %d instances at %s px with %s workers", a["preset"],
+             a["num_instances"], a["image_sizes"], a["workers"])
+    rows = annotation_scaling(work, a["preset"], a["num_instances"], a["image_sizes"], a["workers"],
+                              a.get("window_m", 6.4), a.get("maps"), a.get("spacing_m"), a.get("states_per_task"))
+    return {"preset": a["preset"], "maps": a.get("maps") or "the preset's procedural map",
+            "states_per_task": a.get("states_per_task"), "rows": rows}
 
 
 def _dataset(d: dict[str, Any], work: Path, seed: int) -> dict[str, Any]:

@@ -125,6 +125,8 @@ def format_report(results: dict[str, Any]) -> str:
             table.append([f"read: DataLoader, batch {r['loader_batch_size']}", r["image_size"][0], r["instances"],
                           f"{r['loader_instances_per_s']:,.0f} instances/s"])
         parts.append("### Data\n\n" + _table(["what", "px", "instances", "throughput"], table))
+    if results.get("annotation_scaling"):
+        parts.append(_annotation_scaling(results["annotation_scaling"]))
     if results.get("annotation"):
         parts.append(_annotation(results["annotation"]))
     if results.get("dataset"):
@@ -204,6 +206,20 @@ def _annotation(a: dict[str, Any]) -> str:
     return (f"### Annotation ({a['maps']})\n\n"
             + _table(["preset", "px", "workers", "instances", "s", "instances/s", "scenarios accepted / tried",
                       "rejections (of attempts)", "failed scenarios"], table))
+
+
+def _annotation_scaling(a: dict[str, Any]) -> str:
+    table = [[r["window_px"], r["resolution_m"], r["workers"], r["instances"], r["scenarios"], f"{r['seconds']:.1f}",
+              f"{r['startup_s']:.1f}", f"{r['instances_per_s']:.1f}", f"{r['instances_per_s_per_worker']:.1f}",
+              f"{r['instances_per_s_per_worker_after_startup']:.1f}", f"{r['instances_per_cpu_s']:.1f}",
+              "yes" if r["same_as_first"] else "NO"] for r in a["rows"]]
+    spt = a.get("states_per_task") or "the tool's default"
+    return (f"### Annotation scaling (preset {a['preset']}, {a['maps']}; states per task: {spt})\n\n"
+            + _table(["px", "m/px", "workers", "instances", "scenarios", "s", "pool start-up s", "instances/s",
+                      "instances/s per worker", "per worker without start-up", "instances per CPU-s",
+                      "same dataset as the first"], table)
+            + "\n\nPool start-up: starting the workers and importing their modules, measured apart; CPU seconds: "
+              "this process and its workers, which a machine shared with other jobs does not change.")
 
 
 def _dataset(d: dict[str, Any]) -> str:
