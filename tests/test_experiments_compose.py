@@ -18,8 +18,14 @@ ROWS = sorted(p.stem for p in (CONF_DIR / "experiment").glob("*.yaml") if p.stem
 
 
 def test_there_is_one_experiment_per_row() -> None:
+    """Each table's rows are listed once (spade/experiments/tables.py): its composition sweeps them, and every one
+    of them is an experiment file."""
+    from spade.experiments.tables import TABLES
+
     assert len(ROWS) == 27  # 18 students + 4 experts + 3 (Table 2) + 2 (Table 3)
-    assert FAST_ROWS <= set(ROWS)
+    assert set(FAST_ROWS) <= set(ROWS)
+    listed = [row for key in ("table1", "table2", "table3") for row in TABLES[key].sweep_order]
+    assert sorted(listed) == ROWS
 
 
 @pytest.mark.parametrize("table,count", sorted(TABLES.items()))

@@ -64,3 +64,20 @@ def test_a_resolved_prerequisite_is_recorded_in_the_runs_config(tmp_path: Path) 
     assert cfg.model.margin.expert_ckpt == str(tmp_path / "e.ckpt")
     assert OmegaConf.to_container(cfg.requires.expert.resolved) == {"name": "spade-x", "version": 4,
                                                                      "run_id": "abc123"}
+
+
+def test_the_prerequisite_plan_lists_each_missing_model_once_deepest_first(tmp_path: Path) -> None:
+    """A fine-tuning row needs a pretrained Cond-DBC student (which needs the conditional expert) and that expert:
+    the plan, made before anything trains, puts the expert first, the student second, and the row's own use of
+    the expert last without a second training of it."""
+    from spade.experiments.run import prerequisite_plan
+    from training_helpers import compose_row
+
+    cfg = compose_row("t2_augbc_finetune_conddbc_U", tmp_path, "logger=none")
+    plan = prerequisite_plan(cfg)
+    assert [(p.key, p.experiment) for _, p in plan] == [("expert", "expert_cond_L"),
+                                                        ("pretrained", "t1_medium_conddbc_L"),
+                                                        ("expert", "expert_cond_L")]
+    assert plan[0][1].name == plan[2][1].name  # one registered model, trained once (train() skips the repeat)
+    assert plan[0][0].run_name == "t1_medium_conddbc_L" and plan[1][0] is cfg and plan[2][0] is cfg
+    assert not (tmp_path / "out").exists()  # nothing trained or written

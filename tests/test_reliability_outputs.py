@@ -66,6 +66,7 @@ def run_main(monkeypatch, tmp_path: Path, capsys):
     """``run_main("spade.plan", [...])`` -> (exit status, stderr): the entry point's Hydra main in this process."""
     monkeypatch.delenv("HYDRA_FULL_ERROR", raising=False)
     monkeypatch.setenv("SPADE_HOME", str(tmp_path / "home"))
+    monkeypatch.setenv("OMP_WAIT_POLICY", "PASSIVE")  # what spade.train sets as a command (undone after the test)
 
     def run(module: str, args: list[str], hydra: bool = True) -> tuple[int, str]:
         GlobalHydra.instance().clear()
@@ -332,8 +333,11 @@ def test_report_reads_without_writing_into_a_file_that_is_not_an_mlflow_store(tm
 # -- 10. every key that shapes the data is checked before any data or prerequisite -------------------------------------
 def test_image_size_window_and_unet_downsampling_must_agree(spade_home: Path, tmp_path: Path) -> None:
     """Case 10: ``scale.image_size=62`` alone was ignored (data stayed 64 px); with the window at 62 px too the run
-    generated data and trained and registered an expert before failing on "not divisible by 4"."""
-    with pytest.raises(ConfigError, match=r"scale.image_size=62 differs from scale.annotate.window.size_px=64"):
+    generated data and trained and registered an expert before failing on "not divisible by 4". The window now
+    follows ``scale.image_size`` (one stored size); a window set apart from it is still refused."""
+    with pytest.raises(ConfigError, match=r"scale.image_size=64 differs from scale.annotate.window.size_px=60"):
+        validate_train_config(compose_row(ROW, spade_home, "scale.annotate.window.size_px=60"))
+    with pytest.raises(ConfigError, match=r"window.size_px=62 is not a multiple of 4.*model.size=small"):
         validate_train_config(compose_row(ROW, spade_home, "scale.image_size=62"))
     with pytest.raises(ConfigError, match=r"window.size_px=62 is not a multiple of 4.*model.size=small"):
         validate_train_config(compose_row(ROW, spade_home, "scale.image_size=62", "scale.annotate.window.size_px=62"))

@@ -34,6 +34,8 @@ from typing import Any
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
+from spade.experiments.tables import get_table
+
 try:  # a Hydra callback when Hydra is there (it always is under spade.train)
     from hydra.experimental.callback import Callback
 except ImportError:  # pragma: no cover
@@ -87,8 +89,15 @@ def row_sweep(rows: Any, *table_rows: str) -> str:
     return ",".join(r for r in table_rows if any(fnmatch.fnmatchcase(r, w) for w in wanted))
 
 
+def table_row_sweep(rows: Any, table: str) -> str:
+    """:func:`row_sweep` over the rows of ``table`` (:attr:`spade.experiments.tables.Table.sweep_order`): a table's
+    rows are listed once, in :mod:`spade.experiments.tables`."""
+    return row_sweep(rows, *get_table(table).sweep_order)
+
+
 OmegaConf.register_new_resolver("spade_sweep", seed_sweep, replace=True)
 OmegaConf.register_new_resolver("spade_rows", row_sweep, replace=True)
+OmegaConf.register_new_resolver("spade_table_rows", table_row_sweep, replace=True)
 
 
 # Seconds per training step, batch 32, 64 px windows, 2 CPU cores (torch with 2 threads).

@@ -27,7 +27,7 @@ from omegaconf import DictConfig, OmegaConf
 from spade.experiments.lifecycle import (
     CarryBestCheckpoint, DeterministicTraining, best_checkpoint_path, last_checkpoint_path,
 )
-from spade.experiments.prerequisites import complete_prerequisite, pending_prerequisites
+from spade.experiments.prerequisites import Prerequisite, complete_prerequisite, pending_prerequisites
 from spade.experiments.tracking.runs import (
     finish_run,
     mark_run_ended,
@@ -40,8 +40,8 @@ from spade.experiments.tracking.summary import run_summary
 from spade.models.modelfile import safe_loading
 from spade.training.instantiate import instantiate_callbacks, instantiate_loggers, run_id_from_checkpoint
 
-__all__ = ["from_checkpoint", "optimized_value", "rename_prefix", "run", "test_elsewhere", "train",
-           "untrained_test_metrics"]
+__all__ = ["fit_and_test", "from_checkpoint", "optimized_value", "prerequisite_plan", "rename_prefix", "run",
+           "test_elsewhere", "train", "untrained_test_metrics"]
 
 log = logging.getLogger(__name__)
 
@@ -71,23 +71,50 @@ def run(cfg: DictConfig) -> float | None:
         return None
 
 
-def train(cfg: DictConfig, _depth: int = 0) -> tuple[dict[str, Any], dict[str, Any]]:
+def train(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
     """Fit (and test) the configured model; returns (metrics, objects).
 
-    In order: the config is validated (:mod:`spade.experiments.config_checks`: a one-line error before any MLflow run
-    or data work), missing prerequisites are trained (each by a nested call), everything is re-seeded, stale
-    RUNNING runs of this row are marked KILLED, and then the run itself is built and fitted. Its MLflow run ends
-    KILLED (signal) or FAILED (exception) when it does not finish.
+    In order: the config and those of its missing prerequisites are validated and the prerequisites put in the
+    order they train (:func:`prerequisite_plan`: a one-line error before any MLflow run or data work); each is
+    trained (:func:`fit_and_test`) and its registered version filled into the config that needs it; then the run
+    itself. Nothing here calls itself: the plan is made once, then carried out top to bottom.
     """
+    trained: set[str] = set()
+    for parent, prerequisite in prerequisite_plan(cfg):
+        if prerequisite.name not in trained:  # two configs may need the same model: it trains once
+            log.info("Prerequisite %s (%s) is not registered: training it first (%s)", prerequisite.key,
+                     prerequisite.name, prerequisite.command)
+            fit_and_test(prerequisite.config)
+            trained.add(prerequisite.name)
+        complete_prerequisite(parent, prerequisite)
+    return fit_and_test(cfg)
+
+
+def prerequisite_plan(cfg: DictConfig) -> list[tuple[DictConfig, Prerequisite]]:
+    """(config that needs it, prerequisite) for every model ``cfg`` needs that is not registered, deepest first
+    (a pretrained student's own expert before the student), each config validated; registered ones are filled in
+    (:func:`~spade.experiments.prerequisites.pending_prerequisites`). Trains nothing."""
     validate_train_config(cfg)
-    pending = pending_prerequisites(cfg, depth=_depth)
-    for prerequisite in pending:  # every prerequisite's config checked before any of them trains
-        validate_train_config(prerequisite.config)
-    for prerequisite in pending:
-        log.info("Prerequisite %s (%s) is not registered: training it first (%s)", prerequisite.key,
-                 prerequisite.name, prerequisite.command)
-        train(prerequisite.config, _depth=_depth + 1)
-        complete_prerequisite(cfg, prerequisite)
+    plan: list[tuple[DictConfig, Prerequisite]] = []
+
+    planned: set[str] = set()
+
+    def visit(config: DictConfig, depth: int) -> None:
+        for prerequisite in pending_prerequisites(config, depth=depth):
+            if prerequisite.name not in planned:
+                validate_train_config(prerequisite.config)
+                visit(prerequisite.config, depth + 1)
+                planned.add(prerequisite.name)
+            plan.append((config, prerequisite))
+
+    visit(cfg, 0)
+    return plan
+
+
+def fit_and_test(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
+    """One run whose prerequisites are filled in: checkpoints checked, everything re-seeded, stale RUNNING runs of
+    this row marked KILLED, then data, model, trainer, fit, test, logging. Its MLflow run ends KILLED (signal) or
+    FAILED (exception) when it does not finish."""
     validate_checkpoints(cfg)  # a model fetched from the registry passes the checks of one given by path
     seed = cfg.get("seed")
     if seed is not None:

@@ -148,6 +148,19 @@ class Table:
         return [line.cells[s] for line in self.lines for s in self.shapes
                 if s in line.cells and s not in self.tested_elsewhere]
 
+    @property
+    def sweep_order(self) -> list[str]:
+        """The experiments in the order a table's multirun runs them: per shape, its experts first (the students
+        after them need them), then the other rows in layout order. The table's one list of rows: its
+        composition (``conf/experiment/<composition>.yaml``) sweeps ``${spade_table_rows:${rows},<key>}``."""
+        order: list[str] = []
+        for shape in self.shapes:
+            if shape in self.tested_elsewhere:
+                continue
+            column = [line.cells[shape] for line in self.lines if shape in line.cells]
+            order += [r for r in column if r.startswith("expert_")] + [r for r in column if not r.startswith("expert_")]
+        return order
+
     def describe(self) -> str:
         """A description for the MLflow experiment (shown on its page in the UI)."""
         return (
