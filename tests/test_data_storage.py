@@ -164,3 +164,15 @@ def test_release_pages_keeps_reading_correct(tmp_path: Path) -> None:
         assert torch.equal(a[i]["state"], b[i]["state"])
     assert os.path.exists(tmp_path / "ds" / "manifest.json")
     json.loads((tmp_path / "ds" / "manifest.json").read_text())
+
+
+def test_settings_that_never_change_the_bytes_do_not_make_a_dataset_stale() -> None:
+    """How a dataset is made (workers, the states per worker task, progress bars) is not what it is: a dataset
+    generated before ``states_per_task`` existed is still the dataset a config with it asks for."""
+    from spade.data.fingerprint import settings_fingerprint, shaping_settings
+
+    recorded = {"window": {"size_px": 64, "resolution_m": 0.1}, "workers": 1, "seed": 0}
+    asked = {**recorded, "workers": 8, "states_per_task": 8, "progress": True}
+    assert shaping_settings(asked) == shaping_settings(recorded)
+    assert settings_fingerprint(asked) == settings_fingerprint(recorded)
+    assert settings_fingerprint({**recorded, "seed": 1}) != settings_fingerprint(recorded)

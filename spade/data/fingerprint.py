@@ -17,7 +17,8 @@ from typing import Any
 from spade.data.format import read_manifest_json
 
 # Annotation settings that never change a dataset's bytes (where it goes, how fast it is made, what else is drawn).
-NON_SHAPING_KEYS = frozenset({"out_dir", "overwrite", "workers", "start_method", "progress", "preview", "hydra"})
+NON_SHAPING_KEYS = frozenset({"out_dir", "overwrite", "workers", "states_per_task", "start_method", "progress", "preview",
+                              "hydra"})
 
 
 def fingerprint(value: Any, length: int = 10) -> str:
