@@ -151,3 +151,24 @@ def test_optuna_search_with_joblib_runs_two_trials_in_parallel(server: dict) -> 
     assert all(r.info.run_name.startswith("t1_medium_conddbc_L_lambda") for r in runs)
     results = (sweep_dir / "optimization_results.yaml").read_text()
     assert "best_params" in results and "model.margin.lambda_dm" in results
+
+
+@pytest.mark.slow
+def test_a_table_row_runs_through_submitits_local_executor_into_the_server(server: dict) -> None:
+    """Scale-out that runs, not only composes: one row of Table 1 as a job of the submitit launcher (its local
+    executor: the job pickled, started as its own process and unpickled, as on a SLURM cluster), reporting to the
+    MLflow server; the run finishes with its test metrics and submitit's own logs hold the job's output."""
+    _plugin("submitit")
+    from mlflow import MlflowClient
+
+    sweep_dir = server["home"] / "submitit"
+    out = _finish(_start(["--config-dir", str(SWEEPS), "+experiment=table1", "rows=[t1_small_bc_L]", "seeds=[7]",
+                          "hydra/launcher=slurm_local", f"hydra.sweep.dir={sweep_dir}", *TINY], server))
+    assert "1 rows x 1 seed(s)" in out, out[-3000:]
+    client = MlflowClient(tracking_uri=server["uri"])
+    runs = [r for r in client.search_runs([client.get_experiment_by_name("table1").experiment_id])
+            if r.data.params.get("cfg/seed") == "7"]
+    assert [r.info.run_name for r in runs] == ["t1_small_bc_L"]
+    assert runs[0].info.status == "FINISHED" and TEST_KEYS <= set(runs[0].data.metrics), runs[0].data.metrics
+    logs = sorted((sweep_dir / ".submitit").rglob("*_log.out"))
+    assert logs and any("t1_small_bc_L" in p.read_text() for p in logs), sorted(sweep_dir.rglob("*"))
