@@ -2,7 +2,10 @@
 
 Writes the student with its metadata (window size, metres per pixel, robot frame, input encoding, network config),
 checks that the file reproduces PyTorch's logits (prints the max absolute difference) and prints eager and exported
-latency. See ``conf/export.yaml`` for the options and :mod:`spade.deploy.export` for the file format. Inputs are
+latency. ``register=NAME`` also logs the ONNX export as an MLflow Model (ONNX flavour, with its signature and window
+metadata) in the project's store, registers it as NAME and sets ``alias`` (``champion``) on the new version:
+``python -m spade.plan ... model=models:/NAME@champion`` and ``python -m spade.ros model=models:/NAME@champion``
+then load it (:mod:`spade.deploy.registry`). See ``conf/export.yaml`` for the options and :mod:`spade.deploy.export` for the file format. Inputs are
 checked first; a user error is one ``error:`` line, exit 2."""
 
 from __future__ import annotations
@@ -15,13 +18,13 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
-from spade.utils.errors import run_entry_point, task
+from spade.utils.errors import ConfigError, run_entry_point, task
 from spade.deploy.export import ExportReport, export_student
-from spade.experiments.config_checks import exit_on_user_error, validate_export_config
+from spade.experiments.checks import exit_on_user_error, validate_export_config
 
 log = logging.getLogger(__name__)
 OPTIONS = ("ckpt_path", "out_path", "format", "opset", "parity_batch", "tolerance", "latency_runs", "latency_batches",
-           "threads", "report_path")
+           "threads", "report_path", "register", "alias")
 
 
 def export(cfg: DictConfig) -> ExportReport:
@@ -42,6 +45,16 @@ def export(cfg: DictConfig) -> ExportReport:
         latency_batches=tuple(options.get("latency_batches") or (1,)),
         threads=options.get("threads"),
     )
+    if options.get("register"):
+        if report.format != "onnx":
+            raise ConfigError(f"register={options['register']}: only ONNX exports are registered as MLflow Models; "
+                              "pass format=onnx")
+        from spade.deploy.registry import register_onnx_student
+
+        registered = register_onnx_student(report.out_path, str(options["register"]), options.get("alias") or None,
+                                           tracking_uri=OmegaConf.select(cfg, "paths.mlflow_tracking_uri"))
+        log.info("registered as %s (version %s)", registered.model_uri, registered.version)
+        print(f"registered: {registered.model_uri} (version {registered.version}, run {registered.run_id})")
     if options.get("report_path"):
         path = Path(options["report_path"])
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -25,7 +25,7 @@ import sys
 from pathlib import Path
 
 import hydra
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
 from spade.utils.errors import ConfigError, run_entry_point, task
@@ -47,10 +47,22 @@ def _check_mcap(cfg: DictConfig) -> Path | None:
     return path
 
 
+def _resolve_model_uri(cfg: DictConfig) -> None:
+    """``model=models:/NAME@ALIAS`` (or ``runs:/...``): the registered ONNX student, downloaded from the project's
+    MLflow store (``paths.mlflow_tracking_uri``) into ``paths.registry_cache_dir``; ``model_path`` becomes the file."""
+    from spade.deploy.registry import is_model_uri, resolve_model
+
+    value = cfg.get("model_path")
+    if value and is_model_uri(str(value)):
+        cfg.model_path = str(resolve_model(str(value), OmegaConf.select(cfg, "paths.mlflow_tracking_uri"),
+                                           OmegaConf.select(cfg, "paths.registry_cache_dir")))
+
+
 def _checked_plan(cfg: DictConfig):  # noqa: ANN202
     """The config and inputs checked first (one ``error:`` line, exit 2), then the query."""
-    from spade.experiments.config_checks import validate_plan_config
+    from spade.experiments.checks import validate_plan_config
 
+    _resolve_model_uri(cfg)
     validate_plan_config(cfg)  # map and model files, pose and goal, a picture that is none of the inputs
     mcap = _check_mcap(cfg)
     result, png = run_plan(cfg)
@@ -65,7 +77,7 @@ def _checked_plan(cfg: DictConfig):  # noqa: ANN202
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="plan")
 @task
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.config_checks import exit_on_user_error
+    from spade.experiments.checks import exit_on_user_error
 
     result, png, mcap = exit_on_user_error(_checked_plan)(cfg)
     print(plan_text(result, str(cfg.map), png), flush=True)

@@ -30,7 +30,8 @@ def build_planner(cfg: DictConfig) -> Any:
     if value in (None, ""):
         raise ConfigError("model_path: no model; pass model=PATH (a student .ckpt from python -m spade.train, its "
                           ".onnx export from python -m spade.export, or models:/NAME@ALIAS) or set SPADE_PLANNER_MODEL")
-    path = resolve_model(str(value))
+    path = resolve_model(str(value), OmegaConf.select(cfg, "paths.mlflow_tracking_uri"),
+                         OmegaConf.select(cfg, "paths.registry_cache_dir"))
     t0 = time.perf_counter()
     from spade.planner import Planner
 
