@@ -5,8 +5,8 @@ checks that the file reproduces PyTorch's logits (prints the max absolute differ
 latency. ``register=NAME`` also logs the ONNX export as an MLflow Model (ONNX flavour, with its signature and window
 metadata) in the project's store, registers it as NAME and sets ``alias`` (``champion``) on the new version:
 ``python -m spade.plan ... model=models:/NAME@champion`` and ``python -m spade.ros model=models:/NAME@champion``
-then load it (:mod:`spade.deploy.registry`). See ``conf/export.yaml`` for the options and :mod:`spade.deploy.export` for the file format. Inputs are
-checked first; a user error is one ``error:`` line, exit 2."""
+then load it (:mod:`spade.deploy.registry`). See ``conf/export.yaml`` for the options and
+:mod:`spade.deploy.export` for the file format. Inputs are checked first; a user error is one ``error:`` line, exit 2."""
 
 from __future__ import annotations
 
