@@ -109,6 +109,33 @@ def test_nan_loss_stops_with_the_step(spade_home: Path) -> None:
         student.training_step(batch, 0)
 
 
+def test_a_non_finite_loss_seen_late_still_names_its_step() -> None:
+    """On an accelerator the loss is looked at every few steps (one host sync), not every step: the first
+    non-finite step is recorded on the device and named when the look comes."""
+
+    class Probe(StudentModule):
+        step = 0
+
+        @property
+        def global_step(self) -> int:
+            return self.step
+
+        def finite_check_every(self, device: torch.device) -> int:
+            return 4
+
+    probe = Probe(size="small")
+    losses = [1.0, 0.5, float("nan"), 0.7, 0.6, 0.5, 0.4, 0.3]
+    with pytest.raises(FloatingPointError, match=r"global step 2 .*\(seen at step 3"):
+        for step, value in enumerate(losses):
+            probe.step = step
+            probe.check_finite(torch.tensor(value), {"loss_bc": torch.tensor(value)})
+    assert probe.step == 3  # stopped at the first look after the bad step
+    fine = Probe(size="small")
+    for step, value in enumerate(losses[:2] + losses[3:]):
+        fine.step = step
+        fine.check_finite(torch.tensor(value), {"loss_bc": torch.tensor(value)})
+
+
 def test_bc_pos_weight_weighs_path_pixels() -> None:
     logits = torch.tensor([[[[2.0, -1.0], [0.5, -3.0]]]])
     target = torch.tensor([[[[1.0, 0.0], [0.0, 1.0]]]])

@@ -126,6 +126,14 @@ class NoiseSchedule:
             return DDIMScheduler(trained_betas=self.betas.numpy(), set_alpha_to_one=True, **common)
         raise ValueError(f"unknown sampler {sampler!r}; valid: {list(SAMPLERS)}")
 
+    def _alphas_cumprod_as(self, x: torch.Tensor) -> torch.Tensor:
+        """``alphas_cumprod`` on ``x``'s device and dtype, copied there once per (device, dtype), not every step."""
+        key = (x.device, x.dtype)
+        cache = self.__dict__.setdefault("_abar_cache", {})
+        if key not in cache:
+            cache[key] = self.alphas_cumprod.to(device=x.device, dtype=x.dtype)
+        return cache[key]
+
     def add_noise(self, x0: torch.Tensor, noise: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         """Forward process ``x_t = sqrt(abar_t) x0 + sqrt(1 - abar_t) noise`` (differentiable in ``x0``)."""
         if noise.shape != x0.shape:
@@ -133,9 +141,14 @@ class NoiseSchedule:
         t = torch.as_tensor(t, device=x0.device)
         if t.dim() != 1 or t.shape[0] != x0.shape[0]:
             raise ValueError(f"t must have shape ({x0.shape[0]},), one timestep per sample, got {tuple(t.shape)}")
-        if t.is_floating_point() or int(t.min()) < 0 or int(t.max()) >= self.num_train_timesteps:
+        if t.is_floating_point():
             raise ValueError(f"t must be integer timesteps in [0, {self.num_train_timesteps - 1}]")
-        abar = self.alphas_cumprod.to(device=x0.device, dtype=x0.dtype)[t].view(-1, *([1] * (x0.dim() - 1)))
+        # The range is checked on the host only for CPU tensors: on an accelerator it would make the host wait for
+        # the device twice per call (the margin calls this twice a step), and an index out of range stops the
+        # device's own gather anyway.
+        if t.device.type == "cpu" and (int(t.min()) < 0 or int(t.max()) >= self.num_train_timesteps):
+            raise ValueError(f"t must be integer timesteps in [0, {self.num_train_timesteps - 1}]")
+        abar = self._alphas_cumprod_as(x0)[t].view(-1, *([1] * (x0.dim() - 1)))
         return abar.sqrt() * x0 + (1.0 - abar).sqrt() * noise
 
     def prediction_target(self, x0: torch.Tensor, noise: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
@@ -148,7 +161,7 @@ class NoiseSchedule:
         if self.prediction_type == "sample":
             return x0
         t = torch.as_tensor(t, device=x0.device)
-        abar = self.alphas_cumprod.to(device=x0.device, dtype=x0.dtype)[t].view(-1, *([1] * (x0.dim() - 1)))
+        abar = self._alphas_cumprod_as(x0)[t].view(-1, *([1] * (x0.dim() - 1)))
         return abar.sqrt() * noise - (1.0 - abar).sqrt() * x0
 
     def denoising_error(self, prediction: torch.Tensor, x0: torch.Tensor, noise: torch.Tensor,

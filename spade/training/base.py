@@ -40,15 +40,40 @@ class PathPlanningModule(L.LightningModule):
         raise NotImplementedError
 
     # -- shared machinery ----------------------------------------------------------------------------------
+    #: Steps between two looks at the loss's finiteness: every step on a CPU (free there); on an accelerator a
+    #: look makes the host wait for the device, so the first non-finite step is recorded on the device and read
+    #: every this many steps (one host sync), the message still naming that step.
+    FINITE_CHECK_EVERY_ACCELERATOR = 16
+
+    def finite_check_every(self, device: torch.device) -> int:
+        return 1 if device.type == "cpu" else self.FINITE_CHECK_EVERY_ACCELERATOR
+
     def check_finite(self, loss: torch.Tensor, parts: dict[str, torch.Tensor]) -> None:
-        """Stop on a NaN or inf loss with a message naming the step and the loss terms."""
-        if not torch.isfinite(loss):
-            terms = ", ".join(f"{k}={float(v):.4g}" for k, v in parts.items())
-            raise FloatingPointError(
-                f"non-finite training loss {float(loss)} at global step {self.global_step} (epoch "
-                f"{self.current_epoch}): {terms}. Lower the learning rate or the margin weight "
-                "(model.margin.lambda_dm), or check the data."
-            )
+        """Stop on a NaN or inf loss with a message naming the (first such) step and the loss terms."""
+        every = self.finite_check_every(loss.device)
+        step = int(self.global_step)
+        if every <= 1:
+            if not torch.isfinite(loss):
+                self._raise_non_finite(step, loss, parts)
+            return
+        first = getattr(self, "_first_non_finite", None)
+        if first is None or first.device != loss.device:
+            first = torch.full((), -1, dtype=torch.long, device=loss.device)
+        bad = ~torch.isfinite(loss.detach())
+        self._first_non_finite = torch.where(bad & (first < 0), torch.full_like(first, step), first)
+        if step % every == every - 1:
+            seen = int(self._first_non_finite)  # the one host sync in ``every`` steps
+            if seen >= 0:
+                self._raise_non_finite(seen, loss, parts, current=step)
+
+    def _raise_non_finite(self, step: int, loss: torch.Tensor, parts: dict[str, torch.Tensor],
+                          current: int | None = None) -> None:
+        terms = ", ".join(f"{k}={float(v):.4g}" for k, v in parts.items())
+        seen = "" if current is None else f" (seen at step {current}; these terms are that step's)"
+        raise FloatingPointError(
+            f"non-finite training loss {float(loss)} at global step {step} (epoch {self.current_epoch}){seen}: "
+            f"{terms}. Lower the learning rate or the margin weight (model.margin.lambda_dm), or check the data."
+        )
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         """The ``spade`` entry (role, network, training windows, MLflow run): see :mod:`spade.models.modelfile`."""
