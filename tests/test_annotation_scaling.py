@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import multiprocessing
+import platform
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -156,3 +157,16 @@ def test_states_per_task_below_one_is_refused(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="states_per_task must be >= 1"):
         annotate(tiny_cfg(tmp_path / "ds", states_per_task=0))
     assert not (tmp_path / "ds").exists()
+
+
+def _keep_freed_blocks_in_child(_: int) -> bool:
+    return pipeline.keep_freed_blocks()
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc" or "fork" not in multiprocessing.get_all_start_methods(),
+                    reason="glibc's mallopt, in a forked child")
+def test_workers_keep_freed_blocks_on_glibc() -> None:
+    """A pool worker sets glibc's mmap and trim thresholds (a fresh process otherwise page-faults on every window's
+    temporaries); checked in a child so that this process's allocator is left as it is."""
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        assert pool.map(_keep_freed_blocks_in_child, [0]) == [True]

@@ -148,7 +148,8 @@ def _scaling_row(px: int, workers: int, seconds: float, same: bool = True) -> di
             "scenarios": 4, "seconds": seconds, "instances_per_s": 256 / seconds,
             "instances_per_s_per_worker": 256 / seconds / workers, "startup_s": 0.0 if workers == 1 else 3.0,
             "instances_per_s_per_worker_after_startup": 256 / (seconds - (0 if workers == 1 else 3.0)) / workers,
-            "cpu_s": seconds * workers, "instances_per_cpu_s": 256 / (seconds * workers), "dataset_sha256": "x",
+            "cpu_s": seconds * workers, "instances_per_cpu_s": 256 / (seconds * workers), "load_average_1m": 1.5,
+            "dataset_sha256": "x",
             "same_as_first": same}
 
 
@@ -167,8 +168,8 @@ def test_annotation_scaling_is_a_default_section_at_64_and_128_px_with_1_and_2_w
     table = format_report({"mode": "full", "machine": {}, "annotation_scaling": {
         "preset": "test", "maps": "the preset's procedural map", "states_per_task": None, "rows": rows}})
     assert "### Annotation scaling (preset test" in table and "instances/s per worker" in table
-    assert "| 128 | 0.05 | 2 | 256 | 4 | 7.0 | 3.0 | 36.6 | 18.3 | 32.0 | 18.3 | NO |" in table
-    assert "| 64 | 0.1 | 1 | 256 | 4 | 4.0 | 0.0 | 64.0 | 64.0 | 64.0 | 64.0 | yes |" in table
+    assert "| 128 | 0.05 | 2 | 256 | 4 | 7.0 | 3.0 | 36.6 | 18.3 | 32.0 | 18.3 | 1.5 | NO |" in table
+    assert "| 64 | 0.1 | 1 | 256 | 4 | 4.0 | 0.0 | 64.0 | 64.0 | 64.0 | 64.0 | 1.5 | yes |" in table
 
 
 def test_unknown_sections_are_refused() -> None:

@@ -99,7 +99,27 @@ def _init_worker(contexts: list[MapContext], cfg: Mapping[str, Any], parent: int
     _WORKER["contexts"] = contexts
     _WORKER["cfg"] = cfg
     if parent is not None:
+        keep_freed_blocks()
         exit_with_parent(parent)
+
+
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc's mallopt parameters (malloc.h)
+
+
+def keep_freed_blocks(mmap_threshold: int = 32 << 20, trim_threshold: int = 64 << 20) -> bool:
+    """Let glibc's malloc keep the blocks a window's rasterisation frees (a fresh worker process hands every
+    block over 128 KiB back to the kernel at once until its threshold adapts, and takes page faults on the next
+    window's temporaries: about 1,000 per 128 px instance, 40 % more CPU than the same work in a process that has
+    run for a while). False where the C library has no ``mallopt`` (not glibc); nothing else changes."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    return bool(mallopt(_M_MMAP_THRESHOLD, mmap_threshold)) and bool(mallopt(_M_TRIM_THRESHOLD, trim_threshold))
 
 
 def exit_with_parent(parent: int, interval_s: float = 0.5) -> None:

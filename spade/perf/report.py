@@ -212,14 +212,16 @@ def _annotation_scaling(a: dict[str, Any]) -> str:
     table = [[r["window_px"], r["resolution_m"], r["workers"], r["instances"], r["scenarios"], f"{r['seconds']:.1f}",
               f"{r['startup_s']:.1f}", f"{r['instances_per_s']:.1f}", f"{r['instances_per_s_per_worker']:.1f}",
               f"{r['instances_per_s_per_worker_after_startup']:.1f}", f"{r['instances_per_cpu_s']:.1f}",
+              f"{r['load_average_1m']:.1f}" if "load_average_1m" in r else "-",
               "yes" if r["same_as_first"] else "NO"] for r in a["rows"]]
     spt = a.get("states_per_task") or "the tool's default"
     return (f"### Annotation scaling (preset {a['preset']}, {a['maps']}; states per task: {spt})\n\n"
             + _table(["px", "m/px", "workers", "instances", "scenarios", "s", "pool start-up s", "instances/s",
-                      "instances/s per worker", "per worker without start-up", "instances per CPU-s",
+                      "instances/s per worker", "per worker without start-up", "instances per CPU-s", "load 1m",
                       "same dataset as the first"], table)
             + "\n\nPool start-up: starting the workers and importing their modules, measured apart; CPU seconds: "
-              "this process and its workers, which a machine shared with other jobs does not change.")
+              "this process and its workers (start-up included), a figure that other jobs on the machine change "
+              "less than the wall clock; load 1m: the machine's load average when the row started.")
 
 
 def _dataset(d: dict[str, Any]) -> str:

@@ -124,6 +124,7 @@ def annotation_scaling(work: str | Path, preset: str, num_instances: int, image_
             out = Path(work) / "annotation_scaling" / f"{px}px_{w}w"
             shutil.rmtree(out, ignore_errors=True)
             startup = pool_startup_s(w, start_method) if w > 1 else 0.0
+            load = os.getloadavg()[0]
             before = os.times()
             row = generation_throughput(out, preset, num_instances, px, window_m / px, maps, spacing_m, w,
                                         states_per_task)
@@ -136,7 +137,7 @@ def annotation_scaling(work: str | Path, preset: str, num_instances: int, image_
                          "instances_per_s": n / seconds, "instances_per_s_per_worker": n / seconds / w,
                          "startup_s": startup,
                          "instances_per_s_per_worker_after_startup": n / max(seconds - startup, 1e-9) / w,
-                         "cpu_s": cpu, "instances_per_cpu_s": n / max(cpu, 1e-9),
+                         "cpu_s": cpu, "instances_per_cpu_s": n / max(cpu, 1e-9), "load_average_1m": load,
                          "dataset_sha256": digest, "same_as_first": digest == reference})
             shutil.rmtree(out, ignore_errors=True)
     return rows
