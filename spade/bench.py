@@ -10,7 +10,7 @@ One command measures, prints as Markdown tables, and writes as JSON (``out_json`
 - training step time of BC, DBC and Cond-DBC with the same student (``training``);
 - metric throughput and a per-instance reference pipeline on the same predictions (``metrics``; with
   ``metrics.sensitivity=true`` also how FID follows degradations), dataset generation and read throughput
-  (``data``);
+  (``data``), annotation instances/s per worker at each window size and worker count (``annotation_scaling``);
 - when named in ``sections``: the annotation tool's training presets (``annotation``), a large dataset read in a
   fresh process with its memory (``dataset``), real and procedural maps (``maps``);
 
