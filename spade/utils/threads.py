@@ -67,13 +67,15 @@ def training_threads(cores: int | None = None, busy: float | None = None) -> int
 
 
 def configure_threads(threads: int | str | None) -> int:
-    """Set torch's intra-op threads: a number, ``auto`` (:func:`training_threads`), or None (torch's default:
-    one per available core). Returns the count in use."""
+    """Set torch's intra-op threads: a number, ``auto`` (:func:`training_threads`; ``OMP_NUM_THREADS``, when set,
+    wins), or None (torch's default: one per available core). Returns the count in use."""
     import torch
 
     if threads in (None, "", "default"):
         return torch.get_num_threads()
     if threads == "auto":
+        if os.environ.get("OMP_NUM_THREADS"):  # the user (or a launcher) chose: torch already follows it
+            return torch.get_num_threads()
         count = training_threads()
     elif isinstance(threads, int) and not isinstance(threads, bool) and threads >= 1:
         count = threads
