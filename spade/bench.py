@@ -32,7 +32,7 @@ from spade.perf.report import format_report, write_json
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="bench")
 @task
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.config_checks import exit_on_user_error, validate_bench_config
+    from spade.experiments.checks import exit_on_user_error, validate_bench_config
 
     exit_on_user_error(validate_bench_config)(cfg, SECTIONS)  # a bad value: one `error:` line, exit 2, before any section
     results = bench(cfg)

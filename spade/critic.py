@@ -180,7 +180,7 @@ def format_report(metrics: dict[str, float]) -> str:
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="critic")
 @task
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.config_checks import exit_on_user_error
+    from spade.experiments.checks import exit_on_user_error
 
     metrics = exit_on_user_error(critic)(cfg)
     print(format_report(metrics))

@@ -20,7 +20,7 @@ log = logging.getLogger(__name__)
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="evaluate")
 @task
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.config_checks import exit_on_user_error
+    from spade.experiments.checks import exit_on_user_error
 
     metrics = exit_on_user_error(evaluate)(cfg)
     print("\n".join(f"{k}: {v:.4g}" for k, v in sorted(metrics.items())))

@@ -23,7 +23,7 @@ from spade.paths import CONFIG_PATH  # noqa: E402  (the configs, conf/ or the in
 from spade.utils.errors import run_entry_point, task  # noqa: E402
 from spade.experiments.lifecycle import install_signal_handlers  # noqa: E402
 from spade.experiments.run import run  # noqa: E402
-from spade.experiments.config_checks import exit_on_user_error  # noqa: E402
+from spade.experiments.checks import exit_on_user_error  # noqa: E402
 
 log = logging.getLogger(__name__)
 

@@ -17,7 +17,7 @@ __all__ = ["evaluate"]
 
 def evaluate(cfg: DictConfig) -> dict[str, Any]:
     """Test ``cfg.ckpt_path`` on ``cfg.data``'s test set; returns the test metrics."""
-    from spade.experiments.config_checks import validate_evaluate_config
+    from spade.experiments.checks import validate_evaluate_config
 
     validate_evaluate_config(cfg)  # role, and the checkpoint's window geometry against the test data's
     L.seed_everything(cfg.seed, workers=True)

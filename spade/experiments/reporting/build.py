@@ -90,7 +90,7 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
 def report(cfg: DictConfig) -> list[Report]:
     """The reports of ``cfg.table`` (one table, or every table with ``table=all``); a store that does not exist is
     refused (:class:`~spade.experiments.config_checks.ConfigError`), never created empty and reported all missing."""
-    from spade.experiments.config_checks import validate_report_config
+    from spade.experiments.checks import validate_report_config
 
     validate_report_config(cfg)
     tables = list(TABLES.values()) if str(cfg.table) == "all" else [get_table(cfg.table)]

@@ -1,0 +1,88 @@
+"""Checks of a run's ``data`` and ``scale`` keys (shared by ``spade.train`` and ``spade.evaluate``): loader
+numbers, dataset folders, the generation settings (window, maps, instance counts), and an existing dataset's
+settings against the config's (:func:`spade.data.checks.check_dataset`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig
+
+from spade.annotation.sources import expand_map_specs
+from spade.data.checks import check_dataset
+from spade.data.settings import dataset_settings
+from spade.experiments.checks.values import (
+    _MISSING,
+    _check_int,
+    _check_number,
+    _dir,
+    _get,
+    _is_int,
+    _opt,
+    _unset,
+)
+from spade.experiments.checks.windows import _check_window_size, check_window_holds_manoeuvre
+from spade.utils.errors import ConfigError
+
+
+def _check_data(cfg: DictConfig) -> None:
+    _check_int(cfg, "data.batch_size", 1, fix=", e.g. data.batch_size=32")
+    _check_int(cfg, "data.eval_batch_size", 1, none_ok=True)
+    _check_int(cfg, "data.num_workers", 0, fix=" (0 loads in the main process)")
+    _check_number(cfg, "data.val_fraction", 0, 1, high_open=True, fix=", e.g. data.val_fraction=0.15")
+    _check_int(cfg, "data.split_seed", none_ok=True)
+    _check_int(cfg, "data.max_train_instances", 1, none_ok=True)
+    _check_int(cfg, "data.max_test_instances", 1, none_ok=True)
+    for key in ("image_size", "train_instances", "test_instances", "transfer_instances", "batch_size"):
+        _check_int(cfg, f"scale.{key}", 1, none_ok=True)
+    _check_number(cfg, "scale.resolution_m", 0, low_open=True, none_ok=True)
+    for name in ("train", "test"):
+        _check_folder_path(f"data.{name}_dir", _get(cfg, f"data.{name}_dir"))
+        generate = _get(cfg, f"data.{name}_generate")
+        if generate is _MISSING or generate is None:
+            continue
+        root = _get(cfg, f"data.{name}_dir")
+        settings = dataset_settings(Path(str(root)), generate)
+        scaled = _get(cfg, "scale.annotate") not in (_MISSING, None)
+        check_window_holds_manoeuvre(settings, "scale.annotate" if scaled else f"data.{name}_generate")
+        _check_window_size(cfg, settings, "scale.annotate" if scaled else f"data.{name}_generate")
+        _check_map_entries(cfg, name, settings.get("maps"))
+        num = settings.get("num_instances")
+        if num is not None and (not _is_int(num) or num < 1):
+            raise ConfigError(f"data.{name}_generate num_instances={num!r} must be an integer >= 1; set "
+                              f"scale.{name}_instances")
+
+
+def _check_datasets(cfg: DictConfig) -> None:
+    """An existing dataset at ``data.train_dir`` / ``data.test_dir`` holds the config's generation settings
+    (:func:`spade.data.checks.check_dataset`): a dataset is never silently reused for other settings."""
+    for name in ("train", "test"):
+        check_dataset(_dir(cfg, f"data.{name}_dir"), _opt(cfg, f"data.{name}_generate"), f"data.{name}_dir")
+
+
+def _check_folder_path(key: str, value: Any) -> None:
+    """A folder SPADE reads or creates: no part of its path may be an existing file."""
+    if _unset(value):
+        return
+    path = Path(str(value)).expanduser()
+    for part in (path, *path.parents):
+        if part.exists():
+            if not part.is_dir():
+                raise ConfigError(f"{key}={value}: {part} is a file, not a folder; set paths.data_dir (or {key}) "
+                                  "to a folder")
+            return
+
+
+def _check_map_entries(cfg: DictConfig, name: str, maps: Any) -> None:
+    """Every map a dataset is generated from exists (a yaml, a folder of them or a ``kind:seed`` generator spec):
+    an unknown entry is named before any work, never reported as a dataset "generated with other settings"."""
+    if maps is None:
+        return
+    try:
+        expand_map_specs(maps)
+    except (FileNotFoundError, ValueError) as exc:
+        where = "scale.train_maps" if name == "train" and _get(cfg, "scale.train_maps") not in (_MISSING, None) \
+            else f"data.{name}_generate"
+        raise ConfigError(f"{where}: {exc.args[0] if exc.args else exc}; fix that entry, e.g. warehouse:1 or the path "
+                          "of a ROS map yaml (nothing was generated or changed)") from None

@@ -1,0 +1,34 @@
+"""``spade.evaluate``'s checks: the checkpoint's role, and its geometry against the data it is tested on."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from spade.experiments.checks.checkpoints import _check_geometry, _read_checkpoint
+from spade.experiments.checks.data import _check_data, _check_datasets
+from spade.experiments.checks.store import _check_logger_store
+from spade.experiments.checks.values import _MISSING, _get
+from spade.utils.errors import ConfigError
+
+
+def validate_evaluate_config(cfg: DictConfig) -> None:
+    """``spade.evaluate``'s checks: the checkpoint's role, and its geometry against the data it is tested on."""
+    ckpt = _get(cfg, "ckpt_path")
+    fix = "pass a student or expert checkpoint written by python -m spade.train"
+    if ckpt in (_MISSING, None, "", "???"):
+        raise ConfigError(f"ckpt_path is not set; {fix} (ckpt_path=PATH)")
+    path = Path(str(ckpt))
+    if not path.exists():
+        raise ConfigError(f"ckpt_path={ckpt} does not exist; {fix}")
+    if path.is_dir():
+        raise ConfigError(f"ckpt_path={ckpt} is a directory, not a checkpoint file; {fix}")
+    info = _read_checkpoint("ckpt_path", ckpt, path, fix)
+    if info.get("role") not in ("student", "expert"):
+        raise ConfigError(f"ckpt_path={ckpt} is not a SPADE student or expert checkpoint (role "
+                          f"{info.get('role')!r}); {fix}")
+    _check_logger_store(cfg)
+    _check_data(cfg)
+    _check_datasets(cfg)
+    _check_geometry("ckpt_path", ckpt, info, cfg, ("test_dir", "train_dir"))

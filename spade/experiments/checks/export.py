@@ -1,0 +1,50 @@
+"""``spade.export``'s checks: a student checkpoint in, an output that is neither the checkpoint nor a folder."""
+
+from __future__ import annotations
+
+from omegaconf import DictConfig
+
+from spade.experiments.checks.checkpoints import _check_checkpoint
+from spade.experiments.checks.files import _input_file, _output_file, _same_file
+from spade.experiments.checks.values import (
+    _MISSING,
+    _check_bool,
+    _check_choice,
+    _check_int,
+    _check_number,
+    _get,
+    _unset,
+)
+from spade.utils.errors import ConfigError
+
+
+def validate_export_config(cfg: DictConfig) -> None:
+    """``spade.export``'s checks: a student checkpoint file in, an output that is not the checkpoint (nor a folder)."""
+    from spade.deploy.export import SUFFIXES  # heavy: the exporter imports spade.models (diffusers)
+
+    fix = "pass the student checkpoint (.ckpt) written by python -m spade.train"
+    ckpt = _input_file("ckpt_path", _get(cfg, "ckpt_path"), fix)
+    _check_checkpoint("ckpt_path", str(ckpt), "student", fix)
+    _check_choice(cfg, "format", list(SUFFIXES))
+    fmt = _get(cfg, "format")
+    fmt = "onnx" if fmt in (_MISSING, None) else fmt
+    _check_bool(cfg, "overwrite")
+    overwrite = _get(cfg, "overwrite")
+    out = _get(cfg, "out_path")
+    suffix = SUFFIXES[fmt]
+    if _unset(out):
+        default = ckpt.with_suffix(suffix)
+        if _same_file(default, ckpt):
+            raise ConfigError(f"ckpt_path={ckpt} ends with {suffix}: format={fmt} would write its export onto the "
+                              f"checkpoint itself; set out_path={ckpt.with_name(ckpt.stem + '.' + fmt + suffix)}")
+    else:
+        _output_file("out_path", out, {"ckpt_path": ckpt}, f"set out_path to a new {suffix} file", (suffix,),
+                     overwrite)
+    _check_int(cfg, "opset", 7, fix=", e.g. opset=17")
+    _check_int(cfg, "parity_batch", 1)
+    _check_int(cfg, "latency_runs", 0)
+    _check_int(cfg, "threads", 1, none_ok=True, fix=" (null: all cores)")
+    _check_number(cfg, "tolerance", 0, none_ok=True, fix=" (null: only report)")
+    report = _get(cfg, "report_path")
+    if not _unset(report):
+        _output_file("report_path", report, {"ckpt_path": ckpt}, "give a new .json file", overwrite=overwrite)

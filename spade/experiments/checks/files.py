@@ -1,0 +1,88 @@
+"""Checks of the files a command reads and writes: an input file that exists (of a model suffix), an output file
+that is none of the inputs and replaces only what SPADE wrote, a map argument's files, and a point given as numbers."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig
+
+from spade.annotation.sources import parse_procedural
+from spade.deploy.outputs import replace_refusal
+from spade.experiments.checks.values import _MISSING, _get, _is_number, _unset
+from spade.maps.ros_io import MapFormatError, read_map_yaml
+from spade.utils.errors import ConfigError
+
+
+MODEL_SUFFIXES = (".ckpt", ".onnx", ".pt")
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+        return a.expanduser().resolve() == b.expanduser().resolve()
+    except OSError:
+        return False
+
+
+def _input_file(key: str, value: Any, fix: str, suffixes: tuple[str, ...] = ()) -> Path:
+    """An input file named at ``key``: set, existing, a file (not a folder), with one of ``suffixes``."""
+    if _unset(value):
+        raise ConfigError(f"{key} is not set; {fix}")
+    path = Path(str(value)).expanduser()
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise ConfigError(f"{key}={value} is not a model file ({' / '.join(suffixes)}); {fix}")
+    if path.is_dir():
+        raise ConfigError(f"{key}={value} is a directory, not a file; {fix}")
+    if not path.exists():
+        raise ConfigError(f"{key}={value} does not exist; {fix}")
+    return path
+
+
+def _output_file(key: str, value: Any, inputs: Mapping[str, Path | None], fix: str,
+                 suffixes: tuple[str, ...] = (), overwrite: Any = _MISSING) -> Path:
+    """An output file at ``key``: not a folder, not one of the ``inputs``, and, when it exists, replaced only with
+    ``overwrite=true`` and only when SPADE wrote it (:mod:`spade.deploy.outputs`)."""
+    path = Path(str(value)).expanduser()
+    if path.is_dir():
+        raise ConfigError(f"{key}={value} is a directory; give the path of a file to write ({fix})")
+    for in_key, in_path in inputs.items():
+        if in_path is not None and _same_file(path, in_path):
+            raise ConfigError(f"{key}={value} is the input {in_key}: writing it would overwrite that file; {fix}")
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise ConfigError(f"{key}={value} must end with {' or '.join(suffixes)}; {fix}")
+    if (refusal := replace_refusal(key, path, overwrite is True)) is not None:
+        raise ConfigError(refusal)
+    return path
+
+
+def _map_files(key: str, spec: Any) -> list[Path]:
+    """The files of a map argument (a ROS yaml and its image; none for a procedural ``kind:seed``), checked."""
+    fix = "give a ROS map yaml (map_server format) or a generator spec such as warehouse:101"
+    if _unset(spec):
+        raise ConfigError(f"{key} is not set; {fix}")
+    try:
+        if parse_procedural(str(spec)) is not None:
+            return []
+    except ValueError as exc:
+        raise ConfigError(f"{key}={spec}: {exc}") from None
+    path = _input_file(key, spec, fix)
+    try:
+        meta = read_map_yaml(path)
+    except MapFormatError as exc:
+        raise ConfigError(f"{key}={spec}: {exc}") from None
+    return [path, Path(meta.image_path)]
+
+
+def _point(cfg: DictConfig, key: str, n: int, example: str) -> list[float]:
+    value = _get(cfg, key)
+    fix = f"pass {key}={example} (map-frame metres{', yaw in radians' if n == 3 else ''})"
+    if _unset(value):
+        raise ConfigError(f"{key} is not set; {fix}")
+    if not isinstance(value, (list, tuple)) or len(value) != n or not all(_is_number(v) for v in value):
+        raise ConfigError(f"{key}={value!r} is not {n} finite numbers; {fix}")
+    return [float(v) for v in value]

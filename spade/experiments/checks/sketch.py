@@ -1,0 +1,51 @@
+"""``spade.sketch``'s checks before the server starts: map, port, model file, output folder and window."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from spade.experiments.checks.checkpoints import _check_checkpoint
+from spade.experiments.checks.files import MODEL_SUFFIXES, _input_file, _map_files
+from spade.experiments.checks.values import _MISSING, _check_int, _get, _unset
+from spade.experiments.checks.windows import check_window_holds_manoeuvre
+from spade.utils.errors import ConfigError
+
+
+def validate_sketch_config(cfg: DictConfig) -> None:
+    """``spade.sketch``'s checks before the server starts: map, port, model file, output folder and window."""
+    _map_files("map", _get(cfg, "map"))
+    _check_int(cfg, "port", 1, 65535, fix=", e.g. port=8765")
+    host = _get(cfg, "host")
+    if not isinstance(host, str) or not host:
+        raise ConfigError(f"host={host!r} is not an address; use host=127.0.0.1")
+    model = _get(cfg, "model_path")
+    if not _unset(model):
+        path = _input_file("model_path", model, "pass model=PATH: a student .ckpt or its .onnx / .pt export",
+                           MODEL_SUFFIXES)
+        if path.suffix.lower() == ".ckpt":
+            _check_checkpoint("model_path", str(path), "student",
+                              "pass a student checkpoint (an expert does not plan)")
+    out = _get(cfg, "out_dir")
+    if not _unset(out) and Path(str(out)).expanduser().is_file():
+        raise ConfigError(f"out_dir={out} is a file; give a folder for sketches.yaml and dataset/")
+    for key in ("models", "allowed_hosts"):
+        value = _get(cfg, key)
+        if value not in (_MISSING, None) and not isinstance(value, list):
+            raise ConfigError(f"{key}={value!r} must be a list, e.g. {key}=[a,b]")
+    for folder in _get(cfg, "models") if isinstance(_get(cfg, "models"), list) else []:
+        if not Path(str(folder)).expanduser().is_dir():
+            raise ConfigError(f"models entry {folder} is not a folder; give folders that hold model files")
+    # heavy: the sketching app imports its web server (FastAPI) and the annotation pipeline
+    from spade.sketching.app import flatten_overrides
+    from spade.sketching.workspace import annotation_config
+
+    overrides = _get(cfg, "annotate")
+
+    try:
+        settings = annotation_config(flatten_overrides(overrides) if isinstance(overrides, Mapping) else [])
+    except Exception as exc:  # noqa: BLE001 - an override Hydra cannot apply
+        raise ConfigError(f"annotate: {exc}".replace("\n", " ")) from None
+    check_window_holds_manoeuvre(settings, "annotate")

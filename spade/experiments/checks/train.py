@@ -1,0 +1,197 @@
+"""``spade.train``'s checks: everything in a run's config that needs no training, before any MLflow run opens.
+
+Types and ranges of the trainer, data and model keys, the margin's options (by
+:class:`~spade.training.margin.MarginConfig`'s own checks), and every checkpoint the run names (``ckpt_path``,
+``model.init_ckpt``, ``model.margin.expert_ckpt``): its role, its geometry, the expert's kind, and the run a resume
+would continue.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from omegaconf import DictConfig
+
+from spade.experiments.checks.checkpoints import _check_checkpoint, _check_geometry
+from spade.experiments.checks.data import _check_data, _check_datasets
+from spade.experiments.checks.store import _check_logger_store, _store_path
+from spade.experiments.checks.values import (
+    _MISSING,
+    _check_bool,
+    _check_choice,
+    _check_int,
+    _check_number,
+    _get,
+    _is_int,
+    _is_number,
+    _model_role,
+    _unset,
+)
+from spade.training.errors import ExpertMismatchError
+from spade.utils.errors import ConfigError
+
+
+def validate_train_config(cfg: DictConfig) -> None:
+    """Every check of ``spade.train``'s config that needs no training: raises :class:`ConfigError` (one line)."""
+    _check_int(cfg, "seed", 0, 2**32 - 1, none_ok=True, fix=", e.g. seed=42")
+    _check_choice(cfg, "prerequisites", ["train", "error"])
+    for key in ("train", "test", "test_untrained"):
+        _check_bool(cfg, key)
+    _check_logger_store(cfg)
+    metric = _get(cfg, "optimized_metric")
+    if metric not in (_MISSING, None) and not isinstance(metric, str):
+        raise ConfigError(f"optimized_metric={metric!r} must be a metric name such as val/loss_bc")
+    _check_trainer(cfg)
+    _check_data(cfg)
+    _check_model(cfg)
+    _check_checkpoints(cfg)
+    _check_datasets(cfg)
+
+
+def validate_checkpoints(cfg: DictConfig) -> None:
+    """The role, kind and geometry checks of every checkpoint a run names (``ckpt_path``, ``model.init_ckpt``,
+    ``model.margin.expert_ckpt``), again after the prerequisites filled paths from the Model Registry: a
+    fetched model passes the same checks as one given by path."""
+    _check_checkpoints(cfg)
+
+
+def _check_trainer(cfg: DictConfig) -> None:
+    fix_epochs = ", e.g. trainer.max_epochs=2"
+    _check_int(cfg, "trainer.max_epochs", 1, none_ok=True, extra=(-1,), fix=fix_epochs)
+    _check_int(cfg, "trainer.max_steps", 1, none_ok=True, extra=(-1,), fix=", e.g. trainer.max_steps=100")
+    if _get(cfg, "trainer.max_epochs") == -1 and _get(cfg, "trainer.max_steps") in (-1, None, _MISSING):
+        raise ConfigError("trainer.max_epochs=-1 and trainer.max_steps=-1 never stop; set trainer.max_epochs=N")
+    _check_int(cfg, "trainer.check_val_every_n_epoch", 1, none_ok=True)
+    _check_int(cfg, "trainer.log_every_n_steps", 1, none_ok=True)
+    _check_int(cfg, "trainer.accumulate_grad_batches", 1, none_ok=True)
+    _check_int(cfg, "trainer.num_sanity_val_steps", 0, none_ok=True, extra=(-1,))
+    _check_number(cfg, "trainer.gradient_clip_val", 0, none_ok=True)
+    for key in ("limit_train_batches", "limit_val_batches", "limit_test_batches"):
+        value = _get(cfg, f"trainer.{key}")
+        if value is _MISSING or value is None:
+            continue
+        ok = (_is_int(value) and value >= 0) or (_is_number(value) and 0 <= value <= 1)
+        if not ok:
+            raise ConfigError(f"trainer.{key}={value!r} must be a fraction in [0, 1] or a whole number of batches >= 0")
+
+
+def _check_model(cfg: DictConfig) -> None:
+    from spade.models import presets  # heavy: spade.models imports diffusers
+
+    role = _model_role(cfg)
+    _check_number(cfg, "model.optimizer.lr", 0, low_open=True, fix=", e.g. 1e-3")
+    _check_number(cfg, "model.optimizer.weight_decay", 0, none_ok=True)
+    if role == "student":
+        _check_choice(cfg, "model.size", presets("student"))
+        _check_number(cfg, "model.bc_pos_weight", 0, low_open=True, none_ok=True, fix=" (null: plain BCE)")
+        _margin_config(cfg)  # model.margin's options, by MarginConfig's own checks (lambda_dm >= 0, expert kind...)
+    elif role == "expert":
+        kind = "cond_expert" if _get(cfg, "model.conditional") is not False else "uncond_expert"
+        _check_choice(cfg, "model.preset", presets(kind))
+        _check_number(cfg, "model.ema_decay", 0, 1, high_open=True)
+        _check_choice(cfg, "model.sampler", ["ddim", "ddpm"])
+        _check_int(cfg, "model.num_inference_steps", 1)
+        _check_int(cfg, "model.num_train_timesteps", 2)
+
+
+def _margin_config(cfg: DictConfig) -> Any:
+    """``model.margin`` as a :class:`~spade.training.margin.MarginConfig` (None without a margin): its checks are
+    MarginConfig's, reported as one line naming ``model.margin.<option>``."""
+    from spade.training.margin import MarginConfig, MarginOptionError  # heavy: the margin imports Lightning
+
+    options = _get(cfg, "model.margin")
+    if options in (_MISSING, None):
+        return None
+    if not isinstance(options, Mapping):
+        raise ConfigError(f"model.margin={options!r} is not a group of margin options; choose margin=none, "
+                          "margin=dbc or margin=cond_dbc")
+    try:
+        return MarginConfig.from_options(options)
+    except MarginOptionError as exc:
+        raise ConfigError(exc.at("model.margin.")) from None
+
+
+def _check_checkpoints(cfg: DictConfig) -> None:
+    role = _model_role(cfg)
+    train_data = ("train_dir", "test_dir")
+    ckpt = _get(cfg, "ckpt_path")
+    if isinstance(ckpt, str) and not ckpt.strip():
+        raise ConfigError("ckpt_path='' is empty; pass checkpoints/last.ckpt of an interrupted run to resume it, or "
+                          "leave ckpt_path unset (ckpt_path=null) to start a new run")
+    if ckpt is not _MISSING and role is not None:
+        fix = "pass checkpoints/last.ckpt of an interrupted run of this experiment (under its logs/runs/ folder)"
+        info = _check_checkpoint("ckpt_path", ckpt, role, fix)
+        _check_geometry("ckpt_path", ckpt, info, cfg, train_data)
+        _check_resume(cfg, ckpt, info)
+    init = _get(cfg, "model.init_ckpt")
+    if init is not _MISSING:
+        info = _check_checkpoint("model.init_ckpt", init, "student",
+                                 "pass a student checkpoint (the pretrained student of the fine-tuning row)")
+        _check_geometry("model.init_ckpt", init, info, cfg, train_data)
+    expert = _get(cfg, "model.margin.expert_ckpt")
+    if expert is not _MISSING:
+        info = _check_checkpoint("model.margin.expert_ckpt", expert, "expert",
+                                 "pass an expert checkpoint (from an expert_* experiment), or leave it null so that "
+                                 "the experiment's requires.expert finds or trains one")
+        _check_geometry("model.margin.expert_ckpt", expert, info, cfg, train_data)
+        _check_expert_kind(cfg, expert, info)
+
+
+# What a resumed run must share with the run its checkpoint was written under: (config key, MLflow parameter).
+RESUME_KEYS = (("run_name", "cfg/run_name"), ("seed", "cfg/seed"), ("model.size", "cfg/model/size"),
+               ("scale.name", "cfg/scale/name"))
+
+
+def _check_resume(cfg: DictConfig, ckpt: Any, info: dict[str, Any] | None) -> None:
+    """``ckpt_path`` resumes the MLflow run the checkpoint was written under. Refused before any work (so that no
+    command changes a run it did not start): a run this store does not hold, a FINISHED run, and a checkpoint of
+    another row, seed, size or scale (each named with both values)."""
+    if _get(cfg, "train") not in (True, _MISSING) or not ckpt:
+        return  # train=false: the checkpoint's weights are tested, nothing is resumed
+    run_id = (info or {}).get("mlflow_run_id")
+    uri = _get(cfg, "logger.mlflow.tracking_uri")
+    if not run_id or _unset(uri):
+        return  # written without MLflow, or MLflow off: nothing to continue
+    uri = str(uri)
+    new_run = ("start a new run instead (drop ckpt_path" + (", or start from its weights with model.init_ckpt="
+                                                              f"{ckpt}" if _model_role(cfg) == "student" else "") + ")")
+    path = _store_path(uri)
+    if path is not None and not path.exists():
+        raise ConfigError(f"ckpt_path={ckpt} was written under MLflow run {run_id}, but there is no store at {uri}; "
+                          f"resume with the store it was logged to (SPADE_HOME or paths.mlflow_tracking_uri), or "
+                          f"{new_run}")
+    # heavy (MLflow), for a resume only; the store itself was checked by validate_train_config (_check_logger_store)
+    from mlflow import MlflowClient
+
+    try:
+        run = MlflowClient(tracking_uri=uri).get_run(run_id)
+    except Exception:  # noqa: BLE001 - not in this store (or unreachable): say which run and where
+        raise ConfigError(f"ckpt_path={ckpt} was written under MLflow run {run_id}, which the store {uri} does not "
+                          f"hold; resume with the store it was logged to (SPADE_HOME or paths.mlflow_tracking_uri), "
+                          f"or {new_run}") from None
+    name = run.info.run_name
+    if run.info.status == "FINISHED":
+        raise ConfigError(f"ckpt_path={ckpt} belongs to run {name!r} ({run_id}), which FINISHED: a resume would log "
+                          f"into a finished run; {new_run}")
+    params = run.data.params
+    differ = [f"{key}: checkpoint's run {params[param]!r}, this config {str(_get(cfg, key))!r}"
+              for key, param in RESUME_KEYS
+              if param in params and _get(cfg, key) is not _MISSING and params[param] != str(_get(cfg, key))]
+    if differ:
+        raise ConfigError(f"ckpt_path={ckpt} is a checkpoint of run {name!r} ({run_id}), not of this experiment "
+                          f"({'; '.join(differ)}); resume it with the config it was started with (+experiment="
+                          f"{params.get('cfg/run_name', name)} and the same overrides), or {new_run}")
+
+
+def _check_expert_kind(cfg: DictConfig, expert: Any, info: dict[str, Any] | None) -> None:
+    """DBC needs an unconditional expert, Cond-DBC a conditional one (``model.margin.expert``; the check is
+    :meth:`MarginConfig.check_expert`, which the student runs on the loaded expert too)."""
+    net_role = ((info or {}).get("config") or {}).get("role")
+    config = _margin_config(cfg)
+    if net_role not in ("cond_expert", "uncond_expert") or config is None:
+        return
+    try:
+        config.check_expert(net_role == "cond_expert", f"model.margin.expert_ckpt={expert}")
+    except ExpertMismatchError as exc:
+        raise ConfigError(str(exc)) from None

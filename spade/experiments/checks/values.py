@@ -1,0 +1,117 @@
+"""The small typed getters that every command's checks share.
+
+A key's value, resolved in the context of the whole config (:data:`_MISSING` when the config has no such key), and
+the one-line checks of an integer, a number, a choice and a boolean, each raising
+:class:`~spade.utils.errors.ConfigError` that names the key, its value and the fix.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from spade.utils.errors import ConfigError
+
+
+_MISSING = object()
+
+
+def _get(cfg: DictConfig, key: str) -> Any:
+    try:
+        value = OmegaConf.select(cfg, key, default=_MISSING, throw_on_missing=False)
+        if OmegaConf.is_config(value):  # plain, resolved in the context of the whole config
+            value = OmegaConf.to_container(value, resolve=True)
+        return value
+    except Exception as exc:  # an interpolation that cannot be resolved
+        raise ConfigError(f"{key}: cannot be resolved ({exc}); fix the interpolation or set {key}=VALUE") from None
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _unset(value: Any) -> bool:
+    return value is _MISSING or value in (None, "", "???")
+
+
+def _opt(cfg: DictConfig, key: str) -> Any:
+    value = _get(cfg, key)
+    return None if value is _MISSING else value
+
+
+def _dir(cfg: DictConfig, key: str) -> str | None:
+    value = _opt(cfg, key)
+    return None if value in (None, "") else str(value)
+
+
+def _check_int(cfg: DictConfig, key: str, low: int | None = None, high: int | None = None, *, none_ok: bool = False,
+               extra: tuple[int, ...] = (), fix: str = "") -> None:
+    value = _get(cfg, key)
+    if value is _MISSING or (value is None and none_ok):
+        return
+    rng = _range_text(low, high, extra)
+    if not _is_int(value):
+        raise ConfigError(f"{key}={value!r} is not an integer; set it to an integer {rng}{fix}")
+    if value in extra:
+        return
+    if (low is not None and value < low) or (high is not None and value > high):
+        raise ConfigError(f"{key}={value} is out of range; set it to an integer {rng}{fix}")
+
+
+def _check_number(cfg: DictConfig, key: str, low: float | None = None, high: float | None = None, *,
+                  low_open: bool = False, high_open: bool = False, none_ok: bool = False, fix: str = "") -> None:
+    value = _get(cfg, key)
+    if value is _MISSING or (value is None and none_ok):
+        return
+    lo = "" if low is None else f"{'>' if low_open else '>='} {low:g}"
+    hi = "" if high is None else f"{'<' if high_open else '<='} {high:g}"
+    rng = " and ".join(x for x in (lo, hi) if x)
+    if not _is_number(value):
+        raise ConfigError(f"{key}={value!r} is not a number; set it to a number {rng}{fix}")
+    bad_low = low is not None and (value <= low if low_open else value < low)
+    bad_high = high is not None and (value >= high if high_open else value > high)
+    if bad_low or bad_high:
+        raise ConfigError(f"{key}={value:g} is out of range; set it to a number {rng}{fix}")
+
+
+def _check_choice(cfg: DictConfig, key: str, choices: list[str], *, none_ok: bool = False) -> None:
+    value = _get(cfg, key)
+    if value is _MISSING or (value is None and none_ok):
+        return
+    if value not in choices:
+        raise ConfigError(f"{key}={value!r} is not one of {choices}; set {key}={choices[0]} (or another of them)")
+
+
+def _check_bool(cfg: DictConfig, key: str) -> None:
+    """The one boolean check of every entry point: ``true`` / ``false`` (null or unset: the default), nothing else
+    (Hydra reads ``maybe`` or ``1`` as a string or a number, which Python would take as true)."""
+    value = _get(cfg, key)
+    if value is not _MISSING and value is not None and not isinstance(value, bool):
+        raise ConfigError(f"{key}={value!r} is not a boolean; set {key}=true or {key}=false")
+
+
+def _range_text(low: int | None, high: int | None, extra: tuple[int, ...]) -> str:
+    parts = []
+    if low is not None:
+        parts.append(f">= {low}")
+    if high is not None:
+        parts.append(f"<= {high}")
+    text = " and ".join(parts)
+    if extra:
+        text += " (or " + " / ".join(str(e) for e in extra) + " for no limit)"
+    return text
+
+
+def _model_role(cfg: DictConfig) -> str | None:
+    target = str(_get(cfg, "model._target_") or "")
+    if target.endswith("StudentModule"):
+        return "student"
+    if target.endswith("ExpertModule"):
+        return "expert"
+    return None
