@@ -61,7 +61,8 @@ def tiny_checkpoints(spade_home: Path) -> dict[str, str]:
 #: ``seed_everything`` records the seed, torch sets its own on the first import of some modules. Neither restored
 #: nor reported. ``MLFLOW_TRACKING_URI`` (exported by ``mlflow.set_tracking_uri`` for child processes) is removed
 #: after each test: a later test's ``spade.train`` subprocess must not log into an earlier test's store.
-LIBRARY_SET_ENV = ("PL_GLOBAL_SEED", "PL_SEED_WORKERS", "PYTORCH_", "TORCHINDUCTOR_", "TORCH_", "KMP_")
+LIBRARY_SET_ENV = ("PL_GLOBAL_SEED", "PL_SEED_WORKERS", "PYTORCH_", "TORCHINDUCTOR_", "TORCH_", "KMP_",
+                   "CUBLAS_WORKSPACE_CONFIG")
 #: Set by pytest itself around every phase of a test.
 PYTEST_ENV = "PYTEST_CURRENT_TEST"
 

@@ -23,6 +23,7 @@ FLOORS = [
     {"annotation"},
     {"training"},
     {"deploy"},
+    {"ros"},
     {"sketching"},
     {"experiments"},
     {"perf"},

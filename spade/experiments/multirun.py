@@ -12,9 +12,9 @@ students' own, for one fixed expert.
 the seeds, the instances of each dataset and an estimate of the wall time (:func:`estimate_row`), with the
 prerequisites still to train (not yet in the Model Registry) counted once.
 
-The estimate is a cost model: seconds per training step at batch 32 and 64 px on 2 quiet CPU cores with two
-torch threads (:data:`STEP_SECONDS`, measured with ``python -m spade.bench sections=[training]`` and the experts'
-own step, README *Measured figures*), scaled by batch size and pixels, times the steps of an epoch and the epochs,
+The estimate is a cost model: seconds per training step at batch 32 and 64 px (:data:`STEP_SECONDS`, measured
+and written with its machine and date by ``python -m spade.perf.cost_model`` into ``cost_model.json``), scaled
+by batch size and pixels, times the steps of an epoch and the epochs,
 plus :data:`VALIDATION_SHARE` for validation and data loading (the quickstart's whole epochs took 8-13 % longer
 than their steps) and a fixed cost per run (:func:`estimate_row`). Machines differ (two 2-core cloud machines of
 the same name trained 2.1 x apart), so before a table at a scale other than tiny :class:`TableStart` times a few
@@ -26,10 +26,12 @@ than the costs assume: an upper bound).
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import math
 import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
@@ -100,16 +102,24 @@ OmegaConf.register_new_resolver("spade_rows", row_sweep, replace=True)
 OmegaConf.register_new_resolver("spade_table_rows", table_row_sweep, replace=True)
 
 
-# Seconds per training step, batch 32, 64 px windows, 2 CPU cores (torch with 2 threads).
-STEP_SECONDS: dict[str, float] = {
-    # 2026-12-02, 2 threads on the quiet 2-core machine, batch 32 at 64 px, the cpu scale's cpu_lite experts:
-    # students (BC; DBC and Cond-DBC with their margin's three expert passes) from spade.bench's training
-    # section, the experts' denoising step (x0, AdamW) timed alike.
-    "bc/small": 0.19, "bc/medium": 0.58, "bc/large": 0.60,
-    "dbc/small": 0.52, "dbc/medium": 0.87, "dbc/large": 0.98,
-    "conddbc/small": 0.53, "conddbc/medium": 0.90, "conddbc/large": 0.92,
-    "expert/cond": 0.36, "expert/uncond": 0.63,
-}
+#: Where the cost model's reference step times live: measured and written, with their provenance, by
+#: ``python -m spade.perf.cost_model`` (never typed here).
+COST_MODEL_FILE = Path(__file__).with_name("cost_model.json")
+
+
+def load_cost_model(path: Path = COST_MODEL_FILE) -> dict[str, Any]:
+    """The measured cost model (``step_seconds`` per kind, batch 32 at 64 px, and how it was measured)."""
+    try:
+        record = json.loads(path.read_text())
+        steps = {str(k): float(v) for k, v in record["step_seconds"].items()}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise RuntimeError(f"the table cost model {path} is missing or unreadable ({exc}); rebuild it with "
+                           "`python -m spade.perf.cost_model`") from None
+    return {**record, "step_seconds": steps}
+
+
+# Seconds per training step, batch 32, 64 px windows (spade/experiments/cost_model.json).
+STEP_SECONDS: dict[str, float] = load_cost_model()["step_seconds"]
 VALIDATION_SHARE = 0.12  # validation epochs (15 % of the data, forward only, metrics) and data loading on top of the steps
 RUN_SECONDS = 20.0  # per run: building the model, the test's first batches, pictures, checkpoints, MLflow
 TEST_SECONDS_PER_INSTANCE = 0.03  # the test: predictions, APE / Hd19 / FID, the planner's decoding (README figures)

@@ -33,7 +33,7 @@ def build_planner(cfg: DictConfig) -> Any:
     path = resolve_model(str(value), OmegaConf.select(cfg, "paths.mlflow_tracking_uri"),
                          OmegaConf.select(cfg, "paths.registry_cache_dir"))
     t0 = time.perf_counter()
-    from spade.planner import Planner
+    from spade.deploy.planner import Planner
 
     imported = time.perf_counter() - t0
     planner = Planner(path, device=str(cfg.get("device", "cpu")), **_options(cfg, "planner"))
