@@ -57,6 +57,11 @@ class DeterministicTraining(Callback):
     (``set_epoch``), not from the global generator, whose position depends on everything done before.
     A run resumed from a checkpoint saved mid-epoch restarts that epoch's data from its beginning (Lightning
     keeps no position inside a plain ``DataLoader``); ``spade.train`` checkpoints at epoch ends.
+
+    Lightning offers no hook that seeds a loader per epoch: its fit loop calls ``sampler.set_epoch(epoch)`` when
+    the sampler has one (a ``DistributedSampler`` does; a ``RandomSampler`` does not), so this callback gives the
+    sampler that method rather than writing any of Lightning's own fields. The datamodule's ``train_dataloader``
+    is wrapped on the instance (the hook Lightning calls), marked so that a second fit does not wrap it twice.
     """
 
     def __init__(self, seed: int) -> None:
@@ -145,6 +150,11 @@ class CarryBestCheckpoint(Callback):
     (after Lightning restored the checkpoint) this copies the interrupted run's top-k checkpoints into the new
     folder (the old folder is never touched, so it can be resumed again) and restores the scores, so the run tests
     the checkpoint the uninterrupted run would have tested.
+
+    ``ModelCheckpoint`` has no public way to adopt another folder's state (its ``load_state_dict`` drops the scores
+    when ``dirpath`` differs, by design), so this sets its public attributes ``best_k_models``,
+    ``best_model_path``, ``best_model_score`` and ``kth_*`` after copying the files: the attributes its own
+    ``state_dict`` saves, nothing private.
     """
 
     def __init__(self, ckpt_path: str) -> None:
