@@ -178,3 +178,21 @@ def test_unknown_sections_are_refused() -> None:
 
     with pytest.raises(ValueError, match="unknown bench sections"):
         bench(compose_config("bench", ["quick=true", "sections=[student,gpu]"]))
+
+
+@pytest.mark.slow  # a dozen training processes, a few seconds each
+def test_contention_section_measures_solo_and_two_processes(tmp_path) -> None:
+    """spade.bench's contention section starts each setting's training processes alone and two at a time and
+    reports steps/s of each, with the thread count each one used."""
+    from spade.perf.contention import contention_table, format_contention
+
+    rows = contention_table([{"threads": None, "wait_policy": None}, {"threads": 1, "wait_policy": "PASSIVE"}],
+                            size="small", image_size=32, batch_size=8, seconds=1.5)
+    assert [r["setting"] for r in rows] == ["threads=torch default, OMP_WAIT_POLICY=unset",
+                                            "threads=1, OMP_WAIT_POLICY=PASSIVE"]
+    for r in rows:
+        assert r["solo_steps_per_s"] > 0 and len(r["pair_steps_per_s"]) == 2 and min(r["pair_steps_per_s"]) > 0
+        assert r["pair_vs_own_solo"] == pytest.approx(min(r["pair_steps_per_s"]) / r["solo_steps_per_s"])
+    assert rows[1]["solo_threads"] == 1 and rows[1]["pair_threads"] == [1, 1]
+    assert rows[0]["solo_vs_default"] == 1.0
+    assert "| threads=1, OMP_WAIT_POLICY=PASSIVE | 1 / 1 / 1 |" in format_contention(rows, "small")

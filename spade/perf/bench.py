@@ -23,7 +23,7 @@ from spade.utils.timing import machine_info
 log = logging.getLogger(__name__)
 
 SECTIONS = ("student", "experts", "training", "metrics", "decoder", "data", "quality", "annotation_scaling",
-            "annotation", "dataset", "maps")
+            "annotation", "dataset", "maps", "contention")
 _KEYS = ("quick", "sections", "out_json", "work_dir", "expert_ckpt", "seed", "threads", *SECTIONS)
 
 
@@ -92,6 +92,13 @@ def bench(cfg: DictConfig) -> dict[str, Any]:
             results["dataset"] = _dataset(c["dataset"], work, c["seed"])
         if "maps" in sections:
             results["maps"] = _maps(c["maps"])
+        if "contention" in sections:
+            from spade.perf.contention import contention_table
+
+            k = c["contention"]
+            log.info("contention: solo and two concurrent training processes per thread setting")
+            results["contention"] = {"size": k["size"], "rows": contention_table(
+                [dict(s) for s in k["settings"]], k["size"], k["image_size"], k["batch_size"], k["seconds"])}
     finally:
         if temporary:
             shutil.rmtree(work, ignore_errors=True)

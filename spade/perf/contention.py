@@ -98,16 +98,20 @@ def contention_table(settings: list[dict[str, Any]], size: str = "medium", image
 
 
 def _label(setting: dict[str, Any]) -> str:
-    return f"threads={setting.get('threads', 'torch default')}, OMP_WAIT_POLICY={setting.get('wait_policy') or 'unset'}"
+    threads = setting.get('threads')
+    return f"threads={'torch default' if threads is None else threads}, OMP_WAIT_POLICY={setting.get('wait_policy') or 'unset'}"
 
 
 def format_contention(rows: list[dict[str, Any]], size: str = "medium") -> str:
-    lines = [f"Training under contention ({size} student BC steps; two processes started together)",
-             f"  {'setting':<48} {'solo it/s':>9} {'2 procs it/s (each)':>22} {'each/solo':>9} {'each/default solo':>17}"]
+    """The measured rows as a Markdown table: steps/s alone and each of two together, and their ratios."""
+    lines = [f"Training under contention ({size} student, BC steps; two processes started together)", "",
+             "| setting | threads (solo / pair) | solo it/s | two processes it/s (each) | each / own solo | "
+             "each / default solo |", "|---|---|---|---|---|---|"]
     for r in rows:
         pair = " / ".join(f"{v:.2f}" for v in r["pair_steps_per_s"])
-        lines.append(f"  {r['setting']:<48} {r['solo_steps_per_s']:>9.2f} {pair:>22} {r['pair_vs_own_solo']:>9.2f} "
-                     f"{r['pair_vs_default_solo']:>17.2f}")
+        threads = f"{r['solo_threads']} / {' / '.join(str(t) for t in r['pair_threads'])}"
+        lines.append(f"| {r['setting']} | {threads} | {r['solo_steps_per_s']:.2f} | {pair} | "
+                     f"{r['pair_vs_own_solo']:.2f} | {r['pair_vs_default_solo']:.2f} |")
     return "\n".join(lines)
 
 

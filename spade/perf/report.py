@@ -127,6 +127,10 @@ def format_report(results: dict[str, Any]) -> str:
         parts.append("### Data\n\n" + _table(["what", "px", "instances", "throughput"], table))
     if results.get("annotation_scaling"):
         parts.append(_annotation_scaling(results["annotation_scaling"]))
+    if results.get("contention"):
+        from spade.perf.contention import format_contention
+
+        parts.append("### " + format_contention(results["contention"]["rows"], results["contention"]["size"]))
     if results.get("annotation"):
         parts.append(_annotation(results["annotation"]))
     if results.get("dataset"):
