@@ -21,19 +21,25 @@ from spade.perf.gpu import DeviceUnavailableError, format_gpu_report, gpu_check
 REPO = Path(__file__).resolve().parents[1]
 TINY = {"device": "cpu", "precision": "fp32", "sections": ["steps", "sampling"], "seed": 0, "image_size": 32,
         "batch_size": 2, "timed_steps": 1, "cond_preset": "tiny", "uncond_preset": "tiny", "uncond_batch_size": 2,
-        "student": "small", "ddim_steps": 2, "train_steps": 2, "work_dir": None,
+        "student": "small", "student_uncond_preset": "tiny", "peak_tflops": 1.0, "ddim_steps": 2, "train_steps": 2,
+        "work_dir": None,
         "pipeline": {"experiment": "t1_medium_conddbc_L", "overrides": ["scale=tiny", "trainer=cpu"], "timeout_s": 600}}
 TINY_ARGS = ["device=cpu", "precision=fp32", "image_size=32", "student=small", "cond_preset=tiny", "uncond_preset=tiny",
-             "batch_size=2", "uncond_batch_size=2", "timed_steps=1", "train_steps=2", "ddim_steps=2"]
+             "student_uncond_preset=tiny", "batch_size=2", "uncond_batch_size=2", "timed_steps=1", "train_steps=2", "ddim_steps=2"]
 
 
 def test_steps_and_sampling_are_measured_on_cpu() -> None:
     results = gpu_check(TINY)
-    experts, uncond, bc, guided = results["steps"]
-    assert (experts["expert"], uncond["expert"], bc["approach"], guided["approach"]) == ("cond", "uncond", "BC",
-                                                                                          "Cond-DBC")
+    experts, uncond, bc, dbc, guided = results["steps"]
+    assert (experts["expert"], uncond["expert"], bc["approach"], dbc["approach"], guided["approach"]) == (
+        "cond", "uncond", "BC", "DBC", "Cond-DBC")
     for row in results["steps"]:
         assert row["step_ms"] > 0 and math.isfinite(row["loss_first"]) and math.isfinite(row["loss_last"])
+        # FLOPs counted, rate and utilisation derived from them; no GPU to be busy on a CPU
+        assert row["gflop_per_step"] > 0 and row["steps_per_s"] == pytest.approx(1000 / row["step_ms"], rel=0.01)
+        assert row["achieved_tflops"] == pytest.approx(row["gflop_per_step"] / 1000 * row["steps_per_s"], rel=0.05)
+        assert row["mfu"] == pytest.approx(row["achieved_tflops"], rel=0.01) and row["device_busy_share"] is None
+    assert guided["gflop_per_step"] > bc["gflop_per_step"]  # the margin's expert passes
     assert experts["batch_size"] == 2 and experts["params_m"] > 0
     assert guided["ratio_to_bc"] == pytest.approx(guided["step_ms"] / bc["step_ms"], rel=0.01)
     assert results["sampling"]["ms_per_sample"] > 0 and results["sampling"]["ddim_steps"] == 2

@@ -102,8 +102,42 @@ def _batch(batch_size: int, image_size: int, device: torch.device, seed: int = 0
     return {"state": torch.from_numpy(data["state"]).to(device), "path": torch.from_numpy(data["path"]).to(device)}
 
 
-def _timed_steps(step: Callable[[], torch.Tensor], device: torch.device, timed_steps: int, warmup: int) -> dict[str, Any]:
-    """Median / min ms of ``step()`` (one optimisation step returning its loss), synchronised; first and last loss."""
+def step_flops(step: Callable[[], torch.Tensor]) -> int:
+    """Floating-point operations of one call of ``step`` (forward, backward, optimiser), counted by torch's
+    ``FlopCounterMode`` (matrix multiplications and convolutions, the bulk of a U-Net step)."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    counter = FlopCounterMode(display=False)
+    with counter:
+        step()
+    return int(counter.get_total_flops())
+
+
+def device_busy_share(step: Callable[[], torch.Tensor], device: torch.device, steps: int = 5) -> float | None:
+    """The share of the wall time of ``steps`` steady-state steps in which the GPU ran kernels (``torch.profiler``'s
+    device time over the wall time); 1 minus it is the share spent outside the GPU (data, Python, host syncs).
+    None on a CPU, where there is no device to wait for."""
+    if device.type != "cuda":
+        return None
+    from torch.profiler import ProfilerActivity, profile
+
+    sync = _sync(device)
+    sync()
+    with profile(activities=[ProfilerActivity.CPU, ProfilerActivity.CUDA]) as prof:
+        start = time.perf_counter()
+        for _ in range(steps):
+            step()
+        sync()
+        wall = time.perf_counter() - start
+    busy_us = sum(getattr(e, "self_device_time_total", 0.0) for e in prof.key_averages())
+    return round(min(1.0, busy_us / 1e6 / wall), 3) if wall > 0 else None
+
+
+def _timed_steps(step: Callable[[], torch.Tensor], device: torch.device, timed_steps: int, warmup: int,
+                 peak_tflops: float | None = None) -> dict[str, Any]:
+    """Median / min ms of ``step()`` (one optimisation step returning its loss), synchronised, in the steady state
+    (after ``warmup`` steps: cuDNN autotuning, allocator); steps/s, the step's FLOPs, achieved TFLOP/s, the model
+    FLOPs utilisation against ``peak_tflops`` (when given) and the GPU's busy share; first and last loss."""
     sync = _sync(device)
     losses: list[float] = []
 
@@ -112,13 +146,21 @@ def _timed_steps(step: Callable[[], torch.Tensor], device: torch.device, timed_s
         sync()
 
     timing = measure(run, timed_steps, warmup)
-    return {"step_ms": round(timing.median_ms, 2), "step_min_ms": round(timing.min_ms, 2), "runs": timing.runs,
-            "loss_first": losses[0], "loss_last": losses[-1]}
+    out: dict[str, Any] = {"step_ms": round(timing.median_ms, 2), "step_min_ms": round(timing.min_ms, 2),
+                           "runs": timing.runs, "steps_per_s": round(1000 / timing.median_ms, 2),
+                           "loss_first": losses[0], "loss_last": losses[-1]}
+    flops = step_flops(step)
+    out["gflop_per_step"] = float(f"{flops / 1e9:.4g}")
+    out["achieved_tflops"] = float(f"{flops / (timing.median_ms / 1000) / 1e12:.4g}")
+    if peak_tflops:
+        out["mfu"] = float(f"{out['achieved_tflops'] / float(peak_tflops):.4g}")
+    out["device_busy_share"] = device_busy_share(step, device)
+    return out
 
 
 def expert_step(conditional: bool, preset: str, image_size: int, batch_size: int, device: torch.device,
                 precision: str = "bf16", timed_steps: int = 10, warmup: int = 2,
-                prediction_type: str = "sample") -> dict[str, Any]:
+                prediction_type: str = "sample", peak_tflops: float | None = None) -> dict[str, Any]:
     """One AdamW step of an expert's denoising loss (``ExpertModule.denoising_loss``) with its EMA update; on
     CUDA out-of-memory the batch halves until it fits (reported as ``batch_size``)."""
     from spade.models import count_parameters
@@ -143,7 +185,7 @@ def expert_step(conditional: bool, preset: str, image_size: int, batch_size: int
 
         try:
             with _peak_memory(device, row):
-                row.update(_timed_steps(step, device, timed_steps, warmup))
+                row.update(_timed_steps(step, device, timed_steps, warmup, peak_tflops))
             row["batch_size"] = batch_size
             break
         except torch.cuda.OutOfMemoryError:
@@ -158,12 +200,14 @@ def expert_step(conditional: bool, preset: str, image_size: int, batch_size: int
 
 
 def student_step(size: str, expert_preset: str | None, image_size: int, batch_size: int, device: torch.device,
-                 precision: str = "bf16", timed_steps: int = 10, warmup: int = 2) -> dict[str, Any]:
-    """One AdamW step of a student's losses: BC (``expert_preset=None``) or Cond-DBC with a frozen conditional
-    expert of that preset (random weights, wired as training wires it: :func:`spade.perf.training.student_with_margin`)."""
+                 precision: str = "bf16", timed_steps: int = 10, warmup: int = 2, expert: str = "cond",
+                 peak_tflops: float | None = None) -> dict[str, Any]:
+    """One AdamW step of a student's losses: BC (``expert_preset=None``), Cond-DBC (``expert="cond"``) or DBC
+    (``expert="uncond"``) with a frozen expert of that preset (random weights, wired as training wires it:
+    :func:`spade.perf.training.student_with_margin`)."""
     from spade.perf.training import student_with_margin
 
-    module = student_with_margin(size, "cond" if expert_preset else None, expert_preset or "tiny").to(device)
+    module = student_with_margin(size, expert if expert_preset else None, expert_preset or "tiny").to(device)
     optimizer = torch.optim.AdamW([p for p in module.parameters() if p.requires_grad], lr=1e-3)
     batch = _batch(batch_size, image_size, device)
 
@@ -175,10 +219,12 @@ def student_step(size: str, expert_preset: str | None, image_size: int, batch_si
         optimizer.step()
         return loss
 
-    row: dict[str, Any] = {"approach": "Cond-DBC" if expert_preset else "BC", "student": size,
-                           "expert_preset": expert_preset, "image_size": image_size, "batch_size": batch_size}
+    approach = ("Cond-DBC" if expert == "cond" else "DBC") if expert_preset else "BC"
+    row: dict[str, Any] = {"approach": approach, "student": size, "expert_preset": expert_preset,
+                           "image_size": image_size, "batch_size": batch_size}
     with _peak_memory(device, row):
-        row.update(_timed_steps(step, device, timed_steps, warmup))
+        row.update(_timed_steps(step, device, timed_steps, warmup, peak_tflops))
+    row["samples_per_s"] = round(batch_size / (row["step_ms"] / 1000), 1)
     return row
 
 
@@ -256,13 +302,20 @@ def gpu_check(cfg: dict[str, Any]) -> dict[str, Any]:
     torch.manual_seed(int(cfg.get("seed", 0)))
     t0 = time.perf_counter()
     if "steps" in sections:
-        rows = [expert_step(True, cfg["cond_preset"], size, batch, device, precision, steps, warmup),
+        peak = cfg.get("peak_tflops")
+        student_expert = cfg.get("student_uncond_preset") or cfg["uncond_preset"]
+        rows = [expert_step(True, cfg["cond_preset"], size, batch, device, precision, steps, warmup,
+                            peak_tflops=peak),
                 expert_step(False, cfg["uncond_preset"], size, int(cfg["uncond_batch_size"]), device, precision,
-                            steps, warmup),
-                student_step(cfg["student"], None, size, batch, device, precision, steps, warmup),
-                student_step(cfg["student"], cfg["cond_preset"], size, batch, device, precision, steps, warmup)]
+                            steps, warmup, peak_tflops=peak),
+                student_step(cfg["student"], None, size, batch, device, precision, steps, warmup, peak_tflops=peak),
+                student_step(cfg["student"], student_expert, size, batch, device, precision, steps, warmup,
+                             expert="uncond", peak_tflops=peak),
+                student_step(cfg["student"], cfg["cond_preset"], size, batch, device, precision, steps, warmup,
+                             peak_tflops=peak)]
         bc = rows[2]["step_ms"]
-        rows[3]["ratio_to_bc"] = round(rows[3]["step_ms"] / bc, 2)
+        for row in rows[3:]:
+            row["ratio_to_bc"] = round(row["step_ms"] / bc, 2)
         results["steps"] = rows
     if "sampling" in sections:
         results["sampling"] = sampling_cost(cfg["cond_preset"], size, batch, int(cfg["ddim_steps"]), device, precision)
@@ -284,16 +337,21 @@ def format_gpu_report(results: dict[str, Any]) -> str:
              f"{d['torch']}, CUDA {d.get('cuda_version', '-')}), precision {results['precision']}, "
              f"{results['seconds']} s", ""]
     if "steps" in results:
-        lines += ["| step | preset | params (M) | batch | px | ms / step (min) | peak GiB | loss first -> last |",
-                  "|---|---|---|---|---|---|---|---|"]
+        lines += ["| step | preset | params (M) | batch | px | ms / step (min) | steps/s | GFLOP / step | TFLOP/s | "
+                  "MFU | GPU busy | peak GiB | loss first -> last |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in results["steps"]:
             name = f"{r['expert']} expert" if "expert" in r else f"{r['student']} student, {r['approach']}"
             if "ratio_to_bc" in r:
                 name += f" ({r['ratio_to_bc']}x BC)"
             timing = f"{r['step_ms']} ({r['step_min_ms']})" if "step_ms" in r else r.get("error", "-")
             loss = f"{r['loss_first']:.4f} -> {r['loss_last']:.4f}" if "loss_first" in r else "-"
+            busy = r.get("device_busy_share")
             lines.append(f"| {name} | {r.get('preset') or r.get('expert_preset') or '-'} | {r.get('params_m', '-')} | "
-                         f"{r['batch_size']} | {r['image_size']} | {timing} | {r.get('peak_memory_gib', '-')} | {loss} |")
+                         f"{r['batch_size']} | {r['image_size']} | {timing} | {r.get('steps_per_s', '-')} | "
+                         f"{r.get('gflop_per_step', '-')} | {r.get('achieved_tflops', '-')} | "
+                         f"{r.get('mfu', '-') if r.get('mfu') is not None else '-'} | "
+                         f"{'-' if busy is None else f'{busy:.0%}'} | {r.get('peak_memory_gib', '-')} | {loss} |")
         lines.append("")
     if "sampling" in results:
         s = results["sampling"]
