@@ -154,7 +154,7 @@ def test_mlflow_ui_shows_a_spade_run_from_the_printed_urls(tmp_path: Path, monke
         client.set_tag(run_id, "mlflow.note.content", run_description(cfg, metrics, uses, []))
         client.set_terminated(run_id)
         experiment_id = client.get_run(run_id).info.experiment_id
-        _, run_line, experiment_line = ui_lines(store, experiment_id, run_id)
+        _, run_line, experiment_line, _ = ui_lines(store, experiment_id, run_id)
         _wait_healthy(base, server, tmp_path / "server.log", timeout=180)
         _check_ui(experiment_line.split()[-1], run_line.split()[-1], "ui_check", "tiny/lshape", "Tested on", picture,
                   "mlflow_ui_recorded")
@@ -197,8 +197,9 @@ def test_printed_urls_open_runs_views(monkeypatch: pytest.MonkeyPatch) -> None:
     from spade.experiments.tracking import ui_lines
 
     monkeypatch.delenv("SPADE_MLFLOW_UI_URL", raising=False)
-    command, run, experiment = ui_lines("sqlite:////x/mlflow.db", "3", "ab12")
+    command, run, experiment, switch = ui_lines("sqlite:////x/mlflow.db", "3", "ab12")
     assert command.endswith("mlflow ui --backend-store-uri sqlite:////x/mlflow.db")
+    assert '"Model training"' in switch  # MLflow 3.17 opens an experiment by the sidebar's switch, not its tags
     assert run.split()[-1] == "http://127.0.0.1:5000/#/experiments/3/runs/ab12?workflowType=machine_learning"
     assert experiment.split()[-1] == ("http://127.0.0.1:5000/#/experiments/3/runs?viewStateShareKey=spade"
                                       "&workflowType=machine_learning")
@@ -416,8 +417,14 @@ def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(
     assert "registered model `spade-cond_expert-L-tiny-abc v1`, run [expert_cond_L](#/experiments/" in text
     assert "Regenerate: `python -m spade.train +experiment=t1_small_conddbc_L scale=tiny`" in text
     rate = METRICS["failure_rate"].format  # the tables' own number formats; centimetres to 0.1 cm (issue 22)
-    assert f"| **this model** | 4.5 | n/a | 3 | {rate(0.02)} |" in text
-    assert f"| baseline: straight | 30.2 | n/a | n/a | {rate(0.0)} |" in text and "| untrained | 190.0 |" in text
+    # aligned columns (issue 39): labels left, figures right, every line of the table as wide as its header
+    assert f"| **this model**     |   4.5 | n/a |    3 |     {rate(0.02)} |" in text
+    assert f"| baseline: straight |  30.2 | n/a |  n/a |     {rate(0.0)} |" in text
+    assert "| untrained          | 190.0 |" in text
+    table = [line for line in text.splitlines() if line.startswith("|")]
+    assert len({len(line) for line in table}) == 1 and table[0].startswith("| test set ")
+    assert "APE: mean distance in cm" in text and "Hd19: test instances whose Hausdorff distance" in text
+    assert "FID: Frechet distance" in text and "failures: share of instances" in text and ">20 cm: share" in text
     assert "`predictions/test_worst.png`" in text
     linked = run_description(cfg, metrics, uses, prerequisites, ["predictions/test_worst.png"], ("5", "ab12"))
     assert ("[predictions/test_worst.png](#/experiments/5/runs/ab12/artifacts/predictions/test_worst.png"

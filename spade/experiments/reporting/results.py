@@ -1,11 +1,12 @@
 """A table's results from MLflow: each row's runs over seeds, and the headline comparisons between rows.
 
-Runs are matched to rows by run name (see :mod:`spade.experiments.tables`). A row is the aggregate of its finished
-runs **at one scale, one run per distinct seed** (the seed is the run's ``cfg/seed`` param): the scale is the one
-asked for (``scale=``) or else that of the row's latest finished run; of several finished runs with the same seed
-the one that ended last counts. Each cell is the mean over those seeds with the sample standard deviation
-(``ddof=1``; none for one seed). A row without a finished run is kept as a :class:`RowResult` that is not
-``found``.
+Runs are matched to rows by run name (see :mod:`spade.experiments.tables`); a row's baselines and untrained model,
+logged as child runs of its run (:mod:`spade.experiments.tracking.predictors`), never count as its runs. A row is
+the aggregate of its finished runs **at one scale, one run per distinct seed** (the seed is the run's ``cfg/seed``
+param): the scale is the one asked for (``scale=``) or else that of the row's latest finished run; of several
+finished runs with the same seed the one that ended last counts. Each cell is the mean over those seeds with the
+sample standard deviation (``ddof=1``; none for one seed). A row without a finished run is kept as a
+:class:`RowResult` that is not ``found``.
 
 The headline comparisons (:func:`compare`) give the relative change of the means and Welch's t-test of the
 per-seed values (:func:`welch`: ``scipy.stats.ttest_ind(equal_var=False)``, two-sided, alpha :data:`ALPHA`);
@@ -153,6 +154,13 @@ def _seed(run: Any) -> int | None:
         return None
 
 
+def _is_predictor_run(run: Any) -> bool:
+    """A child run holding a row's baseline or untrained model (tag ``mlflow.parentRunId``:
+    :func:`spade.experiments.tracking.predictors.is_predictor_run`, not imported here: the tracking package imports
+    Lightning), which carries the row's metric names but is none of its seeds."""
+    return bool(run.data.tags.get("mlflow.parentRunId"))
+
+
 def _run_metrics(run: Any) -> dict[str, float]:
     metrics = {k: float(run.data.metrics[m.mlflow_key]) for k, m in METRICS.items() if m.mlflow_key in run.data.metrics}
     for name in BASELINE_LABELS:  # the classical baselines on this row's test set, as "<name>/<metric>"
@@ -183,6 +191,8 @@ def fetch_results(table: Table, tracking_uri: str, scale: str | None = None) -> 
     filter_string = f"tags.scale = '{scale}'" if scale else ""
     by_row: dict[str, list[Any]] = {}
     for run in _search_all_runs(client, experiment.experiment_id, filter_string):
+        if _is_predictor_run(run):  # a row's baseline or untrained model (a child run): not a seed of any row
+            continue
         by_row.setdefault(run.info.run_name, []).append(run)
 
     def ended(r: Any) -> tuple[int, int]:

@@ -14,10 +14,16 @@ One module per job:
 - :mod:`~spade.experiments.tracking.descriptions`: a run's description (row, approach, prerequisites linked to
   their runs, test figures next to the classical baselines and the untrained model) and the descriptions of the
   models it registers;
+- :mod:`~spade.experiments.tracking.params`: a run's parameters, the settings that describe the method (no
+  paths, Hydra or logger internals, sweep bookkeeping or copies; the whole config is ``config/train.yaml``);
+- :mod:`~spade.experiments.tracking.predictors`: the classical baselines and the untrained model as child runs of
+  the model's run, with its metric names (the runs table compares them row by row);
+- :mod:`~spade.experiments.tracking.run_report`: the run's report, ``report/run_report.md`` and
+  ``report/test_figures.csv``;
 - :mod:`~spade.experiments.tracking.runs`: an MLflow run from start to end: opened in its tagged experiment,
-  its composed config (flattened params and ``config/train.yaml``), the FID extractor's identity and its process
-  recorded, its checkpoints, inputs and description logged when it finishes, marked KILLED / FAILED when it does
-  not, and stale RUNNING runs of a row marked KILLED;
+  its parameters and ``config/train.yaml``, the FID extractor's identity and its process recorded, its
+  checkpoints, training-progress picture, inputs, description, predictors and report logged when it finishes,
+  marked KILLED / FAILED when it does not, and stale RUNNING runs of a row marked KILLED;
 - :mod:`~spade.experiments.tracking.summary`: the closing lines of ``spade.train``;
 - :mod:`~spade.experiments.tracking.report`: ``spade.report``'s table published in MLflow.
 
@@ -35,13 +41,18 @@ from spade.experiments.tracking.dataset_inputs import (
 from spade.experiments.tracking.descriptions import figures_table, prerequisite_uses, run_description
 from spade.experiments.tracking.experiment_tags import KIND_TAG, NOTE_TAG, VIEW_TAG
 from spade.experiments.tracking.links import ui_lines
+from spade.experiments.tracking.params import run_params
+from spade.experiments.tracking.predictors import PREDICTOR_TAG, TOP_LEVEL_FILTER, is_predictor_run, log_predictor_runs
 from spade.experiments.tracking.report import publish_report
+from spade.experiments.tracking.run_report import log_run_report
 from spade.experiments.tracking.runs import bind_experiment, finish_evaluation, finish_run, start_run_logging
 from spade.experiments.tracking.summary import run_summary
 
 __all__ = [
     "KIND_TAG",
     "NOTE_TAG",
+    "PREDICTOR_TAG",
+    "TOP_LEVEL_FILTER",
     "VIEW_TAG",
     "DatasetUse",
     "bind_experiment",
@@ -50,10 +61,14 @@ __all__ = [
     "figures_table",
     "finish_evaluation",
     "finish_run",
+    "is_predictor_run",
     "log_dataset_inputs",
+    "log_predictor_runs",
+    "log_run_report",
     "prerequisite_uses",
     "publish_report",
     "run_description",
+    "run_params",
     "run_summary",
     "start_run_logging",
     "ui_lines",

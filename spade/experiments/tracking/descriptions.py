@@ -60,20 +60,42 @@ def figure_rows(metrics: dict[str, float]) -> list[tuple[str, dict[str, float]]]
     return rows
 
 
-def figures_table(metrics: dict[str, float]) -> str:
-    """The test figures next to the baselines as a markdown table ('' when the run has no test figures)."""
-    from spade.experiments.tables import METRICS
+# the columns of the figures table: short headers (the units and meanings are in FIGURES_MEANING, under the table)
+FIGURE_HEADERS = {"ape_cm": "APE", "fid": "FID", "hd19": "Hd19", "failure_rate": "failures",
+                  "over_20cm_rate": ">20 cm", "planner/ape_cm": "planner APE",
+                  "planner/over_20cm_rate": "planner >20 cm"}
+FIGURES_MEANING = (
+    "APE: mean distance in cm between the path extracted from the prediction and the demonstration (lower is "
+    "better; an instance with no extracted path is a failure, not averaged); FID: Frechet distance between features "
+    "of the predicted and the demonstrated paths (lower: more alike in shape); Hd19: test instances whose "
+    "Hausdorff distance to the demonstration exceeds 0.95 m (the paper's 19 px: stray artifacts); failures: share "
+    "of instances from which no path could be extracted; >20 cm: share of instances whose APE exceeds 20 cm "
+    "(failures included); planner: the same for the path the planner decodes by search (what a robot would drive)."
+)
 
+
+def _padded(rows: list[list[str]]) -> list[str]:
+    """Markdown table lines with aligned columns: the first left-aligned, the figures right-aligned."""
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+
+    def line(cells: list[str]) -> str:
+        return "| " + " | ".join(c.ljust(w) if i == 0 else c.rjust(w)
+                                 for i, (c, w) in enumerate(zip(cells, widths))) + " |"
+
+    rule = "|" + "|".join(("-" * (w + 2)) if i == 0 else ("-" * (w + 1) + ":") for i, w in enumerate(widths)) + "|"
+    return [line(rows[0]), rule, *(line(r) for r in rows[1:])]
+
+
+def figures_table(metrics: dict[str, float]) -> str:
+    """The test figures next to the baselines and the untrained model as a markdown table with aligned columns,
+    followed by one line saying what each figure means ('' when the run has no test figures)."""
     rows = figure_rows(metrics)
     if not rows:
         return ""
-    by_key = {m.mlflow_key.split("/", 1)[1]: m for m in METRICS.values() if m.mlflow_key.startswith("test/")}
-    labels = {k: by_key[k].label if k in by_key else k.replace("_", " ") for k in FIGURES}
-    lines = ["| test set | " + " | ".join(labels[k] for k in FIGURES) + " |", "|---" * (len(FIGURES) + 1) + "|"]
+    cells = [["test set", *(FIGURE_HEADERS[k] for k in FIGURES)]]
     for label, figs in rows:
-        name = f"**{label}**" if label == "this model" else label
-        lines.append(f"| {name} | " + " | ".join(_fmt(k, figs.get(k)) for k in FIGURES) + " |")
-    return "\n".join(lines)
+        cells.append([f"**{label}**" if label == "this model" else label, *(_fmt(k, figs.get(k)) for k in FIGURES)])
+    return "\n".join(_padded(cells)) + "\n\n" + FIGURES_MEANING
 
 
 @dataclass(frozen=True)
@@ -134,7 +156,7 @@ def regenerate_command(cfg: DictConfig) -> str | None:
     return None
 
 
-def _what(tags: dict[str, Any]) -> str:
+def what_it_is(tags: dict[str, Any]) -> str:
     """``Cond-DBC student``, ``Cond-expert`` (the role is left out when the approach already names it)."""
     approach, role = str(tags.get("approach") or ""), str(tags.get("role") or "")
     if role and role.lower() not in approach.lower():
@@ -161,7 +183,7 @@ def run_description(cfg: DictConfig, metrics: dict[str, float], uses: list[Datas
     """A run's one-paragraph summary (markdown): row, approach, data, prerequisites, test figures and baselines."""
     tags = dict(cfg.get("tags") or {})
     row = cfg.get("run_name") or tags.get("row") or "run"
-    what = _what(tags)
+    what = what_it_is(tags)
     details = [f"size {tags['size']}" if tags.get("size") else None,
                f"{_fmt('params', metrics['model/params'])} parameters" if "model/params" in metrics else None]
     details_text = ", ".join(d for d in details if d)
@@ -214,7 +236,7 @@ def model_description(cfg: DictConfig, uses: list[DatasetUse]) -> str:
     from spade.experiments.registry import data_fingerprint
 
     tags = dict(cfg.get("tags") or {})
-    what = _what(tags)
+    what = what_it_is(tags)
     text = (f"SPADE {what}, size `{tags.get('size', '?')}`, for {tags.get('shape', '?')}-shape paths at scale "
             f"`{tags.get('scale', '?')}`, trained by row `{cfg.get('run_name')}` (experiment "
             f"`{tags.get('table', 'none')}`). The name ends in the fingerprint of its training data "

@@ -1,9 +1,19 @@
 """An MLflow experiment's metadata: tagged as model training, described (the paper table it reproduces), SPADE's view.
 
 The experiment (one per paper table, quickstart, smoke, sweep or evaluation) is tagged as model-training work
-(``mlflow.experimentKind=custom_model_development``: MLflow 3 UIs otherwise open it on the GenAI traces view),
+(``mlflow.experimentKind=custom_model_development``: the UI's "Machine learning" kind; MLflow 3 UIs before 3.17
+chose an experiment's first page by it),
 carries a description (``mlflow.note.content``: the paper table it reproduces and how to regenerate it) and stores
-the runs-table view that shows the Dataset and metric columns (:data:`VIEW_TAG`, :func:`runs_view_state`).
+the runs-table view that shows the Dataset and metric columns (:data:`VIEW_TAG`, :func:`runs_view_state`), with the
+runs whose baselines and untrained model are child runs expanded (:func:`expand_in_view`).
+
+What the tag does not do: MLflow 3.17's UI no longer reads ``mlflow.experimentKind`` to choose an experiment's
+first page. With its workflow-based navigation (on in every 3.17 build), the kind follows the sidebar's
+"GenAI / Model training" switch: the URL's ``workflowType`` parameter, else the browser's local storage
+(``mlflow.workflowType_v1``, written only when a person flips the switch), else GenAI. A fresh browser profile that
+clicks an experiment in the experiments list therefore lands on the GenAI overview whatever the tags say. Every link
+SPADE prints carries ``workflowType=machine_learning`` (:mod:`~spade.experiments.tracking.links`), and
+:func:`~spade.experiments.tracking.links.ui_lines` says to flip the switch once (the browser remembers it).
 """
 
 from __future__ import annotations
@@ -105,15 +115,44 @@ def _set_tag(client: Any, experiment_id: str, key: str, value: str, *, keep_exis
             client.set_experiment_tag(experiment_id, key, value)  # the row exists now: this write is an update
 
 
+def _parse_view(value: str | None) -> dict[str, Any] | None:
+    """A stored view state (None when absent or not a JSON object)."""
+    try:
+        state = json.loads(value) if value else None
+    except ValueError:
+        return None
+    return state if isinstance(state, dict) else None
+
+
 def ensure_experiment_tags(client: Any, experiment: Any, cfg: DictConfig | None = None) -> None:
-    """Tag ``experiment`` as model training, store SPADE's runs view (:func:`runs_view_state`) and add the
-    description where there is none (a description a person wrote in the UI is kept)."""
+    """Tag ``experiment`` as model training, store SPADE's runs view (:func:`runs_view_state`, keeping the runs it
+    shows expanded: :func:`expand_in_view`) and add the description where there is none (a description a person
+    wrote in the UI is kept)."""
     tags = dict(experiment.tags or {})
     eid = experiment.experiment_id
     if tags.get(KIND_TAG) != KIND_TRAINING:
         _set_tag(client, eid, KIND_TAG, KIND_TRAINING)
     if not tags.get(NOTE_TAG):
         _set_tag(client, eid, NOTE_TAG, experiment_description(experiment.name, cfg), keep_existing=True)
-    view = runs_view_state()
-    if tags.get(VIEW_TAG) != view:
-        _set_tag(client, eid, VIEW_TAG, view)
+    state = json.loads(runs_view_state())
+    current = _parse_view(tags.get(VIEW_TAG)) or {}
+    if current.get("runsExpanded"):
+        state["runsExpanded"] = current["runsExpanded"]
+    if current != state:
+        _set_tag(client, eid, VIEW_TAG, json.dumps(state))
+
+
+EXPANDED_MAX = 60  # runs SPADE's view shows expanded (the newest): the view is one experiment tag, of bounded size
+
+
+def expand_in_view(client: Any, experiment_id: str, run_id: str) -> None:
+    """Show run ``run_id`` expanded in SPADE's runs view, its child runs (its baselines and untrained model:
+    :mod:`~spade.experiments.tracking.predictors`) listed under it; the :data:`EXPANDED_MAX` newest stay expanded.
+    (Two jobs finishing at the same moment may each write the view without the other's run: that run then shows
+    collapsed, its children a click away.)"""
+    stored = (client.get_experiment(experiment_id).tags or {}).get(VIEW_TAG)
+    state = _parse_view(stored) or json.loads(runs_view_state())
+    expanded = {k: v for k, v in (state.get("runsExpanded") or {}).items() if k != run_id}
+    expanded[run_id] = True
+    state["runsExpanded"] = dict(list(expanded.items())[-EXPANDED_MAX:])
+    _set_tag(client, experiment_id, VIEW_TAG, json.dumps(state))

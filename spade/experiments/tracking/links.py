@@ -2,8 +2,9 @@
 
 :func:`ui_lines` gives the command that serves a local store and the URLs of a run and its experiment's runs
 table, printed at the end of training and by ``spade.report``. Every URL carries ``?workflowType=machine_learning``
-(MLflow 3 UIs otherwise open on the GenAI traces view); the runs table opens on SPADE's view stored in the
-experiment (:data:`VIEW_KEY`; the view itself: :func:`spade.experiments.tracking.experiment_tags.runs_view_state`).
+(MLflow 3 UIs otherwise open on the GenAI view: the URL's ``workflowType``, else the sidebar's switch as the browser
+stored it, decides; the experiment's tags do not); the runs table opens on SPADE's view stored in the experiment
+(:data:`VIEW_KEY`; the view itself: :func:`spade.experiments.tracking.experiment_tags.runs_view_state`).
 """
 
 from __future__ import annotations
@@ -70,9 +71,16 @@ def ui_command(tracking_uri: str, ui_url: str | None = None) -> str | None:
     return command
 
 
+SWITCH_HINT = ("  in a new browser: set the sidebar's switch to \"Model training\" once (the browser keeps it); "
+               "MLflow 3 otherwise opens experiments on the GenAI overview")
+
+
 def ui_lines(tracking_uri: str, experiment_id: str | None = None, run_id: str | None = None,
              ui_url: str | None = None) -> list[str]:
-    """How to open the UI: the ``mlflow ui`` command (local stores) and the run's and experiment's URLs."""
+    """How to open the UI: the ``mlflow ui`` command (local stores), the run's and experiment's URLs and, last, the
+    one click that makes a browser open experiments on their runs (:data:`SWITCH_HINT`: MLflow 3.17 chooses an
+    experiment's first page by the sidebar's GenAI / Model training switch, not by the experiment's tags; see
+    :mod:`~spade.experiments.tracking.experiment_tags`)."""
     base = ui_base_url(tracking_uri, ui_url)
     command = ui_command(tracking_uri, ui_url)
     lines = [f"open the MLflow UI on it with:  {command}" if command else f"open the MLflow UI on it at:  {base}"]
@@ -80,4 +88,5 @@ def ui_lines(tracking_uri: str, experiment_id: str | None = None, run_id: str | 
         if run_id is not None:
             lines.append(f"  this run:          {run_url(base, experiment_id, run_id)}")
         lines.append(f"  experiment's runs: {experiment_url(base, experiment_id)}")
+    lines.append(SWITCH_HINT)
     return lines

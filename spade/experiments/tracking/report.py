@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from spade.experiments.tracking.experiment_tags import ensure_experiment_tags
-from spade.experiments.tracking.links import experiment_url, run_url, ui_base_url, ui_command
+from spade.experiments.tracking.links import SWITCH_HINT, experiment_url, run_url, ui_base_url, ui_command
 
 
 def publish_report(table: Any, results: dict[str, Any], tracking_uri: str, files: dict[str, Path],
@@ -37,4 +37,5 @@ def publish_report(table: Any, results: dict[str, Any], tracking_uri: str, files
     lines += [f"- {row}: {run_url(base, experiment.experiment_id, r.run_id)}" for row, r in results.items() if r.run_id]
     if logged:
         lines.append(f"- the chart is in each of those {logged} runs as `report/{table.key}.png` (Artifacts tab)")
+    lines.append(f"- {SWITCH_HINT.strip()}")
     return lines

@@ -2,20 +2,26 @@
 
 * :func:`bind_experiment` opens the logger's run (a new one, or the resumed ``run_id``) safely under parallel jobs
   and tags its experiment (:mod:`~spade.experiments.tracking.experiment_tags`).
-* :func:`start_run_logging` records the composed config (flattened params and ``config/train.yaml``) and the FID
-  extractor's identity; :func:`record_process` tags the run with its host, process id and process start time (a
-  resumed run is RUNNING again).
-* :func:`finish_run` logs the best and last checkpoints, the datasets as inputs
+* :func:`start_run_logging` records the parameters that describe the method
+  (:mod:`~spade.experiments.tracking.params`), the whole config as ``config/train.yaml`` and the FID extractor's
+  identity; :func:`record_process` tags the run with its host, process id and process start time while it runs
+  (a resumed run is RUNNING again).
+* :func:`finish_run` logs the best and last checkpoints, the training-progress picture
+  (:mod:`spade.training.progress_picture`), the datasets as inputs
   (:mod:`~spade.experiments.tracking.dataset_inputs`) and the description
-  (:mod:`~spade.experiments.tracking.descriptions`), and registers the model when the row asks;
+  (:mod:`~spade.experiments.tracking.descriptions`), the classical baselines and the untrained model as child runs
+  (:mod:`~spade.experiments.tracking.predictors`) and the run's report (:mod:`~spade.experiments.tracking.run_report`),
+  drops the process tags of a run that ended, and registers the model when the row asks;
   :func:`finish_evaluation` does the same for ``spade.evaluate``'s run. :func:`last_run` is where the run lives.
 * A run that does not finish is closed honestly: :func:`mark_run_ended` marks it KILLED (a signal, Ctrl+C:
   :func:`spade.experiments.lifecycle.install_signal_handlers`) or FAILED (any other exception), and
   :func:`mark_stale_runs` (run by the next ``spade.train`` of the same row) marks RUNNING runs whose process is
-  gone (a ``kill -9``, a power cut) KILLED, with a message.
+  gone (a ``kill -9``, a power cut) KILLED, with a message. The process tags stay on a KILLED or FAILED run.
 
 Only Lightning's public ``MLFlowLogger`` API is used (``experiment``: its ``MlflowClient``; ``run_id``;
-``experiment_id``) and MLflow's own client.
+``experiment_id``) and MLflow's own client, and one private flag of the module, which
+:func:`~spade.experiments.tracking.params.quiet_model_hparams` sets so that Lightning logs no second copy of the
+model's hyperparameters.
 """
 
 from __future__ import annotations
@@ -43,21 +49,11 @@ from spade.experiments.tracking.descriptions import (
     version_description,
 )
 from spade.experiments.tracking.experiment_tags import NOTE_TAG, ensure_experiment_tags
+from spade.experiments.tracking.params import quiet_model_hparams, run_params
+from spade.experiments.tracking.predictors import is_predictor_run
 from spade.utils.processes import pid_alive, process_start
 
 log = logging.getLogger(__name__)
-
-
-def flatten(cfg: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    """Nested dict -> {"a/b/c": value}; lists are kept as their string form (MLflow params are strings)."""
-    out: dict[str, Any] = {}
-    for key, value in cfg.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict):
-            out.update(flatten(value, f"{name}/"))
-        else:
-            out[name] = value
-    return out
 
 
 def mlflow_logger(loggers: list[Logger]) -> MLFlowLogger | None:
@@ -102,16 +98,16 @@ def bound_run_id(ml: MLFlowLogger) -> str | None:
 
 @rank_zero_only  # under DDP, other ranks' MLflow loggers hold no run (their experiment is a no-op)
 def start_run_logging(cfg: DictConfig, model: L.LightningModule, loggers: list[Logger]) -> None:
-    """Log the composed config (flattened params and a YAML artifact) and the FID extractor's identity."""
+    """Log the parameters that describe the method (:func:`~spade.experiments.tracking.params.run_params`: no
+    bookkeeping, no copies), the whole composed config as ``config/train.yaml`` and the FID extractor's identity
+    (tag ``fid_extractor``)."""
     ml = mlflow_logger(loggers)
     if ml is None:
         return
     bind_experiment(ml, cfg)
-    resolved = OmegaConf.to_container(cfg, resolve=True)
-    params = {f"cfg/{k}": v for k, v in flatten(resolved).items() if not k.startswith("hydra")}
+    quiet_model_hparams(model, loggers)
+    params = run_params(OmegaConf.to_container(cfg, resolve=True))
     fid = getattr(getattr(model, "test_metrics", None), "fid_identity", None)
-    if fid:
-        params["fid/extractor_identity"] = fid
     # A resumed run continues an MLflow run whose params are immutable: log only what it lacks (ckpt_path and
     # anything else set differently for the resume is recorded as a tag instead).
     existing = ml.experiment.get_run(ml.run_id).data.params
@@ -128,7 +124,13 @@ def start_run_logging(cfg: DictConfig, model: L.LightningModule, loggers: list[L
 
 
 # -- the run's process and status -------------------------------------------------------------------------------
+PROCESS_TAGS = ("spade.host", "spade.pid", "spade.proc_start")  # a RUNNING run's process (mark_stale_runs)
+
+
 def process_tags() -> dict[str, str]:
+    """This process as :data:`PROCESS_TAGS`: host name, process id and the process's start time (so that a
+    recycled pid is not taken for it). Set while a run is RUNNING; removed when it finishes
+    (:func:`drop_process_tags`)."""
     tags = {"spade.host": socket.gethostname(), "spade.pid": str(os.getpid())}
     start = process_start(os.getpid())
     if start is not None:
@@ -190,8 +192,8 @@ def mark_stale_runs(cfg: DictConfig) -> list[str]:
     messages = []
     for run in client.search_runs([experiment.experiment_id], filter_string="attributes.status = 'RUNNING'",
                                   max_results=1000):
-        if run.info.run_name != run_name:
-            continue
+        if run.info.run_name != run_name or is_predictor_run(run):
+            continue  # another row's run, or a row's baseline / untrained model (a child run: no process of its own)
         tags = run.data.tags
         pid = tags.get("spade.pid")
         if pid is None:
@@ -233,15 +235,36 @@ def last_run() -> RunRef | None:
 
 
 def _picture_paths(client: Any, run_id: str) -> list[str]:
+    """The run's pictures: the training-progress picture, then the prediction pictures."""
     try:
-        return sorted(a.path for a in client.list_artifacts(run_id, "predictions") if a.path.endswith(".png"))
+        root = sorted(a.path for a in client.list_artifacts(run_id) if a.path.endswith(".png"))
+        return root + sorted(a.path for a in client.list_artifacts(run_id, "predictions") if a.path.endswith(".png"))
     except Exception:  # noqa: BLE001 - listing artifacts is a nicety of the description
         return []
 
 
+def _references_note(metrics: dict[str, float], run: tuple[str, str]) -> str:
+    """Where the run's references and report are (a run with test figures: :func:`_predictors_and_report`)."""
+    from spade.experiments.tracking.links import artifact_url
+    from spade.experiments.tracking.predictors import predictors
+    from spade.experiments.tracking.run_report import CSV, MARKDOWN, REPORT_DIR
+
+    if not any(k.startswith("test/") for k in metrics):
+        return ""
+    found = predictors(metrics)
+    text = ""
+    if found:
+        names = ", ".join(f"`{p.name}`" for p in found)
+        text += (f"\n\nThe references are child runs of this run ({names}: expand the run in the runs table), "
+                 "with this run's metric names.")
+    links = ", ".join(f"[{REPORT_DIR}/{f}]({artifact_url('', *run, f'{REPORT_DIR}/{f}')})" for f in (MARKDOWN, CSV))
+    return text + f"\n\nReport: {links}."
+
+
 def describe_run(cfg: DictConfig, ml: MLFlowLogger, datamodule: Any, contexts: tuple[str, ...] | None = None
-                 ) -> tuple[list[DatasetUse], dict[str, float]]:
-    """Log the run's dataset inputs and set its description; returns (dataset uses, the run's metrics)."""
+                 ) -> tuple[list[DatasetUse], dict[str, float], str]:
+    """Log the run's dataset inputs and set its description; returns (dataset uses, the run's metrics, the
+    description)."""
     client, run_id = ml.experiment, ml.run_id
     uses = dataset_uses(datamodule) if datamodule is not None else []
     if contexts is not None:
@@ -259,15 +282,56 @@ def describe_run(cfg: DictConfig, ml: MLFlowLogger, datamodule: Any, contexts: t
                    for m in sorted(client.get_metric_history(run_id, "margin/active"), key=lambda m: m.step)]
     description = run_description(cfg, metrics, uses, prerequisite_uses(cfg, client), _picture_paths(client, run_id),
                                   (str(run.info.experiment_id), run_id), history)
+    description += _references_note(metrics, (str(run.info.experiment_id), run_id))
     client.set_tag(run_id, NOTE_TAG, description)
     global _last_run
     _last_run = RunRef(str(client.tracking_uri), str(run.info.experiment_id), run_id, str(run.info.run_name))
-    return uses, metrics
+    return uses, metrics, description
+
+
+def _nicety(what: str, step: Any, *args: Any) -> Any:
+    """Run one of the deliverables a finished run adds to its record; a failure is a warning, never the run's."""
+    try:
+        return step(*args)
+    except Exception as exc:  # noqa: BLE001 - the run itself finished: its record must not fail it
+        log.warning("%s not logged: %s", what, exc)
+        return None
+
+
+def _predictors_and_report(cfg: DictConfig, client: Any, run_id: str, uses: list[DatasetUse],
+                           metrics: dict[str, float], description: str) -> None:
+    """The run's references as child runs (:mod:`~spade.experiments.tracking.predictors`) and its report
+    (:mod:`~spade.experiments.tracking.run_report`)."""
+    from spade.experiments.tracking.descriptions import what_it_is
+    from spade.experiments.tracking.predictors import log_predictor_runs
+    from spade.experiments.tracking.run_report import log_run_report
+
+    tags = dict(cfg.get("tags") or {})
+    role = str(tags.get("role") or "model")
+    test_uses = [u for u in uses if u.context == "test"]
+    _nicety("predictor runs", log_predictor_runs, client, run_id, role, what_it_is(tags), test_uses)
+    _nicety("run report", log_run_report, client, run_id, str(cfg.get("run_name") or "run"), description, metrics,
+            role)
+
+
+def drop_process_tags(client: Any, run_id: str) -> None:
+    """Remove the process tags (:func:`process_tags`) and an empty ``spade.end_reason`` from a FINISHED run: they
+    identify a running run's process for :func:`mark_stale_runs` and mean nothing once it finished. A RUNNING run
+    keeps them (Lightning closes the run when testing ends; with neither fit nor test it is still open), and so
+    does a KILLED or FAILED one (which process it was is part of what went wrong)."""
+    run = client.get_run(run_id)
+    if run.info.status != "FINISHED":
+        return
+    tags = run.data.tags
+    for key in (*PROCESS_TAGS, "spade.end_reason"):
+        if key in tags and (key != "spade.end_reason" or not tags[key]):
+            client.delete_tag(run_id, key)
 
 
 @rank_zero_only
 def finish_run(cfg: DictConfig, trainer: L.Trainer, model: L.LightningModule, loggers: list[Logger]) -> None:
-    """Log the checkpoints, the datasets as inputs and the run's description; register the model when asked."""
+    """Log the checkpoints, the datasets as inputs and the run's description; the baselines and the untrained model
+    as child runs, the report (``report/``) and the training-progress picture; register the model when asked."""
     ml = mlflow_logger(loggers)
     if ml is None:
         return
@@ -277,7 +341,15 @@ def finish_run(cfg: DictConfig, trainer: L.Trainer, model: L.LightningModule, lo
                                            ("last", last_checkpoint_path(trainer))) if path}
     for kind, path in paths.items():
         ml.experiment.log_artifact(ml.run_id, path, artifact_path=f"checkpoints/{kind}")
-    uses, metrics = describe_run(cfg, ml, getattr(trainer, "datamodule", None))
+    client, run_id = ml.experiment, ml.run_id
+    if cfg.get("train", True):
+        from spade.training.progress_picture import log_progress_picture
+
+        _nicety("training-progress picture", log_progress_picture, client, run_id, f"{cfg.get('run_name')}: "
+                "training by epoch")
+    uses, metrics, description = describe_run(cfg, ml, getattr(trainer, "datamodule", None))
+    _predictors_and_report(cfg, client, run_id, uses, metrics, description)
+    _nicety("process tags' removal", drop_process_tags, client, run_id)
     from spade.experiments.registry import data_fingerprint, register_checkpoint, registry_name
 
     name = registry_name(cfg)
@@ -291,11 +363,13 @@ def finish_run(cfg: DictConfig, trainer: L.Trainer, model: L.LightningModule, lo
 
 @rank_zero_only
 def finish_evaluation(cfg: DictConfig, trainer: L.Trainer, loggers: list[Logger]) -> None:
-    """``spade.evaluate``'s run: the test dataset as input and a description with the figures and baselines."""
+    """``spade.evaluate``'s run: the test dataset as input and a description with the figures and baselines, the
+    baselines as child runs and the report (``report/``)."""
     ml = mlflow_logger(loggers)
     if ml is None:
         return
     bind_experiment(ml, cfg)
     if cfg.get("source_seed") is not None:  # a training run's checkpoint tested elsewhere: counted under its seed
         ml.experiment.log_param(ml.run_id, "cfg/seed", int(cfg.source_seed))
-    describe_run(cfg, ml, getattr(trainer, "datamodule", None), contexts=("test",))
+    uses, metrics, description = describe_run(cfg, ml, getattr(trainer, "datamodule", None), contexts=("test",))
+    _predictors_and_report(cfg, ml.experiment, ml.run_id, uses, metrics, description)

@@ -34,7 +34,10 @@ def _find_run(cfg: DictConfig) -> RunRef | None:
     experiment = client.get_experiment_by_name(str(OmegaConf.select(cfg, "logger.mlflow.experiment_name")))
     if experiment is None:
         return None
-    runs = client.search_runs([experiment.experiment_id], filter_string=f"attributes.run_name = '{cfg.run_name}'",
+    from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
+
+    runs = client.search_runs([experiment.experiment_id],  # the row's own run, never one of its predictors'
+                              filter_string=f"attributes.run_name = '{cfg.run_name}' and {TOP_LEVEL_FILTER}",
                               order_by=["attributes.start_time DESC"], max_results=1)
     return RunRef(uri, experiment.experiment_id, runs[0].info.run_id, runs[0].info.run_name) if runs else None
 

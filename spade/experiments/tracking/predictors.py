@@ -1,0 +1,128 @@
+"""The predictors a run is compared with, side by side in the MLflow runs table: child runs of the model's run.
+
+A tested run logs its classical baselines as ``test/baseline/<name>/...`` and, with ``test_untrained=true``, the
+same model before training as ``untrained/...`` (both stay on the run: ``spade.report``, the run summary and the
+description read them there). :func:`log_predictor_runs` also logs each of them as a **child run** of the model's
+run (tag ``mlflow.parentRunId``), named ``<run name>/baseline-<name>`` and ``<run name>/untrained``, with the
+model's own metric names (``test/ape_cm``, ``test/planner/ape_cm``, ...): the runs table then shows the model and
+its references as rows under one another, the same column holding the same figure. Each child run carries
+``spade.predictor=<name>`` (the model's run carries its role: ``student``, ``expert``), the row's ``table``,
+``row``, ``scale`` and ``shape`` tags, the test dataset as its input and a one-line description; SPADE's runs view
+shows the model's run expanded, its children under it
+(:func:`~spade.experiments.tracking.experiment_tags.expand_in_view`).
+
+Queries that count a row's runs (``spade.report``, ``mark_stale_runs``, the run summary's look-up) match runs by
+their run name, which a child run never shares with its parent; :func:`is_predictor_run` and
+:data:`TOP_LEVEL_FILTER` tell them apart explicitly (``search_runs(..., filter_string=TOP_LEVEL_FILTER)``).
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import time
+from dataclasses import dataclass
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+PREDICTOR_TAG = "spade.predictor"  # what predicted a run's figures: the model's role, untrained, baseline-<name>
+PARENT_TAG = "mlflow.parentRunId"  # MLflow's nesting of runs (the runs table shows children under their parent)
+TOP_LEVEL_FILTER = f"tags.`{PARENT_TAG}` IS NULL"  # search_runs filter: the rows' own runs, not their predictors
+ROW_TAGS = ("table", "row", "scale", "shape")  # copied from the model's run onto each predictor's run
+MODEL_TAGS = ("approach", "size", "recipe")  # also onto the untrained model's run (the same architecture)
+
+
+@dataclass(frozen=True)
+class Predictor:
+    """One reference predictor of a run: its name (``untrained``, ``baseline-straight``), a label for people and
+    its figures under the model's metric names (``test/ape_cm``, ...)."""
+
+    name: str
+    label: str
+    metrics: dict[str, float]
+
+
+def predictors(metrics: dict[str, float]) -> list[Predictor]:
+    """The baselines (``test/baseline/<name>/<key>``) and the untrained model (``untrained/<key>``; the baselines it
+    was tested next to, ``untrained/baseline/...``, are the same figures again and left out) of a run's metrics, as
+    :class:`Predictor` s with the model's names (``test/<key>``). The untrained model also carries the model's
+    ``model/params`` (the same network)."""
+    from spade.experiments.tables import BASELINE_LABELS
+
+    baselines: dict[str, dict[str, float]] = {}
+    untrained: dict[str, float] = {}
+    for key, value in metrics.items():
+        if match := re.fullmatch(r"test/baseline/([^/]+)/(.+)", key):
+            baselines.setdefault(match.group(1), {})[f"test/{match.group(2)}"] = float(value)
+        elif key.startswith("untrained/") and not key.startswith("untrained/baseline/"):
+            untrained[f"test/{key[len('untrained/'):]}"] = float(value)
+    out = [Predictor(f"baseline-{name}", f"baseline: {BASELINE_LABELS.get(name, name)}", figures)
+           for name, figures in sorted(baselines.items())]
+    if untrained:
+        if "model/params" in metrics:
+            untrained["model/params"] = float(metrics["model/params"])
+        out.append(Predictor("untrained", "untrained", untrained))
+    return out
+
+
+def is_predictor_run(run: Any) -> bool:
+    """Whether ``run`` (an MLflow ``Run``) is a predictor's child run rather than a row's own run."""
+    tags = run.data.tags
+    return bool(tags.get(PARENT_TAG)) or tags.get(PREDICTOR_TAG, "").startswith(("baseline-", "untrained"))
+
+
+def _note(predictor: Predictor, row: str, what: str) -> str:
+    if predictor.name == "untrained":
+        return (f"The {what} of row **{row}** before any training, tested on the same test set (its parent run): "
+                "what training has to improve on.")
+    return (f"Classical predictor ({predictor.label[len('baseline: '):]}) on the test set of row **{row}** (its "
+            "parent run): no learning, the same instances; a learned model that does not beat it has learned "
+            "nothing worth deploying.")
+
+
+def log_predictor_runs(client: Any, run_id: str, role: str | None = None, what: str = "model",
+                       test_uses: list[Any] | None = None) -> dict[str, str]:
+    """Log the predictors of run ``run_id`` (:func:`predictors` of its metrics) as its child runs; returns
+    ``{predictor name: child run id}``. The run itself is tagged ``spade.predictor=<role>``.
+
+    Idempotent: a child run that exists (a run tested again) is updated, not doubled. ``test_uses``: the test
+    dataset(s) (:class:`~spade.experiments.tracking.dataset_inputs.DatasetUse`), logged as each child's input.
+    """
+    from mlflow.entities import Metric, RunTag
+
+    from spade.experiments.tracking.dataset_inputs import log_dataset_inputs
+    from spade.experiments.tracking.experiment_tags import NOTE_TAG, expand_in_view
+
+    run = client.get_run(run_id)
+    found = predictors(dict(run.data.metrics))
+    if role:
+        client.set_tag(run_id, PREDICTOR_TAG, role)
+    if not found:
+        return {}
+    experiment_id, name, tags = run.info.experiment_id, run.info.run_name, run.data.tags
+    existing = {r.data.tags.get(PREDICTOR_TAG): r.info.run_id
+                for r in client.search_runs([experiment_id], filter_string=f"tags.`{PARENT_TAG}` = '{run_id}'",
+                                            max_results=1000)}
+    row = tags.get("row") or name
+    out: dict[str, str] = {}
+    for predictor in found:
+        child_tags = {PARENT_TAG: run_id, PREDICTOR_TAG: predictor.name, NOTE_TAG: _note(predictor, row, what),
+                      **{k: tags[k] for k in ROW_TAGS if tags.get(k)}}
+        if predictor.name == "untrained":
+            child_tags.update({k: tags[k] for k in (*MODEL_TAGS, "role") if tags.get(k)})
+        child = existing.get(predictor.name)
+        if child is None:
+            child = client.create_run(experiment_id, run_name=f"{name}/{predictor.name}").info.run_id
+        now = int(time.time() * 1000)
+        client.log_batch(child, metrics=[Metric(k, v, now, 0) for k, v in sorted(predictor.metrics.items())],
+                         tags=[RunTag(k, str(v)) for k, v in child_tags.items()])
+        if test_uses:
+            try:
+                log_dataset_inputs(client, child, list(test_uses))
+            except (OSError, ValueError) as exc:  # an unreadable manifest: the figures are logged, say so
+                log.warning("test dataset not logged as the input of %s: %s", predictor.name, exc)
+        client.set_terminated(child, "FINISHED")
+        out[predictor.name] = child
+    expand_in_view(client, experiment_id, run_id)  # SPADE's runs view lists them under the run
+    return out

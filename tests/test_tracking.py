@@ -1,0 +1,317 @@
+"""What a run records in MLflow for a person reading it (issue 39): the method's parameters without bookkeeping,
+the baselines and the untrained model as child runs under the model's metric names (never counted as seeds of a
+row), the run's report and training-progress picture, process tags only while a run runs.
+
+The pieces are tested on a SQLite store without training (seconds); one tiny quickstart run, in-process, checks
+that ``spade.train`` puts them all together.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+# A tested student's metrics as the test step logs them: its own, the classical baselines', the untrained model's.
+METRICS = {
+    "test/ape_cm": 4.5, "test/hd19": 3.0, "test/failure_rate": 0.02, "test/planner/ape_cm": 5.5,
+    "model/params": 118165.0,
+    "test/baseline/straight/ape_cm": 30.25, "test/baseline/straight/failure_rate": 0.0,
+    "test/baseline/straight/planner/ape_cm": 30.5,
+    "test/baseline/heading/ape_cm": 12.0, "test/baseline/heading/hd19": 1.0,
+    "untrained/ape_cm": 190.0, "untrained/failure_rate": float("nan"), "untrained/planner/ape_cm": 80.0,
+    "untrained/baseline/straight/ape_cm": 30.25,  # the baselines next to the untrained test: the same figures again
+}
+
+
+def _client(tmp_path: Path):
+    from mlflow import MlflowClient
+
+    return MlflowClient(tracking_uri=f"sqlite:///{tmp_path}/mlflow.db")
+
+
+def _row_run(client, experiment_id: str, name: str, metrics: dict[str, float], seed: int = 7,
+             status: str = "FINISHED") -> str:
+    run = client.create_run(experiment_id, run_name=name, tags={"table": "table3", "row": name, "scale": "tiny",
+                                                                 "shape": "U", "role": "student",
+                                                                 "approach": "BC", "size": "small"})
+    client.log_param(run.info.run_id, "cfg/seed", seed)
+    for key, value in metrics.items():
+        client.log_metric(run.info.run_id, key, value)
+    if status != "RUNNING":
+        client.set_terminated(run.info.run_id, status)
+    return run.info.run_id
+
+
+# -- parameters ---------------------------------------------------------------------------------------------------
+def test_params_describe_the_method_without_bookkeeping_or_copies(tmp_path: Path) -> None:
+    """Issue 39: about 180 params started with ``cfg/task_name`` and ``cfg/seeds None`` and held every setting twice
+    (``cfg/model/margin/lambda_dm`` beside Lightning's ``margin/lambda_dm``, the recipe's and the scale's copies)."""
+    from omegaconf import OmegaConf
+
+    from spade.experiments.tracking import run_params
+    from training_helpers import compose_row
+
+    cfg = compose_row("quickstart", tmp_path)
+    params = run_params(OmegaConf.to_container(cfg, resolve=True))
+    keys = set(params)
+    for wanted in ("cfg/model/optimizer/lr", "cfg/model/margin/lambda_dm", "cfg/model/size", "cfg/model/margin/score",
+                   "cfg/model/margin/clip", "cfg/model/margin/agent_input", "cfg/model/bc_pos_weight",
+                   "cfg/recipe/name", "cfg/scale/name", "cfg/scale/train_instances", "cfg/scale/test_instances",
+                   "cfg/scale/image_size", "cfg/data/batch_size", "cfg/trainer/max_epochs", "cfg/seed",
+                   "cfg/run_name", "cfg/metrics/hd_threshold_m"):
+        assert wanted in keys, wanted
+    # the resume check reads these (spade.experiments.checks.train.RESUME_KEYS); spade.report reads cfg/seed
+    assert {"cfg/run_name", "cfg/seed", "cfg/model/size", "cfg/scale/name"} <= keys
+    assert params["cfg/model/optimizer"] == "AdamW" and params["cfg/model/lr_scheduler"] == "warmup_cosine"
+    assert params["cfg/model/margin/lambda_dm"] == cfg.model.margin.lambda_dm
+    for dropped in ("cfg/task_name", "cfg/seeds", "cfg/rows", "cfg/threads", "cfg/ckpt_path", "cfg/test_untrained",
+                    "cfg/recipe/lambda_dm", "cfg/scale/batch_size", "cfg/model/metrics/pred_threshold",
+                    "cfg/trainer/max_steps", "cfg/trainer/enable_progress_bar", "cfg/model/grid_size"):
+        assert dropped not in keys, dropped
+    forbidden = ("cfg/hydra", "cfg/paths/", "cfg/logger/", "cfg/callbacks/", "cfg/tags/", "cfg/requires/",
+                 "cfg/registry/", "cfg/data/train_generate/", "cfg/data/test_generate/")
+    assert not [k for k in keys if k.startswith(forbidden)]
+    assert not [k for k in keys if k.endswith(("_target_", "_partial_", "_convert_", "_dir", "_ckpt"))]
+    assert all(v is not None for v in params.values())
+    assert not [v for v in params.values() if str(v).startswith(str(tmp_path))]  # no path of this machine
+    assert 20 <= len(params) <= 60, sorted(params)
+
+
+def test_lightning_logs_no_second_copy_of_the_model_hyperparameters(tmp_path: Path) -> None:
+    from lightning.pytorch.loggers import CSVLogger, MLFlowLogger
+
+    from spade.experiments.tracking.params import quiet_model_hparams
+
+    module = SimpleNamespace(_log_hyperparams=True)
+    quiet_model_hparams(module, [CSVLogger(tmp_path)])  # another logger reads them: left as it is
+    assert module._log_hyperparams is True
+    quiet_model_hparams(module, [MLFlowLogger(tracking_uri=f"sqlite:///{tmp_path}/mlflow.db")])
+    assert module._log_hyperparams is False
+
+
+# -- predictors as child runs ------------------------------------------------------------------------------------
+def test_baselines_and_the_untrained_model_are_child_runs_with_the_model_metric_names(tmp_path: Path) -> None:
+    from spade.experiments.tracking import PREDICTOR_TAG, TOP_LEVEL_FILTER, VIEW_TAG, log_predictor_runs
+    from spade.experiments.tracking.experiment_tags import ensure_experiment_tags
+    from spade.experiments.tracking.predictors import PARENT_TAG, is_predictor_run
+
+    client = _client(tmp_path)
+    experiment_id = client.create_experiment("table3", artifact_location=str(tmp_path / "artifacts"))
+    ensure_experiment_tags(client, client.get_experiment(experiment_id))  # as spade.train tags it
+    parent = _row_run(client, experiment_id, "t3_bc_scratch_U", METRICS)
+    children = log_predictor_runs(client, parent, "student", "BC student")
+    assert sorted(children) == ["baseline-heading", "baseline-straight", "untrained"]
+    runs = {r.info.run_name: r for r in client.search_runs([experiment_id])}
+    assert sorted(runs) == ["t3_bc_scratch_U", "t3_bc_scratch_U/baseline-heading", "t3_bc_scratch_U/baseline-straight",
+                            "t3_bc_scratch_U/untrained"]
+    assert runs["t3_bc_scratch_U"].data.tags[PREDICTOR_TAG] == "student"
+    straight = runs["t3_bc_scratch_U/baseline-straight"]
+    assert straight.data.metrics == {"test/ape_cm": 30.25, "test/failure_rate": 0.0, "test/planner/ape_cm": 30.5}
+    assert straight.info.status == "FINISHED" and straight.data.tags[PARENT_TAG] == parent
+    assert {k: straight.data.tags[k] for k in ("table", "row", "scale", "shape", PREDICTOR_TAG)} == {
+        "table": "table3", "row": "t3_bc_scratch_U", "scale": "tiny", "shape": "U", PREDICTOR_TAG: "baseline-straight"}
+    assert "straight line" in straight.data.tags["mlflow.note.content"]
+    untrained = runs["t3_bc_scratch_U/untrained"]
+    assert untrained.data.metrics["test/ape_cm"] == 190.0 and untrained.data.metrics["model/params"] == 118165.0
+    assert not [k for k in untrained.data.metrics if "baseline" in k or k.startswith("untrained/")]
+    assert untrained.data.tags["approach"] == "BC" and "BC student" in untrained.data.tags["mlflow.note.content"]
+    # no metric name is prefixed by another predictor's name
+    assert all(k.startswith(("test/", "model/")) and "/baseline/" not in k
+               for r in runs.values() if r.info.run_name != "t3_bc_scratch_U" for k in r.data.metrics)
+    assert [is_predictor_run(r) for r in runs.values()].count(True) == 3
+    top = client.search_runs([experiment_id], filter_string=TOP_LEVEL_FILTER)
+    assert [r.info.run_id for r in top] == [parent]
+    # SPADE's runs view shows the run expanded (its predictors listed under it), and keeps it so when re-tagged
+    view = json.loads(client.get_experiment(experiment_id).tags[VIEW_TAG])
+    assert view["runsExpanded"] == {parent: True} and "metrics.`test/ape_cm`" in view["selectedColumns"]
+    ensure_experiment_tags(client, client.get_experiment(experiment_id))  # the next run of the experiment
+    assert json.loads(client.get_experiment(experiment_id).tags[VIEW_TAG])["runsExpanded"] == {parent: True}
+    # logged again (a run tested again): updated, not doubled
+    client.log_metric(parent, "test/baseline/straight/ape_cm", 31.0)
+    assert log_predictor_runs(client, parent, "student") == children
+    assert len(client.search_runs([experiment_id])) == 4
+    assert client.get_run(children["baseline-straight"]).data.metrics["test/ape_cm"] == 31.0
+    # a run without baselines or untrained figures has no children
+    lone = _row_run(client, experiment_id, "t3_augbc_pretrained_expert_U", {"test/ape_cm": 2.0})
+    assert log_predictor_runs(client, lone, "expert") == {} and len(client.search_runs([experiment_id])) == 5
+
+
+def test_report_and_run_summary_do_not_take_child_runs_for_seeds_of_a_row(tmp_path: Path) -> None:
+    from omegaconf import OmegaConf
+
+    from spade.experiments.reporting import fetch_results
+    from spade.experiments.tables import TABLES
+    from spade.experiments.tracking import log_predictor_runs
+    from spade.experiments.tracking.summary import _find_run
+
+    client = _client(tmp_path)
+    experiment_id = client.create_experiment("table3", artifact_location=str(tmp_path / "artifacts"))
+    first = _row_run(client, experiment_id, "t3_bc_scratch_U", METRICS, seed=1)
+    second = _row_run(client, experiment_id, "t3_bc_scratch_U", {**METRICS, "test/ape_cm": 5.5}, seed=2)
+    for run_id in (first, second):
+        log_predictor_runs(client, run_id, "student")
+    # a predictor's run renamed as its row (a person editing names in the UI): still never a seed of the row
+    stray = log_predictor_runs(client, second, "student")["untrained"]
+    client.set_tag(stray, "mlflow.runName", "t3_bc_scratch_U")
+    row = fetch_results(TABLES["table3"], f"sqlite:///{tmp_path}/mlflow.db", "tiny")["t3_bc_scratch_U"]
+    assert row.n == 2 and sorted(row.run_ids) == sorted([first, second]) and row.n_runs == 2
+    assert row.value("ape_cm") == pytest.approx(5.0) and row.value("straight/ape_cm") == pytest.approx(30.25)
+    cfg = OmegaConf.create({"run_name": "t3_bc_scratch_U", "paths": {"mlflow_tracking_uri":
+                                                                   f"sqlite:///{tmp_path}/mlflow.db"},
+                            "logger": {"mlflow": {"experiment_name": "table3"}}})
+    assert _find_run(cfg).run_id == second  # the row's latest own run, not its child renamed after it
+
+
+def test_stale_running_runs_are_closed_but_a_childs_name_is_no_row(tmp_path: Path) -> None:
+    import socket
+    import subprocess
+
+    from omegaconf import OmegaConf
+
+    from spade.experiments.tracking.runs import mark_stale_runs
+
+    client = _client(tmp_path)
+    experiment_id = client.create_experiment("table3")
+    gone = subprocess.Popen(["true"])
+    gone.wait()  # a pid that is no longer running
+    stale = _row_run(client, experiment_id, "t3_bc_scratch_U", {}, status="RUNNING")
+    child = _row_run(client, experiment_id, "t3_bc_scratch_U", {}, status="RUNNING")
+    for run_id in (stale, child):
+        for key, value in (("spade.host", socket.gethostname()), ("spade.pid", str(gone.pid))):
+            client.set_tag(run_id, key, value)
+    client.set_tag(child, "mlflow.parentRunId", stale)
+    cfg = OmegaConf.create({"logger": {"mlflow": {"_target_": "lightning.pytorch.loggers.MLFlowLogger",
+                                                  "tracking_uri": f"sqlite:///{tmp_path}/mlflow.db",
+                                                  "experiment_name": "table3", "run_name": "t3_bc_scratch_U"}}})
+    messages = mark_stale_runs(cfg)
+    assert len(messages) == 1 and stale in messages[0]
+    assert client.get_run(stale).info.status == "KILLED" and client.get_run(child).info.status == "RUNNING"
+
+
+def test_process_tags_are_kept_while_a_run_runs_or_after_it_failed_and_dropped_when_it_finished(
+        tmp_path: Path) -> None:
+    """Issue 39: ``spade.pid`` / ``spade.host`` / ``spade.proc_start`` are process noise on a finished run; they
+    identify a RUNNING run's process (mark_stale_runs) and a failed run's (diagnosis), so only those keep them."""
+    from lightning.pytorch.loggers import MLFlowLogger
+
+    from spade.experiments.tracking.runs import (
+        PROCESS_TAGS, bind_experiment, drop_process_tags, mark_run_ended, record_process,
+    )
+
+    def run(name: str):
+        ml = MLFlowLogger(experiment_name="status", tracking_uri=f"sqlite:///{tmp_path}/mlflow.db", run_name=name)
+        bind_experiment(ml)
+        record_process([ml], resumed=False)
+        return ml
+
+    running, finished, failed = run("running"), run("finished"), run("failed")
+    finished.experiment.set_terminated(finished.run_id, "FINISHED")
+    mark_run_ended([failed], RuntimeError("boom"))
+    for ml in (running, finished, failed):
+        drop_process_tags(ml.experiment, ml.run_id)
+    tags = {ml: ml.experiment.get_run(ml.run_id).data.tags for ml in (running, finished, failed)}
+    assert tags[running]["spade.pid"] == str(os.getpid()) and set(PROCESS_TAGS) & set(tags[running])
+    assert not set(PROCESS_TAGS) & set(tags[finished])
+    assert tags[failed]["spade.pid"] == str(os.getpid()) and tags[failed]["spade.end_reason"] == "RuntimeError: boom"
+
+
+# -- the run's report and its training-progress picture ----------------------------------------------------------
+def test_the_run_report_holds_the_description_and_every_predictors_figures(tmp_path: Path) -> None:
+    from spade.experiments.tracking.run_report import CSV_KEYS, write_run_report
+
+    files = write_run_report(tmp_path, "t3_bc_scratch_U", "**t3_bc_scratch_U**: BC student.\n\n| table |", METRICS,
+                             "student")
+    text = files["markdown"].read_text()
+    assert text.startswith("# Run `t3_bc_scratch_U`") and "BC student" in text and "test_figures.csv" in text
+    with open(files["csv"]) as fh:
+        rows = {r["predictor"]: r for r in csv.DictReader(fh)}
+    assert list(rows) == ["student", "baseline-heading", "baseline-straight", "untrained"]
+    assert float(rows["student"]["test/ape_cm"]) == 4.5 and float(rows["baseline-straight"]["test/ape_cm"]) == 30.25
+    assert rows["untrained"]["test/failure_rate"] == "nan" and rows["baseline-heading"]["test/fid"] == ""
+    assert rows["baseline-straight"]["label"] == "baseline: straight line"
+    assert set(CSV_KEYS) <= set(rows["student"])
+    assert "csv" not in write_run_report(tmp_path / "untested", "x", "No test figures.", {"val/ape_cm": 1.0})
+
+
+class _History:
+    """A stand-in for MlflowClient's metric reads: ``{key: [(step, timestamp, value), ...]}``."""
+
+    def __init__(self, history: dict[str, list[tuple[int, int, float]]]) -> None:
+        self.history = history
+
+    def get_run(self, run_id: str):
+        return SimpleNamespace(data=SimpleNamespace(metrics={k: v[-1][2] for k, v in self.history.items()}))
+
+    def get_metric_history(self, run_id: str, key: str):
+        return [SimpleNamespace(step=s, timestamp=t, value=v) for s, t, v in self.history.get(key, [])]
+
+
+def test_training_progress_is_read_by_epoch_and_drawn() -> None:
+    from spade.training.progress_picture import epoch_series, progress_picture
+
+    history = _History({
+        # Lightning: "epoch" beside every logged step; step 4 is both epoch 0's validation and epoch 1's first log
+        "epoch": [(1, 10, 0.0), (3, 20, 0.0), (4, 30, 0.0), (4, 40, 1.0), (6, 50, 1.0), (8, 60, 1.0)],
+        "train/loss": [(1, 10, 2.0), (3, 20, 1.0), (4, 40, 0.9), (6, 50, 0.7)],
+        "val/loss_bc": [(4, 30, 0.8), (8, 60, 0.6)],
+        "val/ape_cm": [(4, 30, float("nan")), (8, 60, 40.0)],
+        "margin/active": [(0, 25, 1.0), (1, 55, 0.25)],  # step = epoch
+        "margin/value": [(0, 25, 0.5), (1, 55, 0.1)],
+        "test/ape_cm": [(9, 70, 30.0)],  # not a training curve
+    })
+    series = epoch_series(history, "run")
+    assert series["train/loss"] == [(0, 1.5), (1, 0.8)]
+    assert series["val/loss_bc"] == [(0, 0.8), (1, 0.6)] and series["val/ape_cm"] == [(1, 40.0)]
+    assert series["margin/active"] == [(0, 1.0), (1, 0.25)] and "test/ape_cm" not in series
+    picture = progress_picture(series, "row: training by epoch")
+    assert picture.dtype.name == "uint8" and picture.shape[2] == 3 and picture.shape[1] >= 3 * picture.shape[0]
+    unguided = progress_picture({k: v for k, v in series.items() if not k.startswith("margin/")})
+    assert unguided.shape[1] < picture.shape[1]  # two panels: no guidance to show
+    assert progress_picture({}) is None
+
+
+# -- one tiny run, in-process -----------------------------------------------------------------------------------
+def test_a_tested_run_has_its_predictors_report_picture_and_lean_params(spade_home: Path) -> None:
+    from mlflow import MlflowClient
+
+    from spade.experiments.run import train
+    from spade.experiments.tracking import PREDICTOR_TAG
+    from training_helpers import compose_row
+
+    cfg = compose_row("quickstart", spade_home, "trainer.max_epochs=2", "+trainer.limit_train_batches=2",
+                      "+trainer.limit_val_batches=1", "+trainer.limit_test_batches=1", "trainer.log_every_n_steps=1",
+                      "trainer.enable_progress_bar=false", "model.grid_size=0", "callbacks.model_info.latency_runs=0",
+                      "data.batch_size=4", "data.eval_batch_size=8", "+trainer.num_sanity_val_steps=0",
+                      "metrics.fid_extractor=randconv", "tags.table=tracking_check", "run_name=tracked")
+    train(cfg)
+    client = MlflowClient(tracking_uri=str(cfg.paths.mlflow_tracking_uri))
+    experiment = client.get_experiment_by_name("tracking_check")
+    runs = {r.info.run_name: r for r in client.search_runs([experiment.experiment_id])}
+    assert sorted(runs) == ["tracked", "tracked/baseline-heading", "tracked/baseline-shortest",
+                            "tracked/baseline-straight", "tracked/untrained"]
+    run = runs["tracked"]
+    assert run.info.status == "FINISHED" and run.data.tags[PREDICTOR_TAG] == "student"
+    for name, child in runs.items():
+        if name != "tracked":
+            assert {"test/ape_cm", "test/planner/ape_cm", "test/failure_rate", "test/over_20cm_rate"} <= set(
+                child.data.metrics), name
+            assert child.data.tags["mlflow.parentRunId"] == run.info.run_id
+            assert [d.dataset.name for d in child.inputs.dataset_inputs] == ["tiny/test"]
+    params = run.data.params
+    assert len(params) <= 60 and "cfg/task_name" not in params and "margin/lambda_dm" not in params
+    assert params["cfg/model/margin/lambda_dm"] == str(cfg.model.margin.lambda_dm)
+    assert not {"spade.pid", "spade.host", "spade.proc_start"} & set(run.data.tags)
+    artifacts = {a.path for a in client.list_artifacts(run.info.run_id)}
+    assert {"training_progress.png", "report", "config", "checkpoints"} <= artifacts
+    assert {a.path for a in client.list_artifacts(run.info.run_id, "report")} == {"report/run_report.md",
+                                                                                 "report/test_figures.csv"}
+    note = run.data.tags["mlflow.note.content"]
+    assert "child runs of this run" in note and "report/run_report.md" in note and "training_progress.png" in note
+    assert "APE: mean distance in cm" in note
+    history = client.get_metric_history(run.info.run_id, "margin/active")
+    assert [m.step for m in history] == [0, 1]
