@@ -345,3 +345,31 @@ def test_a_cell_with_a_nan_seed_says_how_many_seeds_it_is_over() -> None:
     whole = RowResult("r", runs=[SeedRun(1, "a", 1, {"ape_cm": 4.0}), SeedRun(2, "b", 2, {"ape_cm": 6.0})],
                       run_id="b", metrics={"ape_cm": 5.0})
     assert "of 2 seeds" not in _mean_sd(METRICS["ape_cm"], whole, "ape_cm")
+
+
+def test_a_rows_seeds_share_their_data_and_runs_on_other_data_are_left_out_and_said(tmp_path: Path) -> None:
+    """Issue 32: a run on other datasets under a row's name (a user's own data, a regenerated dataset) is never
+    averaged into the row's seeds; the report says how many were left out."""
+    from mlflow import MlflowClient
+    from mlflow.entities import Dataset, DatasetInput, InputTag
+
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    client = MlflowClient(tracking_uri=uri)
+    table = TABLES["table2"]
+    exp = client.create_experiment(table.experiment)
+    row = table.rows[0]
+
+    def run_on(digest: str, seed: int, ape: float) -> str:
+        run_id = _log_run(client, exp, row, {"test/ape_cm": ape}, scale="cpu", seed=seed)
+        client.log_inputs(run_id, datasets=[DatasetInput(
+            Dataset(name=f"cpu/{digest}", digest=digest, source_type="local", source=f"/data/{digest}"),
+            tags=[InputTag(key="mlflow.data.context", value="test")])])
+        return run_id
+
+    run_on("aaaa", 1, 4.0)
+    run_on("bbbb", 2, 40.0)  # another test set under the same row name
+    run_on("aaaa", 3, 6.0)  # the latest: its data is the row's
+    result = fetch_results(table, uri)[row]
+    assert result.seeds == [1, 3] and result.n_other_data == 1
+    assert result.value("ape_cm") == pytest.approx(5.0)
+    assert f"{row}: 1 finished run(s) on other datasets left out" in build_report(table, uri).text

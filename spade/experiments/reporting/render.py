@@ -185,6 +185,9 @@ def render_notes(table: Table, results: dict[str, RowResult]) -> list[str]:
                          f"({r.n_finished} finished)")
         elif r.n_runs > 1:
             notes.append(f"{row}: {r.n_runs} runs ({r.n_finished} finished); using the latest finished, run {r.run_id}")
+        if r.found and r.n_other_data:
+            notes.append(f"{row}: {r.n_other_data} finished run(s) on other datasets left out (a row's seeds share "
+                         f"their data; the row counts its latest run's datasets)")
         if r.found and r.n_other_scales:
             notes.append(f"{row}: {r.n_other_scales} finished run(s) at other scales left out (the row counts its "
                          f"latest scale, {r.scale}; pass scale=NAME to choose)")

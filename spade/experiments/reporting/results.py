@@ -61,6 +61,7 @@ class RowResult:
     end_time: int | None = None  # ms since the epoch, of the latest counted run
     runs: list[SeedRun] = field(default_factory=list)  # the counted runs, in seed order
     n_other_scales: int = 0  # finished runs left out because they are at another scale
+    n_other_data: int = 0  # finished runs left out because they trained or tested on other datasets
 
     @property
     def found(self) -> bool:
@@ -161,6 +162,14 @@ def _is_predictor_run(run: Any) -> bool:
     return bool(run.data.tags.get("mlflow.parentRunId"))
 
 
+def _data_key(run: Any) -> tuple[str, ...] | None:
+    """The datasets a run trained, validated and tested on: the digests of its MLflow dataset inputs (the datasets'
+    fingerprints, :mod:`spade.experiments.tracking.dataset_inputs`); None for a run that logged none."""
+    inputs = getattr(getattr(run, "inputs", None), "dataset_inputs", None) or []
+    digests = sorted({str(d.dataset.digest) for d in inputs if getattr(d, "dataset", None) is not None})
+    return tuple(digests) or None
+
+
 def _run_metrics(run: Any) -> dict[str, float]:
     metrics = {k: float(run.data.metrics[m.mlflow_key]) for k, m in METRICS.items() if m.mlflow_key in run.data.metrics}
     for name in BASELINE_LABELS:  # the classical baselines on this row's test set, as "<name>/<metric>"
@@ -209,6 +218,12 @@ def fetch_results(table: Table, tracking_uri: str, scale: str | None = None) -> 
         result.scale = latest.data.tags.get("scale")
         same_scale = [r for r in finished if r.data.tags.get("scale") == result.scale]
         result.n_other_scales = len(finished) - len(same_scale)
+        # Seeds of one row are runs on the same data: a run on other datasets (a user's own data under a table's
+        # run name, a regenerated dataset) is left out and counted, never averaged in.
+        data = _data_key(latest)
+        same_data = [r for r in same_scale if data is None or _data_key(r) in (None, data)]
+        result.n_other_data = len(same_scale) - len(same_data)
+        same_scale = same_data
         by_seed: dict[int | None, Any] = {}
         for run in sorted(same_scale, key=ended):  # the latest run of each seed wins
             by_seed[_seed(run)] = run
