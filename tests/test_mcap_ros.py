@@ -168,3 +168,131 @@ def test_plan_command_writes_an_mcap(tmp_path: Path, maps_dir: Path) -> None:
                            capture_output=True, text=True, timeout=180)
     assert again.returncode == 2 and again.stderr.startswith("error: mcap=") and "never written over" in again.stderr
     assert math.isfinite(got["/plan_confidence"].data)
+
+
+
+# -- a test set's predictions (spade.evaluate ... mcap=) ---------------------------------------------------------------
+TEST_TOPIC_TYPES = {"/window": "nav_msgs/msg/OccupancyGrid", "/ground_truth": "nav_msgs/msg/Path",
+                    "/goal_pose": "geometry_msgs/msg/PoseStamped", "/prediction": "nav_msgs/msg/Path",
+                    "/prediction/planner": "nav_msgs/msg/Path", "/baseline/straight": "nav_msgs/msg/Path",
+                    "/baseline/shortest": "nav_msgs/msg/Path", "/baseline/heading": "nav_msgs/msg/Path",
+                    "/ape_cm": "std_msgs/msg/Float32"}
+
+
+def path_xy(msg: object) -> np.ndarray:
+    return np.array([[p.pose.position.x, p.pose.position.y] for p in msg.poses])  # type: ignore[attr-defined]
+
+
+def cell_code(grid_msg: object, x: float, y: float) -> int:
+    """The code (spade.maps.occupancy) of the cell of a decoded OccupancyGrid holding point (x, y) of its frame."""
+    m = grid_to_map(grid_msg)
+    col = int(np.floor((x - m.origin[0]) / m.resolution))
+    row = m.height - 1 - int(np.floor((y - m.origin[1]) / m.resolution))  # the map's row 0 is its top
+    return int(m.grid[row, col])
+
+
+def hand_made_instances() -> dict:
+    """Two robot-frame windows (8 rows x 6 columns, the robot at pixel (3, 6) heading up the image)."""
+    occupancy = np.ones((2, 8, 6), dtype=np.uint8)
+    occupancy[:, 0, 0] = 2  # an obstacle far ahead, on the robot's left
+    occupancy[:, 7, 5] = 0  # unknown behind, on its right
+    truth = np.array([[[3.0, 6.0], [3.0, 4.0], [3.0, 1.0]], [[3.0, 6.0], [2.0, 3.0], [1.0, 1.0]]])
+    return dict(occupancy=occupancy, ground_truth=truth, goals=truth[:, -1], resolution=[0.1, 0.05],
+                robot_px=(3.0, 6.0), predictions=[truth[0] + [0.5, 0.0], None], planner=[truth[0], truth[1]],
+                baselines={"straight": [truth[0, [0, -1]], truth[1, [0, -1]]], "shortest": [None, truth[1]],
+                           "heading": list(truth)}, ape_cm=[5.0, float("nan")])
+
+
+def test_a_test_set_bag_decodes_with_mcap_ros2_support(tmp_path: Path) -> None:
+    from spade.ros.recording import window_to_base_link, write_test_bag
+
+    data = hand_made_instances()
+    t0 = 1_700_000_000_000_000_000
+    out = write_test_bag(tmp_path / "test.mcap", start_ns=t0, **data)
+    assert out == tmp_path / "test.mcap" and not list(tmp_path.glob(".spade-bag-*"))
+    got = decode(out)
+    assert {topic: schema for topic, schema, _, _ in got} == TEST_TOPIC_TYPES
+    counts = {topic: sum(t == topic for t, *_ in got) for topic in TEST_TOPIC_TYPES}
+    # a failed extraction, a baseline without a path and a NaN APE write nothing at that instant
+    assert counts == {"/window": 2, "/ground_truth": 2, "/goal_pose": 2, "/prediction": 1, "/prediction/planner": 2,
+                      "/baseline/straight": 2, "/baseline/shortest": 1, "/baseline/heading": 2, "/ape_cm": 1}
+    assert sorted({t for *_, t in got}) == [t0, t0 + 1_000_000_000]  # one instance a second
+    assert all(msg.header.frame_id == "base_link" for _, schema, msg, _ in got if schema != "std_msgs/msg/Float32")
+    at = {(topic, t): msg for topic, _, msg, t in got}
+    for i, ns in enumerate((t0, t0 + 1_000_000_000)):
+        res = data["resolution"][i]
+        xy = path_xy(at["/ground_truth", ns])
+        np.testing.assert_allclose(xy, window_to_base_link(data["ground_truth"][i], (3.0, 6.0), res), atol=1e-9)
+        np.testing.assert_allclose(xy[0], [0.0, 0.0], atol=1e-12)  # the robot is base_link's origin
+        # pixel (3, 1): 5 rows ahead of the robot, in line with it; (1, 1): 5 ahead, 2 to the left
+        assert np.allclose(xy[-1], [5 * res, 0.0] if i == 0 else [5 * res, 2 * res])
+        goal = at["/goal_pose", ns].pose.position
+        assert (goal.x, goal.y) == pytest.approx(tuple(xy[-1]))
+        grid = at["/window", ns]
+        assert (grid.info.width, grid.info.height) == (8, 6) and grid.info.resolution == pytest.approx(res)
+        assert cell_code(grid, 6 * res, 3 * res) == 2  # window pixel (0, 0): ahead and left
+        assert cell_code(grid, -1 * res, -2 * res) == 0  # window pixel (5, 7): behind and right
+        assert cell_code(grid, 0.0, 0.0) == 1
+    np.testing.assert_allclose(path_xy(at["/prediction", t0]),
+                               window_to_base_link(data["predictions"][0], (3.0, 6.0), 0.1), atol=1e-9)
+    assert at["/ape_cm", t0].data == pytest.approx(5.0)
+    with pytest.raises(BagError, match="never written over"):
+        write_test_bag(out, **data)
+    with pytest.raises(ValueError, match="holds 1 values for 2 instances"):
+        write_test_bag(tmp_path / "bad.mcap", **{**data, "ape_cm": [1.0]})
+
+
+def test_evaluate_writes_the_test_set_as_an_mcap(spade_home: Path, tiny_checkpoints: dict, tmp_path: Path) -> None:
+    """python -m spade.evaluate ckpt_path=... mcap=test.mcap: the test set's first instances, the student's paths next
+    to the demonstrations and the baselines, in the robot frame; an existing path is refused before the test."""
+    from spade.experiments.evaluation import evaluate
+    from spade.utils.config import compose_config
+    from spade.utils.errors import ConfigError
+
+    out = tmp_path / "test.mcap"
+    overrides = [f"ckpt_path={tiny_checkpoints['student']}", "logger=none", "trainer.enable_progress_bar=false",
+                 f"paths.output_dir={tmp_path}/eval", "mcap_instances=1000"]
+    metrics = evaluate(compose_config("evaluate", [*overrides, f"mcap={out}"]))
+    assert "test/ape_cm" in metrics
+    got = decode(out)
+    topics = {topic for topic, *_ in got}
+    assert {"/window", "/ground_truth", "/goal_pose", "/baseline/straight", "/baseline/heading"} <= topics
+    assert topics <= set(TEST_TOPIC_TYPES)
+    n = int(metrics["test/instances"])  # mcap_instances is more than the tiny test set holds: all of it
+    stamps = sorted({t for *_, t in got})
+    assert len(stamps) == n and all(b - a == 1_000_000_000 for a, b in zip(stamps, stamps[1:]))
+    for topic in ("/window", "/ground_truth", "/goal_pose", "/baseline/straight"):
+        assert sum(t == topic for t, *_ in got) == n, topic
+    assert all(msg.header.frame_id == "base_link" for _, schema, msg, _ in got if schema != "std_msgs/msg/Float32")
+    truth = [msg for topic, _, msg, _ in got if topic == "/ground_truth"]
+    assert all(np.allclose(path_xy(msg)[0], [0.0, 0.0], atol=0.05) for msg in truth)  # paths start at the robot
+    goals = [msg for topic, _, msg, _ in got if topic == "/goal_pose"]
+    for path, goal in zip(truth, goals):
+        assert np.linalg.norm(path_xy(path)[-1] - [goal.pose.position.x, goal.pose.position.y]) < 0.3
+    windows = [msg for topic, _, msg, _ in got if topic == "/window"]
+    assert all(cell_code(grid, x, y) != 2 for path, grid in zip(truth, windows) for x, y in path_xy(path))
+    # the paths the test's metrics score: every instance recorded, their APE averages to the test's
+    apes = [msg.data for topic, _, msg, _ in got if topic == "/ape_cm"]
+    assert len(apes) == metrics["test/instances"] - metrics["test/failures"]
+    assert sum(topic == "/prediction" for topic, *_ in got) == len(apes)
+    if apes:
+        assert np.mean(apes) == pytest.approx(metrics["test/ape_cm"], rel=1e-5)
+    with pytest.raises(ConfigError, match=r"^mcap=.* exists: a recording is never written over"):
+        evaluate(compose_config("evaluate", [*overrides, f"mcap={out}"]))
+
+
+def test_evaluate_refuses_a_recording_path_it_cannot_write(tmp_path: Path) -> None:
+    from spade.experiments.test_recording import check_recording_instances, check_recording_path
+    from spade.utils.errors import ConfigError
+
+    assert check_recording_path(None) is None and check_recording_path("") is None
+    assert check_recording_path(str(tmp_path / "new.mcap")) == tmp_path / "new.mcap"
+    (tmp_path / "old.mcap").write_bytes(b"")
+    with pytest.raises(ConfigError, match="never written over"):
+        check_recording_path(str(tmp_path / "old.mcap"))
+    with pytest.raises(ConfigError, match="does not exist"):
+        check_recording_path(str(tmp_path / "no" / "such.mcap"))
+    assert check_recording_instances(3) == 3
+    for bad in (0, -1, 2.5, True, "many"):
+        with pytest.raises(ConfigError, match="mcap_instances"):
+            check_recording_instances(bad)

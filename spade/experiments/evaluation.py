@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import hydra
@@ -15,11 +16,22 @@ from spade.training.loading import load_module
 __all__ = ["evaluate"]
 
 
+def _recording(cfg: DictConfig) -> tuple[Path | None, int]:
+    """``mcap=`` (a new path, or None) and ``mcap_instances``, checked before anything runs."""
+    from spade.experiments.test_recording import check_recording_instances, check_recording_path
+
+    mcap = check_recording_path(cfg.get("mcap"))
+    return mcap, (check_recording_instances(cfg.get("mcap_instances", 64)) if mcap is not None else 0)
+
+
 def evaluate(cfg: DictConfig) -> dict[str, Any]:
-    """Test ``cfg.ckpt_path`` on ``cfg.data``'s test set; returns the test metrics."""
+    """Test ``cfg.ckpt_path`` on ``cfg.data``'s test set; returns the test metrics. With ``cfg.mcap`` set, then
+    writes the test set's first ``cfg.mcap_instances`` instances with the model's paths, the ground truth and the
+    classical baselines as a ROS 2 MCAP recording (:mod:`spade.experiments.test_recording`)."""
     from spade.experiments.checks import validate_evaluate_config
 
     validate_evaluate_config(cfg)  # role, and the checkpoint's window geometry against the test data's
+    mcap, mcap_instances = _recording(cfg)  # refused now, not after the test
     L.seed_everything(cfg.seed, workers=True)
     model = load_module(cfg.ckpt_path)
     datamodule = hydra.utils.instantiate(cfg.data)
@@ -29,4 +41,8 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     from spade.experiments.tracking.runs import finish_evaluation
 
     finish_evaluation(cfg, trainer, loggers)  # MLflow: experiment kind and description, test data input
+    if mcap is not None and trainer.is_global_zero:
+        from spade.experiments.test_recording import record_test_set
+
+        record_test_set(model, datamodule, mcap, mcap_instances)
     return {k: float(v) for k, v in results.items()}

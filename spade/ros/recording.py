@@ -7,6 +7,10 @@ Written with ``rosbags`` (no ROS install), read by ``ros2 bag play``, Foxglove a
   the robot pose (``/start_pose``) and goal (``/goal_pose``, ``geometry_msgs/PoseStamped``), the path (``/plan``,
   ``nav_msgs/Path``), the student's window (``/plan_window``, ``geometry_msgs/PolygonStamped``) and the confidence
   (``/plan_confidence``, ``std_msgs/Float32``);
+- :func:`write_test_bag`: a test set's instances (``python -m spade.evaluate ... mcap=test.mcap``), one a second in
+  the robot's frame (``base_link``): the window (``/window``), the demonstration (``/ground_truth``), the student's
+  path (``/prediction``, ``/prediction/planner``), each classical baseline's (``/baseline/<name>``), the goal
+  (``/goal_pose``) and the APE (``/ape_cm``);
 - :class:`NodeRecorder`: what ``python -m spade.ros record=BAG`` received and published, byte for byte (the DDS
   samples' CDR is ROS 2's, see ``tests/test_ros_convert.py``);
 - :func:`replay_bag`: ``python -m spade.ros replay=BAG``: a rosbag2 (MCAP or SQLite, a folder or one ``.mcap``
@@ -32,7 +36,8 @@ import numpy as np
 
 from spade.ros.convert import grid_fields, path_yaws, split_stamp, yaw_to_quaternion
 
-__all__ = ["BagError", "BagWriter", "NodeRecorder", "PLAN_TOPICS", "replay_bag", "write_plan_bag"]
+__all__ = ["BagError", "BagWriter", "NodeRecorder", "PLAN_TOPICS", "TEST_TOPICS", "replay_bag", "window_to_base_link",
+           "write_plan_bag", "write_test_bag"]
 
 log = logging.getLogger("spade.ros")
 
@@ -284,3 +289,94 @@ def replay_bag(core: Any, path: str | Path, topics: Mapping[str, str] | None = N
     counts = core.counts
     log.info("replay done: %s", counts)
     return counts
+
+
+# -- a test set's predictions ------------------------------------------------------------------------------------------
+TEST_TOPICS = {"window": "/window", "ground_truth": "/ground_truth", "prediction": "/prediction",
+               "planner": "/prediction/planner", "goal": "/goal_pose", "ape": "/ape_cm", "baseline": "/baseline"}
+"""Topics of :func:`write_test_bag` (``baseline`` is the prefix of ``/baseline/<name>``)."""
+
+
+def window_to_base_link(points_px: np.ndarray, robot_px: Sequence[float], resolution: float) -> np.ndarray:
+    """Robot-frame window pixels (x = column, y = row; the robot at ``robot_px`` heading up the image, its left the
+    image's left: :mod:`spade.maps.frame`) -> ``base_link`` metres (x ahead, y to the left, REP 103)."""
+    pts = np.asarray(points_px, dtype=np.float64)
+    rx, ry = (float(v) for v in robot_px)
+    return np.stack([(ry - pts[..., 1]) * resolution, (rx - pts[..., 0]) * resolution], axis=-1)
+
+
+def window_map(codes: np.ndarray, robot_px: Sequence[float], resolution: float) -> Any:
+    """The window's occupancy codes (H, W) as an :class:`~spade.maps.OccupancyMap` in ``base_link``: its cells along
+    +x (ahead) and +y (left), origin unrotated (what :func:`~spade.ros.convert.grid_to_map` reads back): map row ``r``
+    column ``i`` is window row ``H - 1 - i``, column ``r``."""
+    from spade.maps.occupancy import OccupancyMap
+
+    codes = np.asarray(codes, dtype=np.uint8)
+    h, w = codes.shape
+    # data[j, i] (j along +y from the origin, i along +x) = window[h-1-i, w-1-j]; the map's row 0 is its top (+y end)
+    grid = codes[::-1, ::-1].T[::-1]
+    corner = window_to_base_link(np.array([w - 1, h - 1], dtype=np.float64), robot_px, resolution) - 0.5 * resolution
+    return OccupancyMap(np.ascontiguousarray(grid), float(resolution), (float(corner[0]), float(corner[1]), 0.0),
+                        name="window")
+
+
+def write_test_bag(path: str | Path, occupancy: np.ndarray, ground_truth: np.ndarray, goals: np.ndarray, *,
+                   resolution: float | Sequence[float], robot_px: Sequence[float],
+                   predictions: Sequence[np.ndarray | None] | None = None,
+                   planner: Sequence[np.ndarray | None] | None = None,
+                   baselines: Mapping[str, Sequence[np.ndarray | None]] | None = None,
+                   ape_cm: Sequence[float | None] | None = None, frame_id: str = "base_link",
+                   start_ns: int | None = None, period_ns: int = 1_000_000_000,
+                   topics: Mapping[str, str] | None = None) -> Path:
+    """Write test instances as a ROS 2 MCAP bag, one instance every ``period_ns`` from ``start_ns`` (now), each in
+    the robot's frame (``frame_id``, the robot at the origin heading +x; window pixels converted with
+    :func:`window_to_base_link`):
+
+    - ``/window`` (``nav_msgs/OccupancyGrid``): ``occupancy`` (N, H, W) codes (0 unknown, 1 free, 2 obstacle);
+    - ``/ground_truth`` (``nav_msgs/Path``): the demonstration, ``ground_truth`` (N, K, 2) window pixels;
+    - ``/goal_pose`` (``geometry_msgs/PoseStamped``): ``goals`` (N, 2) window pixels (a position: yaw 0);
+    - ``/prediction`` and ``/prediction/planner`` (``nav_msgs/Path``): ``predictions`` / ``planner``, one (M, 2)
+      polyline or None per instance (None: nothing extracted, no message at that instant);
+    - ``/baseline/<name>`` (``nav_msgs/Path``): ``baselines[name]``, as the predictions;
+    - ``/ape_cm`` (``std_msgs/Float32``): ``ape_cm`` per instance (None or NaN: no message).
+
+    ``resolution``: metres per pixel, one for all or one per instance. Pure numpy (no torch). Returns the path."""
+    names = {**TEST_TOPICS, **dict(topics or {})}
+    occupancy = np.asarray(occupancy)
+    truth = np.asarray(ground_truth, dtype=np.float64)
+    goals = np.asarray(goals, dtype=np.float64).reshape(-1, 2)
+    n = len(occupancy)
+    if occupancy.ndim != 3 or truth.ndim != 3 or truth.shape[-1] != 2 or len(truth) != n or len(goals) != n:
+        raise ValueError(f"write_test_bag needs occupancy (N, H, W), ground_truth (N, K, 2) and goals (N, 2) of one "
+                         f"N; got {occupancy.shape}, {truth.shape} and {goals.shape}")
+    res = np.broadcast_to(np.asarray(resolution, dtype=np.float64).reshape(-1), (n,))
+    series = {"prediction": predictions, "planner": planner, "ape": ape_cm,
+              **{f"baseline/{k}": v for k, v in dict(baselines or {}).items()}}
+    for key, values in series.items():
+        if values is not None and len(values) != n:
+            raise ValueError(f"write_test_bag: {key} holds {len(values)} values for {n} instances")
+    t0 = time.time_ns() if start_ns is None else int(start_ns)
+    paths = [(names["prediction"], predictions), (names["planner"], planner),
+             *((f"{names['baseline'].rstrip('/')}/{k}", v) for k, v in dict(baselines or {}).items())]
+    with BagWriter(path, latched=()) as bag:
+        msgs = _Msgs(bag.typestore)
+        for i in range(n):
+            ns = t0 + i * int(period_ns)
+            r = float(res[i])
+
+            def metres(px: np.ndarray, r: float = r) -> np.ndarray:
+                return window_to_base_link(px, robot_px, r)
+
+            bag.write(names["window"], "nav_msgs/msg/OccupancyGrid",
+                      msgs.grid(window_map(occupancy[i], robot_px, r), frame_id, ns), ns)
+            bag.write(names["ground_truth"], "nav_msgs/msg/Path", msgs.path(metres(truth[i]), frame_id, ns), ns)
+            bag.write(names["goal"], "geometry_msgs/msg/PoseStamped",
+                      msgs.pose_stamped([*metres(goals[i]), 0.0], frame_id, ns), ns)
+            for topic, values in paths:
+                poly = None if values is None else values[i]
+                if poly is not None and len(poly) >= 2:
+                    bag.write(topic, "nav_msgs/msg/Path", msgs.path(metres(np.asarray(poly)), frame_id, ns), ns)
+            value = None if ape_cm is None else ape_cm[i]
+            if value is not None and math.isfinite(float(value)):
+                bag.write(names["ape"], "std_msgs/msg/Float32", msgs.float32(float(value)), ns)
+    return Path(path)
