@@ -336,7 +336,8 @@ def write_test_bag(path: str | Path, occupancy: np.ndarray, ground_truth: np.nda
     - ``/ground_truth`` (``nav_msgs/Path``): the demonstration, ``ground_truth`` (N, K, 2) window pixels;
     - ``/goal_pose`` (``geometry_msgs/PoseStamped``): ``goals`` (N, 2) window pixels (a position: yaw 0);
     - ``/prediction`` and ``/prediction/planner`` (``nav_msgs/Path``): ``predictions`` / ``planner``, one (M, 2)
-      polyline or None per instance (None: nothing extracted, no message at that instant);
+      polyline or None per instance (None: nothing extracted: an empty Path at that instant, which clears what a
+      viewer such as Foxglove shows of the instance before);
     - ``/baseline/<name>`` (``nav_msgs/Path``): ``baselines[name]``, as the predictions;
     - ``/ape_cm`` (``std_msgs/Float32``): ``ape_cm`` per instance (None or NaN: no message).
 
@@ -373,9 +374,11 @@ def write_test_bag(path: str | Path, occupancy: np.ndarray, ground_truth: np.nda
             bag.write(names["goal"], "geometry_msgs/msg/PoseStamped",
                       msgs.pose_stamped([*metres(goals[i]), 0.0], frame_id, ns), ns)
             for topic, values in paths:
-                poly = None if values is None else values[i]
-                if poly is not None and len(poly) >= 2:
-                    bag.write(topic, "nav_msgs/msg/Path", msgs.path(metres(np.asarray(poly)), frame_id, ns), ns)
+                if values is None:
+                    continue
+                poly = values[i]
+                points = metres(np.asarray(poly)) if poly is not None and len(poly) >= 2 else np.zeros((0, 2))
+                bag.write(topic, "nav_msgs/msg/Path", msgs.path(points, frame_id, ns), ns)
             value = None if ape_cm is None else ape_cm[i]
             if value is not None and math.isfinite(float(value)):
                 bag.write(names["ape"], "std_msgs/msg/Float32", msgs.float32(float(value)), ns)
