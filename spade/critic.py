@@ -64,7 +64,7 @@ def critic(cfg: DictConfig) -> dict[str, Any]:
     role = read_info(str(cfg.ckpt_path), checkpoint=True, required=False).get("role")
     if role != "expert":
         raise ValueError(f"ckpt_path={cfg.ckpt_path} is a {role or 'non-SPADE'} checkpoint, not an expert's: pass a "
-                         "diffusion expert (python -m spade.train +experiment=expert_*, or spade/models/weights/)")
+                         "diffusion expert (python -m spade.train +experiment=cond_expert_L, or spade/models/weights/)")
     expert = load_lightning(ExpertModule, str(cfg.ckpt_path))
     config.check_expert(expert.conditional, f"ckpt_path={cfg.ckpt_path}")
     loader, dataset = _test_loader(cfg)

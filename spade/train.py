@@ -33,6 +33,10 @@ log = logging.getLogger(__name__)
 def main(cfg: DictConfig) -> float | None:
     log.debug("Config:\n%s", OmegaConf.to_yaml(cfg))
     install_signal_handlers()
+    renamed = cfg.get("deprecated_experiment")
+    if renamed:  # an experiment's old name, accepted for one release
+        log.warning("+experiment=%s is deprecated: it is now +experiment=%s (docs/reference/glossary.md)",
+                    renamed.old, renamed.new)
     threads = exit_on_user_error(configure_threads)(cfg.get("threads"))
     log.info("torch intra-op threads: %d (threads=%s)", threads, cfg.get("threads"))
     return exit_on_user_error(run)(cfg)

@@ -45,7 +45,7 @@ def tiny_checkpoints(spade_home: Path) -> dict[str, str]:
     from training_helpers import compose_row
 
     out = {}
-    for key, row in (("cond", "expert_cond_L"), ("uncond", "expert_uncond_L"), ("student", "t1_medium_bc_L")):
+    for key, row in (("cond", "cond_expert_L"), ("uncond", "uncond_expert_L"), ("student", "t1_medium_bc_L")):
         cfg = compose_row(row, spade_home, "logger=none", "trainer.max_steps=2", "trainer.max_epochs=1",
                           "test=false", "+trainer.limit_val_batches=1", "data.eval_batch_size=8", "model.grid_size=0",
                           "callbacks.model_info.latency_runs=0")

@@ -14,7 +14,7 @@ from spade.experiments.run import train
 from training_helpers import compose_row
 
 TABLES = {"table1": 22, "ablation_finetune": 3, "ablation_scratch": 2}
-ROWS = sorted(p.stem for p in (CONF_DIR / "experiment").glob("*.yaml") if p.stem.startswith(("t1_", "t2_", "t3_", "expert_")))
+ROWS = sorted(p.stem for p in (CONF_DIR / "experiment").glob("*.yaml") if p.stem.startswith(("t1_", "t2_", "t3_", "cond_expert_", "uncond_expert_")))
 
 
 def test_there_is_one_experiment_per_row() -> None:
@@ -51,7 +51,7 @@ def _fill_requirements(cfg, ckpts: dict[str, str]) -> list[str]:
 # by the tiny_checkpoints fixture; BC, DBC and Cond-DBC students; a fine-tuned ablation row with the margin); every
 # row composes and instantiates (the test after it): the other rows differ from these only in sizes and shapes,
 # which that covers without fitting a 31M-parameter student on a CPU.
-FAST_ROWS = ["expert_uncond_U", "t1_small_bc_L", "t1_small_dbc_U", "t1_small_conddbc_L", "t2_augbc_finetune_conddbc_U"]
+FAST_ROWS = ["uncond_expert_U", "t1_small_bc_L", "t1_small_dbc_U", "t1_small_conddbc_L", "t2_augbc_finetune_conddbc_U"]
 # One batch of each stage, small batches, two prediction pictures, two latency runs: every code path, in seconds.
 FDR = ["debug=fdr", "logger=none", "data.batch_size=4", "data.eval_batch_size=8", "model.grid_size=2",
        "callbacks.model_info.latency_runs=2"]
@@ -99,7 +99,7 @@ def test_scale_presets_compose(spade_home: Path) -> None:
         cfg = compose_row("t1_medium_conddbc_L", spade_home, f"scale={scale}")
         dm = hydra.utils.instantiate(cfg.data)
         assert dm.batch_size == cfg.scale.batch_size
-    cfg = compose_row("expert_uncond_U", spade_home, "scale=paper")
+    cfg = compose_row("uncond_expert_U", spade_home, "scale=paper")
     with torch.device("meta"):
         model = hydra.utils.instantiate(cfg.model)
     assert sum(p.numel() for p in model.net.parameters()) > 9e8
@@ -160,9 +160,9 @@ def test_seed_list_composes_into_rows_times_seeds(table: str, count: int, spade_
 
 def test_rows_select_a_subset_of_a_table_by_name_or_pattern(spade_home: Path) -> None:
     """`rows=` runs part of a table (Hydra refuses `hydra.sweeper.params.experiment=` on the command line)."""
-    cfg = _table_config("table1", spade_home, "rows=[t1_small_*_L,expert_cond_L]", "seeds=[42,1]")
+    cfg = _table_config("table1", spade_home, "rows=[t1_small_*_L,cond_expert_L]", "seeds=[42,1]")
     jobs = _jobs(cfg)
-    assert [j[0] for j in jobs] == [f"experiment={r}" for r in ("expert_cond_L", "t1_small_bc_L", "t1_small_dbc_L",
+    assert [j[0] for j in jobs] == [f"experiment={r}" for r in ("cond_expert_L", "t1_small_bc_L", "t1_small_dbc_L",
                                                                "t1_small_conddbc_L") for _ in (42, 1)]  # table order
     one = _jobs(_table_config("ablation_scratch", spade_home, "rows=[t3_bc_scratch_U]"))
     assert [j[:2] for j in one] == [["experiment=t3_bc_scratch_U", f"seed={s}"] for s in (42, 1, 2)]
@@ -223,7 +223,7 @@ def test_table_prints_scale_rows_seeds_instances_and_estimate(spade_home: Path) 
     assert text.startswith("SPADE table run: scale=cpu, 2 rows x 3 seed(s) (42, 1, 2) = 6 runs")
     assert "rows: t3_bc_scratch_U, t3_augbc_pretrained_expert_U" in text
     assert "instances: 1,000 training, 15 % of it validation in" in text and "instances: 1,000 test in" in text
-    assert "prerequisites to train first, once for all seeds" in text and "expert_cond_L" in text
+    assert "prerequisites to train first, once for all seeds" in text and "cond_expert_L" in text
     assert "estimated wall time: about" in text and TINY_NOTICE not in text
     # The cost model, by hand: ceil(1000 * 0.85 / 32) = 27 steps, 6 epochs, a medium BC step.
     row = compose_row("t3_bc_scratch_U", spade_home, "scale=cpu")
@@ -411,7 +411,7 @@ def test_a_row_is_the_same_method_at_every_scale_and_the_recipe_changes_it(tmp_p
     paper_recipe = row("scale=cpu", "recipe=paper")
     assert paper_recipe.model.bc_pos_weight is None and paper_recipe.data.target_width_px == 1
     assert _method(paper_recipe) != _method(cpu)
-    expert = compose_config("train", ["+experiment=expert_cond_L", "recipe=paper", f"paths.root_dir={tmp_path}"])
+    expert = compose_config("train", ["+experiment=cond_expert_L", "recipe=paper", f"paths.root_dir={tmp_path}"])
     assert expert.model.prediction_type == "epsilon" and expert.model.optimizer.lr == 1e-4
 
 
@@ -429,4 +429,23 @@ def test_cfg_job_shows_the_method_and_lambda(tmp_path) -> None:
     job = yaml.safe_load(out.stdout)
     assert job["recipe"]["name"] == "spade" and job["model"]["margin"]["lambda_dm"] == job["recipe"]["lambda_dm"]
     assert job["model"]["bc_pos_weight"] == job["recipe"]["bc_pos_weight"]
-    assert job["requires"]["expert"]["experiment"] == "expert_cond_L"
+    assert job["requires"]["expert"]["experiment"] == "cond_expert_L"
+
+
+@pytest.mark.parametrize("old,new", [("expert_cond_L", "cond_expert_L"), ("expert_uncond_U", "uncond_expert_U")])
+def test_an_experts_old_name_composes_the_new_row_and_says_so(old: str, new: str, tmp_path) -> None:
+    """One name per expert (cond_expert / uncond_expert, docs/reference/glossary.md); the old experiment names
+    compose the same row for one release and carry the rename for spade.train's warning."""
+    from omegaconf import OmegaConf
+
+    from spade.utils.config import compose_config
+
+    def compose(name):
+        return compose_config("train", [f"+experiment={name}", f"paths.root_dir={tmp_path}"])
+
+    aliased, current = compose(old), compose(new)
+    assert aliased.deprecated_experiment.old == old and aliased.deprecated_experiment.new == new
+    with_alias = OmegaConf.to_container(aliased, resolve=False)
+    with_alias.pop("deprecated_experiment")
+    assert with_alias == OmegaConf.to_container(current, resolve=False)
+    assert current.run_name == new

@@ -80,6 +80,6 @@ def test_the_whole_check_runs_end_to_end_on_cpu(tmp_path: Path) -> None:
     pipeline = results["pipeline"]
     assert pipeline["exit_code"] == 0 and not pipeline["timed_out"]
     runs = {r["run"]: r for r in pipeline["runs"]}
-    assert set(runs) == {"expert_cond_L", "t1_medium_conddbc_L"}
+    assert set(runs) == {"cond_expert_L", "t1_medium_conddbc_L"}
     assert all(r["status"] == "FINISHED" and math.isfinite(r["planner/ape_cm"]) for r in runs.values())
     assert "| t1_medium_conddbc_L | FINISHED |" in proc.stdout

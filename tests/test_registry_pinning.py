@@ -57,7 +57,7 @@ def test_a_resolved_prerequisite_is_recorded_in_the_runs_config(tmp_path: Path) 
     from spade.experiments.registry import RegisteredCheckpoint
 
     cfg = OmegaConf.create({"model": {"margin": {"expert_ckpt": None}},
-                            "requires": {"expert": {"experiment": "expert_cond_L", "target": "model.margin.expert_ckpt",
+                            "requires": {"expert": {"experiment": "cond_expert_L", "target": "model.margin.expert_ckpt",
                                                     "version": "champion"}}})
     _fill(cfg, "expert", "model.margin.expert_ckpt",
           RegisteredCheckpoint("spade-x", 4, "abc123", tmp_path / "e.ckpt"))
@@ -75,9 +75,9 @@ def test_the_prerequisite_plan_lists_each_missing_model_once_deepest_first(tmp_p
 
     cfg = compose_row("t2_augbc_finetune_conddbc_U", tmp_path, "logger=none")
     plan = prerequisite_plan(cfg)
-    assert [(p.key, p.experiment) for _, p in plan] == [("expert", "expert_cond_L"),
+    assert [(p.key, p.experiment) for _, p in plan] == [("expert", "cond_expert_L"),
                                                         ("pretrained", "t1_medium_conddbc_L"),
-                                                        ("expert", "expert_cond_L")]
+                                                        ("expert", "cond_expert_L")]
     assert plan[0][1].name == plan[2][1].name  # one registered model, trained once (train() skips the repeat)
     assert plan[0][0].run_name == "t1_medium_conddbc_L" and plan[1][0] is cfg and plan[2][0] is cfg
     assert not (tmp_path / "out").exists()  # nothing trained or written

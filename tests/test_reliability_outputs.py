@@ -419,7 +419,7 @@ def test_a_registry_expert_of_the_wrong_kind_is_refused_before_training(spade_ho
     monkeypatch.setattr(run_module.hydra.utils, "instantiate", lambda *a, **k: built.append(a))
     with pytest.raises(ConfigError, match=r"model.margin.expert_ckpt=.*uncond.ckpt is an unconditional expert, but "
                                           r"Cond-DBC \(margin=cond_dbc\) needs a conditional one; pass a conditional "
-                                          r"expert \(an expert_cond_\* experiment\)"):
+                                          r"expert \(a cond_expert_\* experiment\)"):
         run_module.train(cfg)
     assert fetched and not built  # the registry filled the path in; nothing was instantiated after the refusal
     with pytest.raises(ConfigError, match="is an unconditional expert, but Cond-DBC"):

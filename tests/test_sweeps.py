@@ -42,7 +42,7 @@ def test_conddbc_lambda_search_composes() -> None:
     assert cfg.hydra.runtime.choices.margin == "cond_dbc" and cfg.model.size == "medium"
     assert cfg.run_name == "t1_medium_conddbc_L_lambda0.3" and cfg.tags.table == "sweep_conddbc_lambda"
     assert cfg.registry.prefix is None  # trials never replace the table row's registered model
-    assert cfg.requires.expert.experiment == "expert_cond_L"
+    assert cfg.requires.expert.experiment == "cond_expert_L"
 
 
 @pytest.mark.parametrize("launcher,plugin,target", [("local", "joblib", "JoblibLauncher"),
@@ -138,7 +138,7 @@ def test_optuna_search_with_joblib_runs_two_trials_in_parallel(server: dict) -> 
     _plugin("joblib")
     from mlflow import MlflowClient
 
-    _finish(_start(["+experiment=expert_cond_L", *TINY, "test=false"], server))
+    _finish(_start(["+experiment=cond_expert_L", *TINY, "test=false"], server))
     sweep_dir = server["home"] / "sweep"
     _finish(_start(["-m", "--config-dir", str(SWEEPS), "+search=conddbc_lambda", "hydra/launcher=local",
                           "hydra.sweeper.n_jobs=2", "hydra.sweeper.n_trials=2", "model.size=small",

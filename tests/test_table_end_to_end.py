@@ -61,7 +61,7 @@ def _table2_end_to_end(home: Path, *train_overrides: str) -> None:
     assert all(SAME_KEYS <= set(r.data.metrics) and r.info.status == "FINISHED" for r in runs)
     assert all(r.data.tags["table"] == "table2" and r.data.tags["row"] == r.info.run_name for r in runs)
     prerequisites = client.search_runs([client.get_experiment_by_name("table1").experiment_id])
-    assert sorted(r.info.run_name for r in prerequisites) == ["expert_cond_L", "t1_medium_bc_L", "t1_medium_conddbc_L"]
+    assert sorted(r.info.run_name for r in prerequisites) == ["cond_expert_L", "t1_medium_bc_L", "t1_medium_conddbc_L"]
 
 
 @pytest.mark.slow  # whole tables in spade.train processes; every row in-process: test_experiments_compose.py

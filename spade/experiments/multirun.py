@@ -71,7 +71,7 @@ def seed_sweep(seeds: Any) -> str:
 
 def row_sweep(rows: Any, *table_rows: str) -> str:
     """The rows of a table to run, as Hydra's sweep of ``experiment``: all of ``table_rows`` for ``rows=null``,
-    else those that one of ``rows`` names or matches as a shell pattern (``rows=[t1_small_*_L,expert_*_L]``),
+    else those that one of ``rows`` names or matches as a shell pattern (``rows=[t1_small_*_L,*_expert_L]``),
     in the table's order.
 
     Overriding ``hydra.sweeper.params.experiment`` on the command line does not work (Hydra refuses to sweep its

@@ -4,7 +4,7 @@ An experiment names what it needs in its ``requires`` section::
 
     requires:
       expert:
-        experiment: expert_cond_L          # the experiment that trains it
+        experiment: cond_expert_L          # the experiment that trains it
         target: model.margin.expert_ckpt   # the config key its checkpoint fills
         version: champion                  # which registered version: an alias, a number, or latest
 

@@ -158,7 +158,8 @@ class Table:
             if shape in self.tested_elsewhere:
                 continue
             column = [line.cells[shape] for line in self.lines if shape in line.cells]
-            order += [r for r in column if r.startswith("expert_")] + [r for r in column if not r.startswith("expert_")]
+            experts = [r for r in column if r.startswith(EXPERT_ROW_PREFIXES)]
+            order += experts + [r for r in column if r not in experts]
         return order
 
     def describe(self) -> str:
@@ -175,6 +176,10 @@ def relative_change(value: float | None, baseline: float | None) -> float | None
     if value is None or baseline is None or math.isnan(value) or math.isnan(baseline) or baseline == 0:
         return None
     return 100.0 * (value - baseline) / baseline
+
+
+#: The standalone experts' rows (``cond_expert_L``, ``uncond_expert_U``, ...): in a table's sweep they go first.
+EXPERT_ROW_PREFIXES = ("cond_expert_", "uncond_expert_")
 
 
 def _paper(fid: float, ape: float, hd19: float) -> dict[str, float]:
@@ -205,9 +210,9 @@ def _table1() -> Table:
         paper = {s: {**_paper(*figures[s]), "params": PAPER_PARAMS[size]} for s in figures}
         lines.append(Line((size, approach), cells, paper))
     # The standalone experts (the paper reports some of their figures in the text, DESIGN.md section 3).
-    lines.append(Line(("expert", "Cond. expert"), {s: f"expert_cond_{s}" for s in ("L", "U")},
+    lines.append(Line(("expert", "Cond-expert"), {s: f"cond_expert_{s}" for s in ("L", "U")},
                       {"L": {"ape_cm": 1.42, "params": 9_218_561}, "U": {"ape_cm": 2.74, "params": 9_218_561}}))
-    lines.append(Line(("expert", "Uncond. expert"), {s: f"expert_uncond_{s}" for s in ("L", "U")},
+    lines.append(Line(("expert", "Uncond-expert"), {s: f"uncond_expert_{s}" for s in ("L", "U")},
                       {"L": {"fid": 4.84}, "U": {"fid": 2.43}}))
     headline = {"ape_cm": -39.1, "fid": -33.5, "hd19": -60.0, "params": -93.8}
     comparisons = []

@@ -57,7 +57,7 @@ SHIPPED: dict[str, ShippedModel] = {
     "cond_expert_L": ShippedModel(
         file="cond_expert_L_cpu_lite_x0.ckpt",
         sha256="38eac1a15b252ec6ba92bb93739130e21eec5451ad763eca6ad7e91c630b2460",
-        rebuild="python -m spade.train +experiment=expert_cond_L scale=cpu seed=42, then python -m "
+        rebuild="python -m spade.train +experiment=cond_expert_L scale=cpu seed=42, then python -m "
                 "spade.models.shipped ckpt=<its registered checkpoint> name=cond_expert_L",
         role="expert",
     ),

@@ -267,7 +267,7 @@ def _load_expert(path: str | Path) -> Any:
     path = Path(path).expanduser()
     if not path.is_file():
         raise FileNotFoundError(f"expert_ckpt={path} does not exist; pass an expert checkpoint from "
-                                "python -m spade.train +experiment=expert_cond_L, or leave it out to train a tiny one")
+                                "python -m spade.train +experiment=cond_expert_L, or leave it out to train a tiny one")
     role = read_info(path, checkpoint=True, required=False).get("role")
     if role != "expert":
         raise ValueError(f"expert_ckpt={path} has role {role!r}, not 'expert': pass a diffusion expert checkpoint")
@@ -275,13 +275,13 @@ def _load_expert(path: str | Path) -> Any:
 
 
 def _train_expert(q: dict[str, Any], datasets: dict[str, Any], work: Path, seed: int) -> Any:
-    """A tiny conditional expert trained on the bench's training set (``+experiment=expert_cond_L``)."""
+    """A tiny conditional expert trained on the bench's training set (``+experiment=cond_expert_L``)."""
     from spade.utils.config import compose_config
     from spade.experiments.run import train
 
     out = work / "expert"
     overrides = [
-        "+experiment=expert_cond_L", f"scale={q['train_scale']}", "model.preset=tiny", "logger=none",
+        "+experiment=cond_expert_L", f"scale={q['train_scale']}", "model.preset=tiny", "logger=none",
         "callbacks=none", "test=false", f"seed={seed}", f"paths.output_dir={out}",
         f"data.train_dir={datasets['train_dir']}", f"data.test_dir={datasets['test_dir']}",
         "data.train_generate=null", "data.test_generate=null", f"trainer.max_steps={q['train_steps']}",

@@ -164,7 +164,7 @@ class MarginConfig:
         have_a, want_a = ("a" if conditional else "an"), ("a" if need else "an")
         raise ExpertMismatchError(
             f"{source} is {have_a} {have} expert, but {method} needs {want_a} {wanted} one; pass {want_a} {wanted} "
-            f"expert (an expert_{'cond' if need else 'uncond'}_* experiment) or use {other} for this expert"
+            f"expert ({want_a} {'cond' if need else 'uncond'}_expert_* experiment) or use {other} for this expert"
         )
 
 

@@ -132,7 +132,7 @@ def _check_checkpoints(cfg: DictConfig) -> None:
     expert = _get(cfg, "model.margin.expert_ckpt")
     if expert is not _MISSING:
         info = _check_checkpoint("model.margin.expert_ckpt", expert, "expert",
-                                 "pass an expert checkpoint (from an expert_* experiment), or leave it null so that "
+                                 "pass an expert checkpoint (from a cond_expert_* or uncond_expert_* experiment), or leave it null so that "
                                  "the experiment's requires.expert finds or trains one")
         _check_geometry("model.margin.expert_ckpt", expert, info, cfg, train_data)
         _check_expert_kind(cfg, expert, info)
