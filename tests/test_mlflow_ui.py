@@ -1,10 +1,12 @@
-"""The MLflow UI as a person meets it (issue 15): the smoke run, then Chromium on the URLs the run printed.
+"""The MLflow UI as a person meets it (issues 15, 39): the smoke run, then Chromium on the URLs the run printed.
 
 The ``smoke`` experiment trains into a temporary SPADE_HOME (SQLite store); ``mlflow server`` serves that store
 on 127.0.0.1 (a free port, which the run is told through ``SPADE_MLFLOW_UI_URL`` so that the URLs it prints point
 there); Debian's chromium, driven by Playwright, opens the experiment URL and must land on the runs table with the
-run, its Dataset and metric columns, then the run URL (metrics, description, datasets) and one of its prediction
-pictures. Screenshots go to ``test-artifacts/`` (kept by CI).
+run, its Dataset and metric columns and its baselines' child runs as lines of their own, then the run URL (metrics,
+description, datasets) and one of its prediction pictures. A fresh browser profile also clicks the experiment in
+the experiments list: MLflow 3.17 opens it on the GenAI overview until the sidebar's switch says "Model training"
+(what the printed lines ask, once per browser), then on its runs. Screenshots go to ``test-artifacts/`` (kept by CI).
 """
 
 from __future__ import annotations
@@ -79,10 +81,15 @@ def _mlflow_server(store: str, port: int, workdir: Path) -> Iterator[subprocess.
 
 
 def _check_ui(experiment_url: str, run_url: str, run_name: str, dataset: str, described: str, picture: str,
-              shots: str, prerequisite: str | None = None) -> None:
-    """What a person must see: the runs table with the run, its dataset and the metric columns; the run page with
-    its description (holding ``described``), metrics and datasets; a prediction picture through the Artifacts tab."""
+              shots: str, prerequisite: str | None = None, experiment: str = "smoke",
+              children: tuple[str, ...] = ()) -> None:
+    """What a person must see: the runs table with the run, its dataset and the metric columns, its predictors
+    (``children``: the baselines' and the untrained model's child runs) listed under it; the run page with its
+    description (holding ``described``), metrics and datasets; a prediction picture through the Artifacts tab; and,
+    in a fresh browser profile, the experiment clicked in the experiments list opening on its runs once the sidebar's
+    switch says "Model training" (what the printed lines ask: :data:`spade.experiments.tracking.links.SWITCH_HINT`)."""
     run_id = re.search(r"/runs/([0-9a-f]{32})\?", run_url).group(1)
+    _check_experiments_list(experiment_url.split("/#/")[0], experiment, run_id, run_name, shots)
     with browser_page(width=1800) as page:  # the runs table draws only the columns in view
         page.set_default_timeout(90_000)
         # 1. The experiment URL lands on the runs table (not MLflow 3's GenAI overview).
@@ -91,6 +98,8 @@ def _check_ui(experiment_url: str, run_url: str, run_name: str, dataset: str, de
         page.get_by_text(f"{dataset} (train split)").first.wait_for(state="visible")
         page.get_by_role("columnheader", name="test/ape_cm").first.wait_for(state="attached")
         assert "/runs" in page.url and "/traces" not in page.url and "/overview" not in page.url, page.url
+        for child in children:  # SPADE's view shows the run expanded: its predictors are rows under it
+            page.get_by_text(child, exact=True).first.wait_for(state="visible")
         screenshot(page, f"{shots}_runs.png")
         # 2. The run URL: its description, its test metrics, its dataset inputs.
         page.goto(run_url)
@@ -118,6 +127,31 @@ def _check_ui(experiment_url: str, run_url: str, run_name: str, dataset: str, de
         screenshot(page, f"{shots}_picture.png")
 
 
+def _check_experiments_list(base: str, experiment: str, run_id: str, run_name: str, shots: str) -> None:
+    """A fresh browser profile clicks the experiment in the experiments list. MLflow 3.17 picks the page by the
+    sidebar's GenAI / Model training switch (the URL's ``workflowType``, else the browser's stored choice, else
+    GenAI), not by the experiment's ``mlflow.experimentKind`` tag: the first click shows what an untouched browser
+    gets (screenshot, not asserted: that is MLflow's choice); after the one click SPADE's closing lines ask for, the
+    experiment opens on its runs table, and stays so for the browser."""
+    with browser_page(width=1600, height=1000) as page:
+        page.set_default_timeout(90_000)
+        link = page.locator('[data-testid="experiment-list-item-link"]', has_text=experiment).first
+        page.goto(f"{base}/#/experiments")
+        link.wait_for(state="visible")
+        link.click()
+        page.wait_for_timeout(3000)
+        screenshot(page, f"{shots}_list_click_untouched.png")
+        page.goto(f"{base}/#/experiments")
+        page.get_by_text("Model training", exact=True).first.click()  # the sidebar's switch, once
+        link.wait_for(state="visible")
+        link.click()
+        page.locator(f'a[href*="/runs/{run_id}"]', has_text=run_name).first.wait_for(state="visible")
+        page.get_by_role("columnheader", name="Run Name").first.wait_for(state="visible")
+        assert "/overview" not in page.url and "/traces" not in page.url, page.url
+        assert page.evaluate("() => localStorage.getItem('mlflow.workflowType_v1')") == '"machine_learning"'
+        screenshot(page, f"{shots}_list_click.png")
+
+
 @pytest.mark.slow  # an mlflow server and a browser; the URLs, tags, inputs and descriptions in-process: below
 def test_mlflow_ui_shows_a_spade_run_from_the_printed_urls(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A run recorded by SPADE's tracking code (no training: seconds), then the browser on the URLs it prints."""
@@ -128,7 +162,7 @@ def test_mlflow_ui_shows_a_spade_run_from_the_printed_urls(tmp_path: Path, monke
 
     from factories import write_synthetic
     from spade.experiments.tracking import (
-        DatasetUse, bind_experiment, log_dataset_inputs, run_description, ui_lines,
+        DatasetUse, bind_experiment, log_dataset_inputs, log_predictor_runs, run_description, ui_lines,
     )
 
     port = _free_port()
@@ -153,11 +187,12 @@ def test_mlflow_ui_shows_a_spade_run_from_the_printed_urls(tmp_path: Path, monke
         cfg = OmegaConf.create({"run_name": "ui_check", "tags": {"table": "smoke", "role": "student"}})
         client.set_tag(run_id, "mlflow.note.content", run_description(cfg, metrics, uses, []))
         client.set_terminated(run_id)
+        log_predictor_runs(client, run_id, "student")  # its baselines as child runs, as spade.train logs them
         experiment_id = client.get_run(run_id).info.experiment_id
         _, run_line, experiment_line, _ = ui_lines(store, experiment_id, run_id)
         _wait_healthy(base, server, tmp_path / "server.log", timeout=180)
         _check_ui(experiment_line.split()[-1], run_line.split()[-1], "ui_check", "tiny/lshape", "Tested on", picture,
-                  "mlflow_ui_recorded")
+                  "mlflow_ui_recorded", children=("ui_check/baseline-straight",))
 
 
 @pytest.mark.slow  # trains the smoke experiment: about a minute on a quiet 2-core machine, several when shared
@@ -189,7 +224,8 @@ def test_mlflow_ui_opens_the_smoke_run_from_the_urls_it_printed(tmp_path: Path) 
         assert client.get_run(run_id).info.run_name == "smoke"
         _wait_healthy(base, server, tmp_path / "server.log", timeout=180)
         _check_ui(experiment_url, run_url, "smoke", "tiny/lshape", "Prerequisites: expert from", pictures[0],
-                  "mlflow_ui_smoke", prerequisite="expert_cond_L")
+                  "mlflow_ui_smoke", prerequisite="cond_expert_L",
+                  children=("smoke/baseline-straight", "smoke/baseline-shortest", "smoke/baseline-heading"))
 
 
 # -- the pieces, without training or a browser (fast) ---------------------------------------------------------
@@ -391,20 +427,20 @@ def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(
 
     ml = _logger(tmp_path, "table1")
     client = ml.experiment
-    client.set_tag(ml.run_id, "mlflow.runName", "expert_cond_L")
+    client.set_tag(ml.run_id, "mlflow.runName", "cond_expert_L")
     client.create_registered_model("spade-cond_expert-L-tiny-abc")
     client.create_model_version("spade-cond_expert-L-tiny-abc", source="x", run_id=ml.run_id)
     cache = tmp_path / "registry-cache"
     cfg = OmegaConf.create({
         "run_name": "t1_small_conddbc_L", "paths": {"registry_cache_dir": str(cache)},
         "model": {"margin": {"expert_ckpt": str(cache / "spade-cond_expert-L-tiny-abc" / "v1" / "best" / "e.ckpt")}},
-        "requires": {"expert": {"experiment": "expert_cond_L", "target": "model.margin.expert_ckpt"}},
+        "requires": {"expert": {"experiment": "cond_expert_L", "target": "model.margin.expert_ckpt"}},
         "scale": {"name": "tiny"},
         "tags": {"table": "table1", "role": "student", "approach": "Cond-DBC", "size": "small", "shape": "L",
                  "scale": "tiny"}})
     prerequisites = prerequisite_uses(cfg, client)
     experiment_id = client.get_run(ml.run_id).info.experiment_id
-    assert prerequisites[0].run_link == f"[expert_cond_L](#/experiments/{experiment_id}/runs/{ml.run_id}" \
+    assert prerequisites[0].run_link == f"[cond_expert_L](#/experiments/{experiment_id}/runs/{ml.run_id}" \
                                         "?workflowType=machine_learning)"
     metrics = {"test/ape_cm": 4.5, "test/hd19": 3.0, "test/failure_rate": 0.02, "model/params": 118165.0,
                "test/baseline/straight/ape_cm": 30.25, "test/baseline/straight/failure_rate": 0.0,
@@ -414,7 +450,7 @@ def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(
     text = run_description(cfg, metrics, uses, prerequisites, ["predictions/test_worst.png"])
     assert text.startswith("**t1_small_conddbc_L**: Cond-DBC student (size small, 118k parameters), L-shape paths")
     assert "Trained on `tiny/lshape` (160 instances)" in text and "Tested on `tiny/test` (43 instances)" in text
-    assert "registered model `spade-cond_expert-L-tiny-abc v1`, run [expert_cond_L](#/experiments/" in text
+    assert "registered model `spade-cond_expert-L-tiny-abc v1`, run [cond_expert_L](#/experiments/" in text
     assert "Regenerate: `python -m spade.train +experiment=t1_small_conddbc_L scale=tiny`" in text
     rate = METRICS["failure_rate"].format  # the tables' own number formats; centimetres to 0.1 cm (issue 22)
     # aligned columns (issue 39): labels left, figures right, every line of the table as wide as its header

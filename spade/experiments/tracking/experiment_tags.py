@@ -4,8 +4,8 @@ The experiment (one per paper table, quickstart, smoke, sweep or evaluation) is 
 (``mlflow.experimentKind=custom_model_development``: the UI's "Machine learning" kind; MLflow 3 UIs before 3.17
 chose an experiment's first page by it),
 carries a description (``mlflow.note.content``: the paper table it reproduces and how to regenerate it) and stores
-the runs-table view that shows the Dataset and metric columns (:data:`VIEW_TAG`, :func:`runs_view_state`), with the
-runs whose baselines and untrained model are child runs expanded (:func:`expand_in_view`).
+the runs-table view that shows the Dataset and metric columns, one line per run sorted by run name, so that a
+row's run is followed by its baselines and untrained model (:data:`VIEW_TAG`, :func:`runs_view_state`).
 
 What the tag does not do: MLflow 3.17's UI no longer reads ``mlflow.experimentKind`` to choose an experiment's
 first page. With its workflow-based navigation (on in every 3.17 build), the kind follows the sidebar's
@@ -31,16 +31,24 @@ NOTE_TAG = "mlflow.note.content"  # an experiment's or a run's description in th
 VIEW_TAG = f"mlflow.sharedViewState.{VIEW_KEY}"  # the runs-table view that ?viewStateShareKey=<VIEW_KEY> opens
 
 
-def runs_view_state() -> str:
-    """The runs table as SPADE shows it: Dataset, the paper's test metrics and the parameter count as columns.
+RUN_NAME_KEY = "tags.`mlflow.runName`"  # the UI's sort key of the Run Name column
 
+
+def runs_view_state() -> str:
+    """The runs table as SPADE shows it: Dataset, the paper's test metrics and the parameter count as columns,
+    the runs sorted by name.
+
+    Sorted by name, a row's run (``quickstart``) is followed by its predictors' child runs
+    (``quickstart/baseline-heading``, ..., ``quickstart/untrained``: :mod:`~spade.experiments.tracking.predictors`),
+    each a line of its own with the same columns. (Sorted by date, the UI would nest the children under a collapsed
+    parent, and a shared view cannot say which runs to expand: MLflow 3.17 drops ``runsExpanded`` from it.)
     Training diagnostics (``margin/active``) stay out: the UI orders metric columns by name and draws only those in
     view, so a ``margin/`` column would push the test metrics off a laptop's screen."""
     from spade.experiments.tables import METRICS
 
     columns = ["attributes.`Dataset`",
                *(f"metrics.`{m.mlflow_key}`" for m in METRICS.values() if m.mlflow_key.startswith(("test/", "model/")))]
-    return json.dumps({"selectedColumns": columns, "orderByKey": "attributes.start_time", "orderByAsc": False})
+    return json.dumps({"selectedColumns": columns, "orderByKey": RUN_NAME_KEY, "orderByAsc": True})
 
 
 def _scale_note() -> str:
@@ -115,44 +123,15 @@ def _set_tag(client: Any, experiment_id: str, key: str, value: str, *, keep_exis
             client.set_experiment_tag(experiment_id, key, value)  # the row exists now: this write is an update
 
 
-def _parse_view(value: str | None) -> dict[str, Any] | None:
-    """A stored view state (None when absent or not a JSON object)."""
-    try:
-        state = json.loads(value) if value else None
-    except ValueError:
-        return None
-    return state if isinstance(state, dict) else None
-
-
 def ensure_experiment_tags(client: Any, experiment: Any, cfg: DictConfig | None = None) -> None:
-    """Tag ``experiment`` as model training, store SPADE's runs view (:func:`runs_view_state`, keeping the runs it
-    shows expanded: :func:`expand_in_view`) and add the description where there is none (a description a person
-    wrote in the UI is kept)."""
+    """Tag ``experiment`` as model training, store SPADE's runs view (:func:`runs_view_state`) and add the
+    description where there is none (a description a person wrote in the UI is kept)."""
     tags = dict(experiment.tags or {})
     eid = experiment.experiment_id
     if tags.get(KIND_TAG) != KIND_TRAINING:
         _set_tag(client, eid, KIND_TAG, KIND_TRAINING)
     if not tags.get(NOTE_TAG):
         _set_tag(client, eid, NOTE_TAG, experiment_description(experiment.name, cfg), keep_existing=True)
-    state = json.loads(runs_view_state())
-    current = _parse_view(tags.get(VIEW_TAG)) or {}
-    if current.get("runsExpanded"):
-        state["runsExpanded"] = current["runsExpanded"]
-    if current != state:
-        _set_tag(client, eid, VIEW_TAG, json.dumps(state))
-
-
-EXPANDED_MAX = 60  # runs SPADE's view shows expanded (the newest): the view is one experiment tag, of bounded size
-
-
-def expand_in_view(client: Any, experiment_id: str, run_id: str) -> None:
-    """Show run ``run_id`` expanded in SPADE's runs view, its child runs (its baselines and untrained model:
-    :mod:`~spade.experiments.tracking.predictors`) listed under it; the :data:`EXPANDED_MAX` newest stay expanded.
-    (Two jobs finishing at the same moment may each write the view without the other's run: that run then shows
-    collapsed, its children a click away.)"""
-    stored = (client.get_experiment(experiment_id).tags or {}).get(VIEW_TAG)
-    state = _parse_view(stored) or json.loads(runs_view_state())
-    expanded = {k: v for k, v in (state.get("runsExpanded") or {}).items() if k != run_id}
-    expanded[run_id] = True
-    state["runsExpanded"] = dict(list(expanded.items())[-EXPANDED_MAX:])
-    _set_tag(client, experiment_id, VIEW_TAG, json.dumps(state))
+    view = runs_view_state()
+    if tags.get(VIEW_TAG) != view:
+        _set_tag(client, eid, VIEW_TAG, view)

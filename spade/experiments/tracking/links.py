@@ -14,7 +14,8 @@ from urllib.parse import quote, urlsplit
 
 WORKFLOW_QUERY = "workflowType=machine_learning"  # MLflow 3 UIs: open on runs, not on GenAI traces
 # A runs-table view stored in the experiment (the MLflow UI's "shared view": tag mlflow.sharedViewState.<key>,
-# opened by ?viewStateShareKey=<key>): the Dataset column and the tables' metric columns, newest run first.
+# opened by ?viewStateShareKey=<key>): the Dataset column and the tables' metric columns, runs sorted by name (each
+# row's run followed by its baselines and untrained model).
 VIEW_KEY = "spade"
 DEFAULT_UI = "http://127.0.0.1:5000"  # where `mlflow ui` listens unless told otherwise
 UI_URL_ENV = "SPADE_MLFLOW_UI_URL"  # the UI's address when it is not `mlflow ui`'s default (another port, a proxy)

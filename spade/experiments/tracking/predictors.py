@@ -7,9 +7,9 @@ run (tag ``mlflow.parentRunId``), named ``<run name>/baseline-<name>`` and ``<ru
 model's own metric names (``test/ape_cm``, ``test/planner/ape_cm``, ...): the runs table then shows the model and
 its references as rows under one another, the same column holding the same figure. Each child run carries
 ``spade.predictor=<name>`` (the model's run carries its role: ``student``, ``expert``), the row's ``table``,
-``row``, ``scale`` and ``shape`` tags, the test dataset as its input and a one-line description; SPADE's runs view
-shows the model's run expanded, its children under it
-(:func:`~spade.experiments.tracking.experiment_tags.expand_in_view`).
+``row``, ``scale`` and ``shape`` tags, the test dataset as its input and a one-line description. SPADE's runs view
+sorts by run name, so that each run is followed by its children, one line each
+(:func:`~spade.experiments.tracking.experiment_tags.runs_view_state`).
 
 Queries that count a row's runs (``spade.report``, ``mark_stale_runs``, the run summary's look-up) match runs by
 their run name, which a child run never shares with its parent; :func:`is_predictor_run` and
@@ -92,7 +92,7 @@ def log_predictor_runs(client: Any, run_id: str, role: str | None = None, what: 
     from mlflow.entities import Metric, RunTag
 
     from spade.experiments.tracking.dataset_inputs import log_dataset_inputs
-    from spade.experiments.tracking.experiment_tags import NOTE_TAG, expand_in_view
+    from spade.experiments.tracking.experiment_tags import NOTE_TAG
 
     run = client.get_run(run_id)
     found = predictors(dict(run.data.metrics))
@@ -124,5 +124,4 @@ def log_predictor_runs(client: Any, run_id: str, role: str | None = None, what: 
                 log.warning("test dataset not logged as the input of %s: %s", predictor.name, exc)
         client.set_terminated(child, "FINISHED")
         out[predictor.name] = child
-    expand_in_view(client, experiment_id, run_id)  # SPADE's runs view lists them under the run
     return out

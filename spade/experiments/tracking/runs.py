@@ -255,8 +255,8 @@ def _references_note(metrics: dict[str, float], run: tuple[str, str]) -> str:
     text = ""
     if found:
         names = ", ".join(f"`{p.name}`" for p in found)
-        text += (f"\n\nThe references are child runs of this run ({names}: expand the run in the runs table), "
-                 "with this run's metric names.")
+        text += (f"\n\nThe references are child runs of this run ({names}), with this run's metric names: "
+                 "in the runs table (SPADE's view, sorted by name) they follow it, one line each.")
     links = ", ".join(f"[{REPORT_DIR}/{f}]({artifact_url('', *run, f'{REPORT_DIR}/{f}')})" for f in (MARKDOWN, CSV))
     return text + f"\n\nReport: {links}."
 
