@@ -33,6 +33,7 @@ from spade.annotation.scenarios import (
     rasterise_states,
     window_frame,
 )
+from spade.annotation.split import Split, in_scenario_part, parse_split
 from spade.annotation.templates import SHAPES, check_shape
 from spade.data.rasterize import Instance, fits_robot_frame
 from spade.utils.errors import UserError
@@ -295,11 +296,25 @@ def _assembled(slot: _Slot) -> ScenarioResult:
     return result
 
 
-def scenario_tasks(n_maps: int, shapes: list[str], max_per_map: int, first_index: int = 0
-                   ) -> Iterator[tuple[int, str, int]]:
+def scenario_indices(first_index: int, max_per_map: int, keep: Callable[[int], bool] | None = None) -> Iterator[int]:
+    """The first ``max_per_map`` scenario indices from ``first_index`` on that ``keep`` accepts (all without it)."""
+    if keep is None:
+        yield from range(first_index, first_index + max_per_map)
+        return
+    k, found = first_index, 0
+    while found < max_per_map:
+        if keep(k):
+            yield k
+            found += 1
+        k += 1
+
+
+def scenario_tasks(n_maps: int, shapes: list[str], max_per_map: int, first_index: int = 0,
+                   keep: Callable[[int], bool] | None = None) -> Iterator[tuple[int, str, int]]:
     """Round-robin over maps and shapes so that every map contributes evenly; scenario indices start at
-    ``first_index`` (a test split of a training map uses an offset, so its scenario ids never collide)."""
-    for k in range(first_index, first_index + max_per_map):
+    ``first_index`` (a test split of a training map uses an offset, so its scenario ids never collide) and, with
+    ``keep`` (``split=scenario:PART``: whether an index is the part's), skip the indices it refuses."""
+    for k in scenario_indices(first_index, max_per_map, keep):
         for m in range(n_maps):
             for shape in shapes:
                 yield m, shape, k
@@ -324,7 +339,10 @@ def template_instances(contexts: list[MapContext], cfg: Mapping[str, Any], stats
     per_task = states_per_task(cfg)
     executor = _executor(workers, str(cfg["start_method"]), contexts, cfg)
     produced = 0
-    tasks = (t for t in scenario_tasks(len(contexts), shapes, max_per_map, int(cfg["scenario"].get("first_index", 0)))
+    split = parse_split(cfg)
+    keep = (lambda k: in_scenario_part(split, k)) if split is not None and split.mode == "scenario" else None
+    tasks = (t for t in scenario_tasks(len(contexts), shapes, max_per_map, int(cfg["scenario"].get("first_index", 0)),
+                                       keep)
              if (t[0], t[1]) not in dead)  # only saves work; correctness comes from the check below
     results = ordered_results(executor, tasks, workers, per_task, needed=lambda m, shape: (m, shape) not in dead,
                               remaining=lambda: wanted - produced)
@@ -359,8 +377,20 @@ def template_instances(contexts: list[MapContext], cfg: Mapping[str, Any], stats
         f"{len(stats.scenarios)} accepted scenarios out of {stats.scenarios_tried} tried "
         f"(scenario.max_per_map={max_per_map}; given up after {max_failures} failures in a row: {given_up}); "
         f"rejections: {dict(stats.rejections)}. Lower num_instances, add maps, lower instances.spacing_m "
-        f"(more states per path) or raise scenario.max_per_map."
+        f"(more states per path) or raise scenario.max_per_map{_split_hint(split)}."
     )
+
+
+def _split_hint(split: Split | None) -> str:
+    """What to change when a split's part of the maps is too small for the instances asked for."""
+    if split is None:
+        return ""
+    share = round(split.fraction if split.part == "train" else 1.0 - split.fraction, 6)
+    move = "lower" if split.part == "test" else "raise"
+    if split.mode == "scenario":
+        return f" (split=scenario:{split.part} keeps {share:g} of the scenarios: {move} split_fraction)"
+    return (f" (split=area:{split.part} keeps about {share:g} of each map's free area, where every scenario must "
+            f"fit: {move} split_fraction, e.g. 0.5, or try the other split_axis)")
 
 
 def _summary(result: ScenarioResult, n_instances: int) -> dict[str, Any]:

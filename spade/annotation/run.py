@@ -28,6 +28,7 @@ from spade.annotation.pipeline import (
 from spade.annotation.preview import write_preview
 from spade.annotation.scenarios import costmap_context
 from spade.annotation.sources import load_map_sources
+from spade.annotation.split import parse_split, split_record
 from spade.data.settings import annotation_config, preset_override
 
 log = logging.getLogger("spade.annotate")
@@ -43,6 +44,7 @@ def annotate(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
     """Run the tool with a resolved config; returns a summary (instances, seconds, rates, rejections)."""
     cfg = _plain(cfg)
     cfg.pop("hydra", None)
+    split = parse_split(cfg)  # a bad split= is refused before any map is loaded or any instance made
     out_dir = Path(cfg["out_dir"])
     res = float(cfg["window"]["resolution_m"])
     stats = RunStats()
@@ -79,6 +81,8 @@ def annotate(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
         contexts = build_contexts(sources, cfg)
         items = template_instances(contexts, cfg, stats, bar.update)
         extra.update(source="templates", maps=[_map_info(s) for s in sources])
+        if split is not None:  # what the data checks read (spade.annotation.split.split_pair_problems)
+            extra["split"] = split_record(split, [c.line for c in contexts])
 
     count = write_dataset(out_dir, items, cfg, lambda: {**extra, **stats.to_json()}, res)
     bar.close()

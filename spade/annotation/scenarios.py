@@ -20,6 +20,7 @@ import numpy as np
 from scipy.cluster.vq import kmeans2
 
 from spade.annotation.execution import ExecutedPath, Rejection, execute_sketch
+from spade.annotation.split import CROSSING, AreaLine, area_line, parse_split
 from spade.annotation.templates import SHAPES, check_shape, place_template, sample_template
 from spade.data.rasterize import Instance, fits_robot_frame, robot_instance, state_indices
 from spade.maps.costmap import Costmap, build_costmap
@@ -60,6 +61,7 @@ class MapContext:
     goal_area: np.ndarray  # (M,) area label of each goal cell
     n_areas: int
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the ROS map origin (of an axis-aligned map)
+    line: AreaLine | None = None  # split=area:PART: the side of the map this part's scenarios keep to
 
     def world_pose(self, x_px: float, y_px: float, heading: float) -> tuple[float, float, float]:
         """(x, y, yaw) in map metres of a robot at map pixel (x_px, y_px) with map-pixel heading ``heading``."""
@@ -77,10 +79,22 @@ def window_frame(cfg: Mapping[str, Any]) -> RobotFrame:
 def prepare_map(map_id: str, grid: np.ndarray, resolution: float, cfg: Mapping[str, Any],
                 origin: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> MapContext:
     """Inflate the map and split its goal candidates into spatially separate areas (k-means on cell
-    positions), so that consecutive scenarios of a map land in different parts of it."""
+    positions), so that consecutive scenarios of a map land in different parts of it. With ``split=area:PART``
+    the goal candidates are those on the part's side of the map's split line (:mod:`spade.annotation.split`)."""
     costmap = build_costmap(grid, resolution, cfg["robot"], float(cfg["execution"]["cost_weight"]))
     need_px = goal_clearance_m(cfg) / resolution
     rows, cols = np.nonzero(costmap.clearance_px >= need_px)
+    split = parse_split(cfg)
+    line = area_line(map_id, grid, resolution, origin, split) if split is not None and split.mode == "area" else None
+    if line is not None and len(rows):
+        keep = line.on_side(np.stack([cols, rows], axis=1))
+        if not keep.any():
+            raise NoFreeAreaError(
+                f"map {map_id!r} has no free cell with {goal_clearance_m(cfg):.2f} m clearance for a goal on the "
+                f"{line.part} side of its split line ({line.to_json()['part_side']}, split_fraction="
+                f"{split.fraction}); move the line with split_fraction or split_axis, or remove the map from maps="
+            )
+        rows, cols = rows[keep], cols[keep]
     if len(rows) == 0:
         best = float(costmap.clearance_px.max()) * resolution
         raise NoFreeAreaError(
@@ -105,7 +119,8 @@ def prepare_map(map_id: str, grid: np.ndarray, resolution: float, cfg: Mapping[s
         n_areas = len(order)
     else:
         labels = np.zeros(len(cells), dtype=np.int64)
-    return MapContext(map_id, costmap, cells, labels, n_areas, tuple(float(v) for v in origin))  # type: ignore[arg-type]
+    origin3 = tuple(float(v) for v in origin)
+    return MapContext(map_id, costmap, cells, labels, n_areas, origin3, line)  # type: ignore[arg-type]
 
 
 def costmap_context(map_id: str, grid: np.ndarray, resolution: float, cfg: Mapping[str, Any],
@@ -148,12 +163,15 @@ def scenario_area(ctx: MapContext, index: int, cfg: Mapping[str, Any]) -> int:
 
 
 def _placement(ctx: MapContext, shape: str, goal: np.ndarray, cfg: Mapping[str, Any], rng: np.random.Generator,
-               frame: RobotFrame, margin_px: float) -> tuple[np.ndarray, np.ndarray] | None:
+               frame: RobotFrame, margin_px: float) -> tuple[np.ndarray, np.ndarray] | str:
     """Try ``scenario.headings_per_goal`` sampled templates at ``goal``; return the first whose ideal curve lies
-    on free space with ``scenario.sketch_clearance_m`` and fits the robot-frame window of its start, else None."""
+    on free space with ``scenario.sketch_clearance_m``, fits the robot-frame window of its start and (with an
+    area split) lies on its part's side of the map; else the rejection reason: ``split_crossing`` when a template
+    failed only for crossing the split line, ``placement`` otherwise."""
     res = ctx.costmap.resolution
     need = float(cfg["scenario"]["sketch_clearance_m"]) / res
     h, w = ctx.costmap.grid.shape
+    crossed = False
     for _ in range(int(cfg["scenario"]["headings_per_goal"])):
         template = sample_template(shape, cfg["template"], rng)
         keypoints, dense = place_template(template, goal, res)
@@ -164,8 +182,11 @@ def _placement(ctx: MapContext, shape: str, goal: np.ndarray, cfg: Mapping[str, 
             continue
         if ctx.costmap.clearance_px[cells[:, 1], cells[:, 0]].min() < need:
             continue
+        if ctx.line is not None and not ctx.line.holds(dense):
+            crossed = True
+            continue
         return keypoints, dense
-    return None
+    return CROSSING if crossed else "placement"
 
 
 def state_indices_along(ctx: MapContext, executed: ExecutedPath, cfg: Mapping[str, Any]) -> np.ndarray:
@@ -235,14 +256,17 @@ def plan_scenario(ctx: MapContext, shape: str, index: int, cfg: Mapping[str, Any
     for _ in range(int(cfg["scenario"]["max_attempts"])):
         goal = ctx.goal_cells[in_area[rng.integers(len(in_area))]].astype(np.float64)
         placed = _placement(ctx, shape, goal, cfg, rng, frame, margin)
-        if placed is None:
-            result.rejections["placement"] += 1
+        if isinstance(placed, str):
+            result.rejections[placed] += 1
             continue
         keypoints, dense = placed
         try:
             executed = execute_sketch(ctx.costmap, keypoints, dense, SHAPES[shape], cfg["execution"])
         except Rejection as rej:
             result.rejections[rej.reason] += 1
+            continue
+        if ctx.line is not None and not ctx.line.holds(executed.points):
+            result.rejections[CROSSING] += 1  # the driven path leaves its part of the map
             continue
         if not fits_robot_frame(executed.points, frame, margin):
             result.rejections["window"] += 1

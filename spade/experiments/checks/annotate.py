@@ -1,4 +1,5 @@
-"""``spade.annotate``'s checks, before any map is loaded: the output folder, the sources, numbers and the window."""
+"""``spade.annotate``'s checks, before any map is loaded: the output folder, the sources, numbers, the split and the
+window."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from spade.annotation.sketch_file import SketchFileError, load_sketch_file
 from spade.annotation.sources import expand_map_specs
+from spade.annotation.split import parse_split
 from spade.annotation.templates import SHAPES
 from spade.data.writer import check_output_dir
 from spade.experiments.checks.files import _input_file, _same_file
@@ -20,7 +22,8 @@ from spade.utils.errors import ConfigError
 
 def validate_annotate_config(cfg: Mapping[str, Any] | DictConfig) -> None:
     """``spade.annotate``'s checks before any map is loaded: the output (never a file or a folder that is not a
-    SPADE dataset, an existing dataset only with ``overwrite=true``), the sources, numbers and the window."""
+    SPADE dataset, an existing dataset only with ``overwrite=true``), the sources, numbers, the split of one map
+    into a training and a test part (``split``, ``split_fraction``, ``split_axis``) and the window."""
     cfg = cfg if isinstance(cfg, DictConfig) else OmegaConf.create(dict(cfg))
     if _unset(_get(cfg, "out_dir")):
         raise ConfigError("out_dir is not set; pass out_dir=FOLDER (a new folder, or a dataset with overwrite=true)")
@@ -62,4 +65,5 @@ def validate_annotate_config(cfg: Mapping[str, Any] | DictConfig) -> None:
             raise ConfigError(f"maps={_get(cfg, 'maps')}: {exc}; give a folder of ROS map yamls, yaml paths or specs "
                               "such as warehouse:1") from None
     settings = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)
+    parse_split(settings)  # SplitError, a ConfigError: the key, its value and the fix in one line
     check_window_holds_manoeuvre(settings, "")
