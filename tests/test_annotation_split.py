@@ -208,3 +208,17 @@ def test_split_of_sketches_is_refused(tmp_path: Path) -> None:
 
 def test_transfer_preset_keeps_its_own_split() -> None:
     assert parse_split({"split": "train", "transfer_splits": {"train": {}}}) is None
+
+
+def test_the_data_module_refuses_a_test_part_of_another_split(area_parts: dict[str, Path], tmp_path: Path) -> None:
+    """data=own with a training part and a test part cut on another line stops before training, naming the
+    difference; the two parts of one split pass."""
+    from spade.data import DatasetError
+    from spade.data.datamodule import PathDataModule
+
+    annotate(tiny_cfg(tmp_path / "other_test", split="area:test", split_fraction=0.6))
+    good = PathDataModule(area_parts["train"], test_dir=area_parts["test"], batch_size=4)
+    good.setup("test")
+    bad = PathDataModule(area_parts["train"], test_dir=tmp_path / "other_test", batch_size=4)
+    with pytest.raises(DatasetError, match=r"not the test part of .*split fraction: training set 0\.7, test set 0\.6"):
+        bad.setup("test")

@@ -85,3 +85,29 @@ def data_geometry(root: str | Path | None, generate: Any) -> dict[str, Any] | No
     size = int(settings["window"]["size_px"])
     return {"image_size": [size, size], "resolution_m": float(settings["window"]["resolution_m"]), "frame": None,
             "source": f"{root} (to be generated)"}
+
+
+def split_pair_problems(train: Mapping[str, Any] | None, test: Mapping[str, Any] | None) -> list[str]:
+    """Why two ``extra.split`` records are not the training and the test part of one split (empty: they are):
+    both must record the same split (mode, fraction, axis and every map's line) but for the part."""
+    if train is None or test is None:
+        missing = [name for name, rec in (("training", train), ("test", test)) if rec is None]
+        return [f"the {' and '.join(missing)} set records no split (made without split=...)"]
+    problems = []
+    if train.get("part") != "train":
+        problems.append(f"the training set is the {train.get('part')!r} part of its split, not 'train'")
+    if test.get("part") != "test":
+        problems.append(f"the test set is the {test.get('part')!r} part of its split, not 'test'")
+    for key in sorted((set(train) | set(test)) - {"part", "lines"}):
+        if train.get(key) != test.get(key):
+            problems.append(f"split {key}: training set {train.get(key)!r}, test set {test.get(key)!r}")
+    lines_a, lines_b = train.get("lines") or {}, test.get("lines") or {}
+    for map_id in sorted(set(lines_a) | set(lines_b)):
+        a, b = lines_a.get(map_id), lines_b.get(map_id)
+        if a is None or b is None:
+            problems.append(f"map {map_id!r} is split in the {'test' if a is None else 'training'} set only")
+            continue
+        for key in ("axis", "at_m", "map_sha256"):
+            if a.get(key) != b.get(key):
+                problems.append(f"map {map_id!r} line {key}: training set {a.get(key)!r}, test set {b.get(key)!r}")
+    return problems

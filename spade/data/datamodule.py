@@ -14,7 +14,7 @@ from torch.utils.data import DataLoader, Subset
 
 from spade.data import DatasetError, PathDataset, read_manifest
 from spade.data.augment import augment_batch, check_augmentation, widen_path
-from spade.data.checks import check_dataset
+from spade.data.checks import check_dataset, split_pair_problems
 from spade.data.settings import Generator
 
 
@@ -165,6 +165,15 @@ class PathDataModule(L.LightningDataModule):
         # demonstration, same places) are identical to training windows. Found by content, since scenario ids are
         # per-map counters (site/L000): two datasets made on one map with other seeds or sketches share ids but no
         # scenario. A few identical windows (an open hall's straight stretches) are a coincidence, not a leak.
+        # Two parts of one map's split (python -m spade.annotate split=area:train / split=area:test) must be cut on
+        # the same line: a test part of another split (another fraction, axis or map version) may overlap training.
+        splits = [(d.manifest.extra or {}).get("split") for d in (train, test)]
+        if any(s is not None for s in splits):
+            problems = split_pair_problems(*splits)
+            if problems:
+                raise DatasetError(f"{self.test_dir}: not the test part of {self.train_dir}'s split: "
+                                   f"{'; '.join(problems)}. Annotate both parts with the same split settings "
+                                   "(split=MODE:train and split=MODE:test, the same split_fraction and split_axis)")
         leaked = leaked_scenarios(train, test)
         if leaked:
             shown = ", ".join(leaked[:5]) + (f" and {len(leaked) - 5} more" if len(leaked) > 5 else "")
