@@ -5,9 +5,10 @@ One module per job:
 - :mod:`~spade.experiments.tracking.links`: the MLflow UI's address, the URLs of runs, runs tables and
   artifacts, and the ``mlflow ui`` command (:func:`ui_lines`, printed at the end of training and by
   ``spade.report``);
-- :mod:`~spade.experiments.tracking.experiment_tags`: an experiment's metadata: tagged as model training
-  (MLflow 3 UIs otherwise open it on the GenAI traces view), its description (the paper table it reproduces and
-  how to regenerate it) and SPADE's runs view (the Dataset and metric columns);
+- :mod:`~spade.experiments.tracking.experiment_tags`: an experiment's metadata: tagged as model training (which
+  MLflow 3.17's UI no longer reads to choose an experiment's first page: its sidebar switch does, see there), its
+  description (the paper table it reproduces and how to regenerate it) and SPADE's runs view (the Dataset and
+  metric columns, runs sorted by name: each row's run followed by its predictors);
 - :mod:`~spade.experiments.tracking.dataset_inputs`: a run's datasets as MLflow dataset inputs (name, digest =
   the dataset's fingerprint, source = its directory, context training / validation / test, the manifest's key
   facts as the profile);
