@@ -13,6 +13,7 @@ from spade.metrics.baselines import draw_polylines
 from spade.metrics.corruptions import CORRUPTIONS, corrupt, gaussian_blur, shift_images, turn_point, wider_turn
 from spade.training.critic import band_edges, critic_metrics, measure_errors
 from spade.training.margin import DiffusionMargin, MarginConfig
+from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
 
 SIZE = 32
 ROBOT_X = 16.0
@@ -282,7 +283,7 @@ def test_a_guidance_row_tests_its_checkpoint_on_real_maps_as_a_run_of_its_seed(s
     assert objects["model"].margin_history and objects["model"].margin_history[0][0] == 0
     client = MlflowClient(tracking_uri=str(cfg.paths.mlflow_tracking_uri))
     exp = client.get_experiment_by_name("guidance")
-    runs = {r.info.run_name: r for r in client.search_runs([exp.experiment_id])}
+    runs = {r.info.run_name: r for r in client.search_runs([exp.experiment_id], filter_string=TOP_LEVEL_FILTER)}
     real = runs["g_few_conddbcst_L_real"]
     assert real.info.status == "FINISHED" and real.data.params["cfg/seed"] == "7"
     assert real.data.metrics["test/ape_cm"] == pytest.approx(metrics["real/test/ape_cm"])

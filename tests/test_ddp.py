@@ -16,6 +16,7 @@ from spade.training.callbacks import ChannelsLast
 from spade.training.student_module import StudentModule
 from spade.utils.config import compose_config
 from training_helpers import compose_row
+from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
 
 REPO = Path(__file__).resolve().parents[1]
 ROW = "t1_small_bc_L"
@@ -26,7 +27,7 @@ def _mlflow_metrics(tracking_uri: str) -> dict[str, float]:
 
     client = MlflowClient(tracking_uri=tracking_uri)
     experiment = client.get_experiment_by_name("table1")
-    runs = client.search_runs([experiment.experiment_id])
+    runs = client.search_runs([experiment.experiment_id], filter_string=TOP_LEVEL_FILTER)
     assert len(runs) == 1, f"expected the DDP run to be one MLflow run, found {len(runs)}"
     return dict(runs[0].data.metrics)
 

@@ -27,6 +27,7 @@ from spade.data import DatasetError
 from spade.utils.config import compose_config
 from fault_injection import env_with_tests, fail_at, kill_at
 from training_helpers import compose_row
+from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
 
 REPO = Path(__file__).resolve().parents[1]
 ROW = "t1_small_bc_L"
@@ -261,7 +262,7 @@ def test_cli_config_error_is_one_line_before_any_run_or_data(tmp_path: Path) -> 
 def _runs(home: Path, experiment: str) -> list:
     client = _client(home)
     exp = client.get_experiment_by_name(experiment)
-    return [] if exp is None else client.search_runs([exp.experiment_id])
+    return [] if exp is None else client.search_runs([exp.experiment_id], filter_string=TOP_LEVEL_FILTER)
 
 
 @pytest.mark.slow  # four spade.train processes; test_resume_continues_the_run_with_the_uninterrupted_numbers in-process
@@ -366,7 +367,7 @@ def test_resume_continues_the_run_with_the_uninterrupted_numbers(data_dir: Path,
 
     def state() -> dict[str, tuple]:
         return {r.info.run_name: (r.info.status, r.data.tags, r.data.params)
-                for r in client.search_runs([experiment])}
+                for r in client.search_runs([experiment], filter_string=TOP_LEVEL_FILTER)}
 
     before = state()
     assert before["part"][0] == "FAILED" and before["whole"][0] == "FINISHED"
@@ -380,7 +381,7 @@ def test_resume_continues_the_run_with_the_uninterrupted_numbers(data_dir: Path,
     assert state() == before and not (tmp_path / "other").exists() and not (tmp_path / "whole2").exists()
 
     run("part", "part2", f"ckpt_path={resume}")
-    runs = {r.info.run_name: r for r in client.search_runs([experiment])}
+    runs = {r.info.run_name: r for r in client.search_runs([experiment], filter_string=TOP_LEVEL_FILTER)}
     assert sorted(runs) == ["part", "whole"]  # resumed into its own run, not a third one
     assert runs["part"].info.status == "FINISHED"
     val = {k: _history(client, r.info.run_id, "val/loss_bc") for k, r in runs.items()}
@@ -416,7 +417,7 @@ def test_run_status_is_recorded_on_the_run_spade_opened_and_no_other(tmp_path: P
     record_process([resumed], resumed=True)
     again = client.get_run(ml.run_id)
     assert again.info.status == "RUNNING" and again.data.tags["spade.end_reason"] == ""
-    assert len(client.search_runs([run.info.experiment_id])) == 1
+    assert len(client.search_runs([run.info.experiment_id], filter_string=TOP_LEVEL_FILTER)) == 1
 
 
 def test_numbers_do_not_depend_on_what_the_process_did_before(spade_home: Path, data_dir: Path,

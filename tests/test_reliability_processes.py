@@ -16,6 +16,7 @@ import lightning as L
 import pytest
 
 from training_helpers import compose_row
+from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
 
 pytestmark = pytest.mark.slow
 
@@ -75,7 +76,7 @@ def _client(home: Path):
 
 def _the_run(home: Path):
     client = _client(home)
-    (run,) = client.search_runs([client.get_experiment_by_name("resume").experiment_id])
+    (run,) = client.search_runs([client.get_experiment_by_name("resume").experiment_id], filter_string=TOP_LEVEL_FILTER)
     return client, run
 
 

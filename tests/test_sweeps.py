@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from spade.utils.config import compose_config
+from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
 
 REPO = Path(__file__).resolve().parents[1]
 SWEEPS = REPO / "sweeps"
@@ -122,7 +123,7 @@ def test_two_parallel_jobs_into_one_server_both_complete(server: dict) -> None:
     for proc in procs:
         _finish(proc)
     client = MlflowClient(tracking_uri=server["uri"])
-    runs = client.search_runs([client.get_experiment_by_name("table1").experiment_id])
+    runs = client.search_runs([client.get_experiment_by_name("table1").experiment_id], filter_string=TOP_LEVEL_FILTER)
     assert sorted(r.info.run_name for r in runs) == ["t1_small_bc_L", "t1_small_bc_U"]
     for run in runs:
         assert run.info.status == "FINISHED" and TEST_KEYS <= set(run.data.metrics), run.data.metrics
@@ -144,7 +145,7 @@ def test_optuna_search_with_joblib_runs_two_trials_in_parallel(server: dict) -> 
                           "hydra.sweeper.n_jobs=2", "hydra.sweeper.n_trials=2", "model.size=small",
                           "prerequisites=error", f"hydra.sweep.dir={sweep_dir}", *TINY], server))
     client = MlflowClient(tracking_uri=server["uri"])
-    runs = client.search_runs([client.get_experiment_by_name("sweep_conddbc_lambda").experiment_id])
+    runs = client.search_runs([client.get_experiment_by_name("sweep_conddbc_lambda").experiment_id], filter_string=TOP_LEVEL_FILTER)
     assert len(runs) == 2 and all(r.info.status == "FINISHED" and TEST_KEYS <= set(r.data.metrics) for r in runs)
     lambdas = sorted(float(r.data.tags["lambda"]) for r in runs)
     assert all(0.01 <= v <= 10.0 for v in lambdas) and lambdas[0] != lambdas[1]
@@ -166,7 +167,7 @@ def test_a_table_row_runs_through_submitits_local_executor_into_the_server(serve
                           "hydra/launcher=slurm_local", f"hydra.sweep.dir={sweep_dir}", *TINY], server))
     assert "1 rows x 1 seed(s)" in out, out[-3000:]
     client = MlflowClient(tracking_uri=server["uri"])
-    runs = [r for r in client.search_runs([client.get_experiment_by_name("table1").experiment_id])
+    runs = [r for r in client.search_runs([client.get_experiment_by_name("table1").experiment_id], filter_string=TOP_LEVEL_FILTER)
             if r.data.params.get("cfg/seed") == "7"]
     assert [r.info.run_name for r in runs] == ["t1_small_bc_L"]
     assert runs[0].info.status == "FINISHED" and TEST_KEYS <= set(runs[0].data.metrics), runs[0].data.metrics

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from spade.experiments.tables import TABLES
+from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
 
 REPO = Path(__file__).resolve().parents[1]
 # One "epoch" of 2 training batches, one validation batch (so that optimized_metric is logged), one test batch.
@@ -56,11 +57,11 @@ def _table2_end_to_end(home: Path, *train_overrides: str) -> None:
     client = MlflowClient(tracking_uri=f"sqlite:///{home}/logs/mlflow.db")
     exp = client.get_experiment_by_name("table2")
     assert "ablation_finetune" in exp.tags["mlflow.note.content"]
-    runs = client.search_runs([exp.experiment_id])
+    runs = client.search_runs([exp.experiment_id], filter_string=TOP_LEVEL_FILTER)
     assert sorted(r.info.run_name for r in runs) == sorted(table.rows)
     assert all(SAME_KEYS <= set(r.data.metrics) and r.info.status == "FINISHED" for r in runs)
     assert all(r.data.tags["table"] == "table2" and r.data.tags["row"] == r.info.run_name for r in runs)
-    prerequisites = client.search_runs([client.get_experiment_by_name("table1").experiment_id])
+    prerequisites = client.search_runs([client.get_experiment_by_name("table1").experiment_id], filter_string=TOP_LEVEL_FILTER)
     assert sorted(r.info.run_name for r in prerequisites) == ["cond_expert_L", "t1_medium_bc_L", "t1_medium_conddbc_L"]
 
 

@@ -82,18 +82,6 @@ def test_params_describe_the_method_without_bookkeeping_or_copies(tmp_path: Path
     assert 20 <= len(params) <= 60, sorted(params)
 
 
-def test_lightning_logs_no_second_copy_of_the_model_hyperparameters(tmp_path: Path) -> None:
-    from lightning.pytorch.loggers import CSVLogger, MLFlowLogger
-
-    from spade.experiments.tracking.params import quiet_model_hparams
-
-    module = SimpleNamespace(_log_hyperparams=True)
-    quiet_model_hparams(module, [CSVLogger(tmp_path)])  # another logger reads them: left as it is
-    assert module._log_hyperparams is True
-    quiet_model_hparams(module, [MLFlowLogger(tracking_uri=f"sqlite:///{tmp_path}/mlflow.db")])
-    assert module._log_hyperparams is False
-
-
 # -- predictors as child runs ------------------------------------------------------------------------------------
 def test_baselines_and_the_untrained_model_are_child_runs_with_the_model_metric_names(tmp_path: Path) -> None:
     from spade.experiments.tracking import PREDICTOR_TAG, TOP_LEVEL_FILTER, VIEW_TAG, log_predictor_runs

@@ -18,6 +18,7 @@ from spade.training.expert_module import ExpertModule
 from spade.training.student_module import ExpertMismatchError, StudentModule
 from fault_injection import env_with_tests, kill_at
 from training_helpers import compose_row
+from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -187,7 +188,7 @@ def test_smoke_experiment_logs_a_run_with_test_metrics(tmp_path: Path) -> None:
 
     client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path}/logs/mlflow.db")
     exp = client.get_experiment_by_name("smoke")
-    runs = client.search_runs([exp.experiment_id])
+    runs = client.search_runs([exp.experiment_id], filter_string=TOP_LEVEL_FILTER)
     assert len(runs) == 1 and runs[0].info.run_name == "smoke"
     run = runs[0]
     assert {"test/ape_cm", "test/hd19", "model/params"} <= set(run.data.metrics)
@@ -216,7 +217,7 @@ def test_killed_run_resumes_into_the_same_mlflow_run(tmp_path: Path) -> None:
     from mlflow import MlflowClient
 
     client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path}/logs/mlflow.db")
-    runs = client.search_runs([client.get_experiment_by_name("table1").experiment_id])
+    runs = client.search_runs([client.get_experiment_by_name("table1").experiment_id], filter_string=TOP_LEVEL_FILTER)
     assert len(runs) == 1
     epochs = [m.value for m in client.get_metric_history(runs[0].info.run_id, "epoch")]
     assert max(epochs) == 2

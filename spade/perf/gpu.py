@@ -34,6 +34,7 @@ import torch
 
 from spade.perf.report import write_json  # noqa: F401  (the JSON writer of spade.bench, used by the entry point)
 from spade.utils.timing import machine_info, measure
+from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
 
 log = logging.getLogger(__name__)
 
@@ -252,7 +253,7 @@ def _run_figures(store: Path) -> list[dict[str, Any]]:
             "test/seconds_per_sample")
     rows = []
     for experiment in client.search_experiments():
-        for run in client.search_runs([experiment.experiment_id]):
+        for run in client.search_runs([experiment.experiment_id], filter_string=TOP_LEVEL_FILTER):
             info, metrics = run.info, run.data.metrics
             wall = (info.end_time - info.start_time) / 1000 if info.end_time and info.start_time else None
             rows.append({"run": info.run_name, "status": info.status, "wall_s": round(wall, 1) if wall else None,

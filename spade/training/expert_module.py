@@ -99,7 +99,7 @@ class ExpertModule(PathPlanningModule):
             raise ValueError(f"sampler must be 'ddim' or 'ddpm', got {sampler!r}")
         if not 0.0 <= ema_decay < 1.0:
             raise ValueError(f"ema_decay must be in [0, 1), got {ema_decay}")
-        self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"])
+        self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"], logger=False)  # as StudentModule's
         self.conditional = conditional
         self.net = build_model("cond_expert" if conditional else "uncond_expert", preset)
         self.ema = AveragedModel(self.net, multi_avg_fn=WarmupEMA(ema_decay), use_buffers=True)

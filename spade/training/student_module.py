@@ -61,7 +61,9 @@ class StudentModule(PathPlanningModule):
             margin = legacy_margin_options(guidance)
         super().__init__(optimizer, metrics, val_metric_batches, grid_size)
         self.lr_scheduler_factory = lr_scheduler  # see PathPlanningModule.configure_optimizers
-        self.save_hyperparameters(ignore=["optimizer", "lr_scheduler", "guidance"])  # margin as mapped above
+        # logger=False: the checkpoint keeps them; SPADE logs the run's method as params itself
+        # (spade.experiments.tracking.params), so Lightning logs no second, unprefixed copy of them
+        self.save_hyperparameters(ignore=["optimizer", "lr_scheduler", "guidance"], logger=False)  # margin as mapped
         if bc_pos_weight is not None and not bc_pos_weight > 0:
             raise ValueError(f"bc_pos_weight must be > 0 (or null for plain BCE), got {bc_pos_weight}")
         self.bc_pos_weight = None if bc_pos_weight in (None, 1, 1.0) else float(bc_pos_weight)

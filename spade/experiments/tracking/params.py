@@ -19,7 +19,7 @@ tests read: ``cfg/seed``, ``cfg/run_name``, ``cfg/model/size``, ``cfg/scale/name
 
 The whole config stays in the run as the artifact ``config/train.yaml``. Lightning's own logging of the model's
 hyperparameters (the same settings again, unprefixed: ``margin/lambda_dm`` beside ``cfg/model/margin/lambda_dm``)
-is turned off for a run that logs to MLflow only (:func:`quiet_model_hparams`).
+is off: the modules save them with ``save_hyperparameters(logger=False)`` (the checkpoint keeps them).
 """
 
 from __future__ import annotations
@@ -74,14 +74,3 @@ def run_params(resolved: dict[str, Any]) -> dict[str, Any]:
         if target:
             params[f"cfg/{group}"] = str(target).rsplit(".", 1)[-1]
     return dict(sorted(params.items()))
-
-
-def quiet_model_hparams(model: Any, loggers: list[Any]) -> None:
-    """Stop Lightning from logging ``model.hparams`` as params of its own (unprefixed copies of ``cfg/model/...``)
-    when every logger of the run is MLflow's: :func:`run_params` logs them once. (Lightning reads the module's
-    ``_log_hyperparams``, which ``save_hyperparameters(logger=False)`` would set; the checkpoint keeps the
-    hyperparameters either way.)"""
-    from lightning.pytorch.loggers import MLFlowLogger
-
-    if loggers and all(isinstance(lg, MLFlowLogger) for lg in loggers) and hasattr(model, "_log_hyperparams"):
-        model._log_hyperparams = False

@@ -19,9 +19,7 @@
   gone (a ``kill -9``, a power cut) KILLED, with a message. The process tags stay on a KILLED or FAILED run.
 
 Only Lightning's public ``MLFlowLogger`` API is used (``experiment``: its ``MlflowClient``; ``run_id``;
-``experiment_id``) and MLflow's own client, and one private flag of the module, which
-:func:`~spade.experiments.tracking.params.quiet_model_hparams` sets so that Lightning logs no second copy of the
-model's hyperparameters.
+``experiment_id``) and MLflow's own client.
 """
 
 from __future__ import annotations
@@ -49,7 +47,7 @@ from spade.experiments.tracking.descriptions import (
     version_description,
 )
 from spade.experiments.tracking.experiment_tags import NOTE_TAG, ensure_experiment_tags
-from spade.experiments.tracking.params import quiet_model_hparams, run_params
+from spade.experiments.tracking.params import run_params
 from spade.experiments.tracking.predictors import is_predictor_run
 from spade.utils.processes import pid_alive, process_start
 
@@ -105,7 +103,6 @@ def start_run_logging(cfg: DictConfig, model: L.LightningModule, loggers: list[L
     if ml is None:
         return
     bind_experiment(ml, cfg)
-    quiet_model_hparams(model, loggers)
     params = run_params(OmegaConf.to_container(cfg, resolve=True))
     fid = getattr(getattr(model, "test_metrics", None), "fid_identity", None)
     # A resumed run continues an MLflow run whose params are immutable: log only what it lacks (ckpt_path and
