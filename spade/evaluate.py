@@ -4,13 +4,18 @@ from __future__ import annotations
 
 import logging
 
-import hydra
-from omegaconf import DictConfig
+from spade.utils.threads import prefer_passive_wait
 
-from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
-from spade.utils.errors import run_entry_point, task
-from spade.experiments.evaluation import evaluate
-from spade.training.loading import load_module
+if __name__ == "__main__":  # the command, not an import: before torch is (below), idle OpenMP threads then yield
+    prefer_passive_wait()   # their core to a training beside it (spade/utils/threads.py)
+
+import hydra  # noqa: E402
+from omegaconf import DictConfig  # noqa: E402
+
+from spade.paths import CONFIG_PATH  # noqa: E402  (the configs, conf/ or the installed copy; registers resolvers)
+from spade.utils.errors import run_entry_point, task  # noqa: E402
+from spade.experiments.evaluation import evaluate  # noqa: E402
+from spade.training.loading import load_module  # noqa: E402
 
 __all__ = ["evaluate", "load_module"]
 

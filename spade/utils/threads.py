@@ -1,12 +1,12 @@
 """How many intra-op threads a training process uses: the cores it may run on, minus those others keep busy.
 
 On a 2-core machine, two training processes that each keep torch's default two intra-op threads (spinning while
-they wait for work: OpenMP's active wait) slow each other far more than two-fold; ``python -m
-spade.perf.contention`` measures it. :func:`configure_threads` runs first thing in the training entry points:
-``threads=auto`` (``runtime.threads`` in the configs) sizes torch's pool to the cores free when the run starts.
-The OpenMP wait policy (``OMP_WAIT_POLICY=PASSIVE``: idle threads sleep instead of spinning) must be set before
-the OpenMP runtime starts, i.e. before torch is imported: :func:`prefer_passive_wait` does that for the entry
-points, unless the user set it.
+they wait for work: OpenMP's active wait) slow each other far more than two-fold; ``python -m spade.bench
+sections=[contention]`` measures it, per thread count and wait policy. The passive wait policy
+(``OMP_WAIT_POLICY=PASSIVE``: idle threads sleep instead of spinning) is what ``spade.train`` and
+``spade.evaluate`` set (:func:`prefer_passive_wait`, unless the user set it): it must be set before the OpenMP
+runtime starts, i.e. before torch is imported, and it keeps the thread count, so reruns stay bit-identical.
+:func:`configure_threads` also offers ``threads=N`` and ``threads=auto`` (the cores free when the run starts).
 """
 
 from __future__ import annotations
