@@ -250,7 +250,11 @@ def test_table_estimate_scales_with_the_speed_measured_on_this_machine(spade_hom
         with pytest.raises(ValueError, match="positive factor"):
             plan_table(config, speed=bad)
     assert "not measured here" in start_message(config)
-    assert "on this machine, which took 2.50 x the cost model's 0.58 s for a medium BC step" in start_message(config, 2.5)
+    from spade.experiments.multirun import STEP_SECONDS
+
+    reference = f"{STEP_SECONDS['bc/medium']:.2f}"  # the measured cost model (spade/experiments/cost_model.json)
+    assert f"on this machine, which took 2.50 x the cost model's {reference} s for a medium BC step" in \
+        start_message(config, 2.5)
     speed = machine_speed(runs=1)  # a real medium BC step here, against the reference machine's
     assert math.isfinite(speed) and 0.05 < speed < 100
 

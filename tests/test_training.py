@@ -67,8 +67,14 @@ def test_bc_expert_and_cond_dbc_losses_fall(spade_home: Path, tiny_checkpoints: 
 
 def test_a_margin_step_changes_the_student_never_the_expert(spade_home: Path, tiny_checkpoints: dict) -> None:
     batch = next(iter(_data(spade_home).train_dataloader()))
-    student = StudentModule(size="small", margin={"expert_ckpt": tiny_checkpoints["cond"], "lambda_dm": 5.0})
+    # The expert judges the path the student commits to (straight-through): with the student drawing no path at all
+    # (bias -4), an x0 expert rates it below the demonstration, so the margin acts. (It rates a soft map above the
+    # demonstration: docs/results/guidance.md, so the paper's soft input would give no margin to test here.)
+    student = StudentModule(size="small", margin={"expert_ckpt": tiny_checkpoints["cond"], "lambda_dm": 5.0,
+                                                  "agent_input": "straight_through"})
     student.load_margin((64, 64))
+    with torch.no_grad():
+        student.net.head.bias.fill_(-4.0)
     expert = student.margin.expert
     before = {k: v.clone() for k, v in expert.state_dict().items()}
     opt = torch.optim.SGD([p for p in student.parameters() if p.requires_grad], lr=0.1)
