@@ -68,7 +68,12 @@ class DeterministicTraining(Callback):
         self.seed = int(seed)
 
     # -- data order ------------------------------------------------------------------------------------------
-    def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        """Wrap the loader before anything builds it: ``setup`` runs before ``configure_optimizers``, whose
+        learning-rate schedule asks ``trainer.estimated_stepping_batches``, which builds the training loader
+        (``on_fit_start`` would come after it, and the fit would keep that unseeded loader)."""
+        if stage != "fit":
+            return
         dm = trainer.datamodule
         if dm is None or getattr(dm, "_spade_seeded_loader", False):
             return
