@@ -80,11 +80,13 @@ def _environment_left_as_found():
     (``spade_home``) are set up before this snapshot and undo their own change.
     """
     old_uri = os.environ.pop("MLFLOW_TRACKING_URI", None)
+    old_registry = os.environ.pop("MLFLOW_REGISTRY_URI", None)
     before = dict(os.environ)
     try:
         yield
     finally:
         os.environ.pop("MLFLOW_TRACKING_URI", None)
+        os.environ.pop("MLFLOW_REGISTRY_URI", None)  # exported by mlflow.set_registry_uri, as the tracking URI
         after = dict(os.environ)
         changed = sorted(k for k in set(before) | set(after)
                          if before.get(k) != after.get(k) and not _owned_by_a_library(k))
@@ -95,6 +97,8 @@ def _environment_left_as_found():
                 del os.environ[key]
         if old_uri is not None:
             os.environ["MLFLOW_TRACKING_URI"] = old_uri
+        if old_registry is not None:
+            os.environ["MLFLOW_REGISTRY_URI"] = old_registry
     if changed:
         pytest.fail(f"the test left os.environ changed ({', '.join(changed)}); set variables with "
                     "monkeypatch.setenv so that they are undone")
