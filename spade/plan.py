@@ -22,29 +22,14 @@ A leading positional map becomes ``map=...`` and ``start=X,Y,YAW`` becomes ``sta
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
-from spade.utils.errors import ConfigError, run_entry_point, task
+from spade.utils.errors import run_entry_point, task
 from spade.deploy.plan_command import rewrite_argv, run_plan
 from spade.deploy.plan_picture import plan_text
-
-
-def _check_mcap(cfg: DictConfig) -> Path | None:
-    """``mcap=``: a new path (a recording is never written over), in an existing folder."""
-    value = cfg.get("mcap")
-    if value in (None, ""):
-        return None
-    path = Path(str(value)).expanduser()
-    if path.exists():
-        raise ConfigError(f"mcap={value} exists: a recording is never written over; choose a new path (a .mcap file, "
-                          "or a folder name for a rosbag2 folder)")
-    if not path.parent.is_dir():
-        raise ConfigError(f"mcap={value}: its folder {path.parent} does not exist; create it or choose another path")
-    return path
 
 
 def _resolve_model_uri(cfg: DictConfig) -> None:
@@ -64,7 +49,9 @@ def _checked_plan(cfg: DictConfig):  # noqa: ANN202
 
     _resolve_model_uri(cfg)
     validate_plan_config(cfg)  # map and model files, pose and goal, a picture that is none of the inputs
-    mcap = _check_mcap(cfg)
+    from spade.ros.recording import check_recording_path
+
+    mcap = check_recording_path(cfg.get("mcap"))
     result, png = run_plan(cfg)
     if mcap is not None:
         from spade.deploy.plan_picture import load_map

@@ -284,7 +284,8 @@ def test_evaluate_writes_the_test_set_as_an_mcap(spade_home: Path, tiny_checkpoi
 
 
 def test_evaluate_refuses_a_recording_path_it_cannot_write(tmp_path: Path) -> None:
-    from spade.experiments.test_recording import check_recording_instances, check_recording_path
+    from spade.experiments.test_recording import check_recording_instances
+    from spade.ros.recording import check_recording_path
     from spade.utils.errors import ConfigError
 
     assert check_recording_path(None) is None and check_recording_path("") is None

@@ -18,7 +18,8 @@ __all__ = ["evaluate"]
 
 def _recording(cfg: DictConfig) -> tuple[Path | None, int]:
     """``mcap=`` (a new path, or None) and ``mcap_instances``, checked before anything runs."""
-    from spade.experiments.test_recording import check_recording_instances, check_recording_path
+    from spade.experiments.test_recording import check_recording_instances
+    from spade.ros.recording import check_recording_path
 
     mcap = check_recording_path(cfg.get("mcap"))
     return mcap, (check_recording_instances(cfg.get("mcap_instances", 64)) if mcap is not None else 0)

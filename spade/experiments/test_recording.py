@@ -21,23 +21,9 @@ from torch.utils.data import DataLoader, Subset
 
 from spade.utils.errors import ConfigError
 
-__all__ = ["check_recording_instances", "check_recording_path", "instance_arrays", "record_test_set"]
+__all__ = ["check_recording_instances", "instance_arrays", "record_test_set"]
 
 log = logging.getLogger(__name__)
-
-
-def check_recording_path(value: Any, key: str = "mcap") -> Path | None:
-    """``mcap=``: None when unset; else a new path (a recording is never written over) in an existing folder,
-    refused with a one-line :class:`ConfigError` before anything runs."""
-    if value in (None, ""):
-        return None
-    path = Path(str(value)).expanduser()
-    if path.exists():
-        raise ConfigError(f"{key}={value} exists: a recording is never written over; choose a new path (a .mcap file, "
-                          "or a folder name for a rosbag2 folder)")
-    if not path.parent.is_dir():
-        raise ConfigError(f"{key}={value}: its folder {path.parent} does not exist; create it or choose another path")
-    return path
 
 
 def check_recording_instances(value: Any, key: str = "mcap_instances") -> int:

@@ -35,8 +35,9 @@ from typing import Any
 import numpy as np
 
 from spade.ros.convert import grid_fields, path_yaws, split_stamp, yaw_to_quaternion
+from spade.utils.errors import ConfigError
 
-__all__ = ["BagError", "BagWriter", "NodeRecorder", "PLAN_TOPICS", "TEST_TOPICS", "replay_bag", "window_to_base_link",
+__all__ = ["BagError", "BagWriter", "check_recording_path", "NodeRecorder", "PLAN_TOPICS", "TEST_TOPICS", "replay_bag", "window_to_base_link",
            "write_plan_bag", "write_test_bag"]
 
 log = logging.getLogger("spade.ros")
@@ -62,6 +63,20 @@ def _qos(transient_local: bool) -> Any:
     return Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE,
                QosDurability.TRANSIENT_LOCAL if transient_local else QosDurability.VOLATILE, zero, zero,
                QosLiveliness.AUTOMATIC, zero, False)
+
+
+def check_recording_path(value: Any, key: str = "mcap") -> Path | None:
+    """``mcap=``: None when unset; else a new path (a recording is never written over) in an existing folder,
+    refused with a one-line :class:`ConfigError` before anything runs."""
+    if value in (None, ""):
+        return None
+    path = Path(str(value)).expanduser()
+    if path.exists():
+        raise ConfigError(f"{key}={value} exists: a recording is never written over; choose a new path (a .mcap file, "
+                          "or a folder name for a rosbag2 folder)")
+    if not path.parent.is_dir():
+        raise ConfigError(f"{key}={value}: its folder {path.parent} does not exist; create it or choose another path")
+    return path
 
 
 class BagWriter:
