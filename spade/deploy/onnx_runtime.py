@@ -7,13 +7,14 @@ writes it), the same role and robot-frame checks, and the same ``logits(states)`
 from __future__ import annotations
 
 import json
-import re
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from spade.utils.devices import device_name
 
 __all__ = ["ModelFileError", "OnnxRunner", "UnsafeModelFileError", "open_model", "robot_frame"]
 
@@ -80,18 +81,8 @@ class OnnxRunner:
 
 
 def _device(device: str | None, providers: list[str]) -> str:
-    name = str(device or "cpu").lower()
-    available = "CUDAExecutionProvider" in providers
-    if name == "auto":
-        return "cuda" if available else "cpu"
-    if name == "cpu":
-        return name
-    if re.fullmatch(r"cuda(:\d+)?", name):
-        if not available:
-            raise ModelFileError(f"device={device} asked for, but this onnxruntime has no CUDA provider: pass "
-                                 "device=cpu (or install onnxruntime-gpu)")
-        return name
-    raise ModelFileError(f"unknown device {device!r}: use cpu, cuda, cuda:N or auto")
+    return device_name(device, "CUDAExecutionProvider" in providers, ModelFileError,
+                       "this onnxruntime has no CUDA provider: pass device=cpu (or install onnxruntime-gpu)")
 
 
 def open_model(path: str | Path, device: str = "cpu", threads: int | None = None,

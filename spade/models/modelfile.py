@@ -46,6 +46,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from spade.utils.devices import device_name
 from spade.utils.errors import UserError
 
 __all__ = [
@@ -385,18 +386,9 @@ def load_network(path: str | Path, role: str | None = "student") -> tuple[nn.Mod
 def resolve_device(device: str | torch.device | None, cuda_available: bool | None = None) -> str:
     """The one device policy: ``cpu``, ``cuda`` / ``cuda:N`` (an error when there is no CUDA), or ``auto`` (CUDA
     when available, else the CPU). ``cuda_available`` overrides the check (a runtime's own provider list)."""
-    name = str(device or "cpu").lower()
     available = torch.cuda.is_available() if cuda_available is None else cuda_available
-    if name == "auto":
-        return "cuda" if available else "cpu"
-    if name == "cpu":
-        return name
-    if re.fullmatch(r"cuda(:\d+)?", name):
-        if not available:
-            raise ModelFileError(f"device={device} asked for, but no CUDA device is usable here: pass device=cpu "
-                                 "(or device=auto, which falls back to the CPU)")
-        return name
-    raise ModelFileError(f"unknown device {device!r}: use cpu, cuda, cuda:N or auto")
+    return device_name(device, available, ModelFileError, "no CUDA device is usable here: pass device=cpu (or "
+                       "device=auto, which falls back to the CPU)")
 
 
 class ModelRunner:
