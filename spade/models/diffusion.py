@@ -96,6 +96,7 @@ class NoiseSchedule:
         self._train = self._make("ddpm")
         self.betas = self._train.betas.clone()
         self.alphas_cumprod = self._train.alphas_cumprod.clone()
+        self._abar_cache: dict[tuple[torch.device, torch.dtype], torch.Tensor] = {}  # _alphas_cumprod_as
 
     @property
     def config(self) -> dict[str, Any]:
@@ -129,10 +130,9 @@ class NoiseSchedule:
     def _alphas_cumprod_as(self, x: torch.Tensor) -> torch.Tensor:
         """``alphas_cumprod`` on ``x``'s device and dtype, copied there once per (device, dtype), not every step."""
         key = (x.device, x.dtype)
-        cache = self.__dict__.setdefault("_abar_cache", {})
-        if key not in cache:
-            cache[key] = self.alphas_cumprod.to(device=x.device, dtype=x.dtype)
-        return cache[key]
+        if key not in self._abar_cache:
+            self._abar_cache[key] = self.alphas_cumprod.to(device=x.device, dtype=x.dtype)
+        return self._abar_cache[key]
 
     def add_noise(self, x0: torch.Tensor, noise: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         """Forward process ``x_t = sqrt(abar_t) x0 + sqrt(1 - abar_t) noise`` (differentiable in ``x0``)."""
