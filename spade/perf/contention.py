@@ -123,10 +123,7 @@ def _worker(spec: dict[str, Any]) -> None:
     print(json.dumps(result), flush=True)
 
 
-if __name__ == "__main__":
-    if len(sys.argv) == 3 and sys.argv[1] == "--worker":
-        _worker(json.loads(sys.argv[2]))
-    else:
-        settings = [{}, {"wait_policy": "PASSIVE"}, {"threads": "auto", "wait_policy": "PASSIVE"},
-                    {"threads": 1, "wait_policy": "PASSIVE"}]
-        print(format_contention(contention_table(settings, seconds=float(os.environ.get("SPADE_CONTENTION_S", 20)))))
+if __name__ == "__main__":  # a worker of contention(); the measurement itself: python -m spade.bench sections=[contention]
+    if len(sys.argv) != 3 or sys.argv[1] != "--worker":
+        sys.exit("usage: python -m spade.bench sections=[contention] (this module runs its workers)")
+    _worker(json.loads(sys.argv[2]))
