@@ -280,7 +280,23 @@ def _guidance() -> Table:
                  tuple(lines), tested_elsewhere=("real",))
 
 
-TABLES: dict[str, Table] = {t.key: t for t in (_table1(), _table2(), _table3(), _guidance())}
+#: The sizing table's grid: training instances (the first N of one dataset) x epochs.
+SIZING_INSTANCES = (300, 1000, 3000)
+SIZING_EPOCHS = (3, 10)
+
+
+def _sizing() -> Table:
+    """Not a table of the paper: how many demonstrations and epochs a user's own-map student needs. The own-map
+    tutorial's small BC student on one real map (``data=onemap_L``), trained on one side of it and tested on the
+    other, for each instances x epochs of the grid; the pairwise tests compare the epochs at one size."""
+    lines = tuple(Line((f"{n:,} instances", f"{e} epochs"), {"L": f"sz_n{n}_e{e}_L"})
+                  for n in SIZING_INSTANCES for e in SIZING_EPOCHS)
+    return Table("sizing", "Sizing on your own map: a small BC student trained on N instances of one real map (the "
+                 "Carter warehouse) for E epochs, tested on the part of the map it never saw", "sizing", "sizing",
+                 ("instances", "epochs"), ("L",), lines)
+
+
+TABLES: dict[str, Table] = {t.key: t for t in (_table1(), _table2(), _table3(), _guidance(), _sizing())}
 _ALIASES = {"1": "table1", "2": "table2", "3": "table3"} | {t.composition: t.key for t in TABLES.values()}
 
 
