@@ -265,11 +265,10 @@ def test_training_progress_is_read_by_epoch_and_drawn() -> None:
 
 
 # -- one tiny run, in-process -----------------------------------------------------------------------------------
-def test_a_tested_run_has_its_predictors_report_picture_and_lean_params(spade_home: Path) -> None:
-    from mlflow import MlflowClient
-
+@pytest.fixture(scope="module")
+def tracked_run(spade_home: Path):
+    """One tiny quickstart student run (trained, tested, logged to MLflow): (config, train()'s objects)."""
     from spade.experiments.run import train
-    from spade.experiments.tracking import PREDICTOR_TAG
     from training_helpers import compose_row
 
     cfg = compose_row("quickstart", spade_home, "trainer.max_epochs=2", "+trainer.limit_train_batches=2",
@@ -277,7 +276,16 @@ def test_a_tested_run_has_its_predictors_report_picture_and_lean_params(spade_ho
                       "trainer.enable_progress_bar=false", "model.grid_size=0", "callbacks.model_info.latency_runs=0",
                       "data.batch_size=4", "data.eval_batch_size=8", "+trainer.num_sanity_val_steps=0",
                       "metrics.fid_extractor=randconv", "tags.table=tracking_check", "run_name=tracked")
-    train(cfg)
+    _, objects = train(cfg)
+    return cfg, objects
+
+
+def test_a_tested_run_has_its_predictors_report_picture_and_lean_params(tracked_run) -> None:
+    from mlflow import MlflowClient
+
+    from spade.experiments.tracking import PREDICTOR_TAG
+
+    cfg, _ = tracked_run
     client = MlflowClient(tracking_uri=str(cfg.paths.mlflow_tracking_uri))
     experiment = client.get_experiment_by_name("tracking_check")
     runs = {r.info.run_name: r for r in client.search_runs([experiment.experiment_id])}
@@ -304,3 +312,87 @@ def test_a_tested_run_has_its_predictors_report_picture_and_lean_params(spade_ho
     assert "APE: mean distance in cm" in note
     history = client.get_metric_history(run.info.run_id, "margin/active")
     assert [m.step for m in history] == [0, 1]
+
+
+# -- the student as an MLflow Model on its own run -----------------------------------------------------------------
+def test_a_student_run_logs_its_best_checkpoint_as_an_mlflow_model_on_its_run(tracked_run) -> None:
+    """Issue 39: the run's deliverable is in its Models column: ``runs:/RUN_ID/model`` (ONNX, not registered)
+    reproduces the best checkpoint's logits; the description and the closing lines name the URI for spade.plan."""
+    import mlflow
+    import numpy as np
+    import torch
+    from mlflow import MlflowClient
+    from mlflow.entities import LoggedModelStatus
+
+    from spade.deploy.export import example_states
+    from spade.deploy.registry import resolve_model, using_tracking_uri
+    from spade.experiments.lifecycle import best_checkpoint_path
+    from spade.experiments.tracking.runs import last_run
+    from spade.experiments.tracking.summary import run_summary
+    from spade.models.modelfile import load_network
+    from test_export import PARITY_BOUND
+
+    cfg, objects = tracked_run
+    uri = str(cfg.paths.mlflow_tracking_uri)
+    client = MlflowClient(tracking_uri=uri)
+    experiment = client.get_experiment_by_name("tracking_check")
+    run = [r for r in client.search_runs([experiment.experiment_id]) if r.info.run_name == "tracked"][0]
+    run_id = run.info.run_id
+    outputs = run.outputs.model_outputs
+    assert len(outputs) == 1
+    model = client.get_logged_model(outputs[0].model_id)
+    assert model.name == "model" and model.source_run_id == run_id and model.status == LoggedModelStatus.READY
+    assert model.experiment_id == experiment.experiment_id
+    assert not client.search_model_versions(f"run_id = '{run_id}'")  # logged, not registered
+    assert run.info.status == "FINISHED"
+
+    state = example_states(3, (64, 64), seed=4)
+    net, _ = load_network(best_checkpoint_path(objects["trainer"]), role="student")
+    with torch.inference_mode():
+        expected = net.eval()(state).numpy()
+    with using_tracking_uri(uri):
+        info = mlflow.models.get_model_info(f"runs:/{run_id}/model")
+        loaded = mlflow.pyfunc.load_model(f"runs:/{run_id}/model")
+    assert "onnx" in info.flavors and info.metadata["spade"]["role"] == "student"
+    assert info.signature.inputs.to_dict()[0]["tensor-spec"]["shape"] in ([-1, 3, 64, 64], (-1, 3, 64, 64))
+    got = loaded.predict(state.numpy())
+    got = got["logits"] if isinstance(got, dict) else np.asarray(got)
+    assert got.shape == (3, 1, 64, 64) and np.abs(got - expected).max() < PARITY_BOUND
+    assert resolve_model(f"runs:/{run_id}/model", uri).suffix == ".onnx"  # what spade.plan model=runs:/... opens
+
+    assert last_run().model_uri == f"runs:/{run_id}/model"
+    assert f"model=runs:/{run_id}/model" in run.data.tags["mlflow.note.content"]
+    assert f"logged model     : runs:/{run_id}/model" in run_summary(cfg, {})
+
+
+def test_an_expert_run_logs_no_model_and_a_failed_export_is_one_warning(tracked_run, tmp_path: Path,
+                                                                       caplog: pytest.LogCaptureFixture) -> None:
+    """finish_run's gate (:func:`~spade.experiments.tracking.logged_model.try_log_student_model`), without another
+    training run: an expert's config logs nothing even when handed an exportable checkpoint; a student checkpoint
+    that cannot be exported (axis-aligned windows) is one warning line and no model, never an error."""
+    import logging
+
+    from mlflow import MlflowClient
+
+    from spade.experiments.lifecycle import best_checkpoint_path
+    from spade.experiments.tracking.logged_model import is_student_run, try_log_student_model
+    from test_export import _hand_made_checkpoint
+    from training_helpers import compose_row
+
+    cfg, objects = tracked_run
+    expert = compose_row("cond_expert_L", tmp_path)
+    assert is_student_run(cfg) and not is_student_run(expert)
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    client = MlflowClient(tracking_uri=uri)
+    experiment_id = client.create_experiment("gate", artifact_location=str(tmp_path / "artifacts"))
+    run_id = client.create_run(experiment_id).info.run_id
+    assert try_log_student_model(expert, uri, run_id, best_checkpoint_path(objects["trainer"])) is None
+    assert try_log_student_model(cfg, uri, run_id, None) is None  # no checkpoint (a run that did not train)
+
+    axis_aligned = _hand_made_checkpoint(tmp_path / "old.ckpt", data={"image_size": [32, 32], "resolution_m": 0.2})
+    with caplog.at_level(logging.WARNING, logger="spade.experiments.tracking.logged_model"):
+        assert try_log_student_model(cfg, uri, run_id, str(axis_aligned)) is None
+    (record,) = [r for r in caplog.records if r.name == "spade.experiments.tracking.logged_model"]
+    assert "not logged on run" in record.getMessage() and "\n" not in record.getMessage()
+    assert not client.get_run(run_id).outputs.model_outputs
+    assert not client.search_logged_models(experiment_ids=[experiment_id])

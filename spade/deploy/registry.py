@@ -2,6 +2,8 @@
 signature and SPADE's window metadata), registered under a name with an alias; and model references resolved to a
 local file: a path, or an MLflow model URI (``models:/NAME@ALIAS``, ``models:/NAME/VERSION``, ``runs:/RUN_ID/PATH``)
 downloaded from the registry (``spade.plan model=models:/spade-student@champion``, ``spade.ros`` likewise).
+:func:`log_onnx_student` logs the model into a given run without registering it: ``spade.train`` logs every student
+run's best checkpoint so on its own run (``runs:/RUN_ID/model``, :mod:`spade.experiments.tracking.logged_model`).
 
 MLflow is imported only for URIs and registration; a deploy install that plans from files never needs it.
 """
@@ -9,16 +11,21 @@ MLflow is imported only for URIs and registration; a deploy install that plans f
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from spade.utils.errors import ConfigError
 
-__all__ = ["RegisteredModel", "RegistryError", "is_model_uri", "register_onnx_student", "resolve_model"]
+__all__ = ["MODEL_NAME", "RegisteredModel", "RegistryError", "is_model_uri", "log_onnx_student",
+           "register_onnx_student", "resolve_model", "student_model_parts", "using_tracking_uri"]
 
 URI_SCHEMES = ("models:/", "runs:/")
 DEFAULT_ALIAS = "champion"
+MODEL_NAME = "model"
+"""The name a student's MLflow Model is logged under on its run: ``runs:/RUN_ID/model``."""
 
 
 class RegistryError(ConfigError):
@@ -39,6 +46,22 @@ def _mlflow(tracking_uri: str | None) -> Any:
         mlflow.set_tracking_uri(str(tracking_uri))
         mlflow.set_registry_uri(str(tracking_uri))
     return mlflow
+
+
+@contextmanager
+def using_tracking_uri(tracking_uri: str | None) -> Iterator[Any]:
+    """MLflow (the module) with its process-wide tracking URI set to ``tracking_uri`` inside the block and put back
+    after it (the fluent API and ``log_model`` write to that URI; a Lightning logger holds its own client)."""
+    mlflow = _mlflow(None)
+    if not tracking_uri:
+        yield mlflow
+        return
+    previous = mlflow.get_tracking_uri() if mlflow.is_tracking_uri_set() else None
+    mlflow.set_tracking_uri(str(tracking_uri))
+    try:
+        yield mlflow
+    finally:
+        mlflow.set_tracking_uri(previous)  # None: unset again, as it was
 
 
 def resolve_model(value: str | Path, tracking_uri: str | None = None, cache_dir: str | Path | None = None) -> Path:
@@ -82,15 +105,12 @@ class RegisteredModel:
         return dict(self.__dict__)
 
 
-def register_onnx_student(onnx_path: str | Path, name: str, alias: str | None = DEFAULT_ALIAS, *,
-                          tracking_uri: str | None = None, experiment: str = "spade_models") -> RegisteredModel:
-    """Log an exported ONNX student as an MLflow Model (ONNX flavour; signature: ``state`` float32 (-1, 3, H, W) ->
-    ``logits`` float32 (-1, 1, H, W); the export's SPADE metadata as the model's metadata), register it as ``name``
-    and point ``alias`` at the new version."""
+def student_model_parts(onnx_path: str | Path) -> tuple[Any, Any, dict[str, Any]]:
+    """(the ONNX model, its MLflow signature, its window metadata) of an export of ``python -m spade.export``: the
+    signature ``state`` float32 (-1, 3, H, W) -> ``logits`` float32 (-1, 1, H, W), the metadata the window a
+    planner builds (size, metres per pixel, robot frame, input encoding) and the role."""
     import numpy as np
     import onnx
-
-    mlflow = _mlflow(tracking_uri)
     from mlflow.models.signature import ModelSignature
     from mlflow.types.schema import Schema, TensorSpec
 
@@ -105,12 +125,51 @@ def register_onnx_student(onnx_path: str | Path, name: str, alias: str | None = 
                                outputs=Schema([TensorSpec(np.dtype(np.float32), (-1, 1, h, w), "logits")]))
     window = {"image_size": [h, w], "resolution_m": info["data"]["resolution_m"], "frame": info["data"]["frame"],
               "input_encoding": info["data"].get("input_encoding"), "role": info.get("role")}
+    return model, signature, window
+
+
+def log_onnx_student(onnx_path: str | Path, run_id: str | None = None, *, name: str = MODEL_NAME,
+                     registered_model_name: str | None = None) -> Any:
+    """Log an exported ONNX student as an MLflow Model on run ``run_id`` (default: the active run) of MLflow's
+    current store: ONNX flavour, the signature and window metadata of :func:`student_model_parts`, the flavour's
+    own pip requirements (onnx, onnxruntime: MLflow's inference of them would load the model in a subprocess,
+    seconds), registered as ``registered_model_name`` when given. The run lists it in its Models column; it loads
+    as ``runs:/RUN_ID/NAME`` or the returned ``ModelInfo.model_uri`` (``models:/m-...``).
+
+    The run may have finished already (``spade.train`` logs its student after the test ended the run): the
+    logged model is created in the run's own experiment, whatever experiment is active in this process."""
+    mlflow = _mlflow(None)
+    model, signature, window = student_model_parts(onnx_path)
+    if run_id is None:
+        active = mlflow.active_run()
+        if active is None:
+            raise RegistryError("log_onnx_student needs a run: pass run_id or call it inside mlflow.start_run()")
+        run_id = active.info.run_id
+    client = mlflow.MlflowClient()
+    run = client.get_run(run_id)
+    # Created here, in the run's experiment: left to MLflow, a model logged into a run that is not the active one
+    # would go to the active experiment (mlflow.set_experiment, MLFLOW_EXPERIMENT_NAME) when one is set.
+    logged = client.create_logged_model(run.info.experiment_id, name=name, source_run_id=run_id,
+                                        params={k: str(v) for k, v in run.data.params.items()})
+    return mlflow.onnx.log_model(model, name=name, model_id=logged.model_id, run_id=run_id, signature=signature,
+                                 registered_model_name=registered_model_name, metadata={"spade": window},
+                                 save_as_external_data=False,
+                                 pip_requirements=mlflow.onnx.get_default_pip_requirements())
+
+
+def register_onnx_student(onnx_path: str | Path, name: str, alias: str | None = DEFAULT_ALIAS, *,
+                          tracking_uri: str | None = None, experiment: str = "spade_models") -> RegisteredModel:
+    """Log an exported ONNX student as an MLflow Model (:func:`log_onnx_student`) in a run of its own in
+    ``experiment``, register it as ``name`` and point ``alias`` at the new version."""
+    mlflow = _mlflow(tracking_uri)
+    path = Path(onnx_path)
+    _, _, window = student_model_parts(path)  # refuses a file without SPADE metadata before any run is made
+    h, w = window["image_size"]
     mlflow.set_experiment(experiment)
     with mlflow.start_run(run_name=f"register {name}") as run:
         mlflow.log_params({"source": str(path.resolve()), "image_size": f"{h}x{w}",
-                           "resolution_m": info["data"]["resolution_m"]})
-        logged = mlflow.onnx.log_model(model, name="model", signature=signature, registered_model_name=name,
-                                       metadata={"spade": window}, save_as_external_data=False)
+                           "resolution_m": window["resolution_m"]})
+        logged = log_onnx_student(path, run.info.run_id, registered_model_name=name)
         run_id = run.info.run_id
     client = mlflow.MlflowClient()
     version = str(getattr(logged, "registered_model_version", None) or "")

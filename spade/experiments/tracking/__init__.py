@@ -15,6 +15,8 @@ One module per job:
 - :mod:`~spade.experiments.tracking.descriptions`: a run's description (row, approach, prerequisites linked to
   their runs, test figures next to the classical baselines and the untrained model) and the descriptions of the
   models it registers;
+- :mod:`~spade.experiments.tracking.logged_model`: a student run's best checkpoint as the run's own MLflow Model
+  ``model`` (ONNX, ``runs:/RUN_ID/model``; not registered);
 - :mod:`~spade.experiments.tracking.params`: a run's parameters, the settings that describe the method (no
   paths, Hydra or logger internals, sweep bookkeeping or copies; the whole config is ``config/train.yaml``);
 - :mod:`~spade.experiments.tracking.predictors`: the classical baselines and the untrained model as child runs of
@@ -23,8 +25,8 @@ One module per job:
   ``report/test_figures.csv``;
 - :mod:`~spade.experiments.tracking.runs`: an MLflow run from start to end: opened in its tagged experiment,
   its parameters and ``config/train.yaml``, the FID extractor's identity and its process recorded, its
-  checkpoints, training-progress picture, inputs, description, predictors and report logged when it finishes,
-  marked KILLED / FAILED when it does not, and stale RUNNING runs of a row marked KILLED;
+  checkpoints, student model, training-progress picture, inputs, description, predictors and report logged when
+  it finishes, marked KILLED / FAILED when it does not, and stale RUNNING runs of a row marked KILLED;
 - :mod:`~spade.experiments.tracking.summary`: the closing lines of ``spade.train``;
 - :mod:`~spade.experiments.tracking.report`: ``spade.report``'s table published in MLflow.
 

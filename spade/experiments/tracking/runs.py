@@ -6,7 +6,8 @@
   (:mod:`~spade.experiments.tracking.params`), the whole config as ``config/train.yaml`` and the FID extractor's
   identity; :func:`record_process` tags the run with its host, process id and process start time while it runs
   (a resumed run is RUNNING again).
-* :func:`finish_run` logs the best and last checkpoints, the training-progress picture
+* :func:`finish_run` logs the best and last checkpoints, a student's best one as the run's MLflow Model ``model``
+  (:mod:`~spade.experiments.tracking.logged_model`), the training-progress picture
   (:mod:`spade.training.progress_picture`), the datasets as inputs
   (:mod:`~spade.experiments.tracking.dataset_inputs`) and the description
   (:mod:`~spade.experiments.tracking.descriptions`), the classical baselines and the untrained model as child runs
@@ -47,6 +48,7 @@ from spade.experiments.tracking.descriptions import (
     version_description,
 )
 from spade.experiments.tracking.experiment_tags import NOTE_TAG, ensure_experiment_tags
+from spade.experiments.tracking.logged_model import LoggedStudent, model_note, try_log_student_model
 from spade.experiments.tracking.params import run_params
 from spade.experiments.tracking.predictors import is_predictor_run
 from spade.utils.processes import pid_alive, process_start
@@ -221,6 +223,7 @@ class RunRef:
     experiment_id: str
     run_id: str
     run_name: str
+    model_uri: str | None = None  # the student's MLflow Model logged on the run (runs:/RUN_ID/model), if any
 
 
 _last_run: RunRef | None = None
@@ -258,10 +261,10 @@ def _references_note(metrics: dict[str, float], run: tuple[str, str]) -> str:
     return text + f"\n\nReport: {links}."
 
 
-def describe_run(cfg: DictConfig, ml: MLFlowLogger, datamodule: Any, contexts: tuple[str, ...] | None = None
-                 ) -> tuple[list[DatasetUse], dict[str, float], str]:
-    """Log the run's dataset inputs and set its description; returns (dataset uses, the run's metrics, the
-    description)."""
+def describe_run(cfg: DictConfig, ml: MLFlowLogger, datamodule: Any, contexts: tuple[str, ...] | None = None,
+                 logged_model: LoggedStudent | None = None) -> tuple[list[DatasetUse], dict[str, float], str]:
+    """Log the run's dataset inputs and set its description (with the MLflow Model logged on the run, when one
+    was); returns (dataset uses, the run's metrics, the description)."""
     client, run_id = ml.experiment, ml.run_id
     uses = dataset_uses(datamodule) if datamodule is not None else []
     if contexts is not None:
@@ -279,10 +282,11 @@ def describe_run(cfg: DictConfig, ml: MLFlowLogger, datamodule: Any, contexts: t
                    for m in sorted(client.get_metric_history(run_id, "margin/active"), key=lambda m: m.step)]
     description = run_description(cfg, metrics, uses, prerequisite_uses(cfg, client), _picture_paths(client, run_id),
                                   (str(run.info.experiment_id), run_id), history)
-    description += _references_note(metrics, (str(run.info.experiment_id), run_id))
+    description += _references_note(metrics, (str(run.info.experiment_id), run_id)) + model_note(logged_model)
     client.set_tag(run_id, NOTE_TAG, description)
     global _last_run
-    _last_run = RunRef(str(client.tracking_uri), str(run.info.experiment_id), run_id, str(run.info.run_name))
+    _last_run = RunRef(str(client.tracking_uri), str(run.info.experiment_id), run_id, str(run.info.run_name),
+                       logged_model.run_uri if logged_model is not None else None)
     return uses, metrics, description
 
 
@@ -327,8 +331,10 @@ def drop_process_tags(client: Any, run_id: str) -> None:
 
 @rank_zero_only
 def finish_run(cfg: DictConfig, trainer: L.Trainer, model: L.LightningModule, loggers: list[Logger]) -> None:
-    """Log the checkpoints, the datasets as inputs and the run's description; the baselines and the untrained model
-    as child runs, the report (``report/``) and the training-progress picture; register the model when asked."""
+    """Log the checkpoints, a student's best one as the run's MLflow Model ``model``
+    (:mod:`~spade.experiments.tracking.logged_model`), the datasets as inputs and the run's description; the
+    baselines and the untrained model as child runs, the report (``report/``) and the training-progress picture;
+    register the checkpoint when asked."""
     ml = mlflow_logger(loggers)
     if ml is None:
         return
@@ -344,7 +350,8 @@ def finish_run(cfg: DictConfig, trainer: L.Trainer, model: L.LightningModule, lo
 
         _nicety("training-progress picture", log_progress_picture, client, run_id, f"{cfg.get('run_name')}: "
                 "training by epoch")
-    uses, metrics, description = describe_run(cfg, ml, getattr(trainer, "datamodule", None))
+    logged = try_log_student_model(cfg, str(client.tracking_uri), run_id, paths.get("best") or paths.get("last"))
+    uses, metrics, description = describe_run(cfg, ml, getattr(trainer, "datamodule", None), logged_model=logged)
     _predictors_and_report(cfg, client, run_id, uses, metrics, description)
     _nicety("process tags' removal", drop_process_tags, client, run_id)
     from spade.experiments.registry import data_fingerprint, register_checkpoint, registry_name

@@ -87,7 +87,8 @@ def run_summary(cfg: DictConfig, metrics: dict[str, Any],
                 margin_history: list[tuple[int, float, float]] | None = None, checkpoint: str | None = None) -> str:
     """The closing lines: test metrics next to the baselines, a verdict when the student did not learn, the
     margin's activity by epoch (a guided student's ``margin_history``), the best checkpoint with the commands that
-    use it, the ``mlflow ui`` command and URLs to the run and to its experiment's runs table."""
+    use it, the MLflow Model logged on the run (a student's: ``runs:/RUN_ID/model``, which ``spade.plan model=``
+    takes), the ``mlflow ui`` command and URLs to the run and to its experiment's runs table."""
     lines = [f"run {cfg.get('run_name')} finished"]
     if (cfg.get("scale") or {}).get("name") == "tiny":  # issue 24: tiny figures are never read as results
         from spade.experiments.tables import TINY_NOTICE
@@ -115,5 +116,8 @@ def run_summary(cfg: DictConfig, metrics: dict[str, Any],
     except Exception as exc:  # noqa: BLE001 - the closing lines must not fail a finished run
         log.warning("could not look the run up in %s: %s", uri, exc)
         ref = None
+    if ref is not None and ref.model_uri:
+        lines.append(f"  logged model     : {ref.model_uri}  (python -m spade.plan MAP.yaml start=X,Y,YAW goal=X,Y "
+                     f"model={ref.model_uri})")
     lines += ui_lines(uri, ref.experiment_id if ref else None, ref.run_id if ref else None)
     return "\n".join(lines)

@@ -1,0 +1,79 @@
+"""A student run's deliverable on its own run: the best checkpoint as an MLflow Model.
+
+:func:`log_student_model` exports the checkpoint to ONNX (:func:`spade.deploy.export.export_student`, checked
+against PyTorch) and logs it as an MLflow Model named ``model`` on the training run
+(:func:`spade.deploy.registry.log_onnx_student`: ONNX flavour, signature ``state`` float32 (-1, 3, H, W) ->
+``logits`` float32 (-1, 1, H, W), SPADE's window metadata, the flavour's pip requirements). MLflow's runs table
+shows it in the Models column and ``python -m spade.plan model=runs:/RUN_ID/model`` plans with it. Nothing is
+registered here: a registered name is the job of ``python -m spade.export register=NAME`` (or the row's
+``registry`` settings). Experts, and runs without an MLflow run, log no model.
+"""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class LoggedStudent:
+    """The model logged on a run: ``runs:/RUN_ID/model`` and MLflow's own id of it (``models:/m-...``)."""
+
+    run_uri: str
+    model_uri: str
+    seconds: float  # export, parity check and logging together
+
+
+def is_student_run(cfg: DictConfig) -> bool:
+    """Whether ``cfg`` trains a student (``StudentModule``): the runs whose checkpoint is a deployable model."""
+    return str(OmegaConf.select(cfg, "model._target_", default="") or "").endswith("StudentModule")
+
+
+def log_student_model(tracking_uri: str, run_id: str, checkpoint: str | Path) -> LoggedStudent:
+    """Export ``checkpoint`` (a student's) to ONNX in a temporary folder and log it as the MLflow Model ``model`` of
+    run ``run_id`` in the store at ``tracking_uri`` (not registered). Raises what the export or MLflow raises."""
+    from spade.deploy.export import export_student
+    from spade.deploy.registry import MODEL_NAME, log_onnx_student, using_tracking_uri
+
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="spade-model-") as folder:
+        # parity on a batch of 2 (another size than the exported 1); no latency runs: the run's time is not spent
+        report = export_student(checkpoint, Path(folder) / "student.onnx", "onnx", parity_batch=2, latency_runs=0)
+        with using_tracking_uri(tracking_uri):
+            info = log_onnx_student(report.out_path, run_id, name=MODEL_NAME)
+    return LoggedStudent(f"runs:/{run_id}/{MODEL_NAME}", str(info.model_uri), time.perf_counter() - start)
+
+
+def try_log_student_model(cfg: DictConfig, tracking_uri: str, run_id: str, checkpoint: str | None
+                          ) -> LoggedStudent | None:
+    """:func:`log_student_model` for a student run with a checkpoint; None for an expert or without one. A failure
+    (an export that does not reproduce the checkpoint, a store that refuses the model) is one warning line: the
+    run itself finished and keeps its checkpoints."""
+    if not checkpoint or not is_student_run(cfg):
+        return None
+    try:
+        logged = log_student_model(tracking_uri, run_id, checkpoint)
+    except Exception as exc:  # noqa: BLE001 - the run finished: its deliverable's failure must not fail it
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        log.warning("the student's MLflow Model was not logged on run %s (%s: %s); python -m spade.export "
+                    "ckpt_path=%s register=NAME logs it in a run of its own", run_id, type(exc).__name__, first,
+                    checkpoint)
+        return None
+    log.info("logged the student as %s (%s) in %.1f s", logged.run_uri, logged.model_uri, logged.seconds)
+    return logged
+
+
+def model_note(logged: Any) -> str:
+    """The description's paragraph on the logged model: its URIs and the command that plans with it."""
+    if logged is None:
+        return ""
+    return (f"\n\nModel: the best checkpoint as an MLflow Model (ONNX), `{logged.run_uri}` (`{logged.model_uri}`): "
+            f"`python -m spade.plan MAP.yaml start=X,Y,YAW goal=X,Y model={logged.run_uri}`.")
