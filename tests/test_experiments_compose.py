@@ -343,6 +343,23 @@ def test_run_summary_says_when_a_student_did_not_learn_and_how_to_use_its_checkp
             in run_summary(own, winning, checkpoint="/c.ckpt"))
 
 
+def test_the_evaluate_command_names_a_rows_data_config(spade_home: Path, monkeypatch) -> None:
+    """A sizing row's data (``onemap_L``) is set by its experiment file, not the command line: the printed evaluate
+    command must name it, or spade.evaluate tests the checkpoint on its default data (lshape)."""
+    from types import SimpleNamespace
+
+    from hydra.core.hydra_config import HydraConfig
+
+    from spade.experiments.tracking import run_summary
+
+    cfg = compose_row("sz_n300_e3_L", spade_home, "logger=none")
+    monkeypatch.setattr(HydraConfig, "initialized", staticmethod(lambda: True))
+    monkeypatch.setattr(HydraConfig, "get", staticmethod(lambda: SimpleNamespace(
+        runtime=SimpleNamespace(choices={"data": "onemap_L"}), overrides=SimpleNamespace(task=[]))))
+    text = run_summary(cfg, {"test/ape_cm": 5.0}, checkpoint="/c.ckpt")
+    assert "python -m spade.evaluate ckpt_path=/c.ckpt data=onemap_L scale=" in text
+
+
 def test_runs_on_own_data_log_to_their_own_experiment_never_a_paper_tables(spade_home: Path) -> None:
     """Issue 32: a run on a user's own datasets went into ``table1`` and ``spade.report table=table1`` listed it as
     a paper row. ``data=own`` (no generator) logs to ``own_<training folder>``."""

@@ -64,6 +64,17 @@ def learning_verdict(metrics: dict[str, Any]) -> str | None:
     return None
 
 
+def _data_choice() -> str:
+    """`` data=NAME`` when the run's data config is not spade.evaluate's default (lshape), e.g. a sizing row's
+    ``onemap_L`` set by its experiment file: the evaluate command must test on the same data."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return ""
+    choice = HydraConfig.get().runtime.choices.get("data")
+    return f" data={choice}" if choice and choice != "lshape" else ""
+
+
 def next_commands(cfg: DictConfig, checkpoint: str | None) -> list[str]:
     """The best checkpoint's path and ready-to-paste evaluate / export / plan commands for it (a student's)."""
     if not checkpoint:
@@ -73,7 +84,7 @@ def next_commands(cfg: DictConfig, checkpoint: str | None) -> list[str]:
         data = cfg.get("data") or {}
         own = data.get("train_generate", "unset") is None
         data_args = (f" data=own data.train_dir={data.get('train_dir')} data.test_dir={data.get('test_dir')}"
-                     if own else f" scale={cfg.scale.name}")
+                     if own else f"{_data_choice()} scale={cfg.scale.name}")
         lines += [
             f"  evaluate it      : python -m spade.evaluate ckpt_path={checkpoint}{data_args}",
             f"  export it        : python -m spade.export ckpt_path={checkpoint}",
