@@ -388,8 +388,18 @@ def test_the_regenerate_command_keeps_the_runs_data_and_seed(spade_home: Path, m
     monkeypatch.setattr(HydraConfig, "get", staticmethod(lambda: SimpleNamespace(overrides=SimpleNamespace(task=task))))
     cfg = compose_row("t1_small_bc_L", spade_home, "scale=quickstart", "data=own", "data.train_dir=/d/train",
                       "data.test_dir=/d/test", "seed=3")
-    assert regenerate_command(cfg) == ("python -m spade.train +experiment=t1_small_bc_L scale=quickstart seed=3 "
-                                       "data=own data.train_dir=/d/train data.test_dir=/d/test")
+    command = regenerate_command(cfg)
+    assert command == ("python -m spade.train +experiment=t1_small_bc_L scale=quickstart seed=3 "
+                       "data=own data.train_dir=/d/train data.test_dir=/d/test")
+    # Run as a command line, it composes the same run: the same data (so the same dataset fingerprint), model,
+    # recipe and seed.
+    from omegaconf import OmegaConf
+
+    args = command.split()[3:]
+    again = compose_row(args[0].split("=", 1)[1], spade_home, *args[1:])
+    assert again.seed == cfg.seed
+    for key in ("data", "model", "recipe", "scale", "trainer"):
+        assert OmegaConf.to_container(again[key], resolve=True) == OmegaConf.to_container(cfg[key], resolve=True), key
 
 
 # -- recipes apart from budgets (issue 37): scale= sizes a run, recipe= holds the method --------------------------
