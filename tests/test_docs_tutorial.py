@@ -53,12 +53,13 @@ def test_the_own_map_tutorial_runs_as_written(tmp_path: Path, maps_dir: Path) ->
     env = {**{k: v for k, v in os.environ.items() if k not in ("MLFLOW_TRACKING_URI", "HYDRA_FULL_ERROR")},
            "SPADE_HOME": str(tmp_path), "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
 
+    # the page defines the window settings once (W=...), in the block before the split commands that use them
+    prefix = next(line for b in blocks for line in b.splitlines() if line.startswith("W="))
+
     def run(name: str, block: str) -> subprocess.CompletedProcess:
         for pattern, repl in replacements:
             block = re.sub(pattern, repl, block)
         block = block.replace("python -m", f"{sys.executable} -m")
-        # the page defines the window settings once (W=...), in the block before the split commands that use them
-        prefix = next(line for b in blocks for line in b.splitlines() if line.startswith("W="))
         return subprocess.run(["bash", "-c", "set -e\n" + prefix + "\n" + block], capture_output=True, text=True,
                               timeout=900, cwd=tmp_path, env=env)
 

@@ -36,13 +36,11 @@ def test_export_registers_and_plan_loads_models_uri(tmp_path: Path, maps_dir: Pa
     version = client.get_model_version_by_alias("spade-student", "champion")
     assert str(version.version) == "1"
     # An earlier in-process test may have set mlflow's process-wide URIs (they win over the environment): this
-    # store's, for this look-up only.
-    previous = mlflow.get_tracking_uri()
-    mlflow.set_tracking_uri(store)  # the registry follows it
-    try:
+    # store's, for this look-up only (the registry follows the tracking URI).
+    from spade.deploy.registry import using_tracking_uri
+
+    with using_tracking_uri(store):
         model = mlflow.models.get_model_info("models:/spade-student@champion")
-    finally:
-        mlflow.set_tracking_uri(previous)
     assert "onnx" in model.flavors
     assert model.signature.inputs.to_dict()[0]["tensor-spec"]["shape"] in ([-1, 3, 64, 64], (-1, 3, 64, 64))
     assert model.signature.outputs.to_dict()[0]["tensor-spec"]["shape"] in ([-1, 1, 64, 64], (-1, 1, 64, 64))

@@ -128,10 +128,9 @@ def student_model_parts(onnx_path: str | Path) -> tuple[Any, Any, dict[str, Any]
     return model, signature, window
 
 
-def log_onnx_student(onnx_path: str | Path, run_id: str | None = None, *, name: str = MODEL_NAME,
+def log_onnx_student(onnx_path: str | Path, run_id: str, *, name: str = MODEL_NAME,
                      registered_model_name: str | None = None) -> Any:
-    """Log an exported ONNX student as an MLflow Model on run ``run_id`` (default: the active run) of MLflow's
-    current store: ONNX flavour, the signature and window metadata of :func:`student_model_parts`, the flavour's
+    """Log an exported ONNX student as an MLflow Model on run ``run_id`` of MLflow's current store: ONNX flavour, the signature and window metadata of :func:`student_model_parts`, the flavour's
     own pip requirements (onnx, onnxruntime: MLflow's inference of them would load the model in a subprocess,
     seconds), registered as ``registered_model_name`` when given. The run lists it in its Models column; it loads
     as ``runs:/RUN_ID/NAME`` or the returned ``ModelInfo.model_uri`` (``models:/m-...``).
@@ -140,11 +139,6 @@ def log_onnx_student(onnx_path: str | Path, run_id: str | None = None, *, name: 
     logged model is created in the run's own experiment, whatever experiment is active in this process."""
     mlflow = _mlflow(None)
     model, signature, window = student_model_parts(onnx_path)
-    if run_id is None:
-        active = mlflow.active_run()
-        if active is None:
-            raise RegistryError("log_onnx_student needs a run: pass run_id or call it inside mlflow.start_run()")
-        run_id = active.info.run_id
     client = mlflow.MlflowClient()
     run = client.get_run(run_id)
     # Created here, in the run's experiment: left to MLflow, a model logged into a run that is not the active one

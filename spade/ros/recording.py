@@ -37,8 +37,8 @@ import numpy as np
 from spade.ros.convert import grid_fields, path_yaws, split_stamp, yaw_to_quaternion
 from spade.utils.errors import ConfigError
 
-__all__ = ["BagError", "BagWriter", "check_recording_path", "NodeRecorder", "PLAN_TOPICS", "TEST_TOPICS", "replay_bag", "window_to_base_link",
-           "write_plan_bag", "write_test_bag"]
+__all__ = ["BagError", "BagWriter", "NodeRecorder", "PLAN_TOPICS", "TEST_TOPICS", "check_recording_path", "replay_bag",
+           "window_to_base_link", "write_plan_bag", "write_test_bag"]
 
 log = logging.getLogger("spade.ros")
 
