@@ -27,7 +27,9 @@ from spade.annotation.execution import ExecutedPath, Rejection, execute_sketch
 from spade.annotation.scenarios import (
     MapContext,
     ScenarioResult,
+    attach_alternatives,
     instances_along,
+    plan_alternatives,
     plan_scenario,
     prepare_map,
     rasterise_states,
@@ -54,9 +56,11 @@ class RunStats:
     skipped_states: Counter = field(default_factory=Counter)
     scenarios: list[dict[str, Any]] = field(default_factory=list)
     scenarios_tried: int = 0
+    alternatives: Counter = field(default_factory=Counter)  # the alternatives sampler's counters, summed
 
     def add(self, result: ScenarioResult) -> None:
         self.scenarios_tried += 1
+        self.alternatives.update(result.alternative_stats)
         self.rejections.update(result.rejections)
         self.skipped_states.update(result.skipped)
         self.rejections_by_map.setdefault(result.map_id, Counter()).update(result.rejections)
@@ -71,6 +75,7 @@ class RunStats:
             "scenarios_tried": self.scenarios_tried,
             "scenarios_accepted": len(self.scenarios),
             "scenarios": self.scenarios,
+            **({"alternatives_sampler": dict(sorted(self.alternatives.items()))} if self.alternatives else {}),
         }
 
 
@@ -81,6 +86,13 @@ def states_per_task(cfg: Mapping[str, Any]) -> int:
     if value < 1:
         raise ValueError(f"states_per_task must be >= 1, got {value}")
     return value
+
+
+def alternatives_count(cfg: Mapping[str, Any]) -> int:
+    """``alternatives.count``: alternative demonstrations drawn per instance (0 when the config has none)."""
+    from spade.annotation.alternatives import AlternativesSettings
+
+    return AlternativesSettings.from_cfg(cfg.get("alternatives")).count
 
 
 def shapes_of(cfg: Mapping[str, Any]) -> list[str]:
@@ -151,6 +163,10 @@ def _plan_task(map_index: int, shape: str, index: int) -> ScenarioResult:
     return plan_scenario(_WORKER["contexts"][map_index], shape, index, _WORKER["cfg"])
 
 
+def _alternatives_task(map_index: int, result: ScenarioResult) -> tuple[dict[int, np.ndarray], dict[str, int]]:
+    return plan_alternatives(_WORKER["contexts"][map_index], result, _WORKER["cfg"])
+
+
 def _states_task(map_index: int, points: np.ndarray, indices: np.ndarray) -> tuple[list[Instance], Counter]:
     skipped: Counter = Counter()
     instances, _ = rasterise_states(_WORKER["contexts"][map_index], points, indices, _WORKER["cfg"], skipped)
@@ -187,6 +203,8 @@ class _Slot:
     result: ScenarioResult | None = None
     todo: deque = field(default_factory=deque)  # chunks of state indices not submitted yet
     chunks: list[Future] = field(default_factory=list)
+    wants_alternatives: bool = False  # its alternatives task is still to submit
+    alternatives: Future | None = None
 
 
 def state_chunks(pending: np.ndarray, size: int) -> list[np.ndarray]:
@@ -197,7 +215,8 @@ def state_chunks(pending: np.ndarray, size: int) -> list[np.ndarray]:
 
 def ordered_results(executor: Executor, tasks: Iterable[tuple[int, str, int]], workers: int, states_per_task: int,
                     lookahead: int | None = None, needed: Callable[[int, str], bool] = lambda m, s: True,
-                    remaining: Callable[[], float] = lambda: float("inf")) -> Iterator[tuple[int, ScenarioResult]]:
+                    remaining: Callable[[], float] = lambda: float("inf"), alternatives: bool = False
+                    ) -> Iterator[tuple[int, ScenarioResult]]:
     """(map index, complete result) of the scenario ``tasks`` in task order, however the work was split.
 
     Each scenario is one plan task (:func:`plan_scenario`: its accepted path and first instance), then its
@@ -210,7 +229,8 @@ def ordered_results(executor: Executor, tasks: Iterable[tuple[int, str, int]], w
     at most ``workers`` plans are in flight). ``needed(map index, shape)`` false: the scenario's states are not
     rasterised (the consumer will skip it). Submitting stops when the consumer stops iterating; a task's error
     is raised when its scenario is reached, as if computed in order. What is computed ahead never changes what
-    is yielded.
+    is yielded. With ``alternatives``, each needed scenario also gets one task that draws its states' alternative
+    demonstrations (:func:`~spade.annotation.scenarios.plan_alternatives`), submitted before its chunks.
     """
     capacity = 1 if workers <= 1 else 2 * workers
     lookahead = max(1, (1 if workers <= 1 else 3 * workers) if lookahead is None else lookahead)
@@ -231,8 +251,9 @@ def ordered_results(executor: Executor, tasks: Iterable[tuple[int, str, int]], w
         slot.result = slot.plan.result()
         known[0] += 1
         known[1] += promised(slot)
-        if slot.result.executed is not None and len(slot.result.pending) and needed(slot.map_index, slot.shape):
+        if slot.result.executed is not None and needed(slot.map_index, slot.shape):
             slot.todo.extend(state_chunks(slot.result.pending, states_per_task))
+            slot.wants_alternatives = alternatives
 
     def worth_planning() -> bool:
         if len(slots) >= lookahead:
@@ -245,7 +266,12 @@ def ordered_results(executor: Executor, tasks: Iterable[tuple[int, str, int]], w
     def fill() -> None:
         nonlocal exhausted
         while len(in_flight) < capacity:
-            slot = next((s for s in slots if s.todo), None)
+            slot = next((s for s in slots if s.wants_alternatives or s.todo), None)
+            if slot is not None and slot.wants_alternatives:
+                slot.wants_alternatives = False
+                slot.alternatives = executor.submit(_alternatives_task, slot.map_index, slot.result)
+                in_flight.add(slot.alternatives)
+                continue
             if slot is not None:
                 assert slot.result is not None and slot.result.executed is not None
                 fut = executor.submit(_states_task, slot.map_index, slot.result.executed.points, slot.todo.popleft())
@@ -277,7 +303,9 @@ def ordered_results(executor: Executor, tasks: Iterable[tuple[int, str, int]], w
         if not slots:  # every task planned and consumed
             return
         head = slots[0]
-        if head.plan not in plans and not head.todo and all(f.done() for f in head.chunks):
+        if (head.plan not in plans and not head.todo and not head.wants_alternatives
+                and all(f.done() for f in head.chunks)
+                and (head.alternatives is None or head.alternatives.done())):
             slots.popleft()
             yield head.map_index, _assembled(head)
             continue
@@ -293,6 +321,8 @@ def _assembled(slot: _Slot) -> ScenarioResult:
         instances, skipped = fut.result()
         result.instances.extend(instances)
         result.skipped.update(skipped)
+    if slot.alternatives is not None:
+        attach_alternatives(result, *slot.alternatives.result())
     return result
 
 
@@ -345,7 +375,7 @@ def template_instances(contexts: list[MapContext], cfg: Mapping[str, Any], stats
                                        keep)
              if (t[0], t[1]) not in dead)  # only saves work; correctness comes from the check below
     results = ordered_results(executor, tasks, workers, per_task, needed=lambda m, shape: (m, shape) not in dead,
-                              remaining=lambda: wanted - produced)
+                              remaining=lambda: wanted - produced, alternatives=alternatives_count(cfg) > 0)
     try:
         for map_index, result in results:
             pair = (map_index, result.shape)
@@ -437,6 +467,9 @@ def sketch_instances(ctx: MapContext, sketches: list[tuple[str, str, Any]], cfg:
             continue
         result.executed = executed
         result.instances = instances_along(ctx, executed, cfg, result.skipped)
+        if alternatives_count(cfg):
+            log.warning("alternatives.count=%s is ignored for operator sketches: alternatives are draws of the "
+                        "template generator, which a sketch does not come from", cfg["alternatives"]["count"])
         stats.add(result)
         stats.scenarios.append(_summary(result, len(result.instances)))
         for inst in result.instances:
@@ -451,12 +484,14 @@ def write_dataset(out_dir: str | Path, items: Iterable[tuple[Instance, str, str,
     from spade.data import DatasetWriter
 
     size = int(cfg["window"]["size_px"])
+    alternatives = alternatives_count(cfg) if _expected(cfg) is not None else 0
     with DatasetWriter(out_dir, image_size=(size, size), resolution=resolution, num_waypoints=int(cfg["num_waypoints"]),
                        generator_config=dict(cfg), overwrite=bool(cfg.get("overwrite", False)),
-                       expected_instances=_expected(cfg)) as writer:
+                       expected_instances=_expected(cfg), alternatives=alternatives,
+                       alternatives_info=_alternatives_info(cfg) if alternatives else None) as writer:
         for inst, shape, map_id, scenario_id in items:
             writer.add(inst.occupancy, inst.start, inst.goal, inst.path, inst.waypoints, shape, map_id, scenario_id,
-                       inst.pose)
+                       inst.pose, alternatives=inst.alternatives)
         info = extra() if callable(extra) else extra
         if writer.count == 0:  # raised inside the block so that no empty dataset is left behind
             raise NotEnoughInstancesError(f"no instance was produced for {out_dir}: {dict(info)}")
@@ -464,6 +499,14 @@ def write_dataset(out_dir: str | Path, items: Iterable[tuple[Instance, str, str,
             writer.set_extra(key, value)
         count = writer.count
     return count
+
+
+def _alternatives_info(cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """The manifest's record of how the alternatives were drawn."""
+    from spade.annotation.alternatives import ALTERNATIVES_VERSION, ESTIMATOR, AlternativesSettings
+
+    return {"version": ALTERNATIVES_VERSION, "estimator": ESTIMATOR,
+            "settings": AlternativesSettings.from_cfg(cfg.get("alternatives")).to_json()}
 
 
 def _expected(cfg: Mapping[str, Any]) -> int | None:

@@ -11,6 +11,7 @@ its first instance), and the remaining states can be rasterised in chunks by any
 
 from __future__ import annotations
 
+import dataclasses
 import zlib
 from collections import Counter
 from dataclasses import dataclass, field
@@ -146,6 +147,7 @@ class ScenarioResult:
     sketch: np.ndarray | None = None  # keypoints, map pixel coords
     # indices into executed.points of the robot states still to rasterise (plan_scenario leaves them to workers)
     pending: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    alternative_stats: Counter = field(default_factory=Counter)  # the alternatives sampler's counters
 
 
 def scenario_area(ctx: MapContext, index: int, cfg: Mapping[str, Any]) -> int:
@@ -224,7 +226,7 @@ def rasterise_states(ctx: MapContext, points: np.ndarray, indices: Iterable[int]
         if (inst.occupancy[inst.path] != 1).any():
             skipped["path_off_free"] += 1
             continue
-        out.append(inst)
+        out.append(dataclasses.replace(inst, state_index=int(i)))
         if first_only:
             break
     return out, seen
@@ -283,13 +285,47 @@ def plan_scenario(ctx: MapContext, shape: str, index: int, cfg: Mapping[str, Any
     return result
 
 
+def alternatives_rng(seed: int, map_id: str, shape: str, index: int) -> np.random.Generator:
+    """The generator of one scenario's alternative demonstrations (independent of the scenario's own draws)."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), stable_hash(map_id), stable_hash(shape),
+                                                         int(index), stable_hash("alternatives")]))
+
+
+def plan_alternatives(ctx: MapContext, result: ScenarioResult, cfg: Mapping[str, Any]
+                      ) -> tuple[dict[int, np.ndarray], dict[str, int]]:
+    """Alternative demonstrations of every robot state of a planned scenario (``cfg.alternatives``; see
+    :mod:`spade.annotation.alternatives`): {state index: (k, num_waypoints, 2)} and the sampler's counters."""
+    from spade.annotation.alternatives import AlternativesSettings, scenario_alternatives
+
+    settings = AlternativesSettings.from_cfg(cfg.get("alternatives"))
+    if not settings.wanted(result.shape) or result.executed is None or result.sketch is None:
+        return {}, {}
+    states = state_indices_along(ctx, result.executed, cfg)
+    rng = alternatives_rng(int(cfg["seed"]), ctx.map_id, result.shape, result.index)
+    return scenario_alternatives(ctx.costmap, result.shape, result.sketch[-1], result.executed.points, states, cfg,
+                                 settings, rng)
+
+
 def complete_scenario(ctx: MapContext, result: ScenarioResult, cfg: Mapping[str, Any]) -> ScenarioResult:
-    """Rasterise a planned scenario's ``pending`` states in this process (see :func:`plan_scenario`)."""
+    """Rasterise a planned scenario's ``pending`` states in this process (see :func:`plan_scenario`), with their
+    alternative demonstrations when ``cfg.alternatives.count`` > 0."""
     if result.executed is not None and len(result.pending):
         more, _ = rasterise_states(ctx, result.executed.points, result.pending, cfg, result.skipped)
         result.instances.extend(more)
     result.pending = np.zeros(0, dtype=np.int64)
+    alternatives, counters = plan_alternatives(ctx, result, cfg)
+    attach_alternatives(result, alternatives, counters)
     return result
+
+
+def attach_alternatives(result: ScenarioResult, alternatives: dict[int, np.ndarray], counters: Mapping[str, int]
+                        ) -> None:
+    """Give each instance of ``result`` its state's alternatives (none computed: left as they are)."""
+    if not counters:
+        return
+    result.alternative_stats.update(counters)
+    result.instances = [dataclasses.replace(inst, alternatives=alternatives.get(inst.state_index))
+                        for inst in result.instances]
 
 
 def generate_scenario(ctx: MapContext, shape: str, index: int, cfg: Mapping[str, Any]) -> ScenarioResult:

@@ -3,6 +3,7 @@ augmentation and the (optionally widened) path target."""
 
 from __future__ import annotations
 
+import logging
 import math
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,8 @@ from spade.data import DatasetError, PathDataset, read_manifest
 from spade.data.augment import augment_batch, check_augmentation, widen_path
 from spade.data.checks import check_dataset, split_pair_problems
 from spade.data.settings import Generator
+
+log = logging.getLogger(__name__)
 
 
 def split_by_scenario(scenario_ids: list[str], val_fraction: float, seed: int) -> tuple[list[int], list[int]]:
@@ -151,6 +154,11 @@ class PathDataModule(L.LightningDataModule):
                     )
                 idx = idx[: self.max_test_instances or None]
                 self.test_set = Subset(test, idx)
+                if not test.manifest.alternatives:
+                    log.warning(
+                        "%s has no alternative demonstrations (made before SPADE drew them, or imported): the "
+                        "test leaves floor_cm, ape_over_floor, plausibility_cm and commit_rate out. Delete the folder "
+                        "to have it regenerated with them (spade.annotate alternatives.count=32).", self.test_dir)
             else:
                 self.test_set = self.val_set
 

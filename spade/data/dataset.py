@@ -44,7 +44,8 @@ class PathDataset(Dataset):
 
     Each item: ``state`` float32 (3, H, W) [occupancy unknown 0 / free 0.5 / obstacle 1, start, goal];
     ``path`` float32 (1, H, W) in {0, 1}; ``waypoints`` float32 (K, 2) in pixel coordinates (x = column,
-    y = row); ``pose`` float32 (3,) the robot's (x, y, yaw) in its map; ``resolution`` (metres per pixel); ``shape``, ``map_id``, ``scenario_id`` labels; ``index``.
+    y = row); ``pose`` float32 (3,) the robot's (x, y, yaw) in its map; ``resolution`` (metres per pixel); ``shape``, ``map_id``, ``scenario_id`` labels; ``index``; and, where the dataset
+    has them, ``alternatives`` float32 (A, K, 2): alternative demonstrations, NaN rows where fewer were drawn.
 
     Opening checks that every file is present with the right size, and by default its sha256 (``verify=False``
     skips the hashing, e.g. in DataLoader workers). Files are memory-mapped; ``release_every`` items read in a
@@ -138,6 +139,9 @@ class PathDataset(Dataset):
         if self.release_every > 0 and self._reads % self.release_every == 0:
             self.release_pages()
         m = self.manifest
+        extra = {}
+        if m.alternatives:
+            extra["alternatives"] = torch.from_numpy(np.array(arrays["alternatives"][index], dtype=np.float32))
         return {
             "state": torch.from_numpy(state),
             "path": torch.from_numpy(path),
@@ -148,4 +152,5 @@ class PathDataset(Dataset):
             "map_id": m.label("map_id", index),
             "scenario_id": m.label("scenario_id", index),
             "index": index,
+            **extra,
         }

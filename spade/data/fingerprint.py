@@ -17,8 +17,10 @@ from typing import Any
 from spade.data.format import read_manifest_json
 
 # Annotation settings that never change a dataset's bytes (where it goes, how fast it is made, what else is drawn).
+# ``alternatives`` adds a file beside the instances and changes none of them: a test set made without them is still
+# the test set (its run leaves the metrics that need them out, and says so).
 NON_SHAPING_KEYS = frozenset({"out_dir", "overwrite", "workers", "states_per_task", "start_method", "progress", "preview",
-                              "hydra"})
+                              "hydra", "alternatives"})
 
 
 def fingerprint(value: Any, length: int = 10) -> str:

@@ -10,6 +10,9 @@ A dataset is one directory::
     path.bin         uint8 (N, ceil(H*W/8)): remaining path, 1 bit per pixel
     waypoints.bin    float32 (N, K, 2): ground-truth polyline in pixel coordinates (x = column, y = row)
     pose.bin         float32 (N, 3): the robot's pose in its map, (x, y, yaw) in metres and radians
+    alternatives.bin optional, float32 (N, A, K, 2): up to A alternative demonstrations of each instance in its
+                     window (x, y pixels), NaN rows where an instance has fewer (spade.annotation.alternatives);
+                     the manifest's ``alternatives`` section says how they were drawn
 
 Version 2: every window is in the robot's frame (``frame`` in the manifest: the robot's pixel and "heading up",
 see spade.maps.frame), so a prediction maps back to map metres through the instance's pose. Version 1
@@ -76,13 +79,16 @@ class ArraySpec:
         return int(np.prod(self.row_shape)) * self.dtype.itemsize
 
 
-def array_specs(height: int, width: int, num_waypoints: int) -> dict[str, ArraySpec]:
-    """The array files of a dataset with instances of ``height`` x ``width`` and ``num_waypoints`` points."""
+def array_specs(height: int, width: int, num_waypoints: int, alternatives: int = 0) -> dict[str, ArraySpec]:
+    """The array files of a dataset with instances of ``height`` x ``width`` and ``num_waypoints`` points (and, with
+    ``alternatives`` > 0, up to that many alternative demonstrations per instance)."""
     pixels = height * width
     specs = [ArraySpec("occupancy", np.dtype(np.uint8), (two_bit_nbytes(pixels),))]
     specs += [ArraySpec(name, np.dtype(np.uint8), (bit_nbytes(pixels),)) for name in BINARY_CHANNELS]
     specs.append(ArraySpec("waypoints", np.dtype("<f4"), (num_waypoints, 2)))
     specs.append(ArraySpec("pose", np.dtype("<f4"), (3,)))
+    if alternatives > 0:
+        specs.append(ArraySpec("alternatives", np.dtype("<f4"), (int(alternatives), num_waypoints, 2)))
     return {s.name: s for s in specs}
 
 
@@ -102,10 +108,12 @@ class Manifest:
     generator: dict[str, Any]
     extra: dict[str, Any]
     frame: dict[str, Any]
+    alternatives: int = 0  # alternative demonstrations stored per instance (0: none; older datasets)
+    alternatives_info: dict[str, Any] | None = None  # how they were drawn (the manifest's ``alternatives``)
 
     @property
     def specs(self) -> dict[str, ArraySpec]:
-        return array_specs(self.height, self.width, self.num_waypoints)
+        return array_specs(self.height, self.width, self.num_waypoints, self.alternatives)
 
     def label(self, key: str, index: int) -> str:
         return self.labels[key][int(self.label_index[key][index])]
@@ -215,7 +223,14 @@ def read_manifest(root: str | Path) -> Manifest:
     frame = raw.get("frame")
     _require(isinstance(frame, dict) and frame.get("kind") == "robot", path,
              "the window frame (frame.kind = robot) is missing")
-    for name, spec in array_specs(height, width, num_waypoints).items():
+    alt_info = raw.get("alternatives")
+    alternatives = 0
+    if alt_info is not None:
+        _require(isinstance(alt_info, dict) and isinstance(alt_info.get("count"), int) and alt_info["count"] > 0
+                 and isinstance(files, dict) and "alternatives" in files, path,
+                 "the alternatives section is malformed (it needs a positive count and files.alternatives)")
+        alternatives = int(alt_info["count"])
+    for name, spec in array_specs(height, width, num_waypoints, alternatives).items():
         entry = files.get(name)
         _require(isinstance(entry, dict) and "sha256" in entry, path, f"files.{name} is missing")
         recorded = entry.get("row_shape")
@@ -236,4 +251,6 @@ def read_manifest(root: str | Path) -> Manifest:
         generator=dict(raw.get("generator") or {}),
         extra=dict(raw.get("extra") or {}),
         frame=dict(frame),
+        alternatives=alternatives,
+        alternatives_info=dict(alt_info) if alternatives else None,
     )

@@ -125,6 +125,8 @@ class DatasetWriter:
         overwrite: bool = False,
         frame: dict[str, Any] | None = None,
         expected_instances: int | None = None,
+        alternatives: int = 0,
+        alternatives_info: dict[str, Any] | None = None,
     ) -> None:
         self.root = Path(root)
         height, width = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
@@ -146,7 +148,12 @@ class DatasetWriter:
 
             frame = RobotFrame.for_size(self.height).to_json()
         self.frame = json.loads(json.dumps(frame))
-        self.specs: dict[str, ArraySpec] = array_specs(self.height, self.width, self.num_waypoints)
+        if not 0 <= int(alternatives) <= 255:
+            raise ValueError(f"alternatives must lie in 0..255 per instance, got {alternatives}")
+        self.alternatives = int(alternatives)
+        self.alternatives_info = dict(alternatives_info or {})
+        self._alternative_counts: list[int] = []
+        self.specs: dict[str, ArraySpec] = array_specs(self.height, self.width, self.num_waypoints, self.alternatives)
         self.count = 0
         self._extra: dict[str, Any] = {}
         self._labels = {key: _LabelTable() for key in LABEL_KEYS}
@@ -235,10 +242,12 @@ class DatasetWriter:
         map_id: str,
         scenario_id: str,
         pose: Any,
+        alternatives: np.ndarray | None = None,
     ) -> int:
         """Append one instance; returns its index. Arrays are checked against the dataset's sizes.
 
-        ``pose``: the robot's (x, y, yaw) in its map, metres and radians."""
+        ``pose``: the robot's (x, y, yaw) in its map, metres and radians. ``alternatives``: (k, num_waypoints, 2)
+        window pixel polylines, k <= the writer's ``alternatives`` (None: none for this instance)."""
         if self._tmp is None:
             raise RuntimeError("DatasetWriter.add must be called inside `with DatasetWriter(...) as writer:`")
         hw = (self.height, self.width)
@@ -264,6 +273,10 @@ class DatasetWriter:
             "waypoints": wp,
             "pose": pose_arr,
         }
+        if self.alternatives:
+            rows["alternatives"] = self._alternatives_row(alternatives)
+        elif alternatives is not None and len(alternatives):
+            raise ValueError("this writer stores no alternatives (construct it with alternatives=N)")
         for name, row in rows.items():
             data = np.ascontiguousarray(row).tobytes()
             self._files[name].write(data)
@@ -272,6 +285,18 @@ class DatasetWriter:
             self._labels[key].add(value)
         self.count += 1
         return self.count - 1
+
+    def _alternatives_row(self, alternatives: np.ndarray | None) -> np.ndarray:
+        row = np.full((self.alternatives, self.num_waypoints, 2), np.nan, dtype="<f4")
+        alt = np.zeros((0, self.num_waypoints, 2)) if alternatives is None else np.asarray(alternatives, dtype="<f4")
+        if alt.ndim != 3 or alt.shape[1:] != (self.num_waypoints, 2) or len(alt) > self.alternatives:
+            raise ValueError(f"alternatives has shape {alt.shape}, expected (k <= {self.alternatives}, "
+                             f"{self.num_waypoints}, 2)")
+        if not np.isfinite(alt).all():
+            raise ValueError("alternatives hold NaN or inf")
+        row[:len(alt)] = alt
+        self._alternative_counts.append(len(alt))
+        return row
 
     def set_extra(self, key: str, value: Any) -> None:
         """Record JSON-able information in the manifest's ``extra`` section (e.g. rejection counts)."""
@@ -305,6 +330,15 @@ class DatasetWriter:
             "extra": self._extra,
             "files": files,
         }
+        if self.alternatives:
+            counts = np.asarray(self._alternative_counts, dtype=np.int64)
+            manifest["alternatives"] = {
+                **json.loads(json.dumps(self.alternatives_info, default=str)),
+                "count": self.alternatives,
+                "per_instance": {"min": int(counts.min()) if counts.size else 0,
+                                 "mean": round(float(counts.mean()), 3) if counts.size else 0.0,
+                                 "none": int((counts == 0).sum())},
+            }
         manifest[MANIFEST_CHECKSUM] = manifest_checksum(json.loads(json.dumps(manifest)))  # as it will be read
         # The manifest is written last: a directory without one is never taken for a dataset.
         (self._tmp / MANIFEST).write_text(json.dumps(manifest, indent=1, sort_keys=True))

@@ -85,9 +85,14 @@ class APE(Metric):
         """pred_prob (B,1,H,W) in [0,1]; state (B,3,H,W) [occupancy, start, goal]; waypoints (B,K,2) (x, y)
         pixels; resolution (B,) or scalar, metres per pixel. ``polylines``: one predicted (N, 2) polyline (x, y
         pixels, N >= 2) or None (a failure) per instance, scored instead of decoding ``pred_prob`` (then None)."""
-        if polylines is not None:
-            self._score(polylines, state, waypoints, resolution)
-            return
+        if polylines is None:
+            polylines = self.extract(pred_prob, state, waypoints, resolution)
+        self._score(polylines, state, waypoints, resolution)
+
+    def extract(self, pred_prob: torch.Tensor, state: torch.Tensor, waypoints: torch.Tensor,
+                resolution: torch.Tensor | float) -> list[np.ndarray | None]:
+        """The polyline this metric reads from each predicted image (None where it fails), as :meth:`update`
+        scores it: the paper's extraction, or the planner's search with ``decoder="search"``."""
         check_images(pred_prob, "pred_prob", 1)
         self._check_truth(state, waypoints)
         check_same_batch(("pred_prob", pred_prob), ("state", state), ("waypoints", waypoints))
@@ -102,7 +107,7 @@ class APE(Metric):
             else:
                 found = extract_path(prob[i], s[i, 1], s[i, 2], k, **self.extract_kwargs)
             polylines.append(found.points if found.ok else None)
-        self._score(polylines, state, waypoints, resolution)
+        return polylines
 
     @staticmethod
     def _check_truth(state: torch.Tensor, waypoints: torch.Tensor) -> None:

@@ -17,15 +17,16 @@ from spade.metrics.baselines import draw_polylines
 from spade.metrics.decoding import PathDecoder
 from spade.metrics.fid import FID
 from spade.metrics.hausdorff import HausdorffCount
+from spade.metrics.preference import PREFERENCE_KEYS, PreferenceMetrics
 
 log = logging.getLogger(__name__)
 
 
 PLANNER_KEYS: tuple[str, ...] = ("ape_cm", "ape_median_cm", "ape_max_cm", "failure_rate", "over_20cm_rate", "hd19",
-                                  "low_confidence_rate")
+                                  "low_confidence_rate", *PREFERENCE_KEYS)
 """The planner's figures a test logs (``planner/<key>``): MLflow's run page lists about 100 metrics, so the
 planner's figures are the ones a reader compares, not every statistic (``planner_keys=None`` keeps them all)."""
-BASELINE_PLANNER_KEYS: tuple[str, ...] = ("ape_cm", "failure_rate", "over_20cm_rate")
+BASELINE_PLANNER_KEYS: tuple[str, ...] = ("ape_cm", "failure_rate", "over_20cm_rate", *PREFERENCE_KEYS)
 
 
 class PathMetrics(nn.Module):
@@ -41,6 +42,10 @@ class PathMetrics(nn.Module):
       exactly as that channel is drawn (one-pixel curve), so line width and probability texture cannot matter;
       a baseline's own polyline is drawn the same way.
 
+    - Where the batch carries ``alternatives`` (a test set drawn with them), the figures that see a preference
+      (:mod:`spade.metrics.preference`) for both readings: ``floor_cm`` (the predictor's own, the same for every
+      predictor), ``ape_over_floor``, ``plausibility_cm``, ``commit_rate`` and ``planner/...``.
+
     :meth:`update` takes ``polylines`` for predictors that give a path rather than an image (the baselines): they
     are scored as the planner's path directly. FID needs more images than its feature dimension; on smaller sets
     (a tiny validation split) it is left out of the result with a warning rather than failing the run.
@@ -49,7 +54,8 @@ class PathMetrics(nn.Module):
     def __init__(self, hd_threshold: float = 19.0, pred_threshold: float = 0.5, fid_extractor: str | None = None,
                  fid_extractor_kwargs: dict | None = None, fid: bool = True, hd_threshold_m: float | None = 0.95,
                  planner: bool = True, tail_cm: float = 20.0, low_confidence_share: float = 0.1,
-                 decoder: dict | None = None, planner_keys: tuple[str, ...] | None = PLANNER_KEYS) -> None:
+                 decoder: dict | None = None, planner_keys: tuple[str, ...] | None = PLANNER_KEYS,
+                 commit_tol_px: float = 1.5) -> None:
         super().__init__()
         self.planner_keys = None if planner_keys is None else tuple(planner_keys)
         self.ape = APE(threshold=pred_threshold, tail_cm=tail_cm)
@@ -59,6 +65,7 @@ class PathMetrics(nn.Module):
                   name="hd19" if hd_threshold_m is not None else None)
         self.hd = HausdorffCount(**hd)
         self.planner = planner
+        self.preference = PreferenceMetrics(commit_tol_px=commit_tol_px)
         if not 0 <= low_confidence_share <= 1:
             raise ValueError(f"low_confidence_share must lie in [0, 1], got {low_confidence_share}")
         self.low_confidence_share = float(low_confidence_share)
@@ -68,6 +75,7 @@ class PathMetrics(nn.Module):
             self.planner_hd = HausdorffCount(**hd)
             self.low_confidence = MeanMetric()
             self.low_share = MeanMetric()
+            self.planner_preference = PreferenceMetrics(commit_tol_px=commit_tol_px)
         fid_args = () if fid_extractor is None else (fid_extractor,)
         self.fid = FID(*fid_args, extractor_kwargs=fid_extractor_kwargs) if fid else None
         self._warned = False
@@ -89,7 +97,11 @@ class PathMetrics(nn.Module):
         """``prob`` (B, 1, H, W) predicted path probabilities; ``polylines`` (optional, one (N, 2) array or None per
         instance): the predictor's own path, used as the planner's path instead of decoding ``prob``."""
         prob = prob.detach().float().clamp(0, 1)
-        self.ape.update(prob, batch["state"], batch["waypoints"], batch["resolution"])
+        alternatives = batch.get("alternatives")
+        paper = self.ape.extract(prob, batch["state"], batch["waypoints"], batch["resolution"])
+        self.ape.update_polylines(paper, batch["state"], batch["waypoints"], batch["resolution"])
+        if alternatives is not None:
+            self.preference.update(paper, batch["state"], batch["waypoints"], alternatives, batch["resolution"])
         self.hd.update(prob, batch["path"], batch["resolution"])
         if not (self.planner or self.fid is not None):
             return
@@ -107,6 +119,9 @@ class PathMetrics(nn.Module):
         drawn = draw_polylines(polylines, h, w, prob.device)
         if self.planner:
             self.planner_ape.update_polylines(polylines, batch["state"], batch["waypoints"], batch["resolution"])
+            if alternatives is not None:
+                self.planner_preference.update(polylines, batch["state"], batch["waypoints"], alternatives,
+                                               batch["resolution"])
             self.planner_hd.update(drawn, batch["path"], batch["resolution"])
         if self.fid is not None:
             self.fid.update(batch["path"].float(), real=True)
@@ -115,6 +130,10 @@ class PathMetrics(nn.Module):
     def compute(self) -> dict[str, float]:
         out = {k: float(v) for k, v in self.ape.compute().items()}
         out.update({k: float(v) for k, v in self.hd.compute().items()})
+        if int(self.preference.counted) > 0:
+            pref = self.preference.compute()
+            out["floor_cm"] = float(pref["floor_cm"])
+            out.update({k: float(pref[k]) for k in PREFERENCE_KEYS})
         if self.planner and self.planner_ape.total > 0:
             planner = {k: float(v) for k, v in self.planner_ape.compute().items() if k != "score_cm"}
             planner.update({k: float(v) for k, v in self.planner_hd.compute().items()
@@ -122,6 +141,9 @@ class PathMetrics(nn.Module):
             if self.low_confidence.update_count:
                 planner["low_confidence_rate"] = float(self.low_confidence.compute())
                 planner["low_share_mean"] = float(self.low_share.compute())
+            if int(self.planner_preference.counted) > 0:
+                pref = self.planner_preference.compute()
+                planner.update({k: float(pref[k]) for k in PREFERENCE_KEYS})
             out.update({f"planner/{k}": v for k, v in planner.items()
                         if self.planner_keys is None or k in self.planner_keys})
         if self.fid is not None:
@@ -136,8 +158,10 @@ class PathMetrics(nn.Module):
     def reset(self) -> None:
         self.ape.reset()
         self.hd.reset()
+        self.preference.reset()
         if self.planner:
-            for metric in (self.planner_ape, self.planner_hd, self.low_confidence, self.low_share):
+            for metric in (self.planner_ape, self.planner_hd, self.low_confidence, self.low_share,
+                           self.planner_preference):
                 metric.reset()
         if self.fid is not None:
             self.fid.reset()

@@ -1,0 +1,132 @@
+"""Metrics that see a preference: the ambiguity floor, plausibility and commitment.
+
+APE against the one demonstration of an instance cannot tell a good plan from the blend of two ways of turning:
+the demonstration is one draw among the alternatives the same state allows (:mod:`spade.annotation.alternatives`
+draws them with the dataset). With the demonstration and its alternatives, the *plausible set* of an instance:
+
+- ``floor_cm``: the APE (to the demonstration) of the best single path a predictor could give without knowing
+  which draw was made. Estimator: the pointwise median of the plausible set (every path resampled to the same
+  points by arc length), its end moved onto the goal disc's centre by a linear ramp along the path (a predictor
+  sees the goal only as the disc drawn at its rounded pixel). Averaged over instances with alternatives.
+- ``ape_over_floor``: mean APE over mean floor on the same instances (the ratio of the means; 1 is the floor).
+- ``plausibility_cm``: the APE to the *nearest* path of the plausible set, averaged: 0 for a path an operator
+  (the generator) could have drawn, large for a blend no one drew.
+- ``commit_rate``: the share of instances whose path lies within ``commit_tol_px`` (mean distance, pixels) of one
+  path of the plausible set: it chose one way of turning. A failed prediction does not commit.
+
+Instances without alternatives are left out of all four (``pref_instances`` counts those scored).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torchmetrics import Metric
+from torchmetrics.utilities import dim_zero_cat
+
+from spade.data.polyline import resample_polyline
+from spade.metrics._inputs import per_instance_resolution, to_numpy
+from spade.metrics.extraction import marker_centre
+
+__all__ = ["PREFERENCE_KEYS", "PreferenceMetrics", "floor_path", "plausible_set"]
+
+PREFERENCE_KEYS: tuple[str, ...] = ("ape_over_floor", "plausibility_cm", "commit_rate")
+"""The per-predictor figures (a test logs them for the paper's reading and, prefixed, the planner's)."""
+
+
+def plausible_set(waypoints: np.ndarray, alternatives: np.ndarray | None) -> np.ndarray:
+    """(1 + k, K, 2): the demonstration then its stored alternatives (NaN padding rows dropped), each resampled
+    evenly by arc length to its K points as :func:`~spade.metrics.geometry.polyline_ape` resamples a ground truth,
+    so that the APE here is the APE metric's."""
+    demo = np.asarray(waypoints, np.float64)
+    paths = [demo]
+    if alternatives is not None:
+        alts = np.asarray(alternatives, np.float64)
+        paths += list(alts[np.isfinite(alts).all(axis=(1, 2))])
+    return np.stack([resample_polyline(p, len(demo)) for p in paths])
+
+
+def floor_path(paths: np.ndarray, goal_centre: np.ndarray) -> np.ndarray:
+    """The floor estimator's path: the pointwise median of ``paths`` (n, K, 2), its end ramped onto
+    ``goal_centre`` (the start stays put, the correction grows linearly along the path)."""
+    median = np.median(np.asarray(paths, np.float64), axis=0)
+    ramp = np.linspace(0.0, 1.0, len(median))[:, None]
+    return median + ramp * (np.asarray(goal_centre, np.float64) - median[-1])
+
+
+def _mean_distances(pred: np.ndarray, paths: np.ndarray) -> np.ndarray:
+    """Mean pointwise distance of ``pred`` (resampled to K points) to each of ``paths`` (n, K, 2)."""
+    p = resample_polyline(np.asarray(pred, np.float64), paths.shape[1])
+    return np.linalg.norm(paths - p[None], axis=2).mean(axis=1)
+
+
+class PreferenceMetrics(Metric):
+    """``floor_cm``, ``ape_over_floor``, ``plausibility_cm``, ``commit_rate`` (see the module docstring) of one
+    predictor's polylines; additive states (``cat`` and ``sum``), so the figures are right under DDP."""
+
+    is_differentiable = False
+    higher_is_better = None
+    full_state_update = False
+
+    def __init__(self, commit_tol_px: float = 1.5, **kwargs) -> None:
+        super().__init__(**kwargs)
+        if not commit_tol_px > 0:
+            raise ValueError(f"commit_tol_px must be > 0 pixels, got {commit_tol_px}")
+        self.commit_tol_px = float(commit_tol_px)
+        self.add_state("floor", default=[], dist_reduce_fx="cat")  # cm, every instance with alternatives
+        self.add_state("ape", default=[], dist_reduce_fx="cat")  # cm, scored instances
+        self.add_state("floor_scored", default=[], dist_reduce_fx="cat")  # cm, the scored instances' floors
+        self.add_state("plausibility", default=[], dist_reduce_fx="cat")  # cm, scored instances
+        self.add_state("commits", default=torch.tensor(0, dtype=torch.long), dist_reduce_fx="sum")
+        self.add_state("counted", default=torch.tensor(0, dtype=torch.long), dist_reduce_fx="sum")
+
+    def update(self, polylines: list[np.ndarray | None], state: torch.Tensor, waypoints: torch.Tensor,
+               alternatives: torch.Tensor, resolution: torch.Tensor | float) -> None:
+        """``polylines``: one (N, 2) predicted path (window pixels) or None (a failure) per instance; ``state``
+        (B, 3, H, W); ``waypoints`` (B, K, 2); ``alternatives`` (B, A, K, 2), NaN rows where fewer."""
+        b = len(polylines)
+        truth = to_numpy(waypoints, np.float64)
+        alts = to_numpy(alternatives, np.float64)
+        goals = to_numpy(state)[:, 2]
+        res = per_instance_resolution(resolution, b)
+        if truth.shape[0] != b or alts.shape[0] != b:
+            raise ValueError(f"PreferenceMetrics got {b} polylines for {truth.shape[0]} demonstrations and "
+                             f"{alts.shape[0]} rows of alternatives")
+        floor, ape, floor_scored, plaus = [], [], [], []
+        commits = counted = 0
+        for i in range(b):
+            paths = plausible_set(truth[i], alts[i])
+            if len(paths) < 2:
+                continue  # this instance has no alternatives
+            cm = res[i] * 100.0
+            f = float(np.linalg.norm(floor_path(paths, marker_centre(goals[i], "goal")) - paths[0], axis=1).mean())
+            floor.append(f * cm)
+            counted += 1
+            if polylines[i] is None or len(polylines[i]) < 2:
+                continue
+            dist = _mean_distances(polylines[i], paths)
+            ape.append(float(dist[0]) * cm)
+            floor_scored.append(f * cm)
+            plaus.append(float(dist.min()) * cm)
+            commits += int(dist.min() <= self.commit_tol_px)
+        for name, values in (("floor", floor), ("ape", ape), ("floor_scored", floor_scored),
+                             ("plausibility", plaus)):
+            getattr(self, name).append(torch.tensor(values, dtype=torch.float64, device=self.device))
+        self.commits += commits
+        self.counted += counted
+
+    def compute(self) -> dict[str, torch.Tensor]:
+        def cat(name: str) -> torch.Tensor:
+            values = getattr(self, name)
+            return dim_zero_cat(values).double() if len(values) else torch.zeros(0, dtype=torch.float64)
+
+        nan = torch.tensor(float("nan"), dtype=torch.float64)
+        floor, ape, floor_scored, plaus = cat("floor"), cat("ape"), cat("floor_scored"), cat("plausibility")
+        counted = self.counted.clone()
+        return {
+            "floor_cm": floor.mean() if floor.numel() else nan,
+            "ape_over_floor": ape.mean() / floor_scored.mean() if ape.numel() and floor_scored.mean() > 0 else nan,
+            "plausibility_cm": plaus.mean() if plaus.numel() else nan,
+            "commit_rate": self.commits.double() / counted.double() if counted > 0 else nan,
+            "pref_instances": counted,
+        }
