@@ -27,8 +27,11 @@ log = logging.getLogger(__name__)
 def main(cfg: DictConfig) -> None:
     from spade.experiments.checks import exit_on_user_error
 
+    from spade.experiments.tracking.summary import evaluation_summary
+
     metrics = exit_on_user_error(evaluate)(cfg)
     print("\n".join(f"{k}: {v:.4g}" for k, v in sorted(metrics.items())))
+    print(evaluation_summary(cfg, metrics), flush=True)
 
 
 if __name__ == "__main__":

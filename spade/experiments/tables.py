@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 __all__ = [
     "CELL_METRICS",
     "METRICS",
+    "PREFERENCE_METRICS",
     "TABLES",
     "TINY_NOTICE",
     "Comparison",
@@ -62,6 +63,11 @@ METRICS: dict[str, Metric] = {
         Metric("planner_ape_cm", "test/planner/ape_cm", "planner APE (cm)", ".2f"),
         Metric("planner_over_20cm_rate", "test/planner/over_20cm_rate", "planner > 20 cm", ".1%"),
         Metric("planner_low_confidence_rate", "test/planner/low_confidence_rate", "planner low confidence", ".1%"),
+        # the figures that see a preference (spade.metrics.preference), where the test set has alternatives
+        Metric("floor_cm", "test/floor_cm", "floor (cm)", ".2f"),
+        Metric("planner_ape_over_floor", "test/planner/ape_over_floor", "planner APE / floor", ".2f"),
+        Metric("planner_plausibility_cm", "test/planner/plausibility_cm", "planner plausibility (cm)", ".2f"),
+        Metric("planner_commit_rate", "test/planner/commit_rate", "planner commits", ".0%"),
         Metric("params", "model/params", "params", "params"),
         # a guided row's share of active margins in its last training epoch (StudentModule.margin_history)
         Metric("margin_active", "margin/active", "margin active in the last epoch", ".0%"),
@@ -71,6 +77,9 @@ CELL_METRICS = ("fid", "ape_cm", "hd19", "failure_rate", "over_20cm_rate", "plan
 """A cell: the paper's FID / APE / Hd19 (APE and Hd19 of the paper's skeleton extraction; FID of the decoded path
 drawn like the ground truth), the failures, the tail (share of instances over 20 cm), and the planner's APE and tail
 (the search-decoded path a robot would drive, spade.metrics.decoding)."""
+
+PREFERENCE_METRICS = ("floor_cm", "planner_ape_over_floor", "planner_plausibility_cm", "planner_commit_rate")
+"""The preference figures a table shows beside its cells (spade.metrics.preference), where its runs logged them."""
 
 BASELINE_LABELS: dict[str, str] = {
     "straight": "straight line",

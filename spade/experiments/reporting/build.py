@@ -17,6 +17,7 @@ from spade.experiments.reporting.render import (
     render_notes,
     render_pairwise,
     render_paper_table,
+    render_preference,
     provenance,
     render_table,
     significance_statement,
@@ -25,6 +26,12 @@ from spade.experiments.reporting.render import (
 from spade.experiments.reporting.results import ComparisonResult, RowResult, compare, fetch_results, pairwise
 from spade.experiments.tables import TABLES, Table, get_table
 from spade.utils.provenance import command_line, commit, machine
+
+
+DECIDING_STATEMENT = (
+    "Which figure decides: the planner's APE with its tail (the path a robot drives, decoded by search; a row beats "
+    "a baseline when its planner APE is lower and its share over 20 cm no longer), then, where the test set has "
+    "alternative demonstrations, plausibility and commitment. The paper's APE is its definition, shown for comparison.")
 
 
 @dataclass
@@ -53,6 +60,11 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
               + f": {found} of {len(results)} rows have a finished run"
               + (f", over {seeds[0] if len(seeds) == 1 else f'{seeds[0]}-{seeds[-1]}'} seed(s) each" if seeds else "")
               + ".", "", render_table(table, results), "", significance_statement()]
+    parts += ["", DECIDING_STATEMENT]
+    preference = render_preference(table, results)
+    if preference:
+        parts += ["", "The figures that see a preference (test sets with alternative demonstrations: "
+                  "spade.metrics.preference):", "", preference]
     notes = render_notes(table, results)
     if notes:
         parts += ["", "Notes:", *(f"- {n}" for n in notes)]

@@ -5,7 +5,15 @@ their significance test, the pairwise tests, and the notes on missing or odd row
 from __future__ import annotations
 
 from spade.experiments.reporting.results import MISSING, TEST_NAME, ComparisonResult, RowResult
-from spade.experiments.tables import BASELINE_LABELS, CELL_METRICS, METRICS, TINY_NOTICE, Metric, Table
+from spade.experiments.tables import (
+    BASELINE_LABELS,
+    CELL_METRICS,
+    METRICS,
+    PREFERENCE_METRICS,
+    TINY_NOTICE,
+    Metric,
+    Table,
+)
 
 
 def _mean_sd(metric: Metric, result: RowResult, key: str) -> str:
@@ -42,16 +50,45 @@ def _baseline_source(table: Table, results: dict[str, RowResult], shape: str) ->
 
 
 def losses_to_baselines(result: RowResult) -> list[str]:
-    """The baselines whose test APE (failures aside) or failure rate this row does not beat (means over seeds)."""
+    """The baselines this row does not beat by the deciding figure (:mod:`spade.metrics.verdict`): the planner's APE
+    with its tail (means over seeds): a baseline with a lower planner APE, or an equal one, or a shorter tail."""
     lost = []
-    ape, fail = result.value("ape_cm"), result.value("failure_rate")
+    ape, tail = result.value("planner_ape_cm"), result.value("planner_over_20cm_rate")
     for name, label in BASELINE_LABELS.items():
-        b_ape, b_fail = result.value(f"{name}/ape_cm"), result.value(f"{name}/failure_rate")
+        b_ape, b_tail = result.value(f"{name}/planner_ape_cm"), result.value(f"{name}/planner_over_20cm_rate")
         if b_ape is None:
             continue
-        if ape is None or ape >= b_ape or (fail is not None and b_fail is not None and fail > b_fail + 0.02):
+        if ape is None or ape >= b_ape or (tail is not None and b_tail is not None and tail > b_tail):
             lost.append(label)
     return lost
+
+
+def render_preference(table: Table, results: dict[str, RowResult]) -> str | None:
+    """The figures that see a preference, per row and for each baseline (mean ± sd over seeds), where the runs
+    logged them (test sets with alternative demonstrations); None when none did."""
+    rows = [line for line in table.lines if any(results[line.cells[s]].value("planner_plausibility_cm") is not None
+                                                for s in line.cells)]
+    if not rows:
+        return None
+    keys = PREFERENCE_METRICS
+    header = [*table.label_columns, "shape", *(METRICS[k].label for k in keys)]
+    body = []
+    for line in rows:
+        for shape in table.shapes:
+            r = results.get(line.cells.get(shape, ""), None)
+            if r is None or not r.found:
+                continue
+            body.append([*line.labels, shape, *(_mean_sd(METRICS[k], r, k) for k in keys)])
+    for name, label in BASELINE_LABELS.items():
+        for shape in table.shapes:
+            src = _baseline_source(table, results, shape)
+            if src is None or src.value(f"{name}/planner_plausibility_cm") is None:
+                continue
+            labels = ["reference", label, *[""] * (len(table.label_columns) - 2)][: len(table.label_columns)]
+            if len(table.label_columns) == 1:
+                labels = [f"reference: {label}"]
+            body.append([*labels, shape, *(METRICS[k].format(src.value(f"{name}/{k}")) for k in keys)])
+    return _markdown_table(header, body)
 
 
 def _paper_cell(figures: dict[str, float]) -> str:
@@ -211,8 +248,8 @@ def render_notes(table: Table, results: dict[str, RowResult]) -> list[str]:
     for row in table.rows:
         r = results[row]
         if r.found and (lost := losses_to_baselines(r)):
-            notes.append(f"{row} LOSES to the {', '.join(lost)} on its own test set (APE or failure rate): "
-                         "it has not learned a preference worth deploying")
+            notes.append(f"{row} LOSES to the {', '.join(lost)} on its own test set by the deciding figure (the "
+                         "planner's APE and tail): it has not learned a preference worth deploying")
     if any(r.found and "fid" not in r.metrics for r in results.values()):
         notes.append("FID n/a: the run logged no test/fid (its test set is smaller than the FID extractor needs)")
     return notes

@@ -24,6 +24,7 @@ from spade.experiments.tables import (
     BASELINE_LABELS,
     CELL_METRICS,
     METRICS,
+    PREFERENCE_METRICS,
     Table,
     baseline_metric,
     relative_change,
@@ -173,7 +174,7 @@ def _data_key(run: Any) -> tuple[str, ...] | None:
 def _run_metrics(run: Any) -> dict[str, float]:
     metrics = {k: float(run.data.metrics[m.mlflow_key]) for k, m in METRICS.items() if m.mlflow_key in run.data.metrics}
     for name in BASELINE_LABELS:  # the classical baselines on this row's test set, as "<name>/<metric>"
-        for key in CELL_METRICS:
+        for key in (*CELL_METRICS, *PREFERENCE_METRICS):
             mlflow_key = baseline_metric(name, key)
             if mlflow_key in run.data.metrics:
                 metrics[f"{name}/{key}"] = float(run.data.metrics[mlflow_key])

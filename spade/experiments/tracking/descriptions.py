@@ -27,7 +27,8 @@ log = logging.getLogger(__name__)
 
 REPO_CONF = CONF_DIR  # the configs (spade.paths): a row is conf/experiment/<row>.yaml
 # the test figures a description shows, in this order
-FIGURES = ("ape_cm", "fid", "hd19", "failure_rate", "over_20cm_rate", "planner/ape_cm", "planner/over_20cm_rate")
+FIGURES = ("ape_cm", "fid", "hd19", "failure_rate", "over_20cm_rate", "planner/ape_cm", "planner/over_20cm_rate",
+           "planner/plausibility_cm", "planner/commit_rate")
 
 
 def _fmt(key: str, value: float | None) -> str:
@@ -63,14 +64,17 @@ def figure_rows(metrics: dict[str, float]) -> list[tuple[str, dict[str, float]]]
 # the columns of the figures table: short headers (the units and meanings are in FIGURES_MEANING, under the table)
 FIGURE_HEADERS = {"ape_cm": "APE", "fid": "FID", "hd19": "Hd19", "failure_rate": "failures",
                   "over_20cm_rate": ">20 cm", "planner/ape_cm": "planner APE",
-                  "planner/over_20cm_rate": "planner >20 cm"}
+                  "planner/over_20cm_rate": "planner >20 cm", "planner/plausibility_cm": "plausibility",
+                  "planner/commit_rate": "commits"}
 FIGURES_MEANING = (
     "APE: mean distance in cm between the path extracted from the prediction and the demonstration (lower is "
     "better; an instance with no extracted path is a failure, not averaged); FID: Frechet distance between features "
     "of the predicted and the demonstrated paths (lower: more alike in shape); Hd19: test instances whose "
     "Hausdorff distance to the demonstration exceeds 0.95 m (the paper's 19 px: stray artifacts); failures: share "
     "of instances from which no path could be extracted; >20 cm: share of instances whose APE exceeds 20 cm "
-    "(failures included); planner: the same for the path the planner decodes by search (what a robot would drive)."
+    "(failures included); planner: the same for the path the planner decodes by search (what a robot would drive); "
+    "plausibility: cm from the planner's path to the nearest of the demonstration and its alternatives (a path an "
+    "operator could have drawn: 0); commits: share of instances whose path follows one of them, not a blend."
 )
 
 
@@ -225,6 +229,11 @@ def run_description(cfg: DictConfig, metrics: dict[str, float], uses: list[Datas
     text = " ".join(parts)
     table = figures_table(metrics)
     text += ("\n\n" + table) if table else "\n\nNo test figures (the run was not tested)."
+    from spade.metrics.verdict import verdict_lines
+
+    verdict = verdict_lines(metrics, "test", "this model")
+    if verdict:
+        text += "\n\n**Verdict.** " + " ".join(f"{line[0].upper()}{line[1:]}." for line in verdict)
     if pictures:
         shown = [f"[{p}]({artifact_url('', *run, p)})" if run else f"`{p}`" for p in pictures]
         text += "\n\nPictures (Artifacts tab): " + ", ".join(shown) + "."

@@ -48,20 +48,49 @@ def guidance_line(history: list[tuple[int, float, float]] | None) -> str | None:
     return f"  guidance         : {verdict}" if verdict else None
 
 
-def learning_verdict(metrics: dict[str, Any]) -> str | None:
-    """One line when a student's test says it did not learn what the baselines do, with the likely cause and what
-    to change; None when it extracted paths and beats the heading template (or there is no student test)."""
+def learning_verdict(metrics: dict[str, Any]) -> list[str]:
+    """The verdict lines of a student's or expert's test (:mod:`spade.metrics.verdict`): the figure that decides,
+    the floor where the test set has alternatives, and the model against every classical baseline; one line with
+    the likely cause and what to change when it extracted no path at all. Empty when there is no test."""
+    from spade.metrics.verdict import verdict_lines, verdicts
+
     failures = metrics.get("test/failure_rate")
-    ape, template = metrics.get("test/ape_cm"), metrics.get("test/baseline/heading/ape_cm")
     if failures is None:
-        return None
+        return []
     if failures >= 0.999:
-        return ("  verdict          : the student extracted no path on any test instance: it has not learned yet. "
-                "Train longer (trainer.max_epochs) or on more demonstrations (the training set's num_instances)")
-    if ape is not None and template is not None and ape == ape and float(ape) > float(template):
-        return (f"  verdict          : the student loses to the heading template ({float(ape):.2f} vs "
-                f"{float(template):.2f} cm APE): give it more demonstrations or epochs before trusting it")
-    return None
+        return ["  verdict          : the student extracted no path on any test instance: it has not learned yet. "
+                "Train longer (trainer.max_epochs) or on more demonstrations (the training set's num_instances)"]
+    lines = [f"  verdict          : {line}" for line in verdict_lines(metrics, "test", "the student")]
+    if any(v.outcome == "loses to" for v in verdicts(metrics, "test")):
+        lines.append("  verdict          : it loses to a baseline that learns nothing: give it more demonstrations or "
+                     "epochs before trusting it")
+    return lines
+
+
+def summary_figures(metrics: dict[str, Any], prefixes: list[str]) -> list[str]:
+    """One line per predictor (``prefixes``: ``test``, ``test/baseline/<name>``, ``untrained``) with its figures."""
+    lines = []
+    for prefix in prefixes:
+        vals = [f"{k}={metrics[f'{prefix}/{k}']:.4g}" for k in SUMMARY_KEYS if f"{prefix}/{k}" in metrics]
+        if vals:
+            label = prefix.replace("test/baseline/", "baseline ")
+            lines.append(f"  {label:17s}: " + "  ".join(vals))
+    return lines
+
+
+SUMMARY_KEYS = ("ape_cm", "fid", "hd19", "failure_rate", "over_20cm_rate", "planner/ape_cm", "planner/over_20cm_rate",
+                "planner/low_confidence_rate", "planner/ape_over_floor", "planner/plausibility_cm",
+                "planner/commit_rate", "seconds_per_sample")
+"""The figures a closing summary prints per predictor (the floor once, on its own line)."""
+
+
+def floor_line(metrics: dict[str, Any], prefix: str = "test") -> str | None:
+    """The test set's floor, when it has alternatives."""
+    floor = metrics.get(f"{prefix}/floor_cm")
+    if floor is None or floor != floor:
+        return None
+    return (f"  floor            : {float(floor):.4g} cm (APE of the best single path under the test set's alternative "
+            "demonstrations: no predictor can score much below it)")
 
 
 def _data_choice() -> str:
@@ -96,7 +125,7 @@ def next_commands(cfg: DictConfig, checkpoint: str | None) -> list[str]:
 
 def run_summary(cfg: DictConfig, metrics: dict[str, Any],
                 margin_history: list[tuple[int, float, float]] | None = None, checkpoint: str | None = None) -> str:
-    """The closing lines: test metrics next to the baselines, a verdict when the student did not learn, the
+    """The closing lines: test metrics next to the baselines, the verdict against every baseline, the
     margin's activity by epoch (a guided student's ``margin_history``), the best checkpoint with the commands that
     use it, the MLflow Model logged on the run (a student's: ``runs:/RUN_ID/model``, which ``spade.plan model=``
     takes), the ``mlflow ui`` command and URLs to the run and to its experiment's runs table."""
@@ -105,18 +134,13 @@ def run_summary(cfg: DictConfig, metrics: dict[str, Any],
         from spade.experiments.tables import TINY_NOTICE
 
         lines.append(f"  {TINY_NOTICE}")
-    keys = ("ape_cm", "fid", "hd19", "failure_rate", "over_20cm_rate", "planner/ape_cm", "planner/over_20cm_rate",
-            "planner/low_confidence_rate", "seconds_per_sample")
     prefixes = ["test", *sorted({"/".join(k.split("/")[:3]) for k in metrics if k.startswith("test/baseline/")}),
                 "untrained"]
-    for prefix in prefixes:
-        vals = [f"{k}={metrics[f'{prefix}/{k}']:.4g}" for k in keys if f"{prefix}/{k}" in metrics]
-        if vals:
-            label = prefix.replace("test/baseline/", "baseline ")
-            lines.append(f"  {label:17s}: " + "  ".join(vals))
-    verdict = learning_verdict(metrics)
-    if verdict:
-        lines.append(verdict)
+    lines += summary_figures(metrics, prefixes)
+    floor = floor_line(metrics)
+    if floor:
+        lines.append(floor)
+    lines += learning_verdict(metrics)
     guidance = guidance_line(margin_history)
     if guidance:
         lines.append(guidance)
@@ -131,4 +155,16 @@ def run_summary(cfg: DictConfig, metrics: dict[str, Any],
         lines.append(f"  logged model     : {ref.model_uri}  (python -m spade.plan MAP.yaml start=X,Y,YAW goal=X,Y "
                      f"model={ref.model_uri})")
     lines += ui_lines(uri, ref.experiment_id if ref else None, ref.run_id if ref else None)
+    return "\n".join(lines)
+
+
+def evaluation_summary(cfg: DictConfig, metrics: dict[str, Any]) -> str:
+    """``spade.evaluate``'s closing lines: the same figures, floor and verdict as :func:`run_summary`'s."""
+    lines = [f"evaluation of {cfg.get('ckpt_path')} finished"]
+    prefixes = ["test", *sorted({"/".join(k.split("/")[:3]) for k in metrics if k.startswith("test/baseline/")})]
+    lines += summary_figures(metrics, prefixes)
+    floor = floor_line(metrics)
+    if floor:
+        lines.append(floor)
+    lines += learning_verdict(metrics)
     return "\n".join(lines)
