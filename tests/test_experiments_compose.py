@@ -327,13 +327,18 @@ def test_run_summary_says_when_a_student_did_not_learn_and_how_to_use_its_checkp
     from spade.experiments.tracking import run_summary
 
     cfg = compose_row("t1_small_bc_L", spade_home, "logger=none")
+    # issue 45: the verdict names its figure (the planner's APE and tail) and judges every baseline
     nothing = {"test/failure_rate": 1.0, "test/ape_cm": float("nan"), "test/baseline/heading/ape_cm": 10.5}
-    losing = {"test/failure_rate": 0.0, "test/ape_cm": 12.0, "test/baseline/heading/ape_cm": 10.5}
-    winning = {"test/failure_rate": 0.0, "test/ape_cm": 5.0, "test/baseline/heading/ape_cm": 10.5}
+    losing = {"test/failure_rate": 0.0, "test/planner/ape_cm": 12.0, "test/planner/over_20cm_rate": 0.1,
+              "test/baseline/heading/planner/ape_cm": 10.5, "test/baseline/heading/planner/over_20cm_rate": 0.05,
+              "test/baseline/straight/planner/ape_cm": 20.5, "test/baseline/straight/planner/over_20cm_rate": 0.5}
+    winning = {**losing, "test/planner/ape_cm": 5.0, "test/planner/over_20cm_rate": 0.0}
     assert "has not learned yet" in run_summary(cfg, nothing)
-    assert "loses to the heading template (12.00 vs 10.50 cm APE)" in run_summary(cfg, losing)
+    lost = run_summary(cfg, losing)
+    assert "the student loses to the heading template by the planner's APE and tail (12.00 vs 10.50 cm" in lost
+    assert "the student beats the straight line" in lost and "deciding figure" in lost
     text = run_summary(cfg, winning, checkpoint="/runs/x/checkpoints/epoch004.ckpt")
-    assert "verdict" not in text
+    assert "loses" not in text and "beats the heading template" in text
     assert "best checkpoint  : /runs/x/checkpoints/epoch004.ckpt" in text
     assert "python -m spade.evaluate ckpt_path=/runs/x/checkpoints/epoch004.ckpt scale=" in text
     assert "python -m spade.plan model_path=/runs/x/checkpoints/epoch004.ckpt" in text

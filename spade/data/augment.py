@@ -51,7 +51,8 @@ def mirror_points(points: torch.Tensor, robot_x: float) -> torch.Tensor:
 
 
 def augment_batch(batch: dict, robot_x: float, generator: torch.Generator | None = None) -> dict:
-    """Mirror a random half of the batch about the robot's column (state, path, target and waypoints)."""
+    """Mirror a random half of the batch about the robot's column (state, path, target, waypoints and, where the
+    batch has them, alternative demonstrations)."""
     state = batch["state"]
     flip = torch.rand(state.shape[0], generator=generator) < 0.5
     idx = flip.nonzero(as_tuple=True)[0].to(state.device)
@@ -63,9 +64,11 @@ def augment_batch(batch: dict, robot_x: float, generator: torch.Generator | None
             value = batch[key].clone()
             value[idx] = mirror_images(batch[key][idx], robot_x)
             out[key] = value
-    wp = batch["waypoints"].clone()
-    wp[idx] = mirror_points(batch["waypoints"][idx], robot_x)
-    out["waypoints"] = wp
+    for key in ("waypoints", "alternatives"):  # alternatives: NaN rows stay NaN
+        if key in batch:
+            points = batch[key].clone()
+            points[idx] = mirror_points(batch[key][idx], robot_x)
+            out[key] = points
     return out
 
 

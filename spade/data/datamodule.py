@@ -81,9 +81,13 @@ class PathDataModule(L.LightningDataModule):
         test_shape: str | None = None,
         generator: Generator | None = None,
         experiment: str | None = None,
+        encoding: str = "binary",
     ) -> None:
         super().__init__()
+        from spade.data.encoding import check_encoding
+
         self.experiment = experiment
+        self.encoding = check_encoding(str(encoding))
         if batch_size < 1:
             raise ValueError(f"data.batch_size must be >= 1, got {batch_size}")
         if num_workers < 0:
@@ -136,7 +140,7 @@ class PathDataModule(L.LightningDataModule):
 
     def setup(self, stage: str | None = None) -> None:
         if self.train_set is None:
-            full = PathDataset(self.train_dir)
+            full = PathDataset(self.train_dir, encoding=self.encoding)
             train, val = split_by_scenario(full.labels("scenario_id"), self.val_fraction, self.split_seed)
             if self.max_train_instances:
                 train = train[: self.max_train_instances]
@@ -144,7 +148,7 @@ class PathDataModule(L.LightningDataModule):
             self.train_set, self.val_set = Subset(full, train), Subset(full, val)
         if self.test_set is None:
             if self.test_dir is not None:
-                test = PathDataset(self.test_dir)
+                test = PathDataset(self.test_dir, encoding=self.encoding)
                 self._check_compatible(test)
                 shapes = test.labels("shape")
                 idx = [i for i, s in enumerate(shapes) if self.test_shape in (None, s)]

@@ -51,10 +51,17 @@ class PathDataset(Dataset):
     skips the hashing, e.g. in DataLoader workers). Files are memory-mapped; ``release_every`` items read in a
     row, the mapped pages are handed back to the OS so that one pass over a large dataset keeps a small
     resident set (the page cache still holds them, so re-reading stays fast).
+
+    ``encoding`` (:mod:`spade.data.encoding`): how the start and goal channels are drawn; ``binary`` (the paper's)
+    reads the stored discs, another re-draws both markers at the exact ends of the polyline (the robot, the goal).
     """
 
-    def __init__(self, root: str | Path, verify: bool = True, release_every: int = 2048) -> None:
+    def __init__(self, root: str | Path, verify: bool = True, release_every: int = 2048,
+                 encoding: str = "binary") -> None:
+        from spade.data.encoding import check_encoding
+
         self.root = Path(root)
+        self.encoding = check_encoding(encoding)
         self.manifest = read_manifest(self.root)
         check_files(self.manifest, checksums=verify)
         self.release_every = int(release_every)
@@ -101,6 +108,13 @@ class PathDataset(Dataset):
         return self.manifest.resolution
 
     @property
+    def marker_radius_px(self) -> float:
+        """The start and goal discs' radius in pixels (the annotation's ``instances.disc_radius_m``; 0.1 m when the
+        manifest does not record it)."""
+        radius_m = (self.manifest.generator.get("instances") or {}).get("disc_radius_m", 0.1)
+        return float(radius_m) / self.manifest.resolution
+
+    @property
     def frame(self) -> dict[str, Any]:
         """The window frame of the manifest (robot pixel, heading up; spade.maps.frame)."""
         return dict(self.manifest.frame)
@@ -131,9 +145,14 @@ class PathDataset(Dataset):
         binary = unpack_bits(np.stack([arrays[c][index] for c in ("start", "goal", "path")]), self._pixels)
         state = np.empty((3, h, w), dtype=np.float32)
         np.multiply(occupancy, np.float32(0.5), out=state[0])
-        state[1:] = binary[:2].reshape(2, h, w)
-        path = binary[2].reshape(1, h, w).astype(np.float32)
         waypoints = np.array(arrays["waypoints"][index], dtype=np.float32)
+        if self.encoding == "binary":
+            state[1:] = binary[:2].reshape(2, h, w)
+        else:
+            from spade.data.encoding import marker_channels
+
+            state[1:] = marker_channels(waypoints[0], waypoints[-1], h, self.marker_radius_px, self.encoding)
+        path = binary[2].reshape(1, h, w).astype(np.float32)
         pose = np.array(arrays["pose"][index], dtype=np.float32)
         self._reads += 1
         if self.release_every > 0 and self._reads % self.release_every == 0:

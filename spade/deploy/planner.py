@@ -271,6 +271,12 @@ class Planner:
                                      f"got {data['resolution_m']!r}")
         self.disc_radius_m = float(disc_radius_m if disc_radius_m is not None
                                    else data.get("disc_radius_m", DEFAULT_DISC_RADIUS_M))
+        from spade.data.encoding import MARKER_ENCODINGS
+
+        self.marker_encoding = str(data.get("marker_encoding", "binary"))  # the model's own: never another one
+        if self.marker_encoding not in MARKER_ENCODINGS:
+            raise PlannerConfigError(f"{path}: marker_encoding {self.marker_encoding!r} is not one this SPADE draws "
+                                     f"({list(MARKER_ENCODINGS)}); update SPADE or retrain the model")
         self.margin_m = float(margin_m if margin_m is not None else data.get("margin_m", DEFAULT_MARGIN_M))
         if num_waypoints < 2:
             raise PlannerConfigError(f"num_waypoints must be >= 2, got {num_waypoints}")
@@ -362,14 +368,21 @@ class Planner:
 
     # -- steps -----------------------------------------------------------------------------------------------
     def encode(self, occupancy: np.ndarray, start_px: np.ndarray, goal_px: np.ndarray) -> np.ndarray:
-        """The (3, S, S) float32 network input of a window: occupancy code * 0.5, start disc, goal disc."""
+        """The (3, S, S) float32 network input of a window: occupancy code * 0.5, start and goal markers drawn with
+        the model's ``marker_encoding`` (binary discs, or at their exact sub-pixel position)."""
         occupancy = np.asarray(occupancy, dtype=np.uint8)
-        # The annotation tool's own rasteriser draws the discs, so they are the training discs pixel for pixel.
-        inst = render(occupancy, np.stack([start_px, goal_px]), self.disc_radius_m / self.resolution, 2)
         state = np.empty((3, *occupancy.shape), dtype=np.float32)
         np.multiply(occupancy, np.float32(0.5), out=state[0])
-        state[1] = inst.start
-        state[2] = inst.goal
+        if self.marker_encoding == "binary":
+            # The annotation tool's own rasteriser draws the discs, so they are the training discs pixel for pixel.
+            inst = render(occupancy, np.stack([start_px, goal_px]), self.disc_radius_m / self.resolution, 2)
+            state[1] = inst.start
+            state[2] = inst.goal
+        else:
+            from spade.data.encoding import marker_channels
+
+            state[1:] = marker_channels(start_px, goal_px, occupancy.shape[0], self.disc_radius_m / self.resolution,
+                                        self.marker_encoding)
         return state
 
     def window(self, m: OccupancyMap, pose: Any) -> PlanWindow:

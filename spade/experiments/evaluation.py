@@ -36,6 +36,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     L.seed_everything(cfg.seed, workers=True)
     model = load_module(cfg.ckpt_path)
     datamodule = hydra.utils.instantiate(cfg.data)
+    _use_models_encoding(datamodule, cfg.ckpt_path)
     loggers = instantiate_loggers(cfg.get("logger"))
     trainer = hydra.utils.instantiate(cfg.trainer, logger=loggers or False, callbacks=[])
     results = trainer.test(model=model, datamodule=datamodule)[0]
@@ -47,3 +48,17 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
 
         record_test_set(model, datamodule, mcap, mcap_instances)
     return {k: float(v) for k, v in results.items()}
+
+
+def _use_models_encoding(datamodule: Any, ckpt_path: str) -> None:
+    """Draw the test set's start and goal markers as the model was trained to see them (its file's
+    ``data.marker_encoding``), whatever ``data.encoding`` says: a model is never fed another encoding."""
+    import logging
+
+    from spade.models.modelfile import read_info
+
+    encoding = str((read_info(ckpt_path).get("data") or {}).get("marker_encoding", "binary"))
+    if getattr(datamodule, "encoding", "binary") != encoding:
+        logging.getLogger(__name__).info("testing with the model's marker encoding %r (data.encoding was %r)",
+                                         encoding, datamodule.encoding)
+        datamodule.encoding = encoding

@@ -57,7 +57,8 @@ __all__ = [
 ]
 
 INPUT_ENCODING = "occupancy code * 0.5 (unknown 0, free 0.5, occupied 1), start, goal"
-"""The network input, as every model file records it (``spade.data.PathDataset`` builds it)."""
+"""The network input, as every model file records it (``spade.data.PathDataset`` builds it); how the start and goal
+are drawn is ``data.marker_encoding`` (:mod:`spade.data.encoding`; ``binary`` where a model file predates it)."""
 ENTRY_KEY = "spade"  # the checkpoint entry, and the ONNX metadata_props key
 TORCHSCRIPT_METADATA_FILE = "spade.json"
 INPUT_NAME, OUTPUT_NAME = "state", "logits"
@@ -128,7 +129,8 @@ def checkpoint_entry(role: str, net: nn.Module, datamodule: Any = None, loggers:
     info: dict[str, Any] = {"role": str(role), "config": plain(dict(net.config))}
     if datamodule is not None and hasattr(datamodule, "resolution"):
         data: dict[str, Any] = {"image_size": [int(v) for v in datamodule.image_size],
-                                "resolution_m": float(datamodule.resolution), "input_encoding": INPUT_ENCODING}
+                                "resolution_m": float(datamodule.resolution), "input_encoding": INPUT_ENCODING,
+                                "marker_encoding": str(getattr(datamodule, "encoding", "binary"))}
         frame = getattr(datamodule, "frame", None)
         if frame:
             data["frame"] = plain(dict(frame))
