@@ -58,7 +58,7 @@ def test_presets_accept_real_maps(maps_dir: Path) -> None:
 def test_presets_run_at_small_size(tmp_path: Path, name: str) -> None:
     cfg = preset(name, f"out_dir={tmp_path / name}", "num_instances=30", "workers=1", "progress=false",
                  "window.size_px=64", "window.resolution_m=0.1", "instances.spacing_m=0.2", "preview.enabled=false",
-                 f"maps=[{preset(name)['maps'][0]}]")
+                 f"maps=[{preset(name)['maps'][0]}]", "alternatives.max_draws=8192")  # the test preset's: fewer draws
     assert annotate(cfg)["instances"] == 30
 
 

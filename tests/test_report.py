@@ -189,14 +189,22 @@ def test_baselines_are_reference_rows_and_losing_rows_are_named(tmp_path: Path) 
     baselines = {"test/baseline/straight/ape_cm": 24.0, "test/baseline/straight/failure_rate": 0.0,
                  "test/baseline/shortest/ape_cm": 29.0, "test/baseline/heading/ape_cm": 12.5,
                  "test/baseline/heading/hd19": 3.0}
-    _log_run(client, t3, "t3_bc_scratch_U", {"test/ape_cm": 30.0, "test/failure_rate": 0.01, **baselines})
-    _log_run(client, t3, "t3_augbc_pretrained_expert_U", {"test/ape_cm": 6.0, "test/failure_rate": 0.005, **baselines})
+    # the deciding figure (issue 45): the planner's APE and tail
+    planners = {"test/baseline/straight/planner/ape_cm": 24.0, "test/baseline/shortest/planner/ape_cm": 29.0,
+                "test/baseline/heading/planner/ape_cm": 12.5, "test/baseline/heading/planner/over_20cm_rate": 0.1}
+    _log_run(client, t3, "t3_bc_scratch_U", {"test/ape_cm": 30.0, "test/failure_rate": 0.01, **baselines, **planners,
+                                             "test/planner/ape_cm": 30.0, "test/planner/over_20cm_rate": 0.5})
+    _log_run(client, t3, "t3_augbc_pretrained_expert_U", {"test/ape_cm": 6.0, "test/failure_rate": 0.005, **baselines,
+                                                          **planners, "test/planner/ape_cm": 6.0,
+                                                          "test/planner/over_20cm_rate": 0.05})
     rep = build_report(TABLES["table3"], uri)
     table = render_table(TABLES["table3"], rep.results)
-    assert "reference: straight line | n/a / 24.00 / n/a / 0.0% / n/a / n/a / n/a | 0 (no learning)" in table
-    assert "reference: heading template | n/a / 12.50 / 3 / n/a / n/a / n/a / n/a |" in table
-    assert "t3_bc_scratch_U LOSES to the straight line, shortest path (Nav2-like), heading template" in rep.text
+    assert "reference: straight line | n/a / 24.00 / n/a / 0.0% / n/a / 24.00 / n/a | 0 (no learning)" in table
+    assert "reference: heading template | n/a / 12.50 / 3 / n/a / n/a / 12.50 / 10.0% |" in table
+    assert ("t3_bc_scratch_U LOSES to the straight line, shortest path (Nav2-like), heading template on its own test "
+            "set by the deciding figure") in rep.text
     assert "t3_augbc_pretrained_expert_U LOSES" not in rep.text
+    assert "Which figure decides: the planner's APE with its tail" in rep.text
 
 
 # -- seeds: mean +/- sd per cell, Welch's t-test between compared rows (issue 24) --------------------------------

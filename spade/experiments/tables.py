@@ -305,7 +305,20 @@ def _sizing() -> Table:
                  ("instances", "epochs"), ("L",), lines)
 
 
-TABLES: dict[str, Table] = {t.key: t for t in (_table1(), _table2(), _table3(), _guidance(), _sizing())}
+def _encoding() -> Table:
+    """Not a table of the paper: which start and goal markers a student's input should draw (issue 45): the paper's
+    binary discs, an anti-aliased disc and a Gaussian blob at the exact position (``data.encoding``), medium BC
+    students on the held-out map (L) and unseen real maps (real, run ``<row>_real``)."""
+    lines = tuple(Line((label,), {"L": f"enc_{name}_L", "real": f"enc_{name}_L_real"})
+                  for label, name in (("binary discs (paper)", "binary"), ("anti-aliased disc", "aa_disc"),
+                                      ("Gaussian blob", "gaussian")))
+    return Table("encoding", "Start and goal markers: the paper's binary discs against sub-pixel encodings (medium "
+                 "BC students; held-out map L, unseen real maps real)", "encoding", "encoding", ("encoding",),
+                 ("L", "real"), lines, tested_elsewhere=("real",))
+
+
+TABLES: dict[str, Table] = {t.key: t for t in (_table1(), _table2(), _table3(), _guidance(), _sizing(),
+                                               _encoding())}
 _ALIASES = {"1": "table1", "2": "table2", "3": "table3"} | {t.composition: t.key for t in TABLES.values()}
 
 

@@ -85,9 +85,10 @@ def _check_model(cfg: DictConfig) -> None:
     if role == "student":
         _check_choice(cfg, "model.size", presets("student"))
         _check_number(cfg, "model.bc_pos_weight", 0, low_open=True, none_ok=True, fix=" (null: plain BCE)")
-        margin = _margin_config(cfg)  # model.margin's options, by MarginConfig's checks (lambda_dm >= 0, kind...)
+        _margin_config(cfg)  # model.margin's options, by MarginConfig's checks (lambda_dm >= 0, kind...)
+        guided = bool(_get(cfg, "model.margin") not in (_MISSING, None) and len(_get(cfg, "model.margin")))
         encoding = _get(cfg, "data.encoding")
-        if margin is not None and encoding not in (_MISSING, None, "binary"):
+        if guided and encoding not in (_MISSING, None, "binary"):
             raise ConfigError(f"data.encoding={encoding} with a diffusion margin: the experts see the state with the "
                               "binary start and goal discs they were trained on; train guided rows with "
                               "data.encoding=binary (recipe.encoding), or margin=none")
