@@ -197,3 +197,22 @@ def test_corrupt_alternatives_are_refused(tmp_path: Path) -> None:
     path.write_bytes(bytes(data))
     with pytest.raises(DatasetError, match="alternatives"):
         PathDataset(tmp_path / "alt")
+
+
+def test_the_floor_recomputed_from_the_files_alone_agrees(tmp_path: Path) -> None:
+    """The metric's floor against a numpy re-implementation reading the dataset's files (spade.perf.alternatives),
+    and a second estimator (the set's medoid) within 15 %; the worker count never changes the alternatives."""
+    from spade.annotate import annotate
+    from spade.perf.alternatives import independent_floor
+
+    roots = []
+    for workers in (1, 2):
+        cfg = small_cfg(tmp_path / f"w{workers}", num_instances=16, shape="L", workers=workers)
+        cfg["alternatives"].update(count=4, max_draws=12288)
+        annotate(cfg)
+        roots.append(tmp_path / f"w{workers}")
+    assert (roots[0] / "alternatives.bin").read_bytes() == (roots[1] / "alternatives.bin").read_bytes()
+    out = independent_floor(str(roots[0]), "L")
+    assert out["instances"] > 0
+    assert out["metric_floor_cm"] == pytest.approx(out["independent_median_floor_cm"], rel=1e-5)
+    assert out["independent_medoid_floor_cm"] == pytest.approx(out["metric_floor_cm"], rel=0.15)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -89,12 +90,130 @@ def compare(dataset: str, scenarios: int = 4, states: int = 6, shape: str = "L",
             "settings": settings.to_json(), "reference": reference.to_json(), "rows": rows}
 
 
+def independent_floor(dataset: str, shape: str | None = None) -> dict[str, Any]:
+    """The floor of a test set recomputed from its files alone (numpy on ``alternatives.bin``, ``waypoints.bin`` and
+    ``goal.bin``, none of the metric's code): the pointwise median of each instance's demonstration and
+    alternatives ended on its goal disc's centre (the metric's estimator) and, as a second estimator, the medoid of
+    that set (the path of the set nearest to all others) ended the same way; both against the demonstration, in cm,
+    beside what :class:`~spade.metrics.preference.PreferenceMetrics` computes from the same set."""
+    import torch
+
+    from spade.data import PathDataset
+    from spade.data.format import read_manifest
+    from spade.metrics.preference import PreferenceMetrics
+
+    m = read_manifest(dataset)
+    if not m.alternatives:
+        raise ValueError(f"{dataset} has no alternative demonstrations (alternatives.count=0 when it was made)")
+    n, k, a = m.num_instances, m.num_waypoints, m.alternatives
+    root = Path(dataset)
+    demos = np.fromfile(root / "waypoints.bin", dtype="<f4").reshape(n, k, 2).astype(np.float64)
+    alts = np.fromfile(root / "alternatives.bin", dtype="<f4").reshape(n, a, k, 2).astype(np.float64)
+    goal_bits = np.unpackbits(np.fromfile(root / "goal.bin", dtype=np.uint8).reshape(n, -1), axis=1
+                              )[:, :m.height * m.width].reshape(n, m.height, m.width)
+    shapes = np.array([m.label("shape", i) for i in range(n)])
+    keep = [i for i in range(n) if (shape is None or shapes[i] == shape) and np.isfinite(alts[i]).all(axis=(1, 2)).any()]
+
+    def resample(p: np.ndarray) -> np.ndarray:
+        seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        u = np.concatenate([[0.0], np.cumsum(seg)])
+        t = np.linspace(0.0, u[-1], k)
+        return np.stack([np.interp(t, u, p[:, 0]), np.interp(t, u, p[:, 1])], axis=1)
+
+    median_cm, medoid_cm = [], []
+    ramp = np.linspace(0.0, 1.0, k)[:, None]
+    for i in keep:
+        paths = np.stack([resample(p) for p in [demos[i], *alts[i][np.isfinite(alts[i]).all(axis=(1, 2))]]])
+        rows, cols = np.nonzero(goal_bits[i])
+        centre = np.array([cols.mean(), rows.mean()])
+        med = np.median(paths, axis=0)
+        med = med + ramp * (centre - med[-1])
+        pair = np.linalg.norm(paths[:, None] - paths[None], axis=3).mean(axis=2)
+        medoid = paths[int(np.argmin(pair.sum(axis=1)))]
+        medoid = medoid + ramp * (centre - medoid[-1])
+        cm = m.resolution * 100.0
+        median_cm.append(np.linalg.norm(med - paths[0], axis=1).mean() * cm)
+        medoid_cm.append(np.linalg.norm(medoid - paths[0], axis=1).mean() * cm)
+    metric = PreferenceMetrics()
+    ds = PathDataset(dataset)
+    for start in range(0, len(keep), 64):
+        items = [ds[i] for i in keep[start:start + 64]]
+        metric.update([it["waypoints"].numpy() for it in items], torch.stack([it["state"] for it in items]),
+                      torch.stack([it["waypoints"] for it in items]), torch.stack([it["alternatives"] for it in items]),
+                      torch.tensor([it["resolution"] for it in items]))
+    return {"dataset": str(dataset), "shape": shape, "instances": len(keep),
+            "metric_floor_cm": float(metric.compute()["floor_cm"]),
+            "independent_median_floor_cm": float(np.mean(median_cm)),
+            "independent_medoid_floor_cm": float(np.mean(medoid_cm))}
+
+
+def write_page(out_dir: str, comparison: dict[str, Any], floors: list[dict[str, Any]], seconds: float) -> Path:
+    """``alternatives.md`` in ``out_dir``: the prefilter's loss and the floor checks, with their provenance."""
+    import datetime
+
+    from spade.utils.provenance import command_line, commit, machine
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    summ = comparison["summary"]
+    rows = ["| figure (mean over states) | shipped prefilter | looser prefilter | ratio |", "|---|---:|---:|---:|"]
+    for key, label in (("floor_cm", "floor (cm)"), ("nearest_cm", "demonstration to its nearest alternative (cm)"),
+                       ("spread_cm", "median distance demonstration to alternatives (cm)"),
+                       ("count", "alternatives drawn")):
+        rows.append(f"| {label} | {summ[key]['sampler']:.3f} | {summ[key]['reference']:.3f} | "
+                    f"{summ[key]['ratio']:.3f} |")
+    frows = ["| test set | shape | instances | floor, the metric (cm) | independent: median (cm) | independent: "
+             "medoid (cm) | metric / independent median |", "|---|---|---:|---:|---:|---:|---:|"]
+    for f in floors:
+        frows.append(f"| `{Path(f['dataset']).name}` | {f['shape'] or 'all'} | {f['instances']} | "
+                     f"{f['metric_floor_cm']:.3f} | {f['independent_median_floor_cm']:.3f} | "
+                     f"{f['independent_medoid_floor_cm']:.3f} | "
+                     f"{f['metric_floor_cm'] / f['independent_median_floor_cm']:.3f} |")
+    timing = comparison["timing"]
+    text = "\n".join([
+        "# Alternative demonstrations: the sampler checked",
+        "",
+        f"The sampler (`spade/annotation/alternatives.py`) on {comparison['states']} robot states of "
+        f"{comparison['shape']}-shape scenarios of `{Path(comparison['dataset']).name}`, with the shipped prefilter "
+        f"({comparison['settings']['prefilter_px']} px, {comparison['settings']['prefilter_deg']} deg) and with one "
+        f"twice as loose ({comparison['reference']['prefilter_px']} px, {comparison['reference']['prefilter_deg']} "
+        f"deg). Both keep a template only where its executed path passes the robot within "
+        f"{comparison['settings']['pos_tol_px']} px and {comparison['settings']['heading_tol_deg']} deg; the looser "
+        "one executes more candidates, so it loses fewer of the templates that pass. Time: "
+        f"{timing['sampler_s']:.1f} s shipped, {timing['reference_s']:.1f} s looser.",
+        "",
+        *rows,
+        "",
+        "The floor of whole test sets, from the metric and recomputed from the files alone (numpy on "
+        "`alternatives.bin`, `waypoints.bin`, `goal.bin`): the metric's estimator (pointwise median ended on the goal "
+        "disc's centre) and a second one (the medoid of the set, ended the same way).",
+        "",
+        *frows,
+        "",
+        "Provenance:",
+        f"- command: `{command_line('spade.perf.alternatives')}`",
+        f"- commit: {commit() or 'unknown (not a git checkout)'}",
+        f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
+        f"- machine: {machine()}",
+        f"- wall time: {seconds:.0f} s",
+        "",
+    ])
+    page = out / "alternatives.md"
+    page.write_text(text)
+    return page
+
+
 def main(argv: list[str] | None = None) -> None:
+    """``dataset=DIR [scenarios=N] [states=N] [shape=L] [count=N] [looser=2] [floors=DIR,DIR] [output_dir=DIR]``."""
     args = dict(a.split("=", 1) for a in (sys.argv[1:] if argv is None else argv))
+    t0 = time.perf_counter()
     out = compare(args["dataset"], int(args.get("scenarios", 4)), int(args.get("states", 6)),
                   args.get("shape", "L"), int(args.get("count", 32)), looser=float(args.get("looser", 2.0)))
     out.pop("rows")
-    print(json.dumps(out, indent=1))
+    floors = [independent_floor(d, args.get("shape", "L")) for d in args.get("floors", args["dataset"]).split(",")]
+    print(json.dumps({**out, "floors": floors}, indent=1))
+    if args.get("output_dir"):
+        print(f"results page: {write_page(args['output_dir'], out, floors, time.perf_counter() - t0)}")
 
 
 if __name__ == "__main__":
