@@ -52,7 +52,7 @@ def batch_of(demos: list[np.ndarray], alternatives: list[list[np.ndarray]], slot
 
 def test_prediction_equal_to_an_alternative_is_plausible_and_commits() -> None:
     sharp, wide = turn(3.0), turn(9.0)
-    m = PreferenceMetrics(commit_tol_px=1.5)
+    m = PreferenceMetrics(commit_tol_cm=15.0)
     b = batch_of([sharp], [[wide]])
     m.update([wide], b["state"], b["waypoints"], b["alternatives"], b["resolution"])
     out = m.compute()
@@ -67,13 +67,13 @@ def test_prediction_equal_to_an_alternative_is_plausible_and_commits() -> None:
 def test_the_blend_of_two_turns_is_implausible_and_does_not_commit() -> None:
     sharp, wide = turn(2.0), turn(15.0)
     blend = (sharp + wide) / 2
-    m = PreferenceMetrics(commit_tol_px=0.5)
+    m = PreferenceMetrics(commit_tol_cm=5.0)
     b = batch_of([sharp], [[wide]])
     m.update([blend], b["state"], b["waypoints"], b["alternatives"], b["resolution"])
     out = m.compute()
     to_each = [polyline_ape(blend, p) for p in (sharp, wide)]
     assert float(out["plausibility_cm"]) == pytest.approx(min(to_each) * RES * 100, rel=1e-5)
-    assert min(to_each) > 0.5 and float(out["commit_rate"]) == 0.0
+    assert min(to_each) * RES * 100 > 5.0 and float(out["commit_rate"]) == 0.0
 
 
 def test_floor_with_alternatives_equal_to_the_demonstration_is_its_encoding_error() -> None:
@@ -156,5 +156,5 @@ def test_path_metrics_report_them_only_where_the_batch_has_alternatives() -> Non
 
 
 def test_bad_tolerance_is_refused() -> None:
-    with pytest.raises(ValueError, match="commit_tol_px"):
-        PreferenceMetrics(commit_tol_px=0)
+    with pytest.raises(ValueError, match="commit_tol_cm"):
+        PreferenceMetrics(commit_tol_cm=0)

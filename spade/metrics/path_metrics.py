@@ -55,7 +55,7 @@ class PathMetrics(nn.Module):
                  fid_extractor_kwargs: dict | None = None, fid: bool = True, hd_threshold_m: float | None = 0.95,
                  planner: bool = True, tail_cm: float = 20.0, low_confidence_share: float = 0.1,
                  decoder: dict | None = None, planner_keys: tuple[str, ...] | None = PLANNER_KEYS,
-                 commit_tol_px: float = 1.5) -> None:
+                 commit_tol_cm: float = 1.5) -> None:
         super().__init__()
         self.planner_keys = None if planner_keys is None else tuple(planner_keys)
         self.ape = APE(threshold=pred_threshold, tail_cm=tail_cm)
@@ -65,7 +65,7 @@ class PathMetrics(nn.Module):
                   name="hd19" if hd_threshold_m is not None else None)
         self.hd = HausdorffCount(**hd)
         self.planner = planner
-        self.preference = PreferenceMetrics(commit_tol_px=commit_tol_px)
+        self.preference = PreferenceMetrics(commit_tol_cm=commit_tol_cm)
         if not 0 <= low_confidence_share <= 1:
             raise ValueError(f"low_confidence_share must lie in [0, 1], got {low_confidence_share}")
         self.low_confidence_share = float(low_confidence_share)
@@ -75,7 +75,7 @@ class PathMetrics(nn.Module):
             self.planner_hd = HausdorffCount(**hd)
             self.low_confidence = MeanMetric()
             self.low_share = MeanMetric()
-            self.planner_preference = PreferenceMetrics(commit_tol_px=commit_tol_px)
+            self.planner_preference = PreferenceMetrics(commit_tol_cm=commit_tol_cm)
         fid_args = () if fid_extractor is None else (fid_extractor,)
         self.fid = FID(*fid_args, extractor_kwargs=fid_extractor_kwargs) if fid else None
         self._warned = False

@@ -12,8 +12,10 @@ draws them with the dataset). With the demonstration and its alternatives, the *
 - ``ape_over_floor``: mean APE over mean floor on the same instances (the ratio of the means; 1 is the floor).
 - ``plausibility_cm``: the APE to the *nearest* path of the plausible set, averaged: 0 for a path an operator
   (the generator) could have drawn, large for a blend no one drew.
-- ``commit_rate``: the share of instances whose path lies within ``commit_tol_px`` (mean distance, pixels) of one
-  path of the plausible set: it chose one way of turning. A failed prediction does not commit.
+- ``commit_rate``: the share of instances whose path lies within ``commit_tol_cm`` (mean distance) of one path of
+  the plausible set: it chose one way of turning. A failed prediction does not commit. The tolerance is in
+  centimetres so that it means the same at every resolution; ``python -m spade.perf.alternatives`` reports how
+  often a genuine draw of the generator commits at it (each alternative against the rest of its set).
 
 Instances without alternatives are left out of all four (``pref_instances`` counts those scored).
 """
@@ -78,11 +80,11 @@ class PreferenceMetrics(Metric):
     higher_is_better = None
     full_state_update = False
 
-    def __init__(self, commit_tol_px: float = 1.5, **kwargs) -> None:
+    def __init__(self, commit_tol_cm: float = 1.5, **kwargs) -> None:
         super().__init__(**kwargs)
-        if not commit_tol_px > 0:
-            raise ValueError(f"commit_tol_px must be > 0 pixels, got {commit_tol_px}")
-        self.commit_tol_px = float(commit_tol_px)
+        if not commit_tol_cm > 0:
+            raise ValueError(f"commit_tol_cm must be > 0 centimetres, got {commit_tol_cm}")
+        self.commit_tol_cm = float(commit_tol_cm)
         self.add_state("floor", default=[], dist_reduce_fx="cat")  # cm, every instance with alternatives
         self.add_state("ape", default=[], dist_reduce_fx="cat")  # cm, scored instances
         self.add_state("floor_scored", default=[], dist_reduce_fx="cat")  # cm, the scored instances' floors
@@ -118,7 +120,7 @@ class PreferenceMetrics(Metric):
             ape.append(float(dist[0]) * cm)
             floor_scored.append(f * cm)
             plaus.append(float(dist.min()) * cm)
-            commits += int(dist.min() <= self.commit_tol_px)
+            commits += int(dist.min() * cm <= self.commit_tol_cm)
         for name, values in (("floor", floor), ("ape", ape), ("floor_scored", floor_scored),
                              ("plausibility", plaus)):
             getattr(self, name).append(torch.tensor(values, dtype=torch.float64, device=self.device))
