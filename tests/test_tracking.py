@@ -297,6 +297,10 @@ def test_a_tested_run_has_its_predictors_report_picture_and_lean_params(tracked_
         if name != "tracked":
             assert {"test/ape_cm", "test/planner/ape_cm", "test/failure_rate", "test/over_20cm_rate"} <= set(
                 child.data.metrics), name
+            # issue 45: the test set carries alternative demonstrations, so every predictor has the figures that
+            # see a preference, beside the floor
+            assert {"test/floor_cm", "test/planner/ape_over_floor", "test/planner/plausibility_cm",
+                    "test/planner/commit_rate"} <= set(child.data.metrics), name
             assert child.data.tags["mlflow.parentRunId"] == run.info.run_id
             assert [d.dataset.name for d in child.inputs.dataset_inputs] == ["tiny/test"]
     params = run.data.params
@@ -310,6 +314,7 @@ def test_a_tested_run_has_its_predictors_report_picture_and_lean_params(tracked_
     note = run.data.tags["mlflow.note.content"]
     assert "child runs of this run" in note and "report/run_report.md" in note and "training_progress.png" in note
     assert "APE: mean distance in cm" in note
+    assert "test/floor_cm" in run.data.metrics and "**Verdict.** Deciding figure" in note
     history = client.get_metric_history(run.info.run_id, "margin/active")
     assert [m.step for m in history] == [0, 1]
 
