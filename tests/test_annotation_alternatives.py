@@ -16,7 +16,6 @@ from spade.annotation.alternatives import (
     TemplateDraws,
     keypoint_polylines,
     keypoints_pass,
-    passes_through,
     sample_templates,
     scenario_alternatives,
 )
@@ -61,31 +60,28 @@ def _one(t: TemplateDraws, b: int) -> TemplateDraws:
 
 
 @pytest.mark.parametrize("shape", ["L", "U"])
-def test_a_template_passes_its_own_curve_and_not_a_pose_beside_it(shape: str) -> None:
-    """The closed-form pass test against the template placed by the generator's own code (place_template)."""
+def test_a_template_passes_its_own_waypoints_and_not_a_pose_beside_them(shape: str) -> None:
+    """The vectorised prefilter against the template placed by the generator's own code (place_template)."""
     rng = np.random.default_rng(3)
     res, goal = 0.1, np.array([100.0, 80.0])
     for _ in range(10):
         st = sample_template(shape, TEMPLATE, rng)
         t = TemplateDraws(np.array([st.leg_m]), np.array([st.radius_m]), np.array([st.tail_m]),
                           np.array([-1.0 if st.mirror else 1.0]), np.array([st.heading_rad]), np.deg2rad(SHAPES[shape]))
-        keypoints, dense = place_template(st, goal, res)
-        idx = np.linspace(2, len(dense) - 3, 12).astype(int)
-        chord = dense[idx + 1] - dense[idx]  # a pose at each chord's middle, heading along it: on the curve
-        headings = np.arctan2(chord[:, 1], chord[:, 0])
-        middle = (dense[idx] + dense[idx + 1]) / 2
-        poses = np.column_stack([middle, headings])
-        assert passes_through(t, goal, poses, res, 0.3, np.deg2rad(4)).all()
-        normal = np.column_stack([-np.sin(headings), np.cos(headings)])  # map-pixel normal of the heading
-        beside = np.column_stack([middle + 2.0 * normal, headings])
-        assert not passes_through(t, goal, beside, res, 0.75, np.deg2rad(3)).any()
-        turned = np.column_stack([middle, headings + np.deg2rad(30)])  # 30 deg: on an arc, 10 is a point nearby
-        assert not passes_through(t, goal, turned, res, 0.75, np.deg2rad(3)).any()
-        # the clicked waypoints' polyline passes through each waypoint, heading along the chord that leaves it
+        keypoints, _ = place_template(st, goal, res)
         chords = np.diff(keypoints, axis=0)
-        at = np.column_stack([keypoints[:-1], np.arctan2(chords[:, 1], chords[:, 0])])
-        assert keypoints_pass(t, goal, at[np.linalg.norm(chords, axis=1) > 1e-6], res, 0.1, np.deg2rad(0.5),
-                              TEMPLATE, shape).all()
+        chords = chords[np.linalg.norm(chords, axis=1) > 1e-6]
+        starts = keypoints[:-1][np.linalg.norm(np.diff(keypoints, axis=0), axis=1) > 1e-6]
+        headings = np.arctan2(chords[:, 1], chords[:, 0])
+        middle = starts + chords / 2  # a pose at each chord's middle, heading along it
+        on = np.column_stack([middle, headings])
+        assert keypoints_pass(t, goal, on, res, 0.1, np.deg2rad(0.5), TEMPLATE, shape).all()
+        normal = np.column_stack([-np.sin(headings), np.cos(headings)])
+        beside = np.column_stack([middle + 2.0 * normal, headings])
+        assert not keypoints_pass(t, goal, beside, res, 0.75, np.deg2rad(3), TEMPLATE, shape).any()
+        # on the first leg chord, 5 degrees off: no chord of the template runs that way there
+        turned = np.column_stack([middle[:1], headings[:1] + np.deg2rad(5)])
+        assert not keypoints_pass(t, goal, turned, res, 0.75, np.deg2rad(3), TEMPLATE, shape).any()
 
 
 @pytest.fixture(scope="module")

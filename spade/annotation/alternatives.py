@@ -16,8 +16,8 @@ and shared by all of its robot states:
    distribution unchanged and saves most draws.
 2. Prefilter, vectorised over the draws (:func:`keypoints_pass`): the polyline through the template's clicked
    waypoints (the chords the execution follows before it smooths them) passes within ``prefilter_px`` of a state
-   with a heading within ``prefilter_deg``. The ideal curve (:func:`passes_through`) is a poor proxy: an executed
-   path that passes a pose exactly has its ideal arc up to 30 degrees off there, its chords within 20.
+   with a heading within ``prefilter_deg``. The ideal curve is a poor proxy: an executed path that passes a pose
+   exactly has its ideal arc up to 30 degrees off there, its chords within 20.
 3. Execute each candidate once per scenario, as the generator does (every check of a scenario: sketch clearance,
    window fit, :func:`spade.annotation.execution.execute_sketch`'s deviation and shape checks).
 4. Keep it for a state when the *executed* path passes within ``pos_tol_px`` of the robot with a heading within
@@ -51,8 +51,8 @@ ESTIMATOR = ("rejection sampling of the generator's templates on the goal: execu
              "waypoints' polyline within prefilter_px, prefilter_deg); the executed path from its nearest point to "
              "the goal, start ramped onto the robot")
 
-__all__ = ["ESTIMATOR", "keypoint_polylines", "keypoints_pass", "ALTERNATIVES_VERSION", "AlternativesSettings", "TemplateDraws", "passes_through", "sample_templates",
-           "scenario_alternatives"]
+__all__ = ["ALTERNATIVES_VERSION", "ESTIMATOR", "AlternativesSettings", "TemplateDraws", "keypoint_polylines",
+           "keypoints_pass", "sample_templates", "scenario_alternatives"]
 
 
 @dataclass(frozen=True)
@@ -153,37 +153,6 @@ def sample_templates(shape: str, cfg: Mapping[str, Any], rng: np.random.Generato
 
 def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + np.pi) % (2 * np.pi) - np.pi
-
-
-def passes_through(t: TemplateDraws, goal_px: np.ndarray, poses: np.ndarray, resolution: float, pos_tol_px: float,
-                   heading_tol: float) -> np.ndarray:
-    """(B, S) whether template b's ideal curve, placed so that it ends on ``goal_px`` (map pixels), passes within
-    ``pos_tol_px`` of pose s with a heading within ``heading_tol`` radians. ``poses`` (S, 3): map pixel x, y and
-    map-pixel heading (:func:`spade.maps.frame.path_heading`)."""
-    end = t.end()  # (B, 2)
-    # Pose in each template's frame: map pixels -> metres with y up, relative to the goal, rotated by -theta.
-    d = np.stack([(poses[:, 0] - goal_px[0]) * resolution, -(poses[:, 1] - goal_px[1]) * resolution], axis=1)
-    c, s = np.cos(t.theta)[:, None], np.sin(t.theta)[:, None]
-    qx = c * d[None, :, 0] + s * d[None, :, 1] + end[:, 0:1]
-    qy = -s * d[None, :, 0] + c * d[None, :, 1] + end[:, 1:2]
-    psi = _wrap(-poses[None, :, 2] - t.theta[:, None])  # heading y-up, in the template frame
-    tol = pos_tol_px * resolution
-    leg, r, tail, sign = t.leg[:, None], t.radius[:, None], t.tail[:, None], t.sign[:, None]
-    # Leg: (0, 0) -> (leg, 0), heading 0.
-    along = np.clip(qx, 0.0, leg)
-    ok = (np.hypot(qx - along, qy) <= tol) & (np.abs(psi) <= heading_tol)
-    # Arc about (leg, sign * r): the point at angle phi is centre + r (sin phi, -sign cos phi), heading sign * phi.
-    vx, vy = qx - leg, qy - sign * r
-    phi = np.arctan2(vx, -sign * vy)
-    on_arc = (phi >= -1e-9) & (phi <= t.turn + 1e-9)
-    ok |= on_arc & (np.abs(np.hypot(vx, vy) - r) <= tol) & (np.abs(_wrap(psi - sign * phi)) <= heading_tol)
-    # Tail from the arc's end along the final heading sign * turn.
-    ux, uy = np.cos(t.turn), sign * np.sin(t.turn)
-    ax, ay = leg + r * np.sin(t.turn), sign * r - sign * r * np.cos(t.turn)
-    w_along = np.clip((qx - ax) * ux + (qy - ay) * uy, 0.0, tail)
-    dist = np.hypot(qx - ax - w_along * ux, qy - ay - w_along * uy)
-    ok |= (dist <= tol) & (np.abs(_wrap(psi - sign * t.turn)) <= heading_tol)
-    return ok
 
 
 def _heading_window(poses: np.ndarray, turn: float, heading_tol: float) -> tuple[np.ndarray, float]:
