@@ -212,3 +212,16 @@ def test_the_floor_recomputed_from_the_files_alone_agrees(tmp_path: Path) -> Non
     assert out["instances"] > 0
     assert out["metric_floor_cm"] == pytest.approx(out["independent_median_floor_cm"], rel=1e-5)
     assert out["independent_medoid_floor_cm"] == pytest.approx(out["metric_floor_cm"], rel=0.15)
+
+
+@pytest.mark.slow  # the sampler twice and its prefilter's capture, on a small set: about a minute
+def test_the_sampler_check_writes_its_page(tmp_path: Path) -> None:
+    from spade.annotate import annotate
+    from spade.perf.alternatives import main
+
+    cfg = small_cfg(tmp_path / "set", num_instances=12, shape="L")
+    cfg["alternatives"].update(count=2, max_draws=8192)
+    annotate(cfg)
+    main([f"dataset={tmp_path / 'set'}", "scenarios=1", "states=2", "count=2", f"output_dir={tmp_path / 'out'}"])
+    page = (tmp_path / "out" / "alternatives.md").read_text()
+    assert "paired t-test" in page and "What the shipped prefilter loses" in page and "- commit:" in page
