@@ -225,3 +225,19 @@ def test_the_sampler_check_writes_its_page(tmp_path: Path) -> None:
     main([f"dataset={tmp_path / 'set'}", "scenarios=1", "states=2", "count=2", f"output_dir={tmp_path / 'out'}"])
     page = (tmp_path / "out" / "alternatives.md").read_text()
     assert "paired t-test" in page and "What the shipped prefilter loses" in page and "- commit:" in page
+
+
+def test_a_test_set_without_alternatives_loads_and_the_run_says_so(tmp_path: Path, caplog) -> None:
+    import logging
+
+    from spade.annotate import annotate
+    from spade.data.datamodule import PathDataModule
+
+    annotate(small_cfg(tmp_path / "train", num_instances=8, shape="L"))
+    annotate(small_cfg(tmp_path / "old", num_instances=8, shape="L", seed=7, maps=["hall:5"]))  # count=0: as before
+    dm = PathDataModule(tmp_path / "train", test_dir=tmp_path / "old", batch_size=4)
+    with caplog.at_level(logging.WARNING, logger="spade.data.datamodule"):
+        dm.setup("test")
+    assert len(dm.test_set) == 8
+    said = [r.getMessage() for r in caplog.records if "no alternative demonstrations" in r.getMessage()]
+    assert len(said) == 1 and "floor_cm" in said[0] and "alternatives.count" in said[0]
