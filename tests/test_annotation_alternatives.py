@@ -241,3 +241,26 @@ def test_a_test_set_without_alternatives_loads_and_the_run_says_so(tmp_path: Pat
     assert len(dm.test_set) == 8
     said = [r.getMessage() for r in caplog.records if "no alternative demonstrations" in r.getMessage()]
     assert len(said) == 1 and "floor_cm" in said[0] and "alternatives.count" in said[0]
+
+
+def test_a_partly_nan_or_infinite_alternative_is_refused(tmp_path: Path) -> None:
+    import hashlib
+
+    from spade.annotate import annotate
+    from spade.data.format import DatasetError
+
+    cfg = small_cfg(tmp_path / "alt", num_instances=8, shape="L")
+    cfg["alternatives"].update(count=2, max_draws=8192)
+    annotate(cfg)
+    root = tmp_path / "alt"
+    manifest = json.loads((root / "manifest.json").read_text())
+    path = root / "alternatives.bin"
+    values = np.fromfile(path, dtype="<f4").reshape(8, 2, cfg["num_waypoints"], 2)
+    i, j = np.argwhere(np.isfinite(values).all(axis=(2, 3)))[0]
+    values[i, j, 5, 0] = np.inf
+    values.tofile(path)
+    manifest["files"]["alternatives"]["sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
+    manifest.pop("manifest_sha256", None)
+    (root / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(DatasetError, match=f"instance {i} holds a row that is partly NaN, or holds inf"):
+        PathDataset(root)

@@ -176,3 +176,23 @@ def test_settings_that_never_change_the_bytes_do_not_make_a_dataset_stale() -> N
     assert shaping_settings(asked) == shaping_settings(recorded)
     assert settings_fingerprint(asked) == settings_fingerprint(recorded)
     assert settings_fingerprint({**recorded, "seed": 1}) != settings_fingerprint(recorded)
+
+
+@pytest.mark.parametrize("name,row", [("waypoints", 3), ("pose", 1)])
+def test_poisoned_values_are_refused_even_with_their_checksums_recomputed(tmp_path: Path, name: str, row: int) -> None:
+    """Issue 51: NaN in a polyline, checksums recomputed, loaded and scored as no error at all; now refused."""
+    import hashlib
+
+    root = tmp_path / "ds"
+    write_synthetic(root, n=6)
+    path = root / f"{name}.bin"
+    manifest = json.loads((root / "manifest.json").read_text())
+    values = np.fromfile(path, dtype="<f4").reshape(6, -1)
+    values[row, 0] = np.nan
+    values.tofile(path)
+    manifest["files"][name]["sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
+    manifest.pop("manifest_sha256", None)
+    (root / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(DatasetError, match=rf"instance {row} holds NaN or inf") as info:
+        PathDataset(root)
+    assert str(path) in str(info.value)

@@ -39,6 +39,37 @@ def check_files(manifest: Manifest, checksums: bool = True) -> None:
                 )
 
 
+def check_values(manifest: Manifest) -> None:
+    """Refuse arrays that are not finite where they must be: the polylines (``waypoints``), the poses and the
+    alternatives (a NaN row is an empty slot, but a row is all NaN or all finite, and never inf). A poisoned
+    polyline would score any prediction perfectly (NaN APE counted as no error) or break the loss; checksums do not
+    catch it when they were recomputed. Raises :class:`DatasetError` naming the file, the first bad instance and
+    the fix."""
+    n = manifest.num_instances
+    if n == 0:
+        return
+    fix = "Re-generate the dataset (python -m spade.annotate ...) or restore the file from a copy."
+    for name in ("waypoints", "pose", "alternatives"):
+        spec = manifest.specs.get(name)
+        if spec is None:
+            continue
+        path = manifest.root / spec.filename
+        values = np.memmap(path, dtype=spec.dtype, mode="r", shape=(n, *spec.row_shape))
+        for start in range(0, n, 4096):
+            block = np.asarray(values[start:start + 4096])
+            if name == "alternatives":
+                finite = np.isfinite(block).all(axis=(-2, -1))
+                empty = np.isnan(block).all(axis=(-2, -1))
+                bad = ~(finite | empty).all(axis=1)
+            else:
+                bad = ~np.isfinite(block.reshape(len(block), -1)).all(axis=1)
+            if bad.any():
+                first = start + int(np.flatnonzero(bad)[0])
+                what = ("a row that is partly NaN, or holds inf" if name == "alternatives" else "NaN or inf")
+                raise DatasetError(f"{path}: instance {first} holds {what} ({int(bad.sum())} instance(s) of this "
+                                   f"block of {len(block)}): the file's values are not a dataset's. {fix}")
+
+
 class PathDataset(Dataset):
     """Instances of a dataset directory as dicts of tensors.
 
@@ -64,6 +95,7 @@ class PathDataset(Dataset):
         self.encoding = check_encoding(encoding)
         self.manifest = read_manifest(self.root)
         check_files(self.manifest, checksums=verify)
+        check_values(self.manifest)
         self.release_every = int(release_every)
         self._maps: dict[str, np.memmap] | None = None
         self._reads = 0
