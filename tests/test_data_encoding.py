@@ -11,7 +11,7 @@ import torch
 
 from spade.data.encoding import MARKER_ENCODINGS, marker_channel, marker_channels
 from spade.data.rasterize import render
-from spade.metrics.preference import goal_as_seen
+from spade.metrics.extraction import marker_centre as goal_as_seen  # the weighted centroid
 
 SIZE = 64
 
@@ -123,3 +123,16 @@ def test_a_guided_row_with_a_sub_pixel_encoding_is_refused(tmp_path: Path) -> No
                                    "data.encoding=aa_disc", "scale=tiny"])
     with pytest.raises(ConfigError, match="data.encoding=aa_disc with a diffusion margin"):
         validate_train_config(cfg)
+
+
+def test_a_small_blob_between_pixels_still_has_a_centre() -> None:
+    """A Gaussian goal of a 0.5 px disc at a pixel corner has no pixel above 0.5: the metrics' extraction, the
+    decoder and the floor read its weighted centroid (the run that found it failed on its real-map test)."""
+    from spade.metrics.extraction import marker_centre
+
+    centre = np.array([30.5, 30.5])
+    channel = marker_channel(centre, SIZE, 0.5, "gaussian")
+    assert channel.max() < 0.5
+    np.testing.assert_allclose(marker_centre(channel), centre, atol=1e-6)
+    with pytest.raises(ValueError, match="empty"):
+        marker_centre(np.zeros((SIZE, SIZE)))

@@ -58,14 +58,18 @@ class ExtractedPath:
 
 
 def marker_centre(marker: np.ndarray, name: str = "marker") -> np.ndarray:
-    """Centroid (x, y) of a start/goal disc channel (pixels > 0.5). Raises ValueError when the channel is empty."""
-    rows, cols = np.nonzero(np.asarray(marker) > 0.5)
-    if rows.size == 0:
+    """Centroid (x, y) of a start/goal marker channel, weighted by its values: the disc's centre for the paper's
+    binary disc (values 0 or 1), the exact position for a sub-pixel encoding (an anti-aliased disc, a Gaussian
+    blob: :mod:`spade.data.encoding`). Raises ValueError when the channel is empty."""
+    weights = np.clip(np.asarray(marker, dtype=np.float64), 0.0, None)
+    total = weights.sum()
+    if not total > 0 or weights.max() < 0.05:
         raise ValueError(
-            f"the {name} channel is empty (no pixel > 0.5); every instance needs a {name} disc in its state "
+            f"the {name} channel is empty (no pixel above 0.05); every instance needs a {name} marker in its state "
             "channels [occupancy, start, goal]"
         )
-    return np.array([cols.mean(), rows.mean()], dtype=np.float64)
+    rows, cols = np.indices(weights.shape)
+    return np.array([(weights * cols).sum() / total, (weights * rows).sum() / total], dtype=np.float64)
 
 
 def _failure(reason: str) -> ExtractedPath:

@@ -29,8 +29,9 @@ from torchmetrics.utilities import dim_zero_cat
 
 from spade.data.polyline import resample_polyline
 from spade.metrics._inputs import per_instance_resolution, to_numpy
+from spade.metrics.extraction import marker_centre
 
-__all__ = ["PREFERENCE_KEYS", "PreferenceMetrics", "floor_path", "goal_as_seen", "plausible_set"]
+__all__ = ["PREFERENCE_KEYS", "PreferenceMetrics", "floor_path", "plausible_set"]
 
 PREFERENCE_KEYS: tuple[str, ...] = ("ape_over_floor", "plausibility_cm", "commit_rate")
 """The per-predictor figures (a test logs them for the paper's reading and, prefixed, the planner's)."""
@@ -54,16 +55,6 @@ def floor_path(paths: np.ndarray, goal_centre: np.ndarray) -> np.ndarray:
     median = np.median(np.asarray(paths, np.float64), axis=0)
     ramp = np.linspace(0.0, 1.0, len(median))[:, None]
     return median + ramp * (np.asarray(goal_centre, np.float64) - median[-1])
-
-
-def goal_as_seen(goal_channel: np.ndarray) -> np.ndarray:
-    """(x, y) the weighted centroid of a goal channel: where the input tells a predictor the goal is."""
-    w = np.clip(np.asarray(goal_channel, np.float64), 0.0, None)
-    total = w.sum()
-    if not total > 0:
-        raise ValueError("the goal channel is empty; every instance needs a goal marker in its state")
-    rows, cols = np.indices(w.shape)
-    return np.array([(w * cols).sum() / total, (w * rows).sum() / total])
 
 
 def _mean_distances(pred: np.ndarray, paths: np.ndarray) -> np.ndarray:
@@ -111,7 +102,7 @@ class PreferenceMetrics(Metric):
             if len(paths) < 2:
                 continue  # this instance has no alternatives
             cm = res[i] * 100.0
-            f = float(np.linalg.norm(floor_path(paths, goal_as_seen(goals[i])) - paths[0], axis=1).mean())
+            f = float(np.linalg.norm(floor_path(paths, marker_centre(goals[i], "goal")) - paths[0], axis=1).mean())
             floor.append(f * cm)
             counted += 1
             if polylines[i] is None or len(polylines[i]) < 2:
