@@ -382,3 +382,23 @@ def test_a_rows_seeds_share_their_data_and_runs_on_other_data_are_left_out_and_s
     assert result.seeds == [1, 3] and result.n_other_data == 1
     assert result.value("ape_cm") == pytest.approx(5.0)
     assert f"{row}: 1 finished run(s) on other datasets left out" in build_report(table, uri).text
+
+
+def test_pairwise_tests_the_deciding_figure_first_and_corrects_over_every_test(tmp_path: Path) -> None:
+    """Issue 45: the pairwise tests compare the planner's APE (the deciding figure) first, then the paper's APE and
+    the preference figures the runs logged; Holm's correction counts all of them."""
+    from mlflow import MlflowClient
+
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    client = MlflowClient(tracking_uri=uri)
+    exp = client.create_experiment("encoding")
+    for seed, (a, b) in {1: (4.0, 3.6), 2: (4.2, 3.7), 3: (4.1, 3.5)}.items():
+        for row, v in (("enc_binary_L", a), ("enc_aa_disc_L", b)):
+            _log_run(client, exp, row, {**_cell_metrics(v + 0.5, 0, 0), "test/planner/ape_cm": v,
+                                        "test/planner/plausibility_cm": v / 2}, seed=seed)
+    rep = build_report(TABLES["encoding"], uri, tmp_path, chart=False)
+    metrics = [c.metric for c in rep.pairs]
+    assert metrics == ["planner_ape_cm", "ape_cm", "planner_plausibility_cm"]  # commit rate: logged by no run
+    tested = sum(c.p_value is not None for c in rep.pairs)
+    assert all(c.p_holm == pytest.approx(min(1.0, c.p_value * tested)) or c.p_holm >= c.p_value for c in rep.pairs)
+    assert "the deciding figure first" in rep.text

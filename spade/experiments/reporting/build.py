@@ -72,7 +72,8 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
         parts += ["", "Relative changes of the means (negative = lower), with Welch's test:", "",
                   render_comparisons(comparisons)]
     if pairs:
-        parts += ["", "Pairwise, APE (which orderings the seeds tell apart):", "", render_pairwise(pairs)]
+        parts += ["", "Pairwise (which orderings the seeds tell apart), the deciding figure first; Holm's correction "
+                  "over every test of the table:", "", render_pairwise(pairs)]
     parts += ["", "Provenance:", *provenance(table, results, command_line("spade.report"), commit(), machine())]
     if paper and any(line.paper for line in table.lines):
         parts += ["", "The paper's figures (its dataset; compare orderings and ratios, not values):", "",

@@ -270,29 +270,38 @@ def holm(p_values: list[float | None]) -> list[float | None]:
     return out
 
 
-def pairwise(table: Table, results: dict[str, RowResult], metric: str = "ape_cm") -> list[ComparisonResult]:
+PAIRWISE_METRICS = ("planner_ape_cm", "ape_cm", "planner_plausibility_cm", "planner_commit_rate")
+"""The figures the pairwise tests compare: the deciding one (the planner's APE) first, the paper's APE, then the
+preference figures where the runs logged them."""
+
+
+def pairwise(table: Table, results: dict[str, RowResult], metrics: tuple[str, ...] | str = PAIRWISE_METRICS
+             ) -> list[ComparisonResult]:
     """Every pair of found rows of one shape whose lines share all labels but the last (Table 1: the approaches of
-    one size, the two experts; Tables 2 and 3: all their rows), on ``metric``: the change of the means and
-    Welch's t-test, as in :func:`compare`, with Holm's correction over all of them (:func:`holm`). It says which
-    orderings of the table the seeds can tell apart."""
+    one size, the two experts; Tables 2 and 3: all their rows), on each of ``metrics`` that a row of the pair
+    logged: the change of the means and Welch's t-test, as in :func:`compare`, with Holm's correction over all of
+    them (:func:`holm`, one family). It says which orderings of the table the seeds can tell apart."""
     out = []
-    for shape in table.shapes:
-        lines = [line for line in table.lines if shape in line.cells and results[line.cells[shape]].found]
-        for i, a in enumerate(lines):
-            for b in lines[i + 1:]:
-                if a.labels[:-1] != b.labels[:-1]:
-                    continue
-                ra, rb = results[a.cells[shape]], results[b.cells[shape]]
-                va, vb = ra.value(metric), rb.value(metric)
-                if va is None or vb is None:
-                    p, test = None, "no test (missing)"
-                else:
-                    p, test = welch(ra.samples(metric), rb.samples(metric))
-                title = f"{' '.join(b.labels)} vs {' '.join(a.labels)}"
-                if len(table.shapes) > 1:
-                    title += f" ({shape})"
-                out.append(ComparisonResult(title, rb.row, ra.row, metric, vb, va, relative_change(vb, va), None, "",
-                                            rb.n, ra.n, p, test))
+    for metric in ((metrics,) if isinstance(metrics, str) else metrics):
+        for shape in table.shapes:
+            lines = [line for line in table.lines if shape in line.cells and results[line.cells[shape]].found]
+            for i, a in enumerate(lines):
+                for b in lines[i + 1:]:
+                    if a.labels[:-1] != b.labels[:-1]:
+                        continue
+                    ra, rb = results[a.cells[shape]], results[b.cells[shape]]
+                    va, vb = ra.value(metric), rb.value(metric)
+                    if va is None and vb is None:
+                        continue  # neither logged it (a figure of newer runs)
+                    if va is None or vb is None:
+                        p, test = None, "no test (missing)"
+                    else:
+                        p, test = welch(ra.samples(metric), rb.samples(metric))
+                    title = f"{' '.join(b.labels)} vs {' '.join(a.labels)}"
+                    if len(table.shapes) > 1:
+                        title += f" ({shape})"
+                    out.append(ComparisonResult(title, rb.row, ra.row, metric, vb, va, relative_change(vb, va), None,
+                                                "", rb.n, ra.n, p, test))
     for c, adjusted in zip(out, holm([c.p_value for c in out])):  # one family: the table's pairwise tests
         c.p_holm = adjusted
     return out
