@@ -181,7 +181,7 @@ def test_checkpoint_entry_records_the_windows_and_run() -> None:
     info = checkpoint_entry("student", net, DataModule(), [object(), MLFlowLogger()])
     assert info == {"role": "student", "config": dict(net.config), "mlflow_run_id": "r1",
                     "data": {"image_size": [64, 64], "resolution_m": 0.1, "input_encoding": INPUT_ENCODING,
-                             "frame": RobotFrame.for_size(64).to_json()}}
+                             "marker_encoding": "binary", "frame": RobotFrame.for_size(64).to_json()}}
     assert checkpoint_entry("expert", net) == {"role": "expert", "config": dict(net.config)}
 
 
