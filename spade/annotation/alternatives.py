@@ -38,7 +38,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from spade.annotation.execution import Rejection, execute_sketch
-from spade.annotation.templates import SHAPES, _turn_curve
+from spade.annotation.scenarios import sketch_fits
+from spade.annotation.templates import SHAPES, _turn_curve, place_curves
 from spade.data.polyline import resample_polyline
 from spade.data.rasterize import fits_robot_frame
 from spade.maps.frame import RobotFrame, path_heading
@@ -184,15 +185,7 @@ def _place(t: TemplateDraws, b: int, goal_px: np.ndarray, resolution: float, cfg
     keypoints, dense = _turn_curve(float(t.leg[b]), float(t.radius[b]), float(t.tail[b]), SHAPES[shape], left,
                                    float(cfg["step_m"]), int(cfg[shape]["turn_keypoints"]),
                                    float(cfg["keypoint_spacing_m"]))
-    c, s = np.cos(t.theta[b]), np.sin(t.theta[b])
-    rot = np.array([[c, -s], [s, c]])
-    end = keypoints[-1]
-
-    def move(points: np.ndarray) -> np.ndarray:
-        metres = (points - end) @ rot.T
-        return np.asarray(goal_px, np.float64) + np.stack([metres[:, 0], -metres[:, 1]], axis=1) / resolution
-
-    return move(keypoints), move(dense)
+    return place_curves(keypoints, dense, float(t.theta[b]), goal_px, resolution)
 
 
 def _remaining(points: np.ndarray, pose: np.ndarray, frame: RobotFrame, num_points: int, pos_tol_px: float,
@@ -228,13 +221,7 @@ def _execute(costmap: Any, t: TemplateDraws, b: int, goal_px: np.ndarray, cfg: M
     res = float(costmap.resolution)
     margin = float(cfg["window"]["margin_m"]) / res
     keypoints, dense = _place(t, b, goal_px, res, cfg["template"], shape)
-    cells = np.rint(dense).astype(np.int64)
-    h, w = costmap.grid.shape
-    if not ((cells >= 0).all() and (cells[:, 0] < w).all() and (cells[:, 1] < h).all()):
-        return None
-    if costmap.clearance_px[cells[:, 1], cells[:, 0]].min() < float(cfg["scenario"]["sketch_clearance_m"]) / res:
-        return None
-    if not fits_robot_frame(dense, frame, margin):
+    if not sketch_fits(costmap, dense, frame, margin, float(cfg["scenario"]["sketch_clearance_m"]) / res):
         return None
     try:
         ex = execute_sketch(costmap, keypoints, dense, SHAPES[shape], cfg["execution"])

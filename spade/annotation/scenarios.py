@@ -164,6 +164,19 @@ def scenario_area(ctx: MapContext, index: int, cfg: Mapping[str, Any]) -> int:
     return areas[index % len(areas)]
 
 
+def sketch_fits(costmap: Costmap, dense: np.ndarray, frame: RobotFrame, margin_px: float, clearance_px: float
+                ) -> bool:
+    """Whether a placed sketch's ideal curve (map pixels) fits the robot-frame window of its start, lies on the
+    map and keeps ``clearance_px`` from non-free space: the checks a template passes before it is executed."""
+    if not fits_robot_frame(dense, frame, margin_px):
+        return False
+    cells = np.rint(dense).astype(np.int64)
+    h, w = costmap.grid.shape
+    if (cells < 0).any() or (cells[:, 0] >= w).any() or (cells[:, 1] >= h).any():
+        return False
+    return bool(costmap.clearance_px[cells[:, 1], cells[:, 0]].min() >= clearance_px)
+
+
 def _placement(ctx: MapContext, shape: str, goal: np.ndarray, cfg: Mapping[str, Any], rng: np.random.Generator,
                frame: RobotFrame, margin_px: float) -> tuple[np.ndarray, np.ndarray] | str:
     """Try ``scenario.headings_per_goal`` sampled templates at ``goal``; return the first whose ideal curve lies
@@ -172,17 +185,11 @@ def _placement(ctx: MapContext, shape: str, goal: np.ndarray, cfg: Mapping[str, 
     failed only for crossing the split line, ``placement`` otherwise."""
     res = ctx.costmap.resolution
     need = float(cfg["scenario"]["sketch_clearance_m"]) / res
-    h, w = ctx.costmap.grid.shape
     crossed = False
     for _ in range(int(cfg["scenario"]["headings_per_goal"])):
         template = sample_template(shape, cfg["template"], rng)
         keypoints, dense = place_template(template, goal, res)
-        if not fits_robot_frame(dense, frame, margin_px):
-            continue
-        cells = np.rint(dense).astype(np.int64)
-        if (cells < 0).any() or (cells[:, 0] >= w).any() or (cells[:, 1] >= h).any():
-            continue
-        if ctx.costmap.clearance_px[cells[:, 1], cells[:, 0]].min() < need:
+        if not sketch_fits(ctx.costmap, dense, frame, margin_px, need):
             continue
         if ctx.line is not None and not ctx.line.holds(dense):
             crossed = True

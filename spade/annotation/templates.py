@@ -111,12 +111,19 @@ def place_template(t: SketchTemplate, goal_px: np.ndarray, resolution: float) ->
     """Return (keypoints, dense) of template ``t`` in map pixel coordinates (x=col, y=row), ending on
     ``goal_px``, its first leg pointing along the template heading (radians, counter-clockwise in the map
     frame, whose y axis points up, i.e. towards smaller rows)."""
-    c, s = np.cos(t.heading_rad), np.sin(t.heading_rad)
+    return place_curves(t.keypoints, t.dense, t.heading_rad, goal_px, resolution)
+
+
+def place_curves(keypoints: np.ndarray, dense: np.ndarray, heading_rad: float, goal_px: np.ndarray,
+                 resolution: float) -> tuple[np.ndarray, np.ndarray]:
+    """A template's (keypoints, dense) from its own frame (metres, ending at ``keypoints[-1]``) to map pixels,
+    ending on ``goal_px``, its first leg along ``heading_rad`` (see :func:`place_template`)."""
+    c, s = np.cos(heading_rad), np.sin(heading_rad)
     rot = np.array([[c, -s], [s, c]])
-    end = t.keypoints[-1]
+    end = keypoints[-1]
 
     def move(points: np.ndarray) -> np.ndarray:
         metres = (points - end) @ rot.T
         return np.asarray(goal_px, dtype=np.float64) + np.stack([metres[:, 0], -metres[:, 1]], axis=1) / resolution
 
-    return move(t.keypoints), move(t.dense)
+    return move(keypoints), move(dense)
