@@ -60,7 +60,7 @@ if LEAN:  # ONNX students through onnxruntime alone
 else:
     from spade.models.modelfile import ModelFileError, UnsafeModelFileError, open_model, robot_frame
 
-__all__ = ["PlanResult", "PlanWindow", "Planner", "PlannerConfigError"]
+__all__ = ["PlanResult", "PlanWindow", "Planner", "PlannerConfigError", "WindowPlanner"]
 
 MapLike = Union[OccupancyMap, str, Path]
 
@@ -203,125 +203,30 @@ def _sigmoid(x: np.ndarray) -> np.ndarray:
     return (0.5 * (1.0 + np.tanh(0.5 * x))).astype(np.float32)
 
 
-class Planner:
-    """A trained student as a path planner (see the module docstring for how queries become windows).
+class WindowPlanner:
+    """What every planner of robot-frame windows shares, with or without a network: a query (map, robot pose,
+    goal) checked and turned into the window at ``resolution`` (:meth:`window`), the goal placed in it or clipped
+    (``far_goal``), failures as :class:`PlanResult`. :class:`Planner` plans in the window with a student;
+    :class:`spade.closedloop.planners.BaselinePlanner` with a classical predictor, on exactly the same windows.
+    Subclasses implement :meth:`plan_windows`."""
 
-    Args:
-        model: a student checkpoint (``.ckpt``, from ``python -m spade.train``) or its export (``.onnx``, ``.pt``).
-        device: ``cpu``, ``cuda[:N]`` or ``auto`` (:func:`spade.models.modelfile.resolve_device`).
-        num_waypoints: points of the returned polyline.
-        decode: ``search`` (default: the minimum-cost path over ``-log p`` on the window's costmap, robot to
-            goal, :class:`~spade.metrics.decoding.PathDecoder`) or ``skeleton`` (the paper's extraction).
-        fallback: None (default) or ``shortest``: a plan whose ``low_share`` exceeds ``low_confidence_share`` is
-            replaced by the Nav2-like shortest path on the window's inflated costmap, flagged ``fallback=True``.
-        low_confidence_share: the share of a decoded path's length through pixels with ``p < threshold`` above
-            which the plan is flagged ``low_confidence`` (default 0.1).
-        threshold, max_gap, goal_tolerance_px: :func:`spade.metrics.extract_path` options (the evaluation's);
-            ``threshold`` is also the decoder's confidence threshold.
-        disc_radius_m, margin_m: the annotation tool's ``instances.disc_radius_m`` and ``window.margin_m`` the
-            student was trained with (defaults: conf/annotate.yaml's, unless the model file records them).
-        far_goal: ``fail`` (default) or ``clip`` (plan to the farthest free point towards the goal that fits).
-        require_goal: a path that does not reach the goal (within ``goal_tolerance_px``) is a failure.
-        collision_check: a path over a non-free cell of the window (occupied or unknown) is a failure.
-        batch_size: windows per forward pass in :meth:`plan_batch`.
-        threads: onnxruntime intra-op threads for an ONNX model (None: its default).
-    """
-
-    def __init__(
-        self,
-        model: str | Path,
-        *,
-        device: str = "cpu",
-        num_waypoints: int = 64,
-        threshold: float = 0.5,
-        max_gap: float = 2.0,
-        goal_tolerance_px: float = 4.0,
-        disc_radius_m: float | None = None,
-        margin_m: float | None = None,
-        far_goal: str = "fail",
-        require_goal: bool = True,
-        collision_check: bool = True,
-        batch_size: int = 64,
-        threads: int | None = None,
-        decode: str = "search",
-        fallback: str | None = None,
-        low_confidence_share: float = 0.1,
-    ) -> None:
-        path = Path(model).expanduser()
-        if not path.is_file():
-            raise FileNotFoundError(f"planner model {path} does not exist; pass a student checkpoint (.ckpt) from "
-                                    "python -m spade.train or its export (.onnx / .pt) from python -m spade.export")
-        self.path = path
-        try:
-            self.backend = open_model(path, device, threads, role="student")
-            self.frame = RobotFrame.from_json(robot_frame(self.backend.info, path))
-        except UnsafeModelFileError:
-            raise
-        except ModelFileError as err:
-            raise PlannerConfigError(str(err)) from None
-        data = dict(self.backend.info["data"])
-        size = [int(v) for v in data["image_size"]]
-        if size != [self.frame.size, self.frame.size]:
-            raise PlannerConfigError(f"{path}: image_size {size} disagrees with its robot frame's "
-                                     f"{self.frame.size} px window; the file was not written by SPADE")
-        self.image_size = (size[0], size[1])
-        self.resolution = float(data["resolution_m"])
-        if not (math.isfinite(self.resolution) and self.resolution > 0):
-            raise PlannerConfigError(f"{path}: resolution_m must be a positive number of metres per pixel, "
-                                     f"got {data['resolution_m']!r}")
-        self.disc_radius_m = float(disc_radius_m if disc_radius_m is not None
-                                   else data.get("disc_radius_m", DEFAULT_DISC_RADIUS_M))
-        from spade.data.encoding import MARKER_ENCODINGS
-
-        self.marker_encoding = str(data.get("marker_encoding", "binary"))  # the model's own: never another one
-        if self.marker_encoding not in MARKER_ENCODINGS:
-            raise PlannerConfigError(f"{path}: marker_encoding {self.marker_encoding!r} is not one this SPADE draws "
-                                     f"({list(MARKER_ENCODINGS)}); update SPADE or retrain the model")
-        self.margin_m = float(margin_m if margin_m is not None else data.get("margin_m", DEFAULT_MARGIN_M))
+    def __init__(self, frame: RobotFrame, resolution: float, *, margin_m: float = DEFAULT_MARGIN_M,
+                 far_goal: str = "fail", num_waypoints: int = 64) -> None:
         if num_waypoints < 2:
             raise PlannerConfigError(f"num_waypoints must be >= 2, got {num_waypoints}")
         if far_goal not in ("fail", "clip"):
             raise PlannerConfigError(f"far_goal must be 'fail' or 'clip', got {far_goal!r}")
-        if batch_size < 1:
-            raise PlannerConfigError(f"batch_size must be >= 1, got {batch_size}")
-        if decode not in ("search", "skeleton"):
-            raise PlannerConfigError(f"decode must be 'search' (the planner's search decoder) or 'skeleton' (the "
-                                     f"paper's extraction), got {decode!r}")
-        if fallback not in (None, "none", "shortest"):
-            raise PlannerConfigError(f"fallback must be null or 'shortest', got {fallback!r}")
-        if LEAN and fallback == "shortest":
-            raise PlannerConfigError("fallback='shortest' needs torch (spade.metrics.baselines), which this deploy "
-                                     "install lacks; use fallback=null or install torch")
-        if not 0.0 <= float(low_confidence_share) <= 1.0:
-            raise PlannerConfigError(f"low_confidence_share must lie in [0, 1], got {low_confidence_share}")
-        self.decode = decode
-        self.fallback = None if fallback in (None, "none") else fallback
-        self.low_confidence_share = float(low_confidence_share)
-        # The endpoints were checked free on the map; the window's conservative rotation may still mark the robot's
-        # or the goal's own cell non-free (2 x 2 footprint), which must not make a feasible plan fail.
-        self.decoder = PathDecoder(num_points=num_waypoints, threshold=threshold, force_endpoints=True)
-        self.num_waypoints, self.threshold, self.max_gap = int(num_waypoints), float(threshold), float(max_gap)
-        self.goal_tolerance_px = float(goal_tolerance_px)
-        self.far_goal, self.require_goal, self.collision_check = far_goal, bool(require_goal), bool(collision_check)
-        self.batch_size = int(batch_size)
-        self._cache: tuple[OccupancyMap, OccupancyMap] | None = None  # (map given, map at the student's resolution)
-
-    def __repr__(self) -> str:
-        h, w = self.image_size
-        return f"Planner({self.path.name}, {h}x{w} px robot-frame windows at {self.resolution} m/px)"
+        self.frame = frame
+        self.image_size = (frame.size, frame.size)
+        self.resolution = float(resolution)
+        self.margin_m = float(margin_m)
+        self.far_goal = far_goal
+        self.num_waypoints = int(num_waypoints)
+        self._cache: tuple[OccupancyMap, OccupancyMap] | None = None  # (map given, map at the window's resolution)
 
     @property
     def margin_px(self) -> float:
         return self.margin_m / self.resolution
-
-    # -- network ---------------------------------------------------------------------------------------------
-    def predict(self, states: np.ndarray) -> np.ndarray:
-        """Path probabilities (N, H, W) of network inputs (N, 3, H, W), in chunks of ``batch_size``."""
-        states = np.asarray(states, dtype=np.float32)
-        if states.ndim != 4 or states.shape[1] != 3 or tuple(states.shape[2:]) != self.image_size:
-            raise ValueError(f"states must be (N, 3, {self.image_size[0]}, {self.image_size[1]}), got {states.shape}")
-        out = [self.backend.logits(states[i: i + self.batch_size]) for i in range(0, len(states), self.batch_size)]
-        return _sigmoid(np.concatenate(out)[:, 0]) if out else np.zeros((0, *self.image_size), np.float32)
 
     # -- queries ---------------------------------------------------------------------------------------------
     def plan(self, map: MapLike, pose: Any, goal: Any) -> PlanResult:
@@ -333,8 +238,8 @@ class Planner:
         return self.plan_batch(map, [pose], [goal])[0]
 
     def plan_batch(self, maps: MapLike | Sequence[MapLike], poses: Any, goals: Any) -> list[PlanResult]:
-        """:meth:`plan` for N queries in one pass of the network: ``maps`` one map for all or one per query,
-        ``poses`` (N, 3) robot poses and ``goals`` (N, 2) in map-frame metres."""
+        """:meth:`plan` for N queries at once (a student: one pass of the network): ``maps`` one map for all or
+        one per query, ``poses`` (N, 3) robot poses and ``goals`` (N, 2) in map-frame metres."""
         poses = [robot_pose(p) for p in poses]
         goals = [goal_point(g) for g in goals]
         if len(poses) != len(goals):
@@ -359,32 +264,17 @@ class Planner:
             results.append(None)
             pending.append((i, window, goal_px, goal_m, subgoal))
         if pending:
-            robot_px = np.asarray(self.frame.robot_px, dtype=np.float64)
-            states = np.stack([self.encode(w.occupancy(), robot_px, g) for _, w, g, _, _ in pending])
-            probs = self.predict(states)
-            for (i, window, goal_px, goal_m, subgoal), state, prob in zip(pending, states, probs):
-                results[i] = self._extract(window, state, prob, poses[i], goal_px, goal_m, subgoal)
+            planned = self.plan_windows([(w, poses[i], g_px, g_m, sub) for i, w, g_px, g_m, sub in pending])
+            for (i, *_), result in zip(pending, planned):
+                results[i] = result
         return results  # type: ignore[return-value]
 
-    # -- steps -----------------------------------------------------------------------------------------------
-    def encode(self, occupancy: np.ndarray, start_px: np.ndarray, goal_px: np.ndarray) -> np.ndarray:
-        """The (3, S, S) float32 network input of a window: occupancy code * 0.5, start and goal markers drawn with
-        the model's ``marker_encoding`` (binary discs, or at their exact sub-pixel position)."""
-        occupancy = np.asarray(occupancy, dtype=np.uint8)
-        state = np.empty((3, *occupancy.shape), dtype=np.float32)
-        np.multiply(occupancy, np.float32(0.5), out=state[0])
-        if self.marker_encoding == "binary":
-            # The annotation tool's own rasteriser draws the discs, so they are the training discs pixel for pixel.
-            inst = render(occupancy, np.stack([start_px, goal_px]), self.disc_radius_m / self.resolution, 2)
-            state[1] = inst.start
-            state[2] = inst.goal
-        else:
-            from spade.data.encoding import marker_channels
+    def plan_windows(self, queries: list[tuple[PlanWindow, np.ndarray, np.ndarray, np.ndarray, bool]]
+                     ) -> list[PlanResult]:
+        """Plan in prepared windows: one (window, pose, goal window pixel, goal metres, sub-goal) per query."""
+        raise NotImplementedError
 
-            state[1:] = marker_channels(start_px, goal_px, occupancy.shape[0], self.disc_radius_m / self.resolution,
-                                        self.marker_encoding)
-        return state
-
+    # -- windows ---------------------------------------------------------------------------------------------
     def window(self, m: OccupancyMap, pose: Any) -> PlanWindow:
         """The student's window for a robot ``pose`` (x, y, yaw) in map metres on ``m`` (any resolution)."""
         pose = robot_pose(pose)
@@ -463,6 +353,145 @@ class Planner:
             if 0 <= row < m.height and 0 <= col < m.width and m.grid[row, col] == FREE:
                 return m.pixel_to_world(cand)
         return None
+
+class Planner(WindowPlanner):
+    """A trained student as a path planner (see the module docstring for how queries become windows).
+
+    Args:
+        model: a student checkpoint (``.ckpt``, from ``python -m spade.train``) or its export (``.onnx``, ``.pt``).
+        device: ``cpu``, ``cuda[:N]`` or ``auto`` (:func:`spade.models.modelfile.resolve_device`).
+        num_waypoints: points of the returned polyline.
+        decode: ``search`` (default: the minimum-cost path over ``-log p`` on the window's costmap, robot to
+            goal, :class:`~spade.metrics.decoding.PathDecoder`) or ``skeleton`` (the paper's extraction).
+        fallback: None (default) or ``shortest``: a plan whose ``low_share`` exceeds ``low_confidence_share`` is
+            replaced by the Nav2-like shortest path on the window's inflated costmap, flagged ``fallback=True``.
+        low_confidence_share: the share of a decoded path's length through pixels with ``p < threshold`` above
+            which the plan is flagged ``low_confidence`` (default 0.1).
+        threshold, max_gap, goal_tolerance_px: :func:`spade.metrics.extract_path` options (the evaluation's);
+            ``threshold`` is also the decoder's confidence threshold.
+        disc_radius_m, margin_m: the annotation tool's ``instances.disc_radius_m`` and ``window.margin_m`` the
+            student was trained with (defaults: conf/annotate.yaml's, unless the model file records them).
+        far_goal: ``fail`` (default) or ``clip`` (plan to the farthest free point towards the goal that fits).
+        require_goal: a path that does not reach the goal (within ``goal_tolerance_px``) is a failure.
+        collision_check: a path over a non-free cell of the window (occupied or unknown) is a failure.
+        batch_size: windows per forward pass in :meth:`plan_batch`.
+        threads: onnxruntime intra-op threads for an ONNX model (None: its default).
+    """
+
+    def __init__(
+        self,
+        model: str | Path,
+        *,
+        device: str = "cpu",
+        num_waypoints: int = 64,
+        threshold: float = 0.5,
+        max_gap: float = 2.0,
+        goal_tolerance_px: float = 4.0,
+        disc_radius_m: float | None = None,
+        margin_m: float | None = None,
+        far_goal: str = "fail",
+        require_goal: bool = True,
+        collision_check: bool = True,
+        batch_size: int = 64,
+        threads: int | None = None,
+        decode: str = "search",
+        fallback: str | None = None,
+        low_confidence_share: float = 0.1,
+    ) -> None:
+        path = Path(model).expanduser()
+        if not path.is_file():
+            raise FileNotFoundError(f"planner model {path} does not exist; pass a student checkpoint (.ckpt) from "
+                                    "python -m spade.train or its export (.onnx / .pt) from python -m spade.export")
+        self.path = path
+        try:
+            self.backend = open_model(path, device, threads, role="student")
+            frame = RobotFrame.from_json(robot_frame(self.backend.info, path))
+        except UnsafeModelFileError:
+            raise
+        except ModelFileError as err:
+            raise PlannerConfigError(str(err)) from None
+        data = dict(self.backend.info["data"])
+        size = [int(v) for v in data["image_size"]]
+        if size != [frame.size, frame.size]:
+            raise PlannerConfigError(f"{path}: image_size {size} disagrees with its robot frame's "
+                                     f"{frame.size} px window; the file was not written by SPADE")
+        resolution = float(data["resolution_m"])
+        if not (math.isfinite(resolution) and resolution > 0):
+            raise PlannerConfigError(f"{path}: resolution_m must be a positive number of metres per pixel, "
+                                     f"got {data['resolution_m']!r}")
+        self.disc_radius_m = float(disc_radius_m if disc_radius_m is not None
+                                   else data.get("disc_radius_m", DEFAULT_DISC_RADIUS_M))
+        from spade.data.encoding import MARKER_ENCODINGS
+
+        self.marker_encoding = str(data.get("marker_encoding", "binary"))  # the model's own: never another one
+        if self.marker_encoding not in MARKER_ENCODINGS:
+            raise PlannerConfigError(f"{path}: marker_encoding {self.marker_encoding!r} is not one this SPADE draws "
+                                     f"({list(MARKER_ENCODINGS)}); update SPADE or retrain the model")
+        super().__init__(frame, resolution, far_goal=far_goal, num_waypoints=num_waypoints,
+                         margin_m=float(margin_m if margin_m is not None else data.get("margin_m", DEFAULT_MARGIN_M)))
+        if batch_size < 1:
+            raise PlannerConfigError(f"batch_size must be >= 1, got {batch_size}")
+        if decode not in ("search", "skeleton"):
+            raise PlannerConfigError(f"decode must be 'search' (the planner's search decoder) or 'skeleton' (the "
+                                     f"paper's extraction), got {decode!r}")
+        if fallback not in (None, "none", "shortest"):
+            raise PlannerConfigError(f"fallback must be null or 'shortest', got {fallback!r}")
+        if LEAN and fallback == "shortest":
+            raise PlannerConfigError("fallback='shortest' needs torch (spade.metrics.baselines), which this deploy "
+                                     "install lacks; use fallback=null or install torch")
+        if not 0.0 <= float(low_confidence_share) <= 1.0:
+            raise PlannerConfigError(f"low_confidence_share must lie in [0, 1], got {low_confidence_share}")
+        self.decode = decode
+        self.fallback = None if fallback in (None, "none") else fallback
+        self.low_confidence_share = float(low_confidence_share)
+        # The endpoints were checked free on the map; the window's conservative rotation may still mark the robot's
+        # or the goal's own cell non-free (2 x 2 footprint), which must not make a feasible plan fail.
+        self.decoder = PathDecoder(num_points=num_waypoints, threshold=threshold, force_endpoints=True)
+        self.threshold, self.max_gap = float(threshold), float(max_gap)
+        self.goal_tolerance_px = float(goal_tolerance_px)
+        self.require_goal, self.collision_check = bool(require_goal), bool(collision_check)
+        self.batch_size = int(batch_size)
+
+    def __repr__(self) -> str:
+        h, w = self.image_size
+        return f"Planner({self.path.name}, {h}x{w} px robot-frame windows at {self.resolution} m/px)"
+
+    # -- network ---------------------------------------------------------------------------------------------
+    def predict(self, states: np.ndarray) -> np.ndarray:
+        """Path probabilities (N, H, W) of network inputs (N, 3, H, W), in chunks of ``batch_size``."""
+        states = np.asarray(states, dtype=np.float32)
+        if states.ndim != 4 or states.shape[1] != 3 or tuple(states.shape[2:]) != self.image_size:
+            raise ValueError(f"states must be (N, 3, {self.image_size[0]}, {self.image_size[1]}), got {states.shape}")
+        out = [self.backend.logits(states[i: i + self.batch_size]) for i in range(0, len(states), self.batch_size)]
+        return _sigmoid(np.concatenate(out)[:, 0]) if out else np.zeros((0, *self.image_size), np.float32)
+
+    def plan_windows(self, queries: list[tuple[PlanWindow, np.ndarray, np.ndarray, np.ndarray, bool]]
+                     ) -> list[PlanResult]:
+        """The student's plans in prepared windows: their states through the network in one pass, each decoded."""
+        robot_px = np.asarray(self.frame.robot_px, dtype=np.float64)
+        states = np.stack([self.encode(w.occupancy(), robot_px, g) for w, _, g, _, _ in queries])
+        probs = self.predict(states)
+        return [self._extract(window, state, prob, pose, goal_px, goal_m, subgoal)
+                for (window, pose, goal_px, goal_m, subgoal), state, prob in zip(queries, states, probs)]
+
+    # -- steps -----------------------------------------------------------------------------------------------
+    def encode(self, occupancy: np.ndarray, start_px: np.ndarray, goal_px: np.ndarray) -> np.ndarray:
+        """The (3, S, S) float32 network input of a window: occupancy code * 0.5, start and goal markers drawn with
+        the model's ``marker_encoding`` (binary discs, or at their exact sub-pixel position)."""
+        occupancy = np.asarray(occupancy, dtype=np.uint8)
+        state = np.empty((3, *occupancy.shape), dtype=np.float32)
+        np.multiply(occupancy, np.float32(0.5), out=state[0])
+        if self.marker_encoding == "binary":
+            # The annotation tool's own rasteriser draws the discs, so they are the training discs pixel for pixel.
+            inst = render(occupancy, np.stack([start_px, goal_px]), self.disc_radius_m / self.resolution, 2)
+            state[1] = inst.start
+            state[2] = inst.goal
+        else:
+            from spade.data.encoding import marker_channels
+
+            state[1:] = marker_channels(start_px, goal_px, occupancy.shape[0], self.disc_radius_m / self.resolution,
+                                        self.marker_encoding)
+        return state
 
     def _extract(self, window: PlanWindow, state: np.ndarray, prob: np.ndarray, pose: np.ndarray,
                  goal_px: np.ndarray, goal_m: np.ndarray, subgoal: bool) -> PlanResult:

@@ -32,6 +32,10 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     from spade.experiments.checks import validate_evaluate_config
 
     validate_evaluate_config(cfg)  # role, and the checkpoint's window geometry against the test data's
+    if cfg.get("closed_loop"):
+        from spade.experiments.closed_loop import closed_loop_settings
+
+        closed_loop_settings(cfg.drive, int(cfg.seed))  # a bad drive setting is refused before the test
     mcap, mcap_instances = _recording(cfg)  # refused now, not after the test
     L.seed_everything(cfg.seed, workers=True)
     model = load_module(cfg.ckpt_path)
@@ -40,6 +44,8 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     loggers = instantiate_loggers(cfg.get("logger"))
     trainer = hydra.utils.instantiate(cfg.trainer, logger=loggers or False, callbacks=[])
     results = trainer.test(model=model, datamodule=datamodule)[0]
+    if cfg.get("closed_loop"):
+        results.update(_closed_loop(cfg, datamodule, loggers, trainer))
     from spade.experiments.tracking.runs import finish_evaluation
 
     finish_evaluation(cfg, trainer, loggers)  # MLflow: experiment kind and description, test data input
@@ -62,3 +68,34 @@ def _use_models_encoding(datamodule: Any, ckpt_path: str) -> None:
         logging.getLogger(__name__).info("testing with the model's marker encoding %r (data.encoding was %r)",
                                          encoding, datamodule.encoding)
         datamodule.encoding = encoding
+
+
+def _closed_loop(cfg: DictConfig, datamodule: Any, loggers: list[Any], trainer: Any) -> dict[str, float]:
+    """Drive the test scenarios (:mod:`spade.experiments.closed_loop`); log ``closed_loop/*`` and the worst
+    episodes' picture to the run."""
+    import json
+    import tempfile
+
+    from omegaconf import OmegaConf
+
+    from spade.closedloop.picture import episodes_picture
+    from spade.experiments.closed_loop import episode_summary, run_closed_loop, scenario_set, worst_episodes
+    from spade.experiments.tracking.runs import mlflow_logger
+
+    drive = OmegaConf.to_container(cfg.drive, resolve=True)
+    scenarios = scenario_set(datamodule, drive.get("scenarios"))
+    metrics, episodes = run_closed_loop(cfg.ckpt_path, scenarios, drive, int(cfg.seed))
+    for lg in loggers:
+        lg.log_metrics(metrics, step=trainer.global_step)
+    ml = mlflow_logger(loggers)
+    if ml is not None and trainer.is_global_zero:
+        with tempfile.TemporaryDirectory() as tmp:
+            worst = worst_episodes(episodes["model"], int(drive.get("pictures", 6)))
+            if worst:
+                picture = episodes_picture(worst, Path(tmp) / "worst.png",
+                                           f"closed loop: the model's {len(worst)} worst of {len(scenarios)} scenarios")
+                ml.experiment.log_artifact(ml.run_id, str(picture), "closed_loop")
+            summary = Path(tmp) / "episodes.json"
+            summary.write_text(json.dumps(episode_summary(episodes), indent=1))
+            ml.experiment.log_artifact(ml.run_id, str(summary), "closed_loop")
+    return metrics

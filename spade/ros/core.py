@@ -7,6 +7,8 @@
 - a new goal arrives (once a map and a pose are known; a goal that arrives first waits for them);
 - the robot leaves the current plan: its pose lies farther than ``replan_distance_m`` from the plan's polyline (or,
   after a failed attempt, that far from where it was tried);
+- the robot has moved ``replan_every_m`` since the last plan (when set: Nav2's behaviour tree replans at a fixed
+  rate; the closed-loop evaluation, :mod:`spade.closedloop`, uses this rule with it);
 - the robot nears the end of a plan to a sub-goal (``far_goal: clip``: the goal lay beyond the student's window),
   within ``subgoal_replan_m`` of it;
 - a new map arrives while a goal is active (``replan_on_map``; a rolling costmap replans at its own rate).
@@ -31,7 +33,7 @@ import numpy as np
 from spade.maps.occupancy import OccupancyMap
 from spade.ros.convert import MessageError, grid_to_map, pose_from_msg
 
-__all__ = ["CoreSettings", "PlanEvent", "PlannerCore", "distance_to_polyline"]
+__all__ = ["CoreSettings", "PlanEvent", "PlannerCore", "distance_to_polyline", "replan_trigger"]
 
 log = logging.getLogger("spade.ros")
 
@@ -46,6 +48,7 @@ class CoreSettings:
     subgoal_replan_m: float = 1.0        # this near the end of a plan to a sub-goal: plan on towards the goal
     replan_on_map: bool = True           # a new map while a goal is active: plan again
     min_replan_interval_s: float = 0.5   # pose-triggered plans at most this often
+    replan_every_m: float | None = None  # plan again after the robot moved this far since the last plan (None: never)
     lethal_threshold: int = 100          # OccupancyGrid values at or above it are obstacles (Nav2's default)
     map_frame: str | None = None         # None: the map message's frame_id ("map" when it is empty)
 
@@ -86,6 +89,29 @@ def distance_to_polyline(point: np.ndarray, line: np.ndarray) -> float:
     den = np.maximum((d * d).sum(axis=1), 1e-18)
     t = np.clip(((p - a) * d).sum(axis=1) / den, 0.0, 1.0)
     return float(np.linalg.norm(a + t[:, None] * d - p, axis=1).min())
+
+
+def replan_trigger(settings: CoreSettings, pose: np.ndarray, plan: np.ndarray | None, subgoal: bool,
+                   tried_at: np.ndarray | None, seconds_since_try: float) -> str | None:
+    """Why the robot at ``pose`` should plan again (a short reason), or None: the node's rule for a pose that
+    arrives while a goal is active, after its first plan. ``plan``: the waypoints of the last successful plan
+    (None after a failed attempt); ``subgoal``: that plan ends at a sub-goal; ``tried_at``: the pose of the last
+    attempt; ``seconds_since_try``: the time since it."""
+    if seconds_since_try < settings.min_replan_interval_s:
+        return None
+    moved = math.inf if tried_at is None else float(np.linalg.norm(pose[:2] - tried_at[:2]))
+    if plan is not None:
+        off = distance_to_polyline(pose[:2], plan)
+        if off > settings.replan_distance_m:
+            return f"off the plan by {off:.2f} m"
+        if subgoal and np.linalg.norm(pose[:2] - plan[-1]) <= settings.subgoal_replan_m:
+            return "near the sub-goal"
+        if settings.replan_every_m is not None and moved >= settings.replan_every_m:
+            return f"moved {moved:.2f} m since the last plan"
+        return None
+    if moved > settings.replan_distance_m:
+        return "moved since the last attempt"
+    return None
 
 
 @dataclass
@@ -181,18 +207,10 @@ class PlannerCore:
             return None
         if first:
             return self._plan("pose")
-        if self.clock() - s.tried_time < self.settings.min_replan_interval_s:
-            return None
-        if s.plan is not None:
-            off = distance_to_polyline(pose[:2], s.plan)
-            if off > self.settings.replan_distance_m:
-                return self._plan(f"off the plan by {off:.2f} m")
-            if s.subgoal and np.linalg.norm(pose[:2] - s.plan[-1]) <= self.settings.subgoal_replan_m:
-                return self._plan("near the sub-goal")
-            return None
-        if s.tried_at is not None and np.linalg.norm(pose[:2] - s.tried_at[:2]) > self.settings.replan_distance_m:
-            return self._plan("moved since the last attempt")
-        return None
+        if s.tried_at is None and s.plan is None:
+            return None  # no attempt yet (a goal that waits for the map)
+        reason = replan_trigger(self.settings, pose, s.plan, s.subgoal, s.tried_at, self.clock() - s.tried_time)
+        return self._plan(reason) if reason is not None else None
 
     def handle_goal(self, msg: Any) -> PlanEvent | None:
         """A ``geometry_msgs/PoseStamped`` goal (RViz2's "2D Goal Pose"): plan to it."""

@@ -28,6 +28,9 @@ def validate_evaluate_config(cfg: DictConfig) -> None:
     if info.get("role") not in ("student", "expert"):
         raise ConfigError(f"ckpt_path={ckpt} is not a SPADE student or expert checkpoint (role "
                           f"{info.get('role')!r}); {fix}")
+    if _get(cfg, "closed_loop") not in (_MISSING, None, False) and info.get("role") != "student":
+        raise ConfigError(f"closed_loop=true drives a planner, and ckpt_path={ckpt} is an {info.get('role')}: pass a "
+                          "student checkpoint, or leave closed_loop=false (an expert's test has no closed loop)")
     _check_logger_store(cfg)
     _check_data(cfg)
     _check_datasets(cfg)

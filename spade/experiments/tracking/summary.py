@@ -167,4 +167,30 @@ def evaluation_summary(cfg: DictConfig, metrics: dict[str, Any]) -> str:
     if floor:
         lines.append(floor)
     lines += learning_verdict(metrics)
+    lines += closed_loop_lines(metrics)
     return "\n".join(lines)
+
+
+CLOSED_LOOP_NAMES = {"": "model", "baseline/shortest/": "Nav2-like shortest path", "baseline/heading/": "heading template",
+                     "followed/": "demonstration followed", "demonstration/": "demonstration replayed"}
+
+
+def closed_loop_lines(metrics: dict[str, Any]) -> list[str]:
+    """One line per predictor driven in closed loop (``closed_loop/*``): outcome rates, APE over the whole
+    scenario, plausibility, mode switches and replanning change."""
+    lines = []
+    for prefix, name in CLOSED_LOOP_NAMES.items():
+        key = f"closed_loop/{prefix}"
+        if f"{key}success_rate" not in metrics:
+            continue
+        m = {k[len(key):]: float(v) for k, v in metrics.items() if k.startswith(key) and "/" not in k[len(key):]}
+        text = (f"success {m['success_rate']:.0%}, collision {m['collision_rate']:.0%}, timeout {m['timeout_rate']:.0%}"
+                f", no plan {m['no_plan_rate']:.0%}; APE {m['ape_cm']:.2f} cm")
+        if m.get("plausibility_cm") == m.get("plausibility_cm"):
+            text += f", plausibility {m['plausibility_cm']:.2f} cm, commits {m['commit_rate']:.0%}"
+        text += (f"; {m['mode_switches']:.2f} mode switches and {m['replans']:.1f} plans per scenario, "
+                 f"{m['plan_ms']:.1f} ms a plan")
+        lines.append(f"  closed loop {name:<24}: {text}")
+    if lines:
+        lines.insert(0, f"  closed loop: {int(metrics.get('closed_loop/episodes', 0))} scenarios driven from start to goal")
+    return lines

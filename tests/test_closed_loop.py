@@ -1,0 +1,225 @@
+"""Closed loop (spade.closedloop, spade.metrics.closed_loop): the follower, the node's replanning rule, the episode
+figures against hand-computed values, and whole episodes on a hand-made map: success, a collision, determinism."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from spade.closedloop.follower import FollowerSettings, follow_step, lookahead_point
+from spade.closedloop.planners import BaselinePlanner, DemonstrationPlanner
+from spade.closedloop.scenarios import Scenario, scenario_starts
+from spade.closedloop.simulate import ClosedLoopSettings, Episode, PlanRecord, drive, replay
+from spade.data.polyline import resample_polyline
+from spade.deploy.planner import PlanResult
+from spade.maps.costmap import build_costmap
+from spade.maps.frame import RobotFrame
+from spade.maps.occupancy import FREE, OCCUPIED, OccupancyMap
+from spade.metrics.closed_loop import CLOSED_LOOP_KEYS, ClosedLoopMetrics, episode_figures, plan_mode, smoothness
+from spade.ros.core import CoreSettings, replan_trigger
+
+ROBOT = {"radius_m": 0.105, "inflation_radius_m": 0.55, "cost_scaling_factor": 3.0}
+
+
+def arc_l(start: np.ndarray, leg: float, radius: float, tail: float, left: bool = True, n: int = 64) -> np.ndarray:
+    """An L along +x from ``start``: a leg, a quarter circle of ``radius`` (to the left or right), a tail."""
+    sign = 1.0 if left else -1.0
+    phi = np.linspace(0, math.pi / 2, 40)
+    leg_pts = np.stack([np.linspace(0, leg, 20), np.zeros(20)], axis=1)
+    arc = np.stack([leg + radius * np.sin(phi), sign * radius * (1 - np.cos(phi))], axis=1)
+    tail_pts = arc[-1] + np.stack([np.zeros(20), sign * np.linspace(0, tail, 20)], axis=1)
+    return resample_polyline(np.vstack([leg_pts, arc[1:], tail_pts[1:]]) + start, n)
+
+
+def open_map(block: tuple[slice, slice] | None = None) -> OccupancyMap:
+    """A 10 m x 10 m room at 0.1 m/px, walls around, origin (0, 0); optionally an obstacle block (rows, cols)."""
+    grid = np.full((100, 100), FREE, np.uint8)
+    grid[0, :] = grid[-1, :] = grid[:, 0] = grid[:, -1] = OCCUPIED
+    if block is not None:
+        grid[block] = OCCUPIED
+    return OccupancyMap(grid, 0.1, (0.0, 0.0, 0.0), "room")
+
+
+def scenario(m: OccupancyMap, demo: np.ndarray, alternatives: np.ndarray | None = None, sid: str = "room/L000"
+             ) -> Scenario:
+    yaw = math.atan2(demo[1, 1] - demo[0, 1], demo[1, 0] - demo[0, 0])
+    return Scenario(sid, m.name, "L", m, build_costmap(m.grid, m.resolution, ROBOT, 4.0),
+                    np.array([demo[0, 0], demo[0, 1], yaw]), demo[-1].copy(), demo,
+                    np.zeros((0, len(demo), 2)) if alternatives is None else alternatives, 0.6)
+
+
+FRAME = RobotFrame.for_size(64)
+
+
+# -- the follower ------------------------------------------------------------------------------------------------
+def test_follower_drives_a_straight_plan_at_its_speed_and_stops_at_the_end() -> None:
+    s = FollowerSettings()
+    plan = np.array([[0.0, 0.0], [2.0, 0.0]])
+    pose = np.array([0.0, 0.0, 0.0])
+    for _ in range(5):
+        pose = follow_step(pose, plan, s)
+    np.testing.assert_allclose(pose, [5 * s.speed_mps * s.dt_s, 0.0, 0.0], atol=1e-9)
+    for _ in range(200):
+        pose = follow_step(pose, plan, s)
+    assert np.linalg.norm(pose[:2] - plan[-1]) < 1e-6  # slows down onto the end, never past it
+
+
+def test_follower_turns_on_the_spot_towards_a_plan_behind_it_and_tracks_an_arc() -> None:
+    s = FollowerSettings()
+    behind = follow_step(np.array([0.0, 0.0, 0.0]), np.array([[0.0, 0.0], [-2.0, 0.0]]), s)
+    assert behind[:2] == pytest.approx([0.0, 0.0]) and behind[2] == pytest.approx(s.max_angular_rps * s.dt_s)
+    demo = arc_l(np.array([1.0, 1.0]), 1.0, 0.9, 1.0)
+    pose = np.array([1.0, 1.0, 0.0])
+    errors = []
+    for _ in range(200):
+        pose = follow_step(pose, demo, s)
+        k = np.linalg.norm(resample_polyline(demo, 2000) - pose[:2], axis=1).min()
+        errors.append(k)
+    assert max(errors) < 0.05  # pure pursuit cuts a 0.9 m turn by a few centimetres at most
+    assert lookahead_point(np.array([1.0, 1.0]), demo, 0.3) == pytest.approx([1.3, 1.0], abs=1e-6)
+
+
+def test_follower_settings_are_checked() -> None:
+    with pytest.raises(ValueError, match="speed_mps must be a positive number"):
+        FollowerSettings(speed_mps=0)
+
+
+# -- the node's replanning rule ------------------------------------------------------------------------------------
+def test_replan_trigger_is_the_nodes_rule_with_a_travelled_distance() -> None:
+    plan = np.array([[0.0, 0.0], [3.0, 0.0]])
+    node = CoreSettings()
+    here = np.array([1.0, 0.1, 0.0])
+    assert replan_trigger(node, here, plan, False, np.array([0.9, 0.0, 0.0]), 5.0) is None
+    assert replan_trigger(node, np.array([1.0, 0.7, 0.0]), plan, False, here, 5.0).startswith("off the plan by 0.70")
+    assert replan_trigger(node, np.array([1.0, 0.7, 0.0]), plan, False, here, 0.2) is None  # too soon
+    assert replan_trigger(node, np.array([2.5, 0.0, 0.0]), plan, True, here, 5.0) == "near the sub-goal"
+    every = CoreSettings(replan_every_m=0.5)
+    assert replan_trigger(every, np.array([1.3, 0.0, 0.0]), plan, False, np.array([1.0, 0.0, 0.0]), 5.0) is None
+    assert replan_trigger(every, np.array([1.6, 0.0, 0.0]), plan, False, np.array([1.0, 0.0, 0.0]), 5.0).startswith(
+        "moved 0.60 m")
+    assert replan_trigger(node, here, None, False, np.array([0.0, 0.0, 0.0]), 5.0) == "moved since the last attempt"
+
+
+# -- figures -----------------------------------------------------------------------------------------------------
+def test_smoothness_and_plan_mode_by_hand() -> None:
+    assert smoothness(np.array([[0.0, 0.0], [3.0, 0.0]])) == pytest.approx(0.0)
+    phi = np.linspace(0, math.pi, 400)
+    circle = np.stack([np.sin(phi), 1 - np.cos(phi)], axis=1) * 0.5  # a half circle of radius 0.5 m
+    assert smoothness(circle) == pytest.approx(math.degrees(1 / 0.5), rel=0.05)  # 1/r rad per metre (less the ends)
+    start = np.array([0.0, 0.0])
+    assert plan_mode(arc_l(start, 1.0, 0.3, 1.0, left=True), 0.6) == (1, 0)
+    assert plan_mode(arc_l(start, 1.0, 0.9, 1.0, left=True), 0.6) == (1, 1)
+    assert plan_mode(arc_l(start, 1.0, 0.9, 1.0, left=False), 0.6) == (-1, 1)
+    assert plan_mode(arc_l(start, 1.0, 0.9, 1.0), None) == (1, -1)
+    assert plan_mode(np.array([[0.0, 0.0], [3.0, 0.1]]), 0.6) is None  # no turn, no mode
+
+
+def _episode(sc: Scenario, path: np.ndarray, plans: list[np.ndarray], outcome: str = "success") -> Episode:
+    records = [PlanRecord(np.r_[p[0], 0.0], p, False, 0.01, "start") for p in plans]
+    return Episode(sc, np.column_stack([path, np.zeros(len(path))]), outcome, records, len(path) - 1)
+
+
+def test_episode_figures_by_hand() -> None:
+    m = open_map()
+    demo = arc_l(np.array([2.0, 2.0]), 1.0, 0.3, 1.0)
+    wide = arc_l(np.array([2.0, 2.0]), 1.0, 0.9, 1.0)
+    sc = scenario(m, demo, alternatives=wide[None])
+    shifted = demo + np.array([0.0, 0.1])  # 10 cm off everywhere
+    fig = episode_figures(_episode(sc, shifted, [demo, wide, demo]), commit_tol_cm=5.0)
+    assert fig["ape_cm"] == pytest.approx(10.0, abs=1e-6)
+    assert fig["plausibility_cm"] == pytest.approx(10.0, abs=1e-6) and fig["commit"] == 0.0
+    assert fig["mode_switches"] == 2.0  # sharp -> wide -> sharp
+    assert fig["replan_change_cm"] > 5.0
+    assert fig["plan_ms"] == pytest.approx(10.0) and fig["replans"] == 3.0
+    on_wide = episode_figures(_episode(sc, wide, [wide, wide]), commit_tol_cm=5.0)
+    assert on_wide["plausibility_cm"] == pytest.approx(0.0, abs=1e-9) and on_wide["commit"] == 1.0
+    assert on_wide["ape_cm"] > 10.0 and on_wide["replan_change_cm"] == pytest.approx(0.0, abs=1e-6)
+    assert on_wide["mode_switches"] == 0.0 and on_wide["length_ratio"] > 1.0
+    failed = episode_figures(_episode(sc, demo[:10], [demo], outcome="collision"))
+    assert failed["collision"] == 1.0 and math.isnan(failed["length_ratio"]) and failed["ape_cm"] > 30.0
+    no_alts = episode_figures(_episode(scenario(m, demo), demo, [demo]))
+    assert no_alts["ape_cm"] == pytest.approx(0.0, abs=1e-9) and math.isnan(no_alts["plausibility_cm"])
+
+    metric = ClosedLoopMetrics(commit_tol_cm=5.0)
+    metric.update([_episode(sc, shifted, [demo]), _episode(sc, wide, [wide])])
+    metric.update([_episode(sc, demo[:10], [demo], outcome="collision")])
+    out = metric.compute()
+    assert set(out) == set(CLOSED_LOOP_KEYS)
+    assert float(out["success_rate"]) == pytest.approx(2 / 3) and float(out["collision_rate"]) == pytest.approx(1 / 3)
+    assert float(out["commit_rate"]) == pytest.approx(1 / 3) and float(out["episodes"]) == 3
+
+
+def test_scenario_starts_pick_the_longest_remaining_path_per_scenario() -> None:
+    long, short = np.array([[0, 0], [0, 10.0]]), np.array([[0, 0], [0, 2.0]])
+    ids = ["a", "a", "b", "a", "b"]
+    assert scenario_starts(ids, np.stack([short, long, long, short, short])) == [1, 2]
+    assert scenario_starts(ids, np.stack([short, long, long, short, short]), indices=[0, 3, 4]) == [0, 4]
+
+
+# -- whole episodes ------------------------------------------------------------------------------------------------
+def test_the_replayed_demonstration_succeeds_and_the_nav2_baseline_drives_to_the_goal() -> None:
+    m = open_map()
+    sc = scenario(m, arc_l(np.array([2.0, 2.0]), 1.5, 0.5, 1.5))
+    (ep,) = replay([sc])
+    assert ep.success and episode_figures(ep)["ape_cm"] == pytest.approx(0.0, abs=1e-9)
+    settings = ClosedLoopSettings()
+    for planner in (BaselinePlanner("shortest", FRAME, 0.1, far_goal="clip"), DemonstrationPlanner([sc])):
+        (ep,) = drive(planner, [sc], settings)
+        assert ep.success, ep.outcome
+        assert np.linalg.norm(ep.path[-1, :2] - sc.goal) <= settings.goal_tolerance_m
+        assert len(ep.plans) >= 3  # replanned every 0.5 m
+    followed = episode_figures(drive(DemonstrationPlanner([sc]), [sc], settings)[0])
+    assert followed["ape_cm"] < 6.0  # the follower's own error: pure pursuit cuts a 0.5 m turn by centimetres
+
+
+class StraightThrough:
+    """A planner that plans the straight line to the goal, obstacles or not."""
+
+    def plan_batch(self, maps, poses, goals):  # noqa: ANN001, ANN201
+        return [PlanResult(True, np.linspace(np.asarray(p)[:2], np.asarray(g), 32), subgoal=False)
+                for p, g in zip(poses, goals)]
+
+
+class NeverPlans:
+    def plan_batch(self, maps, poses, goals):  # noqa: ANN001, ANN201
+        return [PlanResult(False, np.zeros((0, 2)), code="no_free_path", subgoal=False) for _ in poses]
+
+
+def test_a_plan_through_an_obstacle_collides_and_a_failed_plan_stops_the_robot() -> None:
+    m = open_map(block=(slice(60, 90), slice(40, 46)))  # a wall between start and goal (rows from the top)
+    demo = arc_l(np.array([2.0, 2.0]), 1.0, 0.5, 1.0)
+    sc = scenario(m, resample_polyline(np.array([[2.0, 2.5], [3.0, 2.5], [6.0, 2.5]]), 64))
+    (ep,) = drive(StraightThrough(), [sc], ClosedLoopSettings())
+    assert ep.outcome == "collision"
+    x, y = ep.path[-1, :2]
+    assert 3.6 <= x <= 4.8  # stopped at the wall (columns 40-45: x 4.0-4.6 m, within the robot's radius)
+    (ep,) = drive(NeverPlans(), [scenario(m, demo)], ClosedLoopSettings())
+    assert ep.outcome == "no_plan" and ep.steps == 0
+    (ep,) = drive(BaselinePlanner("shortest", FRAME, 0.1, far_goal="clip"), [sc], ClosedLoopSettings())
+    assert ep.success  # the Nav2-like planner goes round it
+
+
+def test_episodes_are_deterministic_per_seed_under_noise_and_offsets() -> None:
+    m = open_map()
+    scs = [scenario(m, arc_l(np.array([2.0, 2.0 + k]), 1.5, 0.5, 1.5), sid=f"room/L{k:03d}") for k in range(3)]
+    planner = BaselinePlanner("shortest", FRAME, 0.1, far_goal="clip")
+    noisy = dict(noise_xy_m=0.03, noise_yaw_rad=0.03, initial_offset_m=0.2, initial_offset_rad=0.3)
+    a = drive(planner, scs, ClosedLoopSettings(seed=5, **noisy))
+    b = drive(planner, scs, ClosedLoopSettings(seed=5, **noisy))
+    c = drive(planner, scs, ClosedLoopSettings(seed=6, **noisy))
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x.path, y.path)
+    assert any(x.path.shape != z.path.shape or not np.array_equal(x.path, z.path) for x, z in zip(a, c))
+    starts = np.array([e.path[0] for e in a])
+    offsets = np.linalg.norm(starts[:, :2] - np.array([s.start[:2] for s in scs]), axis=1)
+    np.testing.assert_allclose(offsets, 0.2, atol=1e-9)  # the open room never halves the offset
+    assert all(e.success for e in a)  # 3 cm of localisation noise does not stop the Nav2-like planner
+
+
+def test_closed_loop_settings_refuse_bad_values() -> None:
+    with pytest.raises(ValueError, match="noise_xy_m must be a number >= 0"):
+        ClosedLoopSettings(noise_xy_m=-1.0)
+    with pytest.raises(ValueError, match="goal_tolerance_m must be > 0"):
+        ClosedLoopSettings(goal_tolerance_m=0.0)
