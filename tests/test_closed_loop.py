@@ -223,3 +223,41 @@ def test_closed_loop_settings_refuse_bad_values() -> None:
         ClosedLoopSettings(noise_xy_m=-1.0)
     with pytest.raises(ValueError, match="goal_tolerance_m must be > 0"):
         ClosedLoopSettings(goal_tolerance_m=0.0)
+
+
+# -- end to end ------------------------------------------------------------------------------------------------------
+@pytest.mark.slow
+def test_evaluate_drives_the_test_scenarios_in_closed_loop(spade_home, tiny_checkpoints, tmp_path) -> None:  # noqa: ANN001
+    """python -m spade.evaluate closed_loop=true: the student and the baselines drive every test scenario; the
+    replayed demonstration scores success 1 and APE 0 (the scenarios are rebuilt right), the Nav2-like planner
+    reaches the goal without collision (the simulator is sound); two runs with one seed drive the same paths."""
+    from spade.experiments.evaluation import evaluate
+    from spade.experiments.tracking.summary import closed_loop_lines
+    from spade.metrics.closed_loop import CLOSED_LOOP_KEYS
+    from spade.utils.config import compose_config
+
+    overrides = [f"ckpt_path={tiny_checkpoints['student']}", "logger=none", "trainer.enable_progress_bar=false",
+                 f"paths.output_dir={tmp_path}/eval", "closed_loop=true", "drive.noise_xy_m=0.02"]
+    first = evaluate(compose_config("evaluate", overrides))
+    for prefix in ("", "baseline/shortest/", "baseline/heading/", "followed/", "demonstration/"):
+        assert {f"closed_loop/{prefix}{k}" for k in CLOSED_LOOP_KEYS} <= set(first), prefix
+    assert first["closed_loop/episodes"] >= 2
+    assert first["closed_loop/demonstration/success_rate"] == 1.0
+    assert first["closed_loop/demonstration/ape_cm"] == pytest.approx(0.0, abs=1e-6)
+    assert first["closed_loop/baseline/shortest/success_rate"] >= 0.95
+    assert first["closed_loop/baseline/shortest/collision_rate"] == 0.0
+    assert "test/ape_cm" in first  # the open-loop test ran too
+    lines = closed_loop_lines(first)
+    assert any("Nav2-like shortest path" in line for line in lines)
+    only = evaluate(compose_config("evaluate", [*overrides, "open_loop=false"]))
+    assert "test/ape_cm" not in only
+    for key in ("closed_loop/ape_cm", "closed_loop/success_rate", "closed_loop/baseline/heading/ape_cm"):
+        assert only[key] == first[key], key  # same seed, same noise, same paths
+    from spade.experiments.closed_loop import ClosedLoopConfigError
+    from spade.utils.errors import ConfigError
+
+    with pytest.raises(ClosedLoopConfigError, match="noise_xy_m must be a number >= 0"):
+        evaluate(compose_config("evaluate", [*overrides, "drive.noise_xy_m=-0.1"]))
+    expert = [f"ckpt_path={tiny_checkpoints['cond']}", *overrides[1:]]
+    with pytest.raises(ConfigError, match="closed_loop=true drives a planner"):
+        evaluate(compose_config("evaluate", expert))

@@ -43,7 +43,10 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     _use_models_encoding(datamodule, cfg.ckpt_path)
     loggers = instantiate_loggers(cfg.get("logger"))
     trainer = hydra.utils.instantiate(cfg.trainer, logger=loggers or False, callbacks=[])
-    results = trainer.test(model=model, datamodule=datamodule)[0]
+    if cfg.get("open_loop", True) or not cfg.get("closed_loop"):
+        results = trainer.test(model=model, datamodule=datamodule)[0]
+    else:  # closed loop only (open_loop=false): the instance-by-instance test is not run
+        results = {}
     if cfg.get("closed_loop"):
         results.update(_closed_loop(cfg, datamodule, loggers, trainer))
     from spade.experiments.tracking.runs import finish_evaluation

@@ -23,7 +23,7 @@ from spade.utils.timing import machine_info
 log = logging.getLogger(__name__)
 
 SECTIONS = ("student", "experts", "training", "metrics", "decoder", "data", "quality", "annotation_scaling",
-            "annotation", "dataset", "maps", "contention")
+            "annotation", "dataset", "maps", "contention", "closed_loop")
 _KEYS = ("quick", "sections", "out_json", "work_dir", "expert_ckpt", "seed", "threads", *SECTIONS)
 
 
@@ -92,6 +92,8 @@ def bench(cfg: DictConfig) -> dict[str, Any]:
             results["dataset"] = _dataset(c["dataset"], work, c["seed"])
         if "maps" in sections:
             results["maps"] = _maps(c["maps"])
+        if "closed_loop" in sections:
+            results["closed_loop"] = _closed_loop(c["closed_loop"])
         if "contention" in sections:
             from spade.perf.contention import contention_table
 
@@ -207,6 +209,17 @@ def _maps(m: dict[str, Any]) -> dict[str, Any]:
         real = real_map_costs(maps_dir, m["resolution_m"], m["robot_radius_m"], m.get("max_real"))
     log.info("maps: procedural, %d seeds", m["seeds"])
     return {"dir": maps_dir, "real": real, "procedural": procedural_map_costs(m["seeds"], m["robot_radius_m"])}
+
+
+def _closed_loop(k: dict[str, Any]) -> dict[str, Any]:
+    from spade.perf.closed_loop import closed_loop_costs
+
+    if not k.get("ckpt") or not k.get("dataset"):
+        raise ValueError("the closed_loop section needs closed_loop.ckpt (a trained student) and closed_loop.dataset "
+                         "(a scenario set, e.g. data/quickstart/test_scenarios100 from spade.evaluate closed_loop=true "
+                         "drive.scenarios=100)")
+    log.info("closed loop: %s on %s", k["ckpt"], k["dataset"])
+    return closed_loop_costs(k["ckpt"], k["dataset"], k.get("scenarios"))
 
 
 def _datasets(d: dict[str, Any], work: Path) -> dict[str, Any]:

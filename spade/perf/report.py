@@ -9,6 +9,7 @@ from typing import Any
 STUDENT_ONNX_TARGET_MS = 15.0  # medium student, batch 1, ONNX Runtime
 COND_DBC_RATIO_TARGET = 2.5  # Cond-DBC step / BC step
 DDIM_SPEEDUP_TARGET = 10.0  # DDIM-k vs the full DDPM loop ...
+CLOSED_LOOP_TARGET_S = 120.0  # 100 quickstart test scenarios driven in closed loop, student and baselines, 2 cores
 DDIM_APE_TOLERANCE = 0.10  # ... at an APE within 10 % of DDPM's
 
 
@@ -39,6 +40,12 @@ def check_targets(results: dict[str, Any]) -> list[dict[str, Any]]:
                         "setting": f"{row['image_size']} px, batch {row['batch_size']}, {row['student']} student, "
                                    f"cond expert {row['expert_preset']}",
                         "value": f"{value:.2f} x", "met": value <= COND_DBC_RATIO_TARGET})
+    loop = results.get("closed_loop")
+    if loop:
+        per100 = loop["all_s"] * 100.0 / max(loop["scenarios"], 1)
+        out.append({"target": f"100 closed-loop scenarios (student and baselines) <= {CLOSED_LOOP_TARGET_S:g} s",
+                    "setting": f"{loop['scenarios']} scenarios of {loop['dataset']}, {loop['plans']} student plans",
+                    "value": f"{per100:.1f} s per 100", "met": per100 <= CLOSED_LOOP_TARGET_S})
     quality = results.get("quality") or {}
     rows = quality.get("rows") or []
     ddpm = next((r for r in rows if r["sampler"] == "ddpm"), None)
@@ -127,6 +134,13 @@ def format_report(results: dict[str, Any]) -> str:
         parts.append("### Data\n\n" + _table(["what", "px", "instances", "throughput"], table))
     if results.get("annotation_scaling"):
         parts.append(_annotation_scaling(results["annotation_scaling"]))
+    if results.get("closed_loop"):
+        k = results["closed_loop"]
+        parts.append("### Closed loop (seconds; spade/perf/closed_loop.py)\n\n" + _table(
+            ["scenarios", "student plans", "student drive", "network", "decoding", "rest (windows, following)",
+             "shortest", "heading", "all", "scenarios / s (student)"],
+            [[k["scenarios"], k["plans"], k["student_s"], k["network_s"], k["decoding_s"], k["rest_s"],
+              k.get("shortest_s", "-"), k.get("heading_s", "-"), k["all_s"], k["scenarios_per_s"]]]))
     if results.get("contention"):
         from spade.perf.contention import format_contention
 

@@ -106,6 +106,12 @@ def report(cfg: DictConfig) -> list[Report]:
     from spade.experiments.checks import validate_report_config
 
     validate_report_config(cfg)
+    if str(cfg.table) == "closed_loop":  # not a paper table: drives of trained rows (spade/experiments/closed_loop_table)
+        from spade.experiments.closed_loop_table import closed_loop_report
+
+        text, files = closed_loop_report(cfg.tracking_uri, cfg.get("output_dir"), cfg.scale.name if cfg.get("scale")
+                                         else None, labels=cfg.get("closed_loop_labels"))
+        return [Report(None, {}, [], text, files)]  # type: ignore[arg-type]
     tables = list(TABLES.values()) if str(cfg.table) == "all" else [get_table(cfg.table)]
     # `scale` is the config group of conf/scale (so that scale=cpu reads as everywhere else); its name filters runs.
     scale = cfg.scale.name if cfg.get("scale") else None

@@ -1,0 +1,371 @@
+"""The closed-loop table: trained students driven through whole scenarios, with seeds, beside the classical planners.
+
+Launch (``python -m spade.closed_loop``, conf/closed_loop.yaml): for every finished run (one per seed) of the source
+rows (by default the guidance table's BC and Cond-DBC rows at equal size, and the quickstart's student), its best
+checkpoint is driven by ``spade.evaluate closed_loop=true`` on each scenario set (the held-out map, the unseen real
+maps) under each condition (clean; perturbed: localisation noise and an initial offset), each drive a run of its own
+in the MLflow experiment ``closed_loop`` named ``<row>__<dataset>__<condition>``, carrying its source run and seed.
+A drive that already finished is not run again (the launch resumes).
+
+Report (``python -m spade.report table=closed_loop``): per dataset and condition, every row's closed-loop figures as
+mean +/- sd over its seeds beside the baselines driven in the same runs; tests (Welch's between rows, paired between
+a row and a baseline over the seeds) with Holm's correction over the page; and whether the open-loop ranking
+(planner APE) and the closed-loop ranking (closed-loop APE) agree.
+"""
+
+from __future__ import annotations
+
+import datetime
+import logging
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["CLOSED_LOOP_TABLE", "closed_loop_report", "launch"]
+
+log = logging.getLogger(__name__)
+
+CLOSED_LOOP_TABLE = "closed_loop"
+"""The MLflow experiment (``tags.table``) of the drives, and the ``spade.report`` table name."""
+
+# Figures of a drive: (label, metric suffix after closed_loop/[prefix], format, lower is better).
+FIGURES: tuple[tuple[str, str, str, bool | None], ...] = (
+    ("success", "success_rate", ".0%", False),
+    ("collision", "collision_rate", ".0%", True),
+    ("timeout", "timeout_rate", ".0%", True),
+    ("APE (cm)", "ape_cm", ".2f", True),
+    ("plausibility (cm)", "plausibility_cm", ".2f", True),
+    ("commits", "commit_rate", ".0%", False),
+    ("mode switches", "mode_switches", ".2f", True),
+    ("replan change (cm)", "replan_change_cm", ".2f", True),
+    ("smoothness (deg/m)", "smoothness_deg_per_m", ".1f", True),
+    ("plan (ms)", "plan_ms", ".1f", None),
+)
+REFERENCES = {"baseline/shortest/": "Nav2-like shortest path", "baseline/heading/": "heading template",
+              "followed/": "demonstration followed", "demonstration/": "demonstration replayed"}
+TESTED = ("ape_cm", "success_rate", "plausibility_cm", "mode_switches")
+"""The figures the page tests: the deciding one (closed-loop APE) first."""
+
+
+# -- launch ------------------------------------------------------------------------------------------------------
+def _best_checkpoint(client: Any, run: Any, cache: Path) -> Path | None:
+    for folder in ("checkpoints/best", "checkpoints/last"):
+        files = [a for a in client.list_artifacts(run.info.run_id, folder) if a.path.endswith(".ckpt")]
+        if files:
+            dst = cache / run.info.run_id
+            dst.mkdir(parents=True, exist_ok=True)
+            return Path(client.download_artifacts(run.info.run_id, files[0].path, str(dst)))
+    return None
+
+
+def source_runs(client: Any, table: str, row: str, scale: str | None) -> list[Any]:
+    """The latest finished run of each seed of ``row`` in ``table``'s MLflow experiment (at ``scale``)."""
+    experiment = client.get_experiment_by_name(table)
+    if experiment is None:
+        return []
+    query = f"attributes.run_name = '{row}' and attributes.status = 'FINISHED'"
+    if scale:
+        query += f" and tags.scale = '{scale}'"
+    runs = client.search_runs([experiment.experiment_id], query, order_by=["attributes.end_time DESC"])
+    by_seed: dict[str, Any] = {}
+    for run in runs:
+        if run.data.tags.get("mlflow.parentRunId"):
+            continue  # a baseline's child run
+        by_seed.setdefault(run.data.params.get("cfg/seed", run.info.run_id), run)
+    return list(by_seed.values())
+
+
+def _finished_drives(client: Any) -> set[tuple[str, str]]:
+    experiment = client.get_experiment_by_name(CLOSED_LOOP_TABLE)
+    if experiment is None:
+        return set()
+    runs = client.search_runs([experiment.experiment_id], "attributes.status = 'FINISHED'", max_results=5000)
+    return {(r.info.run_name, r.data.tags.get("source_run", "")) for r in runs}
+
+
+def launch(cfg: Any) -> list[dict[str, Any]]:
+    """Drive every (source run, dataset, condition) not yet driven (module docstring); returns what ran."""
+    from mlflow import MlflowClient
+    from omegaconf import OmegaConf
+
+    from spade.experiments.evaluation import evaluate
+    from spade.utils.config import compose_config
+
+    client = MlflowClient(tracking_uri=str(cfg.tracking_uri))
+    done = _finished_drives(client)
+    cache = Path(str(cfg.cache_dir))
+    ran = []
+    for source in cfg.sources:
+        table, row = str(source.table), str(source.row)
+        runs = source_runs(client, table, row, cfg.scale.name)
+        if not runs:
+            log.warning("closed loop: no finished run of %s in %s at scale %s: launch it first", row, table,
+                        cfg.scale.name)
+        for run in runs:
+            seed = int(run.data.params.get("cfg/seed", cfg.seed))
+            ckpt = None
+            for dataset, data_cfg in cfg.datasets.items():
+                for condition, settings in cfg.conditions.items():
+                    name = f"{row}__{dataset}__{condition}"
+                    if (name, run.info.run_id) in done:
+                        continue
+                    ckpt = ckpt or _best_checkpoint(client, run, cache)
+                    if ckpt is None:
+                        log.warning("closed loop: run %s of %s has no checkpoint artifact; skipped", run.info.run_id,
+                                    row)
+                        break
+                    overrides = [f"ckpt_path={ckpt}", f"data={data_cfg.data}", f"scale={cfg.scale.name}",
+                                 f"run_name={name}", f"tags.table={CLOSED_LOOP_TABLE}", f"tags.row={name}",
+                                 f"+tags.source_run={run.info.run_id}", f"+tags.source_row={row}",
+                                 f"+tags.dataset={dataset}", f"+tags.condition={condition}", f"seed={seed}",
+                                 f"source_seed={seed}", "closed_loop=true", f"open_loop={condition == 'clean'}",
+                                 f"drive.scenarios={data_cfg.scenarios}", "trainer.enable_progress_bar=false",
+                                 f"paths.output_dir={cfg.paths.output_dir}/{name}/{seed}",
+                                 f"paths.mlflow_tracking_uri={cfg.tracking_uri}"]
+                    overrides += [f"drive.{k}={v}" for k, v in OmegaConf.to_container(settings).items()]
+                    t0 = time.perf_counter()
+                    metrics = evaluate(compose_config("evaluate", overrides))
+                    ran.append({"run": name, "seed": seed, "seconds": time.perf_counter() - t0,
+                                "success_rate": metrics.get("closed_loop/success_rate")})
+                    print(f"closed loop: {name} seed {seed}: success {metrics.get('closed_loop/success_rate'):.0%}, "
+                          f"APE {metrics.get('closed_loop/ape_cm'):.2f} cm ({time.perf_counter() - t0:.0f} s)",
+                          flush=True)
+    return ran
+
+
+# -- report ------------------------------------------------------------------------------------------------------
+@dataclass
+class Cell:
+    """The drives of one (row, dataset, condition): one metrics dict per seed."""
+
+    row: str
+    dataset: str
+    condition: str
+    seeds: dict[int, dict[str, float]] = field(default_factory=dict)
+    seconds: float = 0.0
+
+    def values(self, key: str) -> list[float]:
+        return [m[key] for _, m in sorted(self.seeds.items()) if key in m and math.isfinite(m[key])]
+
+
+def fetch_drives(tracking_uri: str, scale: str | None = None) -> dict[tuple[str, str, str], Cell]:
+    """The finished drives of the ``closed_loop`` experiment, the latest run per seed of each cell."""
+    from mlflow import MlflowClient
+
+    client = MlflowClient(tracking_uri=tracking_uri)
+    experiment = client.get_experiment_by_name(CLOSED_LOOP_TABLE)
+    cells: dict[tuple[str, str, str], Cell] = {}
+    if experiment is None:
+        return cells
+    query = "attributes.status = 'FINISHED'" + (f" and tags.scale = '{scale}'" if scale else "")
+    runs = client.search_runs([experiment.experiment_id], query, order_by=["attributes.end_time DESC"],
+                              max_results=5000)
+    for run in runs:
+        tags = run.data.tags
+        if tags.get("mlflow.parentRunId") or "source_row" not in tags:
+            continue
+        key = (tags["source_row"], tags.get("dataset", "?"), tags.get("condition", "?"))
+        cell = cells.setdefault(key, Cell(*key))
+        seed = int(float(run.data.params.get("cfg/seed", -1)))
+        if seed in cell.seeds:
+            continue  # an older drive of the same seed
+        cell.seeds[seed] = dict(run.data.metrics)
+        if run.info.end_time and run.info.start_time:
+            cell.seconds += (run.info.end_time - run.info.start_time) / 1000.0
+    return cells
+
+
+def _mean_sd(values: list[float], fmt: str) -> str:
+    if not values:
+        return "n/a"
+    if fmt.endswith("%"):
+        mean = format(float(np.mean(values)), fmt)
+        return mean if len(values) == 1 else f"{mean} ± {float(np.std(values, ddof=1)) * 100:.0f} pt"
+    mean = format(float(np.mean(values)), fmt)
+    return mean if len(values) == 1 else f"{mean} ± {format(float(np.std(values, ddof=1)), fmt)}"
+
+
+@dataclass
+class Test:
+    what: str
+    figure: str
+    a: float
+    b: float
+    p: float | None
+    kind: str
+    p_holm: float | None = None
+
+
+def _welch(a: list[float], b: list[float]) -> float | None:
+    from scipy import stats
+
+    if len(a) < 2 or len(b) < 2 or (np.std(a) == 0 and np.std(b) == 0):
+        return None
+    return float(stats.ttest_ind(a, b, equal_var=False).pvalue)
+
+
+def _paired(a: list[float], b: list[float]) -> float | None:
+    from scipy import stats
+
+    d = np.asarray(a) - np.asarray(b)
+    if len(d) < 2 or np.std(d) == 0:
+        return None
+    return float(stats.ttest_rel(a, b).pvalue)
+
+
+def _holm(tests: list[Test]) -> None:
+    from spade.experiments.reporting.results import holm
+
+    for t, adjusted in zip(tests, holm([t.p for t in tests])):
+        t.p_holm = adjusted
+
+
+def _ranking(cells: list[Cell], key: str) -> list[str]:
+    means = [(float(np.mean(c.values(key))), c.row) for c in cells if c.values(key)]
+    return [row for _, row in sorted(means)]
+
+
+def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: str | None = None,
+                       rows: list[str] | None = None, labels: Mapping[str, str] | None = None) -> tuple[str, dict]:
+    """Render the closed-loop page (markdown) from the ``closed_loop`` experiment; with ``output_dir`` also write
+    ``closed_loop.md`` and ``closed_loop.csv``. Returns the text and the files written."""
+    from spade.utils.provenance import command_line, commit, machine
+
+    labels = dict(labels or {})
+    cells = fetch_drives(tracking_uri, scale)
+    order = rows or sorted({k[0] for k in cells})
+    groups = sorted({(k[1], k[2]) for k in cells}, key=lambda g: (g[0] != "heldout", g[0], g[1] != "clean", g[1]))
+    parts = ["## Closed loop: students driven through whole scenarios, beside the classical planners", ""]
+    if not cells:
+        parts += [f"No finished drive in the MLflow experiment `{CLOSED_LOOP_TABLE}` of {tracking_uri}"
+                  + (f" at scale {scale}" if scale else "") + ": launch them with `python -m spade.closed_loop`."]
+        return "\n".join(parts), {}
+    parts += [
+        "Every scenario of a test set driven from its demonstration's start pose to its goal: the planner plans from "
+        "the robot's pose as the deployed node does, a pure-pursuit controller follows each plan, the robot replans "
+        "every 0.5 m driven (and when 0.5 m off its plan); an episode ends at the goal (10 cm), on a lethal cell of "
+        "the map's inflated costmap (a collision), with no plan, or at its time budget (`spade/closedloop`, "
+        "`conf/drive/default.yaml`). Each figure is the mean ± sd over the seeds of a row (one training run per "
+        "seed; the baselines are driven in the same runs, so their spread is the noise's). APE is the executed "
+        "path against the whole demonstration; plausibility against the nearest of the demonstration and its "
+        "alternatives; commits: within 5 cm of one of them; mode switches: how often the plan's turn side or radius "
+        "band changed between replans, per scenario.", "",
+        "Which figure decides: the success rate first (a planner that collides or stalls is not deployable), then "
+        "the closed-loop APE; plausibility, commitment and mode switches say whether the robot drove a turn an "
+        "operator drew.", ""]
+    tests: list[Test] = []
+    csv_rows = []
+    for dataset, condition in groups:
+        here = [cells[(r, dataset, condition)] for r in order if (r, dataset, condition) in cells]
+        if not here:
+            continue
+        n_scen = int(max((m.get("closed_loop/episodes", 0) for c in here for m in c.seeds.values()), default=0))
+        parts += [f"### {dataset}, {condition} ({n_scen} scenarios)", ""]
+        header = ["planner", "seeds", *[f[0] for f in FIGURES], "open-loop planner APE (cm)"]
+        parts += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        for c in here:
+            cols = [labels.get(c.row, c.row), str(len(c.seeds))]
+            cols += [_mean_sd(c.values(f"closed_loop/{key}"), fmt) for _, key, fmt, _ in FIGURES]
+            cols.append(_mean_sd(c.values("test/planner/ape_cm"), ".2f"))
+            parts.append("| " + " | ".join(cols) + " |")
+            csv_rows.append([dataset, condition, c.row, len(c.seeds)]
+                            + [float(np.mean(c.values(f"closed_loop/{k}"))) if c.values(f"closed_loop/{k}") else ""
+                               for _, k, _, _ in FIGURES])
+        pooled = Cell("baselines", dataset, condition)
+        for c in here:
+            for seed, m in c.seeds.items():
+                pooled.seeds[(hash(c.row) & 0xFFFF) * 1000 + seed] = m
+        for prefix, name in REFERENCES.items():
+            if not pooled.values(f"closed_loop/{prefix}success_rate"):
+                continue
+            cols = [f"*{name}*", str(len(pooled.seeds))]
+            cols += [_mean_sd(pooled.values(f"closed_loop/{prefix}{key}"), fmt) for _, key, fmt, _ in FIGURES]
+            cols.append("")
+            parts.append("| " + " | ".join(cols) + " |")
+        parts.append("")
+        # tests: every pair of rows (Welch), every row against the Nav2-like and heading baselines (paired by seed)
+        for i, a in enumerate(here):
+            for b in here[i + 1:]:
+                for key in TESTED:
+                    va, vb = a.values(f"closed_loop/{key}"), b.values(f"closed_loop/{key}")
+                    if va and vb:
+                        tests.append(Test(f"{dataset}, {condition}: {labels.get(a.row, a.row)} vs "
+                                          f"{labels.get(b.row, b.row)}", key, float(np.mean(va)), float(np.mean(vb)),
+                                          _welch(va, vb), "Welch"))
+            for prefix in ("baseline/shortest/", "baseline/heading/"):
+                for key in ("ape_cm", "success_rate"):
+                    pairs = [(m[f"closed_loop/{key}"], m[f"closed_loop/{prefix}{key}"]) for m in a.seeds.values()
+                             if f"closed_loop/{prefix}{key}" in m and f"closed_loop/{key}" in m]
+                    if pairs:
+                        va, vb = [p[0] for p in pairs], [p[1] for p in pairs]
+                        tests.append(Test(f"{dataset}, {condition}: {labels.get(a.row, a.row)} vs "
+                                          f"{REFERENCES[prefix]}", key, float(np.mean(va)), float(np.mean(vb)),
+                                          _paired(va, vb), "paired t"))
+        open_rank = _ranking(here, "test/planner/ape_cm")
+        closed_rank = _ranking(here, "closed_loop/ape_cm")
+        if len(open_rank) > 1 and condition == "clean":
+            agree = open_rank == closed_rank
+            parts += [f"Ranking by open-loop planner APE: {' < '.join(labels.get(r, r) for r in open_rank)}; by "
+                      f"closed-loop APE: {' < '.join(labels.get(r, r) for r in closed_rank)}: "
+                      + ("they agree." if agree else "**they disagree**."), ""]
+    _holm(tests)
+    if tests:
+        parts += ["Tests (two-sided; Holm's correction over every test of this page; significant: adjusted p < 0.05; "
+                  "n/a: fewer than 2 seeds or no spread):", "",
+                  "| comparison | figure | mean A | mean B | test | p | p (Holm) | verdict |", "|---|---|---:|---:|---|---:|---:|---|"]
+        for t in tests:
+            fmt = next(f for _, k, f, _ in FIGURES if k == t.figure)
+            p = "n/a" if t.p is None else f"{t.p:.3g}"
+            ph = "n/a" if t.p_holm is None else f"{t.p_holm:.3g}"
+            verdict = ("significant" if t.p_holm is not None and t.p_holm < 0.05 else "not significant")
+            parts.append(f"| {t.what} | {t.figure} | {format(t.a, fmt)} | {format(t.b, fmt)} | {t.kind} | {p} | {ph} "
+                         f"| {verdict} |")
+        parts.append("")
+    parts += ["Verdict:", *[f"- {line}" for line in verdict_lines(tests, labels)], ""]
+    seconds = sum(c.seconds for c in cells.values())
+    parts += ["Provenance:", f"- command: `{command_line('spade.report')}` (launch: `python -m spade.closed_loop`)",
+              f"- commit: {commit() or 'unknown (not a git checkout)'}",
+              f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
+              f"- machine: {machine()}",
+              f"- wall time of the {sum(len(c.seeds) for c in cells.values())} drives counted: {seconds / 60:.0f} min",
+              f"- MLflow experiment `{CLOSED_LOOP_TABLE}` in {tracking_uri}" + (f", scale {scale}" if scale else "")]
+    files: dict[str, Path] = {}
+    text = "\n".join(parts) + "\n"
+    if output_dir is not None:
+        out = Path(output_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        files["markdown"] = out / "closed_loop.md"
+        files["csv"] = out / "closed_loop.csv"
+        files["markdown"].write_text(text)
+        import csv
+
+        with files["csv"].open("w", newline="") as fh:
+            writer = csv.writer(fh)
+            writer.writerow(["dataset", "condition", "row", "seeds", *[k for _, k, _, _ in FIGURES]])
+            writer.writerows(csv_rows)
+    return text, files
+
+
+def verdict_lines(tests: list[Test], labels: Mapping[str, str]) -> list[str]:
+    """The tests in words: which differences the seeds establish, the deciding figure first."""
+    lines = []
+    for t in tests:
+        if t.figure not in ("ape_cm", "success_rate"):
+            continue
+        fmt = next(f for _, k, f, _ in FIGURES if k == t.figure)
+        better = (t.a < t.b) if t.figure == "ape_cm" else (t.a > t.b)
+        sig = t.p_holm is not None and t.p_holm < 0.05
+        a, b = t.what.split(": ", 1)[1].split(" vs ")
+        what = "closed-loop APE" if t.figure == "ape_cm" else "success rate"
+        if t.a == t.b:
+            lines.append(f"{t.what.split(':')[0]}: {a} ties {b} by {what} ({format(t.a, fmt)})")
+        else:
+            lines.append(f"{t.what.split(':')[0]}: {a} {'beats' if better else 'loses to'} {b} by {what} "
+                         f"({format(t.a, fmt)} vs {format(t.b, fmt)}), "
+                         + ("significant" if sig else "not significant") + " after Holm")
+    return lines
