@@ -411,7 +411,7 @@ def test_the_regenerate_command_keeps_the_runs_data_and_seed(spade_home: Path, m
 SCALE_KEYS = {"name", "image_size", "resolution_m", "annotate", "train_instances", "test_instances",
               "transfer_instances", "train_maps", "max_epochs", "expert_max_epochs", "batch_size", "cond_expert_preset",
               "uncond_expert_preset", "ema_decay", "ddim_steps", "val_metric_batches", "critic_instances",
-              "test_alternatives",
+              "test_alternatives", "closed_loop",
               "defaults"}
 
 

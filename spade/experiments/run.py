@@ -158,6 +158,9 @@ def fit_and_test(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
                 log.warning("No best checkpoint found: testing the last weights")
             from_checkpoint(trainer.test, best, model=model, datamodule=datamodule)
             metrics.update({k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1})
+            if cfg.get("closed_loop") and type(model).__name__ == "StudentModule":
+                metrics.update(drive_test_scenarios(cfg, best or last_checkpoint_path(trainer), datamodule, loggers,
+                                                    trainer))
         metrics.update(baseline)
 
         finish_run(cfg, trainer, model, loggers)
@@ -171,6 +174,21 @@ def fit_and_test(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
         mark_run_ended(loggers, exc)
         raise
     return metrics, {"cfg": cfg, "datamodule": datamodule, "model": model, "trainer": trainer, "loggers": loggers}
+
+
+def drive_test_scenarios(cfg: DictConfig, ckpt_path: str, datamodule: Any, loggers: list[Any], trainer: Any
+                         ) -> dict[str, float]:
+    """The closed-loop section of the test (``closed_loop: true``, the quickstart's scale): the best checkpoint and
+    the baselines drive the test set's scenarios (:mod:`spade.experiments.closed_loop`), logged as
+    ``closed_loop/*`` at the test's step."""
+    from spade.experiments.closed_loop import run_closed_loop, scenario_set
+
+    drive = OmegaConf.to_container(cfg.drive, resolve=True)
+    metrics, _ = run_closed_loop(ckpt_path, scenario_set(datamodule, drive.get("scenarios")), drive,
+                                 int(cfg.get("seed") or 0))
+    for logger in loggers:
+        logger.log_metrics(metrics, step=trainer.global_step)
+    return metrics
 
 
 def test_elsewhere(cfg: DictConfig, ckpt_path: str, name: str, data: str) -> dict[str, float]:

@@ -141,6 +141,7 @@ def run_summary(cfg: DictConfig, metrics: dict[str, Any],
     if floor:
         lines.append(floor)
     lines += learning_verdict(metrics)
+    lines += closed_loop_lines(metrics)
     guidance = guidance_line(margin_history)
     if guidance:
         lines.append(guidance)
