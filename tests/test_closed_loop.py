@@ -238,7 +238,8 @@ def test_evaluate_drives_the_test_scenarios_in_closed_loop(spade_home, tiny_chec
 
     overrides = [f"ckpt_path={tiny_checkpoints['student']}", "logger=none", "trainer.enable_progress_bar=false",
                  f"paths.output_dir={tmp_path}/eval", "closed_loop=true", "drive.noise_xy_m=0.02"]
-    first = evaluate(compose_config("evaluate", overrides))
+    first = evaluate(compose_config("evaluate", [*overrides, f"drive.mcap={tmp_path}/episodes.mcap"]))
+    assert (tmp_path / "episodes.mcap").stat().st_size > 0
     for prefix in ("", "baseline/shortest/", "baseline/heading/", "followed/", "demonstration/"):
         assert {f"closed_loop/{prefix}{k}" for k in CLOSED_LOOP_KEYS} <= set(first), prefix
     assert first["closed_loop/episodes"] >= 2
@@ -261,3 +262,30 @@ def test_evaluate_drives_the_test_scenarios_in_closed_loop(spade_home, tiny_chec
     expert = [f"ckpt_path={tiny_checkpoints['cond']}", *overrides[1:]]
     with pytest.raises(ConfigError, match="closed_loop=true drives a planner"):
         evaluate(compose_config("evaluate", expert))
+
+
+def test_episodes_are_recorded_for_foxglove_with_the_robots_tf(tmp_path) -> None:  # noqa: ANN001
+    import mcap_ros2.reader
+
+    from spade.closedloop.recording import EPISODE_TOPICS, write_episodes_bag
+
+    m = open_map()
+    scs = [scenario(m, arc_l(np.array([2.0, 2.0 + k]), 1.0, 0.5, 1.0), sid=f"room/L{k:03d}") for k in range(2)]
+    episodes = drive(BaselinePlanner("shortest", FRAME, 0.1, far_goal="clip"), scs, ClosedLoopSettings())
+    path = write_episodes_bag(tmp_path / "episodes.mcap", episodes, dt_s=0.1)
+    got = [(msg.channel.topic, msg.schema.name, msg.ros_msg, msg.log_time_ns)
+           for msg in mcap_ros2.reader.read_ros2_messages(str(path))]
+    topics = {t for t, *_ in got}
+    assert topics == set(EPISODE_TOPICS) and all(EPISODE_TOPICS[t] == s for t, s, *_ in got)
+    steps = sum(len(e.path) for e in episodes)
+    tfs = [msg for t, _, msg, _ in got if t == "/tf"]
+    assert len(tfs) == steps and sum(t == "/map" for t, *_ in got) == 1  # one map for both episodes
+    last = episodes[-1].path[-1]
+    tf = tfs[-1].transforms[0]
+    assert (tf.header.frame_id, tf.child_frame_id) == ("map", "base_link")
+    assert (tf.transform.translation.x, tf.transform.translation.y) == pytest.approx(tuple(last[:2]))
+    assert sum(t == "/plan" for t, *_ in got) == sum(len(e.plans) for e in episodes)
+    stamps = [ns for t, _, _, ns in got if t == "/robot_pose"]
+    assert stamps == sorted(stamps) and stamps[1] - stamps[0] == 100_000_000  # the control period
+    with pytest.raises(Exception, match="never written over"):
+        write_episodes_bag(path, episodes, dt_s=0.1)

@@ -75,6 +75,7 @@ class PlanRecord:
     seconds: float
     trigger: str
     code: str | None = None
+    step: int = 0  # the control step it was made at (simulated time: step * dt)
 
 
 @dataclass
@@ -192,7 +193,8 @@ def drive(planner: Any, scenarios: list[Scenario], settings: ClosedLoopSettings 
                 belief = beliefs[id(r)]
                 r.tried_at, r.tried_time = belief.copy(), r.steps * f.dt_s
                 waypoints = np.asarray(res.waypoints, np.float64) if res.success else np.zeros((0, 2))
-                r.plans.append(PlanRecord(belief.copy(), waypoints, bool(res.subgoal), seconds, reason, res.code))
+                r.plans.append(PlanRecord(belief.copy(), waypoints, bool(res.subgoal), seconds, reason, res.code,
+                                          r.steps))
                 r.plan, r.subgoal = (waypoints, bool(res.subgoal)) if res.success else (None, False)
                 if r.plan is None:
                     r.outcome = "no_plan"

@@ -36,6 +36,9 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
         from spade.experiments.closed_loop import closed_loop_settings
 
         closed_loop_settings(cfg.drive, int(cfg.seed))  # a bad drive setting is refused before the test
+        from spade.ros.recording import check_recording_path
+
+        check_recording_path(cfg.drive.get("mcap"), "drive.mcap")  # an existing recording is refused now
     mcap, mcap_instances = _recording(cfg)  # refused now, not after the test
     L.seed_everything(cfg.seed, workers=True)
     model = load_module(cfg.ckpt_path)
@@ -90,6 +93,12 @@ def _closed_loop(cfg: DictConfig, datamodule: Any, loggers: list[Any], trainer: 
     metrics, episodes = run_closed_loop(cfg.ckpt_path, scenarios, drive, int(cfg.seed))
     for lg in loggers:
         lg.log_metrics(metrics, step=trainer.global_step)
+    if drive.get("mcap") and trainer.is_global_zero:
+        from spade.closedloop.recording import write_episodes_bag
+
+        written = write_episodes_bag(drive["mcap"], episodes["model"][: int(drive.get("mcap_episodes", 20))],
+                                     float(drive["follower"]["dt_s"]))
+        print(f"closed loop: the model's episodes written to {written}", flush=True)
     ml = mlflow_logger(loggers)
     if ml is not None and trainer.is_global_zero:
         with tempfile.TemporaryDirectory() as tmp:
