@@ -322,7 +322,7 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
             fmt = next(f for _, k, f, _ in FIGURES if k == t.figure)
             p = "n/a" if t.p is None else f"{t.p:.3g}"
             ph = "n/a" if t.p_holm is None else f"{t.p_holm:.3g}"
-            verdict = ("significant" if t.p_holm is not None and t.p_holm < 0.05 else "not significant")
+            verdict = ("no test" if t.p_holm is None else "significant" if t.p_holm < 0.05 else "not significant")
             parts.append(f"| {t.what} | {t.figure} | {format(t.a, fmt)} | {format(t.b, fmt)} | {t.kind} | {p} | {ph} "
                          f"| {verdict} |")
         parts.append("")
@@ -367,5 +367,6 @@ def verdict_lines(tests: list[Test], labels: Mapping[str, str]) -> list[str]:
         else:
             lines.append(f"{t.what.split(':')[0]}: {a} {'beats' if better else 'loses to'} {b} by {what} "
                          f"({format(t.a, fmt)} vs {format(t.b, fmt)}), "
-                         + ("significant" if sig else "not significant") + " after Holm")
+                         + ("no test: fewer than 2 seeds or no spread" if t.p_holm is None
+                            else "significant after Holm" if sig else "not significant after Holm"))
     return lines
