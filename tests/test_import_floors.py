@@ -24,6 +24,7 @@ FLOORS = [
     {"training"},
     {"deploy"},
     {"ros"},
+    {"closedloop"},
     {"sketching"},
     {"experiments"},
     {"perf"},

@@ -120,7 +120,7 @@ def predictors(ckpt_path: str | Path | None, scenarios: list[Scenario], baseline
     out: dict[str, Any] = {}
     frame = resolution = margin = None
     if ckpt_path is not None:
-        from spade.planner import Planner
+        from spade.deploy.planner import Planner
 
         model = Planner(ckpt_path, **{"far_goal": "clip", **dict(planner_options or {})})
         out["model"] = model

@@ -23,7 +23,7 @@ def closed_loop_costs(ckpt: str | Path, dataset: str | Path, scenarios: int | No
     from spade.closedloop.scenarios import load_scenarios
     from spade.closedloop.simulate import ClosedLoopSettings, drive
     from spade.data import PathDataset
-    from spade.planner import Planner
+    from spade.deploy.planner import Planner
 
     t0 = time.perf_counter()
     ds = PathDataset(dataset)
