@@ -289,3 +289,20 @@ def test_episodes_are_recorded_for_foxglove_with_the_robots_tf(tmp_path) -> None
     assert stamps == sorted(stamps) and stamps[1] - stamps[0] == 100_000_000  # the control period
     with pytest.raises(Exception, match="never written over"):
         write_episodes_bag(path, episodes, dt_s=0.1)
+
+
+@pytest.mark.slow
+def test_an_experts_test_logs_its_planner_spread_against_the_generators(spade_home, tiny_checkpoints,  # noqa: ANN001
+                                                                        tmp_path) -> None:  # noqa: ANN001
+    """The expert as a planner (issue: a teacher that knows more): a second, independent sample per instance gives the
+    spread of its decoded paths beside the generator's (the test set's alternatives)."""
+    from spade.experiments.evaluation import evaluate
+    from spade.utils.config import compose_config
+
+    metrics = evaluate(compose_config("evaluate", [f"ckpt_path={tiny_checkpoints['cond']}", "logger=none",
+                                                   "trainer.enable_progress_bar=false",
+                                                   f"paths.output_dir={tmp_path}/eval"]))
+    assert metrics["test/planner/spread_cm"] >= 0.0 and math.isfinite(metrics["test/planner/spread_cm"])
+    assert metrics["test/generator_spread_cm"] > 0.0  # the tiny test set draws alternatives
+    assert math.isfinite(metrics["test/planner/spread_ratio"])
+    assert metrics["test/seconds_per_sample"] > 0.0

@@ -158,3 +158,25 @@ def test_path_metrics_report_them_only_where_the_batch_has_alternatives() -> Non
 def test_bad_tolerance_is_refused() -> None:
     with pytest.raises(ValueError, match="commit_tol_cm"):
         PreferenceMetrics(commit_tol_cm=0)
+
+
+def test_spread_of_two_samples_against_the_generators_by_hand() -> None:
+    import torch
+
+    from spade.metrics.preference import SpreadMetrics
+
+    line = np.stack([np.linspace(10, 10, 8), np.linspace(30, 10, 8)], axis=1)  # 8 points up the window
+    waypoints = torch.tensor(np.stack([line, line]), dtype=torch.float32)
+    alts = np.full((2, 2, 8, 2), np.nan)
+    alts[0, 0] = line + [4.0, 0.0]  # instance 0: one alternative 4 px to the side
+    m = SpreadMetrics()
+    m.update([line, line + [1.0, 0.0]], [line + [2.0, 0.0], None], waypoints, torch.tensor(alts, dtype=torch.float32),
+             0.05)
+    out = {k: float(v) for k, v in m.compute().items()}
+    assert out["spread_cm"] == pytest.approx(10.0)  # 2 px at 5 cm; instance 1 lost a sample: left out
+    assert out["generator_spread_cm"] == pytest.approx(20.0)  # demonstration vs its one alternative: 4 px
+    assert out["spread_ratio"] == pytest.approx(0.5)
+    empty = SpreadMetrics()
+    empty.update([line], [line], waypoints[:1], None, 0.05)
+    got = empty.compute()
+    assert float(got["spread_cm"]) == 0.0 and np.isnan(float(got["generator_spread_cm"]))

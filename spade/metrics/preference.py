@@ -31,7 +31,7 @@ from spade.data.polyline import resample_polyline
 from spade.metrics._inputs import per_instance_resolution, to_numpy
 from spade.metrics.extraction import marker_centre
 
-__all__ = ["PREFERENCE_KEYS", "PreferenceMetrics", "floor_path", "plausible_set"]
+__all__ = ["PREFERENCE_KEYS", "PreferenceMetrics", "SpreadMetrics", "floor_path", "plausible_set"]
 
 PREFERENCE_KEYS: tuple[str, ...] = ("ape_over_floor", "plausibility_cm", "commit_rate")
 """The per-predictor figures (a test logs them for the paper's reading and, prefixed, the planner's)."""
@@ -133,3 +133,63 @@ class PreferenceMetrics(Metric):
             "commit_rate": self.commits.double() / counted.double() if counted > 0 else nan,
             "pref_instances": counted,
         }
+
+
+class SpreadMetrics(Metric):
+    """How widely a sampler spreads its paths, against the generator's own spread (:mod:`spade.annotation.
+    alternatives`): ``spread_cm``, the mean distance between two independent samples' paths of an instance (each
+    resampled to K points by arc length; instances where either failed are left out); ``generator_spread_cm``, the
+    mean distance between two different paths of the instance's plausible set (all pairs), over instances with
+    alternatives; ``spread_ratio``: the two on the instances that have both (1: as wide as the operator's choices;
+    below: too narrow, a distribution collapsed onto one turn or onto a blend)."""
+
+    is_differentiable = False
+    higher_is_better = None
+    full_state_update = False
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.add_state("spread", default=[], dist_reduce_fx="cat")  # cm, instances with two paths
+        self.add_state("paired_spread", default=[], dist_reduce_fx="cat")  # cm, ... that also have alternatives
+        self.add_state("generator", default=[], dist_reduce_fx="cat")  # cm, the same instances' generator spread
+        self.add_state("generator_all", default=[], dist_reduce_fx="cat")  # cm, every instance with alternatives
+
+    def update(self, first: list[np.ndarray | None], second: list[np.ndarray | None], waypoints: torch.Tensor,
+               alternatives: torch.Tensor | None, resolution: torch.Tensor | float) -> None:
+        """``first``, ``second``: one path (window pixels) or None per instance, from two independent samples."""
+        truth = to_numpy(waypoints, np.float64)
+        alts = to_numpy(alternatives, np.float64) if alternatives is not None else None
+        res = per_instance_resolution(resolution, len(first))
+        spread, paired, gen, gen_all = [], [], [], []
+        for i, (a, b) in enumerate(zip(first, second)):
+            cm = res[i] * 100.0
+            g = None
+            if alts is not None:
+                paths = plausible_set(truth[i], alts[i])
+                if len(paths) >= 2:
+                    d = np.linalg.norm(paths[:, None] - paths[None], axis=3).mean(axis=2)
+                    g = float(d[np.triu_indices(len(paths), 1)].mean()) * cm
+                    gen_all.append(g)
+            if a is None or b is None or len(a) < 2 or len(b) < 2:
+                continue
+            k = truth.shape[1]
+            s = float(np.linalg.norm(resample_polyline(np.asarray(a, np.float64), k)
+                                     - resample_polyline(np.asarray(b, np.float64), k), axis=1).mean()) * cm
+            spread.append(s)
+            if g is not None:
+                paired.append(s)
+                gen.append(g)
+        for name, values in (("spread", spread), ("paired_spread", paired), ("generator", gen),
+                             ("generator_all", gen_all)):
+            getattr(self, name).append(torch.tensor(values, dtype=torch.float64, device=self.device))
+
+    def compute(self) -> dict[str, torch.Tensor]:
+        def cat(name: str) -> torch.Tensor:
+            values = getattr(self, name)
+            return dim_zero_cat(values).double() if len(values) else torch.zeros(0, dtype=torch.float64)
+
+        nan = torch.tensor(float("nan"), dtype=torch.float64)
+        spread, paired, gen, gen_all = cat("spread"), cat("paired_spread"), cat("generator"), cat("generator_all")
+        return {"spread_cm": spread.mean() if spread.numel() else nan,
+                "generator_spread_cm": gen_all.mean() if gen_all.numel() else nan,
+                "spread_ratio": paired.mean() / gen.mean() if paired.numel() and gen.mean() > 0 else nan}

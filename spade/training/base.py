@@ -154,9 +154,13 @@ class PathPlanningModule(L.LightningModule):
         self._test_records = TestRecords()
 
     def test_step(self, batch: dict, batch_idx: int) -> None:
+        self._test_with(self.predict_paths(batch), batch)
+
+    def _test_with(self, prob: torch.Tensor, batch: dict) -> None:
+        """The test of predicted probabilities ``prob``: the metrics, the records for the pictures, and the
+        classical baselines on the same instances."""
         from spade.metrics.baselines import batch_baseline_polylines, draw_polylines
 
-        prob = self.predict_paths(batch)
         self.test_metrics.update(prob, batch)
         self._test_records.add(batch, prob)
         h, w = prob.shape[-2:]

@@ -198,10 +198,35 @@ class ExpertModule(PathPlanningModule):
         return prob
 
     def on_test_epoch_start(self) -> None:
+        from spade.metrics.preference import SpreadMetrics
+
         super().on_test_epoch_start()
         self.sample_seconds, self.sample_count = 0.0, 0
+        self._spread = SpreadMetrics().to(self.device)
+
+    def test_step(self, batch: dict, batch_idx: int) -> None:
+        """The test of every predictor (:class:`PathPlanningModule`), then a second, independent sample of each
+        instance: the spread of the expert's planner paths against the generator's (``test/planner/spread_cm``,
+        ``test/generator_spread_cm``, ``test/planner/spread_ratio``; :class:`~spade.metrics.preference.SpreadMetrics`).
+        A teacher narrower than the operator's choices can only teach one of them."""
+        t0 = time.perf_counter()
+        first = self.sample_paths(batch["state"])
+        self.sample_seconds += time.perf_counter() - t0
+        self.sample_count += batch["state"].shape[0]
+        self._test_with(first, batch)
+        second = self.sample_paths(batch["state"], seed=int(self.hparams.sample_seed) + 1)
+        decode = self.test_metrics.decode
+        paths = [[d.points if d.ok else None for d in decode(p, batch["state"], batch["resolution"])]
+                 for p in (first, second)]
+        self._spread.update(paths[0], paths[1], batch["waypoints"], batch.get("alternatives"), batch["resolution"])
 
     def on_test_epoch_end(self) -> None:
         if self.sample_count:
             self.log("test/seconds_per_sample", self.sample_seconds / self.sample_count)
+        spread = getattr(self, "_spread", None)
+        if spread is not None:
+            out = spread.compute()
+            self.log_dict({"test/planner/spread_cm": out["spread_cm"], "test/planner/spread_ratio": out["spread_ratio"],
+                           "test/generator_spread_cm": out["generator_spread_cm"]}, sync_dist=False)
+            self._spread = None
         super().on_test_epoch_end()
