@@ -16,7 +16,7 @@ Per episode (:func:`episode_figures`), in the map frame:
   the point nearest the later plan's start, both cut to the shorter length, resampled to K points): how much a
   replan moved the path still ahead;
 - ``mode_switches``: how often the plan's way of turning changed between replans. A plan with at least
-  ``min_turn_deg`` of turning left has a mode: its side (left or right) and its radius band (sharp or wide: the
+  ``min_turn_deg`` of turning left beyond its first 15 cm (where it joins the robot's pose) has a mode: its side (left or right) and its radius band (sharp or wide: the
   radius of its middle 80 % of turning, against the generator's boundary between the bands,
   ``Scenario.radius_boundary_m``);
 - ``plan_ms``: wall time per planning query; ``replans``: queries per episode.
@@ -48,6 +48,14 @@ CLOSED_LOOP_KEYS: tuple[str, ...] = (
 """What :class:`ClosedLoopMetrics` computes, logged as ``closed_loop/<key>`` (a baseline's with its prefix)."""
 
 SPACING_M = 0.05  # the executed path's resampling for headings
+JOIN_M = 0.15  # a plan's first stretch, where it joins the robot's pose (a kink after corner-cutting), has no mode
+
+
+def _beyond(points: np.ndarray, distance_m: float) -> np.ndarray:
+    """The part of a path beyond its first ``distance_m`` of length."""
+    pts = np.asarray(points, np.float64)
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    return pts[along >= distance_m]
 
 
 def _headings(points: np.ndarray) -> tuple[np.ndarray, float]:
@@ -131,7 +139,8 @@ def episode_figures(episode: Any, commit_tol_cm: float = 1.5, min_turn_deg: floa
     changes = [_overlap_change(a.waypoints, b.waypoints, k) for a, b in zip(plans[:-1], plans[1:])]
     changes = [c for c in changes if math.isfinite(c)]
     figures["replan_change_cm"] = float(np.mean(changes)) * 100.0 if changes else nan
-    modes = [m for m in (plan_mode(p.waypoints, sc.radius_boundary_m, min_turn_deg) for p in plans) if m is not None]
+    modes = [m for m in (plan_mode(_beyond(p.waypoints, JOIN_M), sc.radius_boundary_m, min_turn_deg) for p in plans)
+             if m is not None]
     figures["mode_switches"] = float(sum(a != b for a, b in zip(modes[:-1], modes[1:])))
     figures["plan_ms"] = float(np.mean([p.seconds for p in episode.plans])) * 1000.0 if episode.plans else nan
     figures["replans"] = float(len(episode.plans))
