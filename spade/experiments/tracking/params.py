@@ -11,7 +11,7 @@ tests read: ``cfg/seed``, ``cfg/run_name``, ``cfg/model/size``, ``cfg/scale/name
   the metric that picks the best checkpoint; an optimizer or a schedule is named by its function
   (``cfg/model/optimizer=AdamW``).
 - **dropped**: paths and checkpoints (the description names the prerequisites), Hydra, logger and callback
-  internals, the run's tags (they are tags), ``task_name``, the sweep's ``seeds`` / ``rows``, threads,
+  internals, the closed-loop test's settings (``closed_loop``, ``drive/*``: how the model is driven, not trained), the run's tags (they are tags), ``task_name``, the sweep's ``seeds`` / ``rows``, threads,
   ``_target_`` / ``_partial_`` / ``_convert_`` markers, the trainer's bookkeeping (devices, progress bar,
   logging cadence), unset values (None, ``max_steps=-1``), and the copies: the recipe's and the scale's values
   (the model, data and trainer keys hold what the run used), the data generator's settings, the model's copy of
@@ -31,6 +31,7 @@ from typing import Any
 DROPPED = (
     "hydra*", "paths/*", "logger/*", "callbacks/*", "tags/*", "requires/*", "registry/*", "also_test*",
     "task_name", "seeds", "rows", "threads", "prerequisites", "ckpt_path", "train", "test", "test_untrained",
+    "closed_loop", "drive/*",
     "recipe/*", "scale/*",
     "data/*_generate/*", "data/generator/*", "data/*_dir", "data/num_workers", "data/pin_memory",
     "data/persistent_workers", "data/eval_batch_size",
