@@ -306,3 +306,45 @@ def test_an_experts_test_logs_its_planner_spread_against_the_generators(spade_ho
     assert metrics["test/generator_spread_cm"] > 0.0  # the tiny test set draws alternatives
     assert math.isfinite(metrics["test/planner/spread_ratio"])
     assert metrics["test/seconds_per_sample"] > 0.0
+
+
+# -- the results page ------------------------------------------------------------------------------------------------
+def test_the_closed_loop_page_shows_seeds_baselines_tests_and_the_rankings(tmp_path) -> None:  # noqa: ANN001
+    """spade.report table=closed_loop from hand-made drives: mean +/- sd over seeds, the baselines, Welch and paired
+    tests with Holm, and where the open-loop and closed-loop rankings disagree."""
+    from mlflow import MlflowClient
+
+    from spade.experiments.closed_loop_table import closed_loop_report
+
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    client = MlflowClient(tracking_uri=uri)
+    experiment = client.create_experiment("closed_loop")
+    figures = {  # row -> per seed: (closed-loop APE, success, open-loop planner APE)
+        "bc": [(10.0, 1.0, 4.0), (11.0, 1.0, 4.2), (12.0, 0.98, 4.1)],
+        "cond": [(20.0, 0.9, 3.9), (21.0, 0.92, 3.8), (22.0, 0.9, 3.95)],
+    }
+    for row, seeds in figures.items():
+        for seed, (ape, success, open_ape) in enumerate(seeds):
+            run = client.create_run(experiment, run_name=f"{row}__heldout__clean", tags={
+                "source_row": row, "dataset": "heldout", "condition": "clean", "scale": "quickstart"})
+            rid = run.info.run_id
+            client.log_param(rid, "cfg/seed", seed)
+            metrics = {"closed_loop/ape_cm": ape, "closed_loop/success_rate": success,
+                       "closed_loop/episodes": 100.0, "test/planner/ape_cm": open_ape,
+                       "closed_loop/baseline/shortest/ape_cm": 40.0 + seed,
+                       "closed_loop/baseline/shortest/success_rate": 1.0}
+            for key, value in metrics.items():
+                client.log_metric(rid, key, value)
+            client.set_terminated(rid, "FINISHED")
+    text, files = closed_loop_report(uri, tmp_path / "out", "quickstart", labels={"bc": "BC", "cond": "Cond-DBC"})
+    assert "### heldout, clean (100 scenarios)" in text
+    assert "| BC | 3 | 99% ± 1 pt | n/a | n/a | 11.00 ± 1.00 |" in text
+    assert "| *Nav2-like shortest path* | 6 |" in text
+    assert "by open-loop planner APE: Cond-DBC < BC; by closed-loop APE: BC < Cond-DBC: **they disagree**" in text
+    welch = next(line for line in text.splitlines() if line.startswith("| heldout, clean: BC vs Cond-DBC | ape_cm"))
+    assert "Welch" in welch and "| significant |" in welch  # 10 cm apart with sd 1: p about 2e-4 before Holm
+    assert "BC beats Cond-DBC by closed-loop APE (11.00 vs 21.00), significant after Holm" in text
+    assert "BC beats Nav2-like shortest path by closed-loop APE" in text
+    assert files["markdown"].read_text() == text and files["csv"].is_file()
+    empty, _ = closed_loop_report(f"sqlite:///{tmp_path}/other.db", None)
+    assert "launch them with `python -m spade.closed_loop`" in empty

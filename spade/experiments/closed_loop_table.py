@@ -266,7 +266,7 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
             continue
         n_scen = int(max((m.get("closed_loop/episodes", 0) for c in here for m in c.seeds.values()), default=0))
         parts += [f"### {dataset}, {condition} ({n_scen} scenarios)", ""]
-        header = ["planner", "seeds", *[f[0] for f in FIGURES], "open-loop planner APE (cm)"]
+        header = ["planner", "runs", *[f[0] for f in FIGURES], "open-loop planner APE (cm)"]
         parts += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
         for c in here:
             cols = [labels.get(c.row, c.row), str(len(c.seeds))]
@@ -276,10 +276,9 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
             csv_rows.append([dataset, condition, c.row, len(c.seeds)]
                             + [float(np.mean(c.values(f"closed_loop/{k}"))) if c.values(f"closed_loop/{k}") else ""
                                for _, k, _, _ in FIGURES])
-        pooled = Cell("baselines", dataset, condition)
-        for c in here:
-            for seed, m in c.seeds.items():
-                pooled.seeds[(hash(c.row) & 0xFFFF) * 1000 + seed] = m
+        pooled = Cell("baselines", dataset, condition)  # every drive of the group: the baselines ran in each
+        for i, m in enumerate(m for c in here for m in c.seeds.values()):
+            pooled.seeds[i] = m
         for prefix, name in REFERENCES.items():
             if not pooled.values(f"closed_loop/{prefix}success_rate"):
                 continue
