@@ -260,7 +260,9 @@ def test_a_partly_nan_or_infinite_alternative_is_refused(tmp_path: Path) -> None
     values[i, j, 5, 0] = np.inf
     values.tofile(path)
     manifest["files"]["alternatives"]["sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
-    manifest.pop("manifest_sha256", None)
+    from spade.data.format import MANIFEST_CHECKSUM, manifest_checksum
+
+    manifest[MANIFEST_CHECKSUM] = manifest_checksum(manifest)  # the arrays' own checks must refuse it
     (root / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(DatasetError, match=f"instance {i} holds a row that is partly NaN, or holds inf"):
         PathDataset(root)

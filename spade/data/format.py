@@ -38,7 +38,8 @@ FORMAT_NAME = "spade-path-dataset"
 FORMAT_VERSION = 2
 MANIFEST = "manifest.json"
 # The manifest's own checksum: the sha256 of the rest of it as canonical JSON. A field edited after writing (the
-# resolution rescales every cm metric) is refused, not verified. Manifests written before it have none.
+# resolution rescales every cm metric) is refused, not verified; so is a manifest without it (deleting the field
+# would otherwise pass any edit): every manifest the writer has published since carries one.
 MANIFEST_CHECKSUM = "manifest_sha256"
 
 
@@ -171,6 +172,18 @@ def _check_generator_record(raw: dict[str, Any], path: Path, height: int, width:
              "but the generator's windows are")
 
 
+def _check_manifest_checksum(raw: dict[str, Any], path: Path) -> None:
+    """The manifest carries its :data:`MANIFEST_CHECKSUM` and it matches the rest: an edited field (the resolution
+    rescales every cm metric) is refused, and so is a manifest whose checksum was deleted along with the edit."""
+    stated = raw.get(MANIFEST_CHECKSUM)
+    _require(stated is not None, path,
+             f"the manifest has no {MANIFEST_CHECKSUM} (it was deleted, or the dataset was written before SPADE "
+             "checksummed its manifests), so its fields cannot be trusted")
+    _require(stated == manifest_checksum(raw), path,
+             f"the manifest was changed after it was written ({MANIFEST_CHECKSUM} does not match its content; a "
+             "field such as resolution would rescale every metric)")
+
+
 def read_manifest(root: str | Path) -> Manifest:
     """Read and validate ``root/manifest.json``; raise :class:`DatasetError` naming the problem."""
     root = Path(root)
@@ -200,10 +213,7 @@ def read_manifest(root: str | Path) -> Manifest:
         files = raw["files"]
     except (KeyError, TypeError, ValueError) as exc:
         raise DatasetError(f"{path}: a required field is missing or malformed ({exc!r}). Re-generate it.") from exc
-    stated = raw.get(MANIFEST_CHECKSUM)
-    _require(stated is None or stated == manifest_checksum(raw), path,
-             f"the manifest was changed after it was written ({MANIFEST_CHECKSUM} does not match its content; a "
-             "field such as resolution would rescale every metric)")
+    _check_manifest_checksum(raw, path)
     _require(height > 0 and width > 0, path, f"image_size must be positive, got {height} x {width}")
     _require(resolution > 0, path, f"resolution must be > 0 m/px, got {resolution}")
     _require(num_waypoints >= 2, path, f"num_waypoints must be >= 2, got {num_waypoints}")
