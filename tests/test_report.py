@@ -171,7 +171,7 @@ def test_cli_scale_override_filters_runs(store: dict, tmp_path: Path) -> None:
     from spade.utils.config import compose_config
 
     overrides = ["table=table1", f"tracking_uri={store['uri']}", f"output_dir={tmp_path}", "paths.output_dir=.",
-                 "chart=false"]
+                 "chart=false", "overwrite=true"]  # three reports into one folder
     (everything,) = report(compose_config("report", overrides))
     (cpu,) = report(compose_config("report", [*overrides, "scale=cpu"]))
     (tiny,) = report(compose_config("report", [*overrides, "scale=tiny"]))

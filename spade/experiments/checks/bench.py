@@ -6,14 +6,23 @@ from collections.abc import Sequence
 
 from omegaconf import DictConfig
 
+from spade.experiments.checks.files import _output_file, check_paths
 from spade.experiments.checks.values import _MISSING, _check_bool, _check_int, _get
 from spade.utils.errors import ConfigError
 
 
 def validate_bench_config(cfg: DictConfig, known_sections: Sequence[str]) -> None:
     """``spade.bench``'s checks before any section runs: ``quick`` a boolean, ``sections`` among ``known_sections``
-    (:data:`spade.perf.bench.SECTIONS`, passed in: the benchmark sits on a higher floor), a thread count."""
+    (:data:`spade.perf.bench.SECTIONS`, passed in: the benchmark sits on a higher floor), a thread count, and an
+    ``out_json`` (given or the default) that replaces only an earlier benchmark's JSON, with ``overwrite=true``."""
     _check_bool(cfg, "quick")
+    check_paths(cfg)
+    _check_bool(cfg, "overwrite")
+    out = _get(cfg, "out_json")
+    if out is not _MISSING:
+        if out is None:
+            raise ConfigError("out_json is not set; set out_json to a new .json file (the results are written there)")
+        _output_file("out_json", out, {}, "set out_json to a new .json file", (".json",), _get(cfg, "overwrite"))
     sections = _get(cfg, "sections")
     if sections is not _MISSING and sections is not None:
         if isinstance(sections, str) or not isinstance(sections, list):

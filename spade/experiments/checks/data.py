@@ -22,6 +22,7 @@ from spade.experiments.checks.values import (
     _opt,
     _unset,
 )
+from spade.experiments.checks.files import check_path_value
 from spade.experiments.checks.windows import _check_window_size, check_window_holds_manoeuvre
 from spade.utils.errors import ConfigError
 
@@ -62,7 +63,9 @@ def _check_datasets(cfg: DictConfig) -> None:
 
 
 def _check_folder_path(key: str, value: Any) -> None:
-    """A folder SPADE reads or creates: no part of its path may be an existing file."""
+    """A folder SPADE reads or creates: neither empty nor the filesystem root, and no part of its path may be an
+    existing file."""
+    check_path_value(key, value, f"set {key} to a folder (or paths.data_dir, which it is under by default)")
     if _unset(value):
         return
     path = Path(str(value)).expanduser()

@@ -8,6 +8,7 @@ from omegaconf import DictConfig
 
 from spade.experiments.checks.checkpoints import _check_geometry, _read_checkpoint
 from spade.experiments.checks.data import _check_data, _check_datasets
+from spade.experiments.checks.files import check_paths
 from spade.experiments.checks.store import _check_logger_store
 from spade.experiments.checks.values import _MISSING, _get
 from spade.utils.errors import ConfigError
@@ -15,6 +16,7 @@ from spade.utils.errors import ConfigError
 
 def validate_evaluate_config(cfg: DictConfig) -> None:
     """``spade.evaluate``'s checks: the checkpoint's role, and its geometry against the data it is tested on."""
+    check_paths(cfg)
     ckpt = _get(cfg, "ckpt_path")
     fix = "pass a student or expert checkpoint written by python -m spade.train"
     if ckpt in (_MISSING, None, "", "???"):

@@ -1,11 +1,12 @@
-"""``spade.export``'s checks: a student checkpoint in, an output that is neither the checkpoint nor a folder."""
+"""``spade.export``'s checks: a student checkpoint in, an output (given or the default beside the checkpoint) that
+is neither the checkpoint nor a folder and replaces only an export of SPADE's with ``overwrite=true``."""
 
 from __future__ import annotations
 
 from omegaconf import DictConfig
 
 from spade.experiments.checks.checkpoints import _check_checkpoint
-from spade.experiments.checks.files import _input_file, _output_file, _same_file
+from spade.experiments.checks.files import _input_file, _output_file, _same_file, check_paths
 from spade.experiments.checks.values import (
     _MISSING,
     _check_bool,
@@ -22,6 +23,7 @@ def validate_export_config(cfg: DictConfig) -> None:
     """``spade.export``'s checks: a student checkpoint file in, an output that is not the checkpoint (nor a folder)."""
     from spade.deploy.export import SUFFIXES  # heavy: the exporter imports spade.models (diffusers)
 
+    check_paths(cfg)
     fix = "pass the student checkpoint (.ckpt) written by python -m spade.train"
     ckpt = _input_file("ckpt_path", _get(cfg, "ckpt_path"), fix)
     _check_checkpoint("ckpt_path", str(ckpt), "student", fix)
@@ -37,6 +39,9 @@ def validate_export_config(cfg: DictConfig) -> None:
         if _same_file(default, ckpt):
             raise ConfigError(f"ckpt_path={ckpt} ends with {suffix}: format={fmt} would write its export onto the "
                               f"checkpoint itself; set out_path={ckpt.with_name(ckpt.stem + '.' + fmt + suffix)}")
+        # The default is checked as a given out_path is: an existing file there is replaced only when SPADE wrote it
+        _output_file("out_path", default, {"ckpt_path": ckpt}, f"set out_path to a new {suffix} file", (suffix,),
+                     overwrite, label=f"out_path={default} (the default: the checkpoint's path with {suffix})")
     else:
         _output_file("out_path", out, {"ckpt_path": ckpt}, f"set out_path to a new {suffix} file", (suffix,),
                      overwrite)

@@ -1,5 +1,6 @@
 """Checks of the files a command reads and writes: an input file that exists (of a model suffix), an output file
-that is none of the inputs and replaces only what SPADE wrote, a map argument's files, and a point given as numbers."""
+that is none of the inputs and replaces only what SPADE wrote, a map argument's files, a point given as numbers, and
+the folders everything is written under (``paths.*``), which are neither empty nor the filesystem root."""
 
 from __future__ import annotations
 
@@ -18,6 +19,40 @@ from spade.utils.errors import ConfigError
 
 
 MODEL_SUFFIXES = (".ckpt", ".onnx", ".pt")
+#: The folders every command writes under, with the fix when one is empty or the filesystem root.
+PATH_KEYS = {
+    "paths.root_dir": "set SPADE_HOME (or paths.root_dir) to a folder, e.g. SPADE_HOME=$HOME/spade",
+    "paths.data_dir": "set paths.data_dir to a folder, or leave it unset (<SPADE_HOME>/data)",
+    "paths.log_dir": "set paths.log_dir to a folder, or leave it unset (<SPADE_HOME>/logs)",
+}
+
+
+def _is_filesystem_root(value: Any) -> bool:
+    path = Path(str(value)).expanduser()
+    try:
+        path = path.resolve()
+    except OSError:
+        return False
+    return path.is_absolute() and path == Path(path.anchor)
+
+
+def check_path_value(key: str, value: Any, fix: str) -> None:
+    """A folder or file path a command writes at or under: not empty and not the filesystem root. An empty value
+    is the worst of both: joined with the names below it (``${paths.data_dir}/tiny``) it starts at the root, so
+    ``paths.data_dir=''`` would generate datasets under ``/tiny/``. None and unset values are the caller's."""
+    if value is _MISSING or value is None:
+        return
+    if not str(value).strip():
+        raise ConfigError(f"{key}={str(value)!r} is an empty path: what is written under it would start at the "
+                          f"filesystem root (or the current folder); {fix}")
+    if _is_filesystem_root(value):
+        raise ConfigError(f"{key}={value} is the filesystem root, which SPADE never writes into; {fix}")
+
+
+def check_paths(cfg: DictConfig) -> None:
+    """The ``paths.*`` folders of a command's config (:data:`PATH_KEYS`) are neither empty nor the root."""
+    for key, fix in PATH_KEYS.items():
+        check_path_value(key, _get(cfg, key), fix)
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -44,9 +79,11 @@ def _input_file(key: str, value: Any, fix: str, suffixes: tuple[str, ...] = ()) 
 
 
 def _output_file(key: str, value: Any, inputs: Mapping[str, Path | None], fix: str,
-                 suffixes: tuple[str, ...] = (), overwrite: Any = _MISSING) -> Path:
-    """An output file at ``key``: not a folder, not one of the ``inputs``, and, when it exists, replaced only with
-    ``overwrite=true`` and only when SPADE wrote it (:mod:`spade.deploy.outputs`)."""
+                 suffixes: tuple[str, ...] = (), overwrite: Any = _MISSING, label: str | None = None) -> Path:
+    """An output file at ``key`` (given, or its default: ``label`` then names it in the messages): not empty, not
+    a folder, not one of the ``inputs``, and, when it exists, replaced only with ``overwrite=true`` and only when
+    SPADE wrote it (:mod:`spade.deploy.outputs`)."""
+    check_path_value(key, value, fix)
     path = Path(str(value)).expanduser()
     if path.is_dir():
         raise ConfigError(f"{key}={value} is a directory; give the path of a file to write ({fix})")
@@ -55,7 +92,7 @@ def _output_file(key: str, value: Any, inputs: Mapping[str, Path | None], fix: s
             raise ConfigError(f"{key}={value} is the input {in_key}: writing it would overwrite that file; {fix}")
     if suffixes and path.suffix.lower() not in suffixes:
         raise ConfigError(f"{key}={value} must end with {' or '.join(suffixes)}; {fix}")
-    if (refusal := replace_refusal(key, path, overwrite is True)) is not None:
+    if (refusal := replace_refusal(key, path, overwrite is True, label)) is not None:
         raise ConfigError(refusal)
     return path
 

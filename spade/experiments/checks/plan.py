@@ -8,7 +8,7 @@ import math
 from omegaconf import DictConfig
 
 from spade.experiments.checks.checkpoints import _check_checkpoint
-from spade.experiments.checks.files import MODEL_SUFFIXES, _input_file, _map_files, _output_file, _point
+from spade.experiments.checks.files import MODEL_SUFFIXES, _input_file, _map_files, _output_file, _point, check_paths
 from spade.experiments.checks.values import _check_bool, _check_choice, _check_int, _check_number, _get
 from spade.utils.errors import ConfigError
 
@@ -16,6 +16,7 @@ from spade.utils.errors import ConfigError
 def validate_plan_config(cfg: DictConfig) -> None:
     """``spade.plan``'s checks: the map and model files, a robot pose and a goal that differ, and a picture path
     that is none of the inputs."""
+    check_paths(cfg)
     maps = _map_files("map", _get(cfg, "map"))
     model = _input_file("model_path", _get(cfg, "model_path"),
                         "pass model=PATH (a student .ckpt from python -m spade.train or its .onnx / .pt export) or set "

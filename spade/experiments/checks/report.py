@@ -1,20 +1,56 @@
-"""``spade.report``'s checks: the table exists and the MLflow store is there."""
+"""``spade.report``'s checks: the table exists, the MLflow store is there, and the pages it writes replace only
+earlier pages of SPADE's, with ``overwrite=true``."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from omegaconf import DictConfig
 
+from spade.deploy.outputs import replace_refusal
+from spade.experiments.checks.files import check_path_value, check_paths
 from spade.experiments.checks.store import _store_path, check_store_file
-from spade.experiments.checks.values import _get, _unset
-from spade.experiments.tables import get_table
+from spade.experiments.checks.values import _MISSING, _check_bool, _get, _unset
+from spade.experiments.tables import TABLES, get_table
 from spade.utils.errors import ConfigError
 
 
+def report_files(table: Any, chart: bool = True) -> list[str]:
+    """The names of the files ``spade.report`` writes into ``output_dir`` for ``table`` (one table, ``all`` or
+    ``closed_loop``), as :func:`spade.experiments.reporting.build.build_report` and
+    :func:`spade.experiments.closed_loop_table.closed_loop_report` name them (a table without comparisons writes
+    no ``_comparisons.csv``: listed anyway, an existing one is not replaced unasked either)."""
+    if str(table) == "closed_loop":
+        return ["closed_loop.md", "closed_loop.csv"]
+    tables = list(TABLES.values()) if str(table) == "all" else [get_table(table)]
+    return [name for t in tables
+            for name in (f"{t.key}.md", f"{t.key}.csv", f"{t.key}_comparisons.csv", *([f"{t.key}.png"] if chart else []))]
+
+
+def _check_output_dir(cfg: DictConfig) -> None:
+    """``output_dir`` (null: print only) is a folder path, neither empty nor the root, and none of the pages the
+    report would write there exists unless SPADE wrote it and ``overwrite=true``: refused before any run is read."""
+    out = _get(cfg, "output_dir")
+    if out is _MISSING or out is None:
+        return
+    check_path_value("output_dir", out, "set output_dir to a folder for the report files (null: print only)")
+    folder = Path(str(out)).expanduser()
+    if folder.is_file():
+        raise ConfigError(f"output_dir={out} is a file; give a folder for the report files")
+    _check_bool(cfg, "overwrite")
+    overwrite = _get(cfg, "overwrite") is True
+    for name in report_files(_get(cfg, "table"), _get(cfg, "chart") is not False):
+        path = folder / name
+        refusal = replace_refusal("output_dir", path, overwrite, label=f"output_dir={out}: {path}")
+        if refusal is not None:
+            raise ConfigError(refusal)
+
+
 def validate_report_config(cfg: DictConfig) -> None:
-    """``spade.report``'s checks: the table exists and the MLflow store is there (a missing one would be created
-    empty and every row reported missing)."""
+    """``spade.report``'s checks: the table exists, the MLflow store is there (a missing one would be created
+    empty and every row reported missing), and the pages go where they replace nothing unasked
+    (:func:`_check_output_dir`)."""
     table = _get(cfg, "table")
     if str(table) not in ("all", "closed_loop"):  # closed_loop: spade.experiments.closed_loop_table
         try:
@@ -33,6 +69,5 @@ def validate_report_config(cfg: DictConfig) -> None:
         raise ConfigError(f"tracking_uri={uri}: {path} is a directory, not an MLflow SQLite store; point it at the "
                           "store file, e.g. sqlite:///PATH/logs/mlflow.db")
     check_store_file("tracking_uri", str(uri))
-    out = _get(cfg, "output_dir")
-    if not _unset(out) and Path(str(out)).is_file():
-        raise ConfigError(f"output_dir={out} is a file; give a folder for the report files")
+    check_paths(cfg)
+    _check_output_dir(cfg)

@@ -8,7 +8,7 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from spade.experiments.checks.checkpoints import _check_checkpoint
-from spade.experiments.checks.files import MODEL_SUFFIXES, _input_file, _map_files
+from spade.experiments.checks.files import MODEL_SUFFIXES, _input_file, _map_files, check_path_value, check_paths
 from spade.experiments.checks.values import _MISSING, _check_int, _get, _unset
 from spade.experiments.checks.windows import check_window_holds_manoeuvre
 from spade.utils.errors import ConfigError
@@ -16,6 +16,7 @@ from spade.utils.errors import ConfigError
 
 def validate_sketch_config(cfg: DictConfig) -> None:
     """``spade.sketch``'s checks before the server starts: map, port, model file, output folder and window."""
+    check_paths(cfg)
     _map_files("map", _get(cfg, "map"))
     _check_int(cfg, "port", 1, 65535, fix=", e.g. port=8765")
     host = _get(cfg, "host")
@@ -29,6 +30,7 @@ def validate_sketch_config(cfg: DictConfig) -> None:
             _check_checkpoint("model_path", str(path), "student",
                               "pass a student checkpoint (an expert does not plan)")
     out = _get(cfg, "out_dir")
+    check_path_value("out_dir", out, "give a folder for sketches.yaml and dataset/ (or leave out_dir unset)")
     if not _unset(out) and Path(str(out)).expanduser().is_file():
         raise ConfigError(f"out_dir={out} is a file; give a folder for sketches.yaml and dataset/")
     for key in ("models", "allowed_hosts"):

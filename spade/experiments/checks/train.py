@@ -15,6 +15,7 @@ from omegaconf import DictConfig
 
 from spade.experiments.checks.checkpoints import _check_checkpoint, _check_geometry
 from spade.experiments.checks.data import _check_data, _check_datasets
+from spade.experiments.checks.files import check_paths
 from spade.experiments.checks.store import _check_logger_store, _store_path
 from spade.experiments.checks.values import (
     _MISSING,
@@ -34,6 +35,7 @@ from spade.utils.errors import ConfigError
 
 def validate_train_config(cfg: DictConfig) -> None:
     """Every check of ``spade.train``'s config that needs no training: raises :class:`ConfigError` (one line)."""
+    check_paths(cfg)  # first: an empty paths.data_dir would generate datasets under the filesystem root
     _check_int(cfg, "seed", 0, 2**32 - 1, none_ok=True, fix=", e.g. seed=42")
     _check_choice(cfg, "prerequisites", ["train", "error"])
     for key in ("train", "test", "test_untrained"):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from spade.deploy.outputs import SOFTWARE
 from spade.experiments.reporting.results import MISSING, RowResult
 from spade.experiments.tables import CELL_METRICS, METRICS, Table
 
@@ -50,4 +51,4 @@ def plot_table(table: Table, results: dict[str, RowResult], path: Path, paper: b
     axes[0, 0].legend(handles=handles, fontsize=7, loc="upper right")
     axes[0, 0].set_title(table.title, fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, metadata={"Software": SOFTWARE})  # SPADE's: a rerun may replace it (overwrite=true)
