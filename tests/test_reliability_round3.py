@@ -177,3 +177,166 @@ def test_an_empty_or_root_path_is_refused_before_any_work(tmp_path: Path, run_ma
     line = one_error_line(err)
     assert line.startswith(f"error: {key}=") and ("empty path" in line or "filesystem root" in line)
     assert Path("/tiny").exists() == existed
+
+
+# -- 3. forged ONNX models --------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def real_export(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A real ONNX export of an untrained small student (64 px robot-frame windows)."""
+    pytest.importorskip("onnxruntime")
+    from spade.deploy.export import export_student
+
+    folder = tmp_path_factory.mktemp("export")
+    return export_student(student_checkpoint(folder / "student.ckpt"), folder / "student.onnx", "onnx",
+                          latency_runs=0).out_path
+
+
+def _metadata(path: Path) -> dict:
+    from spade.models.modelfile import read_metadata
+
+    return read_metadata(path)
+
+
+def conv_graph(path: Path, metadata: dict) -> Path:
+    """A forged graph of the right shapes, (N, 3, 64, 64) -> (N, 1, 64, 64): one 1x1 convolution of its own."""
+    onnx = pytest.importorskip("onnx")
+    import numpy as np
+    from onnx import TensorProto, helper, numpy_helper
+
+    weight = numpy_helper.from_array(np.full((1, 3, 1, 1), 0.3, np.float32), "w")
+    graph = helper.make_graph([helper.make_node("Conv", ["state", "w"], ["logits"])], "forged",
+                              [helper.make_tensor_value_info("state", TensorProto.FLOAT, ["N", 3, 64, 64])],
+                              [helper.make_tensor_value_info("logits", TensorProto.FLOAT, ["N", 1, 64, 64])],
+                              initializer=[weight])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    entry = model.metadata_props.add()
+    entry.key, entry.value = "spade", json.dumps(metadata)
+    onnx.save(model, str(path))
+    return path
+
+
+def edited_copy(src: Path, dst: Path, *, metadata: dict | None = None, weight_delta: float = 0.0) -> Path:
+    """``src`` with its ``spade`` metadata replaced and/or one weight changed by ``weight_delta``."""
+    onnx = pytest.importorskip("onnx")
+    from onnx import numpy_helper
+
+    model = onnx.load(str(src))
+    if metadata is not None:
+        next(e for e in model.metadata_props if e.key == "spade").value = json.dumps(metadata)
+    if weight_delta:
+        init = max(model.graph.initializer, key=lambda t: len(t.raw_data))
+        values = numpy_helper.to_array(init).copy()
+        values.flat[0] += weight_delta
+        init.CopyFrom(numpy_helper.from_array(values, init.name))
+    onnx.save(model, str(dst))
+    return dst
+
+
+def test_a_forged_onnx_graph_is_refused_wherever_a_student_is_opened(real_export: Path, tmp_path: Path) -> None:
+    """Issue 51: an ONNX Identity graph carrying a copy of a real export's ``spade`` metadata was accepted by the
+    Planner (and ``spade.plan``, the sketch server). Now the graph must match the metadata: shapes, the weight
+    digest recorded at export, the parity probe; a mismatch names the file and says it was not written by
+    spade.export."""
+    import warnings
+
+    from spade.deploy.planner import Planner, PlannerConfigError
+    from spade.models.modelfile import ModelFileError, open_model
+    from spade.models.onnx_check import UncheckedExportWarning
+
+    meta = _metadata(real_export)
+    assert set(meta["integrity"]) == {"weights_sha256", "probe"} and meta["integrity"]["probe"]["seed"] == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UncheckedExportWarning)
+        assert open_model(real_export)(__import__("numpy").zeros((2, 3, 64, 64), "float32")).shape == (2, 1, 64, 64)
+        Planner(real_export)  # the real export opens, unwarned
+
+    forged = {
+        "identity": spade_onnx(tmp_path / "identity.onnx", meta),  # the probe's case: shapes differ
+        "conv": conv_graph(tmp_path / "conv.onnx", meta),  # right shapes, other weights
+        "weights": edited_copy(real_export, tmp_path / "weights.onnx", weight_delta=0.5),  # one weight edited
+    }
+    reasons = {"identity": "its graph's output has shape", "conv": "its weights do not match",
+               "weights": "its weights do not match"}
+    for name, path in forged.items():
+        with pytest.raises(ModelFileError, match="not the export its SPADE metadata describes") as info:
+            open_model(path)
+        message = str(info.value)
+        assert str(path) in message and reasons[name] in message and "python -m spade.export" in message
+        with pytest.raises(PlannerConfigError, match="was not written by python -m spade.export"):
+            Planner(path)
+    # the digest copied along with a forged graph's own weights: the probe tells them apart
+    conv_meta = _metadata(forged["conv"])
+    from spade.models.onnx_check import weights_sha256
+
+    conv_meta["integrity"] = {**meta["integrity"], "weights_sha256": weights_sha256(forged["conv"].read_bytes())}
+    probe_only = edited_copy(forged["conv"], tmp_path / "probe.onnx", metadata=conv_meta)
+    with pytest.raises(ModelFileError, match="differs from the one recorded at export"):
+        open_model(probe_only)
+
+
+def test_an_export_from_before_the_check_opens_with_a_warning(real_export: Path, tmp_path: Path) -> None:
+    """Files exported before the digest and probe were recorded still open, with a warning that they cannot be
+    checked and how to re-export them; their shapes are still checked (an old-style forged Identity graph)."""
+    from spade.models.modelfile import ModelFileError, open_model
+    from spade.models.onnx_check import UncheckedExportWarning
+
+    old_meta = {k: v for k, v in _metadata(real_export).items() if k != "integrity"}
+    old = edited_copy(real_export, tmp_path / "old.onnx", metadata=old_meta)
+    with pytest.warns(UncheckedExportWarning, match=r"old\.onnx .*cannot be checked.*python -m spade\.export"):
+        runner = open_model(old)
+    assert runner.info == old_meta
+    with pytest.raises(ModelFileError, match="its graph's output has shape"):
+        open_model(spade_onnx(tmp_path / "old_identity.onnx", old_meta))
+
+
+def test_spade_plan_and_the_sketch_server_refuse_a_forged_model(real_export: Path, tmp_path: Path,
+                                                                run_main) -> None:
+    """``spade.plan`` (exit 0 with 64 waypoints before) and the sketch server (``POST /api/model`` 200 before)."""
+    from factories import site_map
+
+    forged = spade_onnx(tmp_path / "forged.onnx", _metadata(real_export))
+    yaml_path = site_map(tmp_path)
+    code, err = run_main("spade.plan", [f"map={yaml_path}", "start=[0.0,1.0,0.0]", "goal=[2.0,1.0]",
+                                        f"model_path={forged}", f"out={tmp_path / 'plan.png'}"])
+    assert code == 2, err
+    assert "not the export its SPADE metadata describes" in one_error_line(err) and str(forged) in err
+    assert not (tmp_path / "plan.png").exists()
+
+    pytest.importorskip("fastapi")
+    pytest.importorskip("httpx")
+    from fastapi.testclient import TestClient
+
+    from spade.sketching import build_app
+    from test_sketch_api import LOCAL, TINY
+
+    client = TestClient(build_app(str(yaml_path), tmp_path / "sketches", TINY), base_url=LOCAL)
+    r = client.post("/api/model", json={"path": str(forged)})
+    assert r.status_code == 422 and "was not written by python -m spade.export" in r.json()["error"], r.text
+    assert client.get("/api/model").json() == {"model": None}
+    import shutil
+
+    real = shutil.copy(real_export, tmp_path / "student.onnx")  # a real export in the model folders: loaded
+    r = client.post("/api/model", json={"path": str(real)})
+    assert r.status_code == 200, r.text
+
+
+@pytest.mark.slow  # a subprocess without torch (the deploy install)
+def test_the_torch_free_planner_refuses_a_forged_model(real_export: Path, tmp_path: Path) -> None:
+    """The deploy install (onnxruntime alone, no torch, no onnx package) runs the same check."""
+    from test_deploy_install import HIDE
+
+    forged = spade_onnx(tmp_path / "forged.onnx", _metadata(real_export))
+    script = HIDE + (
+        "import sys, json\n"
+        "from spade.planner import Planner\n"
+        "Planner(sys.argv[1])\n"
+        "try:\n"
+        "    Planner(sys.argv[2])\n"
+        "except Exception as err:\n"
+        "    print(json.dumps({'error': str(err), 'torch': 'torch' in sys.modules}))\n")
+    proc = subprocess.run([sys.executable, "-c", script, str(real_export), str(forged)], cwd=REPO,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert not out["torch"] and str(forged) in out["error"] and "not written by python -m spade.export" in out["error"]

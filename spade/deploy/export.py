@@ -5,7 +5,9 @@ to ``logits`` float32 (N, 1, H, W), before the sigmoid. It carries the checkpoin
 network config, the training windows with their robot frame) plus the export's own fields, as JSON
 (:func:`spade.models.modelfile.export_metadata`): the ONNX ``metadata_props`` entry ``spade``, or the TorchScript
 extra file ``spade.json``. :func:`spade.models.modelfile.read_metadata` reads either back and
-:func:`spade.models.modelfile.open_model` runs either (and checkpoints).
+:func:`spade.models.modelfile.open_model` runs either (and checkpoints). An ONNX export's metadata also records a
+digest of its weights and its output on a fixed probe input (``integrity``, :mod:`spade.models.onnx_check`), which
+every reader checks, so that a graph carrying a copy of another export's metadata is refused.
 
 ONNX goes through ``torch.onnx.export(..., dynamo=False)``, the TorchScript-based exporter. Since torch 2.9 the
 default is the torch.export-based exporter, which needs the ``onnxscript`` package; the student is a static
@@ -40,6 +42,7 @@ from spade.models.modelfile import (
     open_model,
     read_metadata,
 )
+from spade.models.onnx_check import INTEGRITY_KEY, PROBE_SEED, integrity_record, probe_record, probe_state
 
 FORMATS = ("onnx", "torchscript")
 SUFFIXES = {"onnx": ".onnx", "torchscript": ".pt"}
@@ -76,6 +79,10 @@ class ExportReport:
             f"{(data.get('frame') or {}).get('robot_px')} heading up; input: {data.get('input_encoding')}",
             f"parity: max |logit difference| vs PyTorch = {self.max_abs_diff:.3g} over a batch of {self.parity_batch}",
         ]
+        record = self.metadata.get(INTEGRITY_KEY) or {}
+        if record:
+            lines.append(f"recorded for the deploy-time check: weights sha256 {record['weights_sha256'][:12]}..., "
+                         f"parity probe (seed {record['probe']['seed']})")
         lines += [f"latency {k}: {v:.2f} ms" for k, v in self.latency_ms.items()]
         return "\n".join(lines)
 
@@ -110,7 +117,7 @@ def export_net(net: nn.Module, out_path: str | Path, fmt: str, image_size: Seque
             warnings.filterwarnings("ignore", category=DeprecationWarning)  # see the module docstring
             warnings.filterwarnings("ignore", category=FutureWarning)
             if fmt == "onnx":
-                _export_onnx(net, example, tmp, text, opset)
+                _export_onnx(net, example, tmp, metadata, opset)
             else:
                 traced = torch.jit.freeze(torch.jit.trace(net, example, check_trace=False))
                 torch.jit.save(traced, str(tmp), _extra_files={TORCHSCRIPT_METADATA_FILE: text})
@@ -120,7 +127,9 @@ def export_net(net: nn.Module, out_path: str | Path, fmt: str, image_size: Seque
     return out
 
 
-def _export_onnx(net: nn.Module, example: torch.Tensor, path: Path, metadata_json: str, opset: int) -> None:
+def _export_onnx(net: nn.Module, example: torch.Tensor, path: Path, metadata: dict[str, Any], opset: int) -> None:
+    """Write the ONNX graph with ``metadata`` plus its ``integrity`` record (:mod:`spade.models.onnx_check`): the
+    digest of the weights as this file serializes them, and the network's output on the parity probe."""
     onnx = _import("onnx")
     torch.onnx.export(
         net, (example,), str(path), dynamo=False, opset_version=opset, do_constant_folding=True,
@@ -128,10 +137,21 @@ def _export_onnx(net: nn.Module, example: torch.Tensor, path: Path, metadata_jso
         dynamic_axes={INPUT_NAME: {0: "N"}, OUTPUT_NAME: {0: "N"}},
     )
     model = onnx.load(str(path))
+    # The digest of the bytes onnx.save writes below (adding metadata_props leaves the graph's serialization as is)
+    record = integrity_record(model.SerializeToString(), _probe(net, tuple(example.shape)))
     entry = model.metadata_props.add()
-    entry.key, entry.value = ENTRY_KEY, metadata_json
+    entry.key, entry.value = ENTRY_KEY, json.dumps({**metadata, INTEGRITY_KEY: record})
     onnx.checker.check_model(model)
     onnx.save(model, str(path))
+
+
+def _probe(net: nn.Module, shape: Sequence[int]) -> dict[str, Any]:
+    """The ``probe`` record: ``net``'s logits on the fixed probe input, batch 1 of ``shape``'s (C, H, W)."""
+    state = probe_state((1, *shape[1:]), PROBE_SEED)
+    device = next(net.parameters()).device
+    with torch.inference_mode():
+        out = net.eval()(torch.from_numpy(state).to(device)).float().cpu().numpy()
+    return probe_record(state.shape, out, PROBE_SEED)
 
 
 def check_format(fmt: str) -> str:
@@ -234,4 +254,4 @@ def export_student(
             "Try another opset or format=torchscript, and report it"
         )
     latency = latency_ms(net, exported, image_size, latency_batches, latency_runs) if latency_runs > 0 else {}
-    return ExportReport(out, fmt, diff, parity_batch, latency, metadata)
+    return ExportReport(out, fmt, diff, parity_batch, latency, dict(exported.info))  # as the file carries it

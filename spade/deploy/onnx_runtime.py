@@ -1,7 +1,8 @@
 """An exported ONNX student run by onnxruntime alone (no torch, no ``onnx`` package): what the planner uses on a
 deploy install (:data:`spade.deploy.lean.LEAN`). The same reading of the file's SPADE metadata as
 :mod:`spade.models.modelfile` (the ``spade`` entry of the ONNX ``metadata_props``, as ``python -m spade.export``
-writes it), the same role and robot-frame checks, and the same ``logits(states)`` call as its ``ModelRunner``.
+writes it), the same role and robot-frame checks, the same check that the graph is the export its metadata
+describes (:mod:`spade.models.onnx_check`, torch-free), and the same ``logits(states)`` call as its ``ModelRunner``.
 """
 
 from __future__ import annotations
@@ -14,7 +15,13 @@ from typing import Any
 
 import numpy as np
 
-from spade.utils.devices import device_name
+from spade.deploy.lean import LEAN, defer_package_inits
+
+if LEAN:  # spade.models' __init__ imports torch: only its torch-free onnx_check is used here
+    defer_package_inits("spade.models")
+
+from spade.models.onnx_check import check_onnx_student  # noqa: E402 - after the deploy install's package set-up
+from spade.utils.devices import device_name  # noqa: E402
 
 __all__ = ["ModelFileError", "OnnxRunner", "UnsafeModelFileError", "open_model", "robot_frame"]
 
@@ -69,6 +76,9 @@ class OnnxRunner:
         self._input = self._session.get_inputs()[0].name
         outputs = [o.name for o in self._session.get_outputs()]
         self._output = OUTPUT_NAME if OUTPUT_NAME in outputs else outputs[0]
+        output = next(o for o in self._session.get_outputs() if o.name == self._output)
+        check_onnx_student(self.path, self.info, self.path.read_bytes, self._session.get_inputs()[0].shape,
+                           output.shape, self, ModelFileError)
 
     def __call__(self, states: np.ndarray) -> np.ndarray:
         x = np.ascontiguousarray(states, dtype=np.float32)

@@ -20,7 +20,8 @@ runs. :func:`load_lightning` applies the same rule to Lightning's ``load_from_ch
 :func:`safe_loading` to loads made inside other code (``Trainer.fit`` / ``Trainer.test`` with a ``ckpt_path``).
 
 :func:`open_model` opens any of the three kinds of file (checkpoint, ONNX, TorchScript) as one callable,
-``ModelRunner(states) -> logits``, with one device policy (:func:`resolve_device`).
+``ModelRunner(states) -> logits``, with one device policy (:func:`resolve_device`). An ONNX file must be the export
+its metadata describes (shapes, weight digest, parity probe: :mod:`spade.models.onnx_check`).
 
 This module sits on the models floor: it imports torch, numpy and :mod:`spade.models.builders` only (onnx,
 onnxruntime and Lightning lazily, where a function needs them), so that training, evaluation, export, the
@@ -429,11 +430,21 @@ class ModelRunner:
             self._input = self._session.get_inputs()[0].name
             outputs = [o.name for o in self._session.get_outputs()]
             self._output = OUTPUT_NAME if OUTPUT_NAME in outputs else outputs[0]
+            self._check_export()
         else:
             self.device = resolve_device(device)
             with warnings.catch_warnings():
                 warnings.filterwarnings("ignore", category=DeprecationWarning)  # TorchScript is deprecated in 2.x
                 self._module = torch.jit.load(str(self.path), map_location=self.device)
+
+    def _check_export(self) -> None:
+        """An ONNX file is the export its metadata describes (:mod:`spade.models.onnx_check`): shapes, weight
+        digest, parity probe; else :class:`ModelFileError`. Exports from before the records: a warning."""
+        from spade.models.onnx_check import check_onnx_student
+
+        output = next(o for o in self._session.get_outputs() if o.name == self._output)
+        check_onnx_student(self.path, self.info, self.path.read_bytes, self._session.get_inputs()[0].shape,
+                           output.shape, self, ModelFileError)
 
     def __call__(self, states: np.ndarray | torch.Tensor) -> np.ndarray:
         if self.format == "onnx":
