@@ -93,7 +93,7 @@ def _write_page(cfg: DictConfig, config, metrics: dict[str, float], picture, sec
 
     from PIL import Image
 
-    from spade.utils.provenance import command_line, commit, machine
+    from spade.utils.provenance import command_line, commit, machine, shown_path
 
     if not cfg.get("output_dir"):
         return None
@@ -114,10 +114,12 @@ def _write_page(cfg: DictConfig, config, metrics: dict[str, float], picture, sec
                     + f" | {'-' if tie is None else f'{tie:.2f}'} | {metrics[f'critic/ratio/{name}']:.2f} |")
     student = [f"- {k}: {v:.4g}" for k, v in metrics.items() if k.startswith("critic/student/")]
     text = "\n".join([
-        f"# The expert as a critic: {Path(str(cfg.ckpt_path)).name}",
+        f"# The expert as a critic: {Path(str(cfg.ckpt_path)).name}, margin on agent input `{config.agent_input}`, "
+        f"score `{config.score}`",
         "",
         f"Margin formulation: score `{config.score}`, agent input `{config.agent_input}`, timesteps "
-        f"[{config.t_min}, {config.t_max if config.t_max is not None else 'T'}); test set `{cfg.data.test_dir}` "
+        f"[{config.t_min}, {config.t_max if config.t_max is not None else 'T'}); "
+        f"test set `{shown_path(str(cfg.data.test_dir))}` "
         f"(shape {cfg.data.get('test_shape')}), {int(metrics['critic/instances'])} instances, "
         f"{cfg.critic.draws_per_band} shared noise/timestep draws in each of {cfg.critic.bands} bands, corruption set "
         f"version {CORRUPTION_SET_VERSION}.",
@@ -129,10 +131,11 @@ def _write_page(cfg: DictConfig, config, metrics: dict[str, float], picture, sec
         "",
         *rows,
         "",
-        *(["Student:", *student, ""] if student else []),
+        *(["Student:", "", *student, ""] if student else []),  # a blank line: Markdown needs one before a list
         f"![critic]({stem}.png)",
         "",
         "Provenance:",
+        "",
         f"- command: `{command_line('spade.critic')}`",
         f"- commit: {commit() or 'unknown (not a git checkout)'}",
         f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",

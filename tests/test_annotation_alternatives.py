@@ -225,6 +225,7 @@ def test_the_sampler_check_writes_its_page(tmp_path: Path) -> None:
     main([f"dataset={tmp_path / 'set'}", "scenarios=1", "states=2", "count=2", f"output_dir={tmp_path / 'out'}"])
     page = (tmp_path / "out" / "alternatives.md").read_text()
     assert "paired t-test" in page and "What the shipped prefilter loses" in page and "- commit:" in page
+    assert "Provenance:\n\n- command: " in page  # a list after a blank line, as Markdown needs
 
 
 def test_a_test_set_without_alternatives_loads_and_the_run_says_so(tmp_path: Path, caplog) -> None:

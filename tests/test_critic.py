@@ -251,6 +251,8 @@ def test_critic_command_scores_an_expert_and_a_student_and_writes_its_page(spade
     assert len(pages) == 1 and (pages[0].with_suffix(".png")).is_file()
     text = pages[0].read_text()
     assert "| blur |" in text and "- commit: " in text and "- wall time: " in text
+    assert "Provenance:\n\n- command: " in text and "Student:\n\n- " in text  # lists after a blank line
+    assert str(spade_home) not in text  # paths relative to SPADE_HOME (spade.utils.provenance.shown_path)
     assert "blur" in format_report(metrics)
 
 

@@ -402,3 +402,26 @@ def test_pairwise_tests_the_deciding_figure_first_and_corrects_over_every_test(t
     tested = sum(c.p_value is not None for c in rep.pairs)
     assert all(c.p_holm == pytest.approx(min(1.0, c.p_value * tested)) or c.p_holm >= c.p_value for c in rep.pairs)
     assert "the deciding figure first" in rep.text
+
+
+def test_the_page_renders_its_lists_and_shows_paths_relative_to_spade_home(tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """The written page: notes and provenance as Markdown lists (a blank line before each), and the store and the
+    files written named relative to SPADE_HOME, never by the writing machine's absolute path."""
+    import markdown
+    from mlflow import MlflowClient
+
+    monkeypatch.setenv("SPADE_HOME", str(tmp_path))
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    client = MlflowClient(tracking_uri=uri)
+    exp = client.create_experiment("guidance")
+    for seed in (1, 2):
+        _log_run(client, exp, "g_few_bc_L", _cell_metrics(5.0 + seed, 0, 0), seed=seed)
+    rep = build_report(TABLES["guidance"], uri, tmp_path / "reports", chart=False)
+    page = rep.files["markdown"].read_text()
+    assert str(tmp_path) not in page
+    assert "MLflow experiment `guidance` in sqlite:///mlflow.db" in page
+    assert "Written: reports/guidance.csv, " in page and "reports/guidance.md" in page
+    assert "Notes:\n\n- " in page and "Provenance:\n\n- command: `python -m spade.report" in page
+    html = markdown.markdown(page, extensions=["tables"])
+    assert "<p>Notes:</p>\n<ul>" in html and "<p>Provenance:</p>\n<ul>" in html

@@ -212,7 +212,7 @@ def write_page(out_dir: str, comparison: dict[str, Any], floors: list[dict[str, 
     """``alternatives.md`` in ``out_dir``: the prefilter's loss and the floor checks, with their provenance."""
     import datetime
 
-    from spade.utils.provenance import command_line, commit, machine
+    from spade.utils.provenance import command_line, commit, machine, shown_path
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -229,7 +229,7 @@ def write_page(out_dir: str, comparison: dict[str, Any], floors: list[dict[str, 
     frows = ["| test set | shape | instances | floor, the metric (cm) | independent: median (cm) | independent: "
              "medoid (cm) | metric / independent median | a genuine draw commits |", "|---|---|---:|---:|---:|---:|---:|---:|"]
     for f in floors:
-        frows.append(f"| `{Path(f['dataset']).name}` | {f['shape'] or 'all'} | {f['instances']} | "
+        frows.append(f"| `{shown_path(f['dataset'])}` | {f['shape'] or 'all'} | {f['instances']} | "
                      f"{f['metric_floor_cm']:.3f} | {f['independent_median_floor_cm']:.3f} | "
                      f"{f['independent_medoid_floor_cm']:.3f} | "
                      f"{f['metric_floor_cm'] / f['independent_median_floor_cm']:.3f} | "
@@ -239,7 +239,7 @@ def write_page(out_dir: str, comparison: dict[str, Any], floors: list[dict[str, 
         "# Alternative demonstrations: the sampler checked",
         "",
         f"The sampler (`spade/annotation/alternatives.py`) on {comparison['states']} robot states of "
-        f"{comparison['shape']}-shape scenarios of `{Path(comparison['dataset']).name}`, with the shipped prefilter "
+        f"{comparison['shape']}-shape scenarios of `{shown_path(comparison['dataset'])}`, with the shipped prefilter "
         f"({comparison['settings']['prefilter_px']} px, {comparison['settings']['prefilter_deg']} deg) and with one "
         f"twice as loose ({comparison['reference']['prefilter_px']} px, {comparison['reference']['prefilter_deg']} "
         f"deg). Both keep a template only where its executed path passes the robot within "
@@ -264,6 +264,7 @@ def write_page(out_dir: str, comparison: dict[str, Any], floors: list[dict[str, 
         *frows,
         "",
         "Provenance:",
+        "",
         f"- command: `{command_line('spade.perf.alternatives')}`",
         f"- commit: {commit() or 'unknown (not a git checkout)'}",
         f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",

@@ -25,7 +25,7 @@ from spade.experiments.reporting.render import (
 )
 from spade.experiments.reporting.results import ComparisonResult, RowResult, compare, fetch_results, pairwise
 from spade.experiments.tables import TABLES, Table, get_table
-from spade.utils.provenance import command_line, commit, machine
+from spade.utils.provenance import command_line, commit, machine, shown_path
 
 
 DECIDING_STATEMENT = (
@@ -56,7 +56,8 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
     parts = [f"## {table.title}", ""]
     if is_tiny(results, scale):
         parts += [tiny_notice(), ""]
-    parts += [f"MLflow experiment `{table.experiment}` in {tracking_uri}" + (f", scale {scale}" if scale else "")
+    store = shown_path(tracking_uri)  # relative to the project or SPADE_HOME: never the writing machine's path
+    parts += [f"MLflow experiment `{table.experiment}` in {store}" + (f", scale {scale}" if scale else "")
               + f": {found} of {len(results)} rows have a finished run"
               + (f", over {seeds[0] if len(seeds) == 1 else f'{seeds[0]}-{seeds[-1]}'} seed(s) each" if seeds else "")
               + ".", "", render_table(table, results), "", significance_statement()]
@@ -67,14 +68,14 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
                   "spade.metrics.preference):", "", preference]
     notes = render_notes(table, results)
     if notes:
-        parts += ["", "Notes:", *(f"- {n}" for n in notes)]
+        parts += ["", "Notes:", "", *(f"- {n}" for n in notes)]  # a blank line: Markdown needs one before a list
     if comparisons:
         parts += ["", "Relative changes of the means (negative = lower), with Welch's test:", "",
                   render_comparisons(comparisons)]
     if pairs:
         parts += ["", "Pairwise (which orderings the seeds tell apart), the deciding figure first; Holm's correction "
                   "over every test of the table:", "", render_pairwise(pairs)]
-    parts += ["", "Provenance:", *provenance(table, results, command_line("spade.report"), commit(), machine())]
+    parts += ["", "Provenance:", "", *provenance(table, results, command_line("spade.report"), commit(), machine())]
     if paper and any(line.paper for line in table.lines):
         parts += ["", "The paper's figures (its dataset; compare orderings and ratios, not values):", "",
                   render_paper_table(table)]
@@ -91,7 +92,7 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
             files["png"] = out / f"{table.key}.png"
             plot_table(table, results, files["png"], paper=paper)
         files["markdown"] = out / f"{table.key}.md"
-        parts += ["", "Written: " + ", ".join(str(p) for p in files.values())]
+        parts += ["", "Written: " + ", ".join(shown_path(p) for p in files.values())]
         files["markdown"].write_text("\n".join(parts) + "\n")
     from spade.experiments.tracking.report import publish_report  # imports Lightning: only once a report is built
 

@@ -256,8 +256,10 @@ def render_notes(table: Table, results: dict[str, RowResult]) -> list[str]:
 
 
 def provenance(table: Table, results: dict[str, RowResult], command: str, commit: str | None, machine: str) -> list[str]:
-    """Where the page comes from: the command that printed it and the one that launches the table, the code's
-    commit, the date, the machine, and the wall time of the runs counted (their sum, and first start to last end)."""
+    """Where the page comes from, as Markdown list items: the command that printed it (its paths shown relative to
+    the project: :func:`spade.utils.provenance.command_line`) and the one that launches the table, the code's
+    commit, the date, the machine, and the wall time of the runs counted (their sum, and first start to last end).
+    The caller puts a blank line before them (Markdown starts no list inside a paragraph)."""
     import datetime
 
     runs = [r for res in results.values() for r in res.runs]
