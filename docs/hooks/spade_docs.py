@@ -7,8 +7,10 @@ A page that holds one of these markers gets it replaced by Markdown built from t
 - ``<!-- spade:entry-points -->``: every ``python -m spade...`` entry point (the modules with a ``__main__``
   block), its console script from ``pyproject.toml`` and the first paragraph of its docstring.
 
-The results index (``docs/results/README.md``, written by code like every page there) gets a list of links to
-the pages beside it, at build time only: the file itself is not changed.
+The results index (``docs/results/README.md``) gets a list of links to the pages beside it, each by its title (its
+first heading), at build time only: the file itself is not changed. The results pages (files the code writes,
+never edited by hand) get a compact layout on the site: a table cell that packs several figures ``a / b / c / d``
+(the paper's layout, as the terminal and MLflow show it) shows them one per line.
 
 So the reference follows ``conf/`` and the code: a new key or group appears on the next build.
 """
@@ -266,16 +268,51 @@ def entry_points() -> str:
     return "\n".join(out) + "\n"
 
 
+def page_title(path: Path) -> str:
+    """A page's title: its first heading (``#`` or ``##``...), its file name's stem when it has none."""
+    for line in path.read_text().splitlines():
+        if line.startswith("#"):
+            return line.lstrip("#").strip()
+    return path.stem
+
+
 def results_listing(results_dir: Path, index: str) -> str:
-    """Links to every results page beside the index (the pages are written by spade.report, spade.critic...)."""
+    """Links to every results page beside the index, each by its title (the pages are written by spade.report,
+    spade.critic...)."""
     lines = ["", "## Pages", ""]
     for path in sorted(results_dir.glob("*.md")):
-        if path.name == index:
-            continue
-        title = next((line.lstrip("#").strip() for line in path.read_text().splitlines() if line.startswith("#")),
-                     path.stem)
-        lines.append(f"- [`{path.name}`]({path.name}): {_cell(title)}")
+        if path.name != index:
+            lines.append(f"- [{_cell(page_title(path))}]({path.name})")
     return "\n".join(lines) + "\n"
+
+
+_TABLE_CELL = re.compile(r"(?<!\\)\|")
+STACKED_FIGURES = 4  # a cell of this many " / "-separated figures or more shows them one per line
+
+
+def _stacked(cell: str) -> str:
+    """``a / b / c / d`` -> ``a<br>b<br>c<br>d``, ``x ± y`` never broken across lines; a header's
+    ``label: a / b / ...`` keeps its label on a line of its own; a cell of fewer figures (``5 / 5`` seeds) is left as
+    it is."""
+    parts = cell.strip().split(" / ")
+    if len(parts) < STACKED_FIGURES:
+        return cell
+    label, colon, first = parts[0].rpartition(": ")
+    if colon:
+        parts = [label + ":", first, *parts[1:]]
+    return " " + "<br>".join(part.replace(" ± ", "&nbsp;±&nbsp;") for part in parts) + " "
+
+
+def stack_figures(markdown: str) -> str:
+    """The results pages' compact layout: every table cell that packs several figures shows them one per line, so
+    that a table fits the column (a table still wider scrolls sideways in it: the theme's own style); everything
+    outside tables is left as it is."""
+    out = []
+    for line in markdown.splitlines():
+        if line.startswith("|") and not re.fullmatch(r"[|:\- ]+", line):
+            line = "|".join(_stacked(cell) for cell in _TABLE_CELL.split(line))
+        out.append(line)
+    return "\n".join(out) + ("\n" if markdown.endswith("\n") else "")
 
 
 # --------------------------------------------------------------------------------------------------------- hook
@@ -285,6 +322,8 @@ def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ANN001
         # The results pages are files the code writes (never edited by hand): the site links each of them here, at
         # build time, so that a new page needs no edit of the index or of mkdocs.yml.
         markdown += results_listing(Path(config["docs_dir"]) / "results", src.name)
+    elif src.parent.as_posix() == "results":
+        markdown = stack_figures(markdown)
     if CONFIG_MARKER in markdown:
         markdown = markdown.replace(CONFIG_MARKER, config_reference())
     if ENTRY_MARKER in markdown:
