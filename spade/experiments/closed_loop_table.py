@@ -234,7 +234,7 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
                        rows: list[str] | None = None, labels: Mapping[str, str] | None = None) -> tuple[str, dict]:
     """Render the closed-loop page (markdown) from the ``closed_loop`` experiment; with ``output_dir`` also write
     ``closed_loop.md`` and ``closed_loop.csv``. Returns the text and the files written."""
-    from spade.utils.provenance import command_line, commit, machine
+    from spade.utils.provenance import command_line, commit, machine, shown_path
 
     labels = dict(labels or {})
     cells = fetch_drives(tracking_uri, scale)
@@ -242,7 +242,7 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
     groups = sorted({(k[1], k[2]) for k in cells}, key=lambda g: (g[0] != "heldout", g[0], g[1] != "clean", g[1]))
     parts = ["## Closed loop: students driven through whole scenarios, beside the classical planners", ""]
     if not cells:
-        parts += [f"No finished drive in the MLflow experiment `{CLOSED_LOOP_TABLE}` of {tracking_uri}"
+        parts += [f"No finished drive in the MLflow experiment `{CLOSED_LOOP_TABLE}` of {shown_path(tracking_uri)}"
                   + (f" at scale {scale}" if scale else "") + ": launch them with `python -m spade.closed_loop`."]
         return "\n".join(parts), {}
     parts += [
@@ -325,14 +325,15 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
             parts.append(f"| {t.what} | {t.figure} | {format(t.a, fmt)} | {format(t.b, fmt)} | {t.kind} | {p} | {ph} "
                          f"| {verdict} |")
         parts.append("")
-    parts += ["Verdict:", *[f"- {line}" for line in verdict_lines(tests, labels)], ""]
+    parts += ["Verdict:", "", *[f"- {line}" for line in verdict_lines(tests, labels)], ""]
     seconds = sum(c.seconds for c in cells.values())
-    parts += ["Provenance:", f"- command: `{command_line('spade.report')}` (launch: `python -m spade.closed_loop`)",
+    parts += ["Provenance:", "", f"- command: `{command_line('spade.report')}` (launch: `python -m spade.closed_loop`)",
               f"- commit: {commit() or 'unknown (not a git checkout)'}",
               f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
               f"- machine: {machine()}",
               f"- wall time of the {sum(len(c.seeds) for c in cells.values())} drives counted: {seconds / 60:.0f} min",
-              f"- MLflow experiment `{CLOSED_LOOP_TABLE}` in {tracking_uri}" + (f", scale {scale}" if scale else "")]
+              f"- MLflow experiment `{CLOSED_LOOP_TABLE}` in {shown_path(tracking_uri)}"
+              + (f", scale {scale}" if scale else "")]
     files: dict[str, Path] = {}
     text = "\n".join(parts) + "\n"
     if output_dir is not None:
