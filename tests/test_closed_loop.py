@@ -343,8 +343,9 @@ def test_the_closed_loop_page_shows_seeds_baselines_tests_and_the_rankings(tmp_p
     assert "by open-loop planner APE: Cond-DBC < BC; by closed-loop APE: BC < Cond-DBC: **they disagree**" in text
     welch = next(line for line in text.splitlines() if line.startswith("| heldout, clean: BC vs Cond-DBC | ape_cm"))
     assert "Welch" in welch and "| significant |" in welch  # 10 cm apart with sd 1: p about 2e-4 before Holm
-    assert "BC beats Cond-DBC by closed-loop APE (11.00 vs 21.00), significant after Holm" in text
-    assert "BC beats Nav2-like shortest path by closed-loop APE" in text
+    assert ("heldout, clean: BC against Cond-DBC: success 99.3% vs 90.7% (higher, significant); APE 11.00 cm vs "
+            "21.00 cm (lower, significant): **BC wins**") in text
+    assert "BC against Nav2-like shortest path:" in text
     assert files["markdown"].read_text() == text and files["csv"].is_file()
     empty, _ = closed_loop_report(f"sqlite:///{tmp_path}/other.db", None)
     assert "launch them with `python -m spade.closed_loop`" in empty

@@ -327,11 +327,14 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
         parts.append("")
     parts += ["Verdict:", "", *[f"- {line}" for line in verdict_lines(tests, labels)], ""]
     seconds = sum(c.seconds for c in cells.values())
+    driving = sum(m.get("closed_loop/seconds", 0.0) for c in cells.values() for m in c.seeds.values())
     parts += ["Provenance:", "", f"- command: `{command_line('spade.report')}` (launch: `python -m spade.closed_loop`)",
               f"- commit: {commit() or 'unknown (not a git checkout)'}",
               f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
               f"- machine: {machine()}",
-              f"- wall time of the {sum(len(c.seeds) for c in cells.values())} drives counted: {seconds / 60:.0f} min",
+              f"- wall time of the {sum(len(c.seeds) for c in cells.values())} drives counted: {driving / 60:.1f} min "
+              f"driving (every planner, closed_loop/seconds); their MLflow runs {seconds / 60:.0f} min (the clean "
+              "drives' open-loop tests included)",
               f"- MLflow experiment `{CLOSED_LOOP_TABLE}` in {shown_path(tracking_uri)}"
               + (f", scale {scale}" if scale else "")]
     files: dict[str, Path] = {}
@@ -352,21 +355,36 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
 
 
 def verdict_lines(tests: list[Test], labels: Mapping[str, str]) -> list[str]:
-    """The tests in words: which differences the seeds establish, the deciding figure first."""
-    lines = []
+    """The tests in words, one line per comparison that the seeds can test: the deciding figure (success) first,
+    then the closed-loop APE, each with its Holm-adjusted verdict; comparisons without a test (a row of one seed)
+    are left to the tables."""
+    by_pair: dict[str, dict[str, Test]] = {}
     for t in tests:
-        if t.figure not in ("ape_cm", "success_rate"):
+        if t.figure in ("success_rate", "ape_cm"):
+            by_pair.setdefault(t.what, {})[t.figure] = t
+    lines = []
+    for what, figs in by_pair.items():
+        if all(t.p_holm is None for t in figs.values()):
             continue
-        fmt = next(f for _, k, f, _ in FIGURES if k == t.figure)
-        better = (t.a < t.b) if t.figure == "ape_cm" else (t.a > t.b)
-        sig = t.p_holm is not None and t.p_holm < 0.05
-        a, b = t.what.split(": ", 1)[1].split(" vs ")
-        what = "closed-loop APE" if t.figure == "ape_cm" else "success rate"
-        if t.a == t.b:
-            lines.append(f"{t.what.split(':')[0]}: {a} ties {b} by {what} ({format(t.a, fmt)})")
-        else:
-            lines.append(f"{t.what.split(':')[0]}: {a} {'beats' if better else 'loses to'} {b} by {what} "
-                         f"({format(t.a, fmt)} vs {format(t.b, fmt)}), "
-                         + ("no test: fewer than 2 seeds or no spread" if t.p_holm is None
-                            else "significant after Holm" if sig else "not significant after Holm"))
+        group, pair = what.split(": ", 1)
+        a, b = pair.split(" vs ")
+        words = []
+        for figure, name, fmt, higher in (("success_rate", "success", ".1%", True), ("ape_cm", "APE", ".2f", False)):
+            t = figs.get(figure)
+            if t is None:
+                continue
+            unit = "" if figure == "success_rate" else " cm"
+            if t.a == t.b:
+                order = "equal"
+            else:
+                order = "higher" if t.a > t.b else "lower"
+            sig = "no test" if t.p_holm is None else ("significant" if t.p_holm < 0.05 else "not significant")
+            words.append(f"{name} {format(t.a, fmt)}{unit} vs {format(t.b, fmt)}{unit} ({order}, {sig})")
+        ape, success = figs.get("ape_cm"), figs.get("success_rate")
+        decided = "no difference established"
+        for t, higher_better in ((success, True), (ape, False)):
+            if t is not None and t.p_holm is not None and t.p_holm < 0.05 and t.a != t.b:
+                decided = f"{a} {'wins' if (t.a > t.b) == higher_better else 'loses'}"
+                break
+        lines.append(f"{group}: {a} against {b}: {'; '.join(words)}: **{decided}**")
     return lines
