@@ -27,7 +27,10 @@ log = logging.getLogger(__name__)
 def main(cfg: DictConfig) -> None:
     from spade.experiments.checks import exit_on_user_error
 
+    from spade.experiments.lifecycle import install_signal_handlers
     from spade.experiments.tracking.summary import evaluation_summary
+
+    install_signal_handlers()  # SIGTERM / SIGINT end the run through an exception: its MLflow run is marked KILLED
 
     metrics = exit_on_user_error(evaluate)(cfg)
     print("\n".join(f"{k}: {v:.4g}" for k, v in sorted(metrics.items())))

@@ -401,3 +401,21 @@ def test_an_expert_run_logs_no_model_and_a_failed_export_is_one_warning(tracked_
     assert "not logged on run" in record.getMessage() and "\n" not in record.getMessage()
     assert not client.get_run(run_id).outputs.model_outputs
     assert not client.search_logged_models(experiment_ids=[experiment_id])
+
+
+def test_an_interrupted_evaluation_is_killed_not_failed(tmp_path) -> None:  # noqa: ANN001
+    """spade.evaluate's run, opened by Lightning during the test: Ctrl+C marks it KILLED, an error FAILED."""
+    from lightning.pytorch.loggers import MLFlowLogger
+    from mlflow import MlflowClient
+
+    from spade.experiments.tracking.runs import mark_evaluation_ended
+
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    statuses = []
+    for exc in (KeyboardInterrupt(), ValueError("boom")):
+        ml = MLFlowLogger(experiment_name="evaluation", tracking_uri=uri)
+        ml.log_metrics({"test/ape_cm": 1.0})  # Lightning opens the run as the test logs
+        mark_evaluation_ended([ml], exc)
+        statuses.append(MlflowClient(uri).get_run(ml.run_id).info.status)
+    assert statuses == ["KILLED", "FAILED"]
+    mark_evaluation_ended([], KeyboardInterrupt())  # no MLflow logger: nothing to mark

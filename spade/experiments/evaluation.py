@@ -46,19 +46,25 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     _use_models_encoding(datamodule, cfg.ckpt_path)
     loggers = instantiate_loggers(cfg.get("logger"))
     trainer = hydra.utils.instantiate(cfg.trainer, logger=loggers or False, callbacks=[])
-    results_from_test = bool(cfg.get("open_loop", True) or not cfg.get("closed_loop"))
-    if results_from_test:
-        results = trainer.test(model=model, datamodule=datamodule)[0]
-    else:  # closed loop only (open_loop=false): the instance-by-instance test is not run
-        results = {}
-    if cfg.get("closed_loop"):
-        results.update(_closed_loop(cfg, datamodule, loggers, trainer))
-    from spade.experiments.tracking.runs import finish_evaluation
+    try:
+        results_from_test = bool(cfg.get("open_loop", True) or not cfg.get("closed_loop"))
+        if results_from_test:
+            results = trainer.test(model=model, datamodule=datamodule)[0]
+        else:  # closed loop only (open_loop=false): the instance-by-instance test is not run
+            results = {}
+        if cfg.get("closed_loop"):
+            results.update(_closed_loop(cfg, datamodule, loggers, trainer))
+        from spade.experiments.tracking.runs import finish_evaluation
 
-    finish_evaluation(cfg, trainer, loggers)  # MLflow: experiment kind and description, test data input
-    if not results_from_test:  # no trainer.test ran the teardown that ends the MLflow run
-        for lg in loggers:
-            lg.finalize("success")
+        finish_evaluation(cfg, trainer, loggers)  # MLflow: experiment kind and description, test data input
+        if not results_from_test:  # no trainer.test ran the teardown that ends the MLflow run
+            for lg in loggers:
+                lg.finalize("success")
+    except BaseException as exc:  # Ctrl+C or a signal: KILLED, anything else FAILED (as spade.train's runs)
+        from spade.experiments.tracking.runs import mark_evaluation_ended
+
+        mark_evaluation_ended(loggers, exc)
+        raise
     if mcap is not None and trainer.is_global_zero:
         from spade.experiments.test_recording import record_test_set
 

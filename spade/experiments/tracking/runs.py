@@ -169,6 +169,23 @@ def mark_run_ended(loggers: list[Logger], exc: BaseException) -> None:
         log.warning("could not mark MLflow run %s %s: %s", run_id, status, err)
 
 
+def mark_evaluation_ended(loggers: list[Logger], exc: BaseException) -> None:
+    """:func:`mark_run_ended` for ``spade.evaluate``'s run, which Lightning opened during the test (SPADE binds it
+    only when the evaluation finishes): Lightning's teardown marks an interrupted test FAILED; a signal or Ctrl+C
+    is KILLED."""
+    ml = mlflow_logger(loggers)
+    if ml is None:
+        return
+    if ml not in _bound:
+        try:
+            ml.run_id  # the run Lightning opened (MLFlowLogger's public property)
+        except Exception as err:  # noqa: BLE001 - never hide the original error
+            log.warning("could not find the evaluation's MLflow run: %s", err)
+            return
+        _bound.add(ml)
+    mark_run_ended(loggers, exc)
+
+
 def mark_stale_runs(cfg: DictConfig) -> list[str]:
     """Mark KILLED the RUNNING runs of this row (same MLflow experiment and run name) whose process is gone.
 
