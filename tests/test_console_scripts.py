@@ -64,3 +64,28 @@ def test_a_console_script_runs_its_module_as_python_m_does(tmp_path: Path) -> No
                           cwd=tmp_path, env=env)
     assert done.returncode == 2, done.stderr[-3000:]
     assert "error: tracking_uri=" in done.stderr and "no MLflow store" in done.stderr, done.stderr[-3000:]
+
+
+def test_lightnings_advertising_is_not_printed_by_spade(capsys) -> None:  # noqa: ANN001
+    import logging
+
+    import lightning as L
+
+    from spade.utils.console import LIGHTNING_RANK_ZERO, AdvertisingFilter, quiet_third_party_advertising
+
+    quiet_third_party_advertising()
+    quiet_third_party_advertising()  # once only
+    logger = logging.getLogger(LIGHTNING_RANK_ZERO)
+    assert sum(isinstance(f, AdvertisingFilter) for f in logger.filters) == 1
+    records = []
+    handler = logging.Handler()
+    handler.emit = records.append  # type: ignore[method-assign]
+    logger.addHandler(handler)
+    try:
+        L.Trainer(logger=False, enable_progress_bar=False, enable_model_summary=False)
+        logger.info("GPU available: False")  # Lightning's other messages still pass
+    finally:
+        logger.removeHandler(handler)
+    messages = [r.getMessage() for r in records]
+    assert not any("litlogger" in m or "litmodels" in m for m in messages) and "GPU available: False" in messages
+    assert "Tip" not in capsys.readouterr().err
