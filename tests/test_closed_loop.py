@@ -349,3 +349,17 @@ def test_the_closed_loop_page_shows_seeds_baselines_tests_and_the_rankings(tmp_p
     assert files["markdown"].read_text() == text and files["csv"].is_file()
     empty, _ = closed_loop_report(f"sqlite:///{tmp_path}/other.db", None)
     assert "launch them with `python -m spade.closed_loop`" in empty
+
+
+@pytest.mark.slow
+def test_a_training_run_drives_its_best_checkpoint_when_the_scale_says_so(spade_home) -> None:  # noqa: ANN001
+    """closed_loop: true (the quickstart's scale): after its test, spade.train drives the test scenarios."""
+    from spade.experiments.run import train
+    from training_helpers import compose_row
+
+    cfg = compose_row("t1_medium_bc_L", spade_home, "logger=none", "trainer.max_steps=2", "trainer.max_epochs=1",
+                      "+trainer.limit_val_batches=1", "data.eval_batch_size=8", "model.grid_size=0",
+                      "callbacks.model_info.latency_runs=0", "closed_loop=true")
+    metrics, _ = train(cfg)
+    assert metrics["closed_loop/demonstration/success_rate"] == 1.0
+    assert 0.0 <= metrics["closed_loop/success_rate"] <= 1.0 and "test/ape_cm" in metrics
