@@ -1,9 +1,12 @@
-"""Input checks shared by the metrics: clear errors that name the expected layout."""
+"""Input checks shared by the metrics: clear errors that name the expected layout; and their ``cat`` states."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch
+from torchmetrics.utilities import dim_zero_cat
 
 
 def to_numpy(x: torch.Tensor | np.ndarray, dtype: type = np.float32) -> np.ndarray:
@@ -34,3 +37,13 @@ def check_same_batch(*named: tuple[str, torch.Tensor | np.ndarray]) -> None:
     sizes = {name: int(x.shape[0]) for name, x in named}
     if len(set(sizes.values())) > 1:
         raise ValueError(f"batch sizes differ: {sizes}; pass one row per instance in every argument")
+
+
+def cat_state(values: list[torch.Tensor] | torch.Tensor) -> torch.Tensor:
+    """A ``cat`` metric state as one float64 tensor (empty when nothing was added)."""
+    return dim_zero_cat(values).double() if len(values) else torch.zeros(0, dtype=torch.float64)
+
+
+def append_state(metric: Any, name: str, values: list[float]) -> None:
+    """Add one update's per-instance ``values`` to ``metric``'s ``cat`` state ``name`` (float64, on its device)."""
+    getattr(metric, name).append(torch.tensor(values, dtype=torch.float64, device=metric.device))

@@ -7,7 +7,7 @@ import torch
 from torchmetrics import Metric
 from torchmetrics.utilities import dim_zero_cat
 
-from spade.metrics._inputs import check_images, check_same_batch, per_instance_resolution, to_numpy
+from spade.metrics._inputs import cat_state, check_images, check_same_batch, per_instance_resolution, to_numpy
 from spade.metrics.decoding import PathDecoder
 from spade.metrics.extraction import extract_path, marker_centre
 from spade.metrics.geometry import polyline_ape
@@ -176,6 +176,6 @@ class APE(Metric):
             "instances": total,
             self.tail_key: (self.tail.double() / total.double()) if total > 0 else nan,
         }
-        scores = dim_zero_cat(self.scores).double() if len(self.scores) else torch.zeros(0, dtype=torch.float64)
+        scores = cat_state(self.scores)
         out["score_cm"] = scores.mean() if scores.numel() else nan
         return out

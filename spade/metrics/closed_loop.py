@@ -33,9 +33,9 @@ from typing import Any
 import numpy as np
 import torch
 from torchmetrics import Metric
-from torchmetrics.utilities import dim_zero_cat
 
 from spade.data.polyline import polyline_length, resample_polyline
+from spade.metrics._inputs import append_state, cat_state
 
 __all__ = ["CLOSED_LOOP_KEYS", "ClosedLoopMetrics", "episode_figures", "plan_mode"]
 
@@ -168,15 +168,11 @@ class ClosedLoopMetrics(Metric):
     def update(self, episodes: list[Any]) -> None:
         rows = [episode_figures(e, self.commit_tol_cm, self.min_turn_deg) for e in episodes]
         for name in FIGURES:
-            getattr(self, name).append(torch.tensor([r[name] for r in rows], dtype=torch.float64, device=self.device))
+            append_state(self, name, [r[name] for r in rows])
 
     def compute(self) -> dict[str, torch.Tensor]:
-        def values(name: str) -> torch.Tensor:
-            v = getattr(self, name)
-            return dim_zero_cat(v).double() if len(v) else torch.zeros(0, dtype=torch.float64)
-
         def mean(name: str) -> torch.Tensor:
-            v = values(name)
+            v = cat_state(getattr(self, name))
             v = v[~torch.isnan(v)]
             return v.mean() if v.numel() else torch.tensor(float("nan"), dtype=torch.float64)
 
@@ -184,5 +180,5 @@ class ClosedLoopMetrics(Metric):
         out.update({name: mean(name) for name in ("ape_cm", "plausibility_cm", "length_ratio", "smoothness_deg_per_m",
                                                   "replan_change_cm", "mode_switches", "plan_ms", "replans")})
         out["commit_rate"] = mean("commit")
-        out["episodes"] = torch.tensor(float(values("success").numel()), dtype=torch.float64)
+        out["episodes"] = torch.tensor(float(cat_state(self.success).numel()), dtype=torch.float64)
         return {k: out[k] for k in CLOSED_LOOP_KEYS}

@@ -9,7 +9,7 @@ import torch
 from torchmetrics import Metric
 from torchmetrics.utilities import dim_zero_cat
 
-from spade.metrics._inputs import check_images, check_same_batch, to_numpy
+from spade.metrics._inputs import cat_state, check_images, check_same_batch, to_numpy
 from spade.metrics.geometry import mask_hausdorff
 
 __all__ = ["HausdorffCount", "Hd19"]
@@ -85,7 +85,7 @@ class HausdorffCount(Metric):
 
     def compute(self) -> dict[str, torch.Tensor]:
         d = self.per_instance().double()
-        limits = dim_zero_cat(self.limits).double() if len(self.limits) else torch.zeros(0, dtype=torch.float64)
+        limits = cat_state(self.limits)
         finite = d[torch.isfinite(d)]
         nan = torch.tensor(math.nan, dtype=torch.float64)
         count = (d > limits).sum()

@@ -25,10 +25,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 from torchmetrics import Metric
-from torchmetrics.utilities import dim_zero_cat
 
 from spade.data.polyline import resample_polyline
-from spade.metrics._inputs import per_instance_resolution, to_numpy
+from spade.metrics._inputs import append_state, cat_state, per_instance_resolution, to_numpy
 from spade.metrics.extraction import marker_centre
 
 __all__ = ["PREFERENCE_KEYS", "PreferenceMetrics", "SpreadMetrics", "floor_path", "plausible_set"]
@@ -114,14 +113,13 @@ class PreferenceMetrics(Metric):
             commits += int(dist.min() * cm <= self.commit_tol_cm)
         for name, values in (("floor", floor), ("ape", ape), ("floor_scored", floor_scored),
                              ("plausibility", plaus)):
-            getattr(self, name).append(torch.tensor(values, dtype=torch.float64, device=self.device))
+            append_state(self, name, values)
         self.commits += commits
         self.counted += counted
 
     def compute(self) -> dict[str, torch.Tensor]:
         def cat(name: str) -> torch.Tensor:
-            values = getattr(self, name)
-            return dim_zero_cat(values).double() if len(values) else torch.zeros(0, dtype=torch.float64)
+            return cat_state(getattr(self, name))
 
         nan = torch.tensor(float("nan"), dtype=torch.float64)
         floor, ape, floor_scored, plaus = cat("floor"), cat("ape"), cat("floor_scored"), cat("plausibility")
@@ -181,12 +179,11 @@ class SpreadMetrics(Metric):
                 gen.append(g)
         for name, values in (("spread", spread), ("paired_spread", paired), ("generator", gen),
                              ("generator_all", gen_all)):
-            getattr(self, name).append(torch.tensor(values, dtype=torch.float64, device=self.device))
+            append_state(self, name, values)
 
     def compute(self) -> dict[str, torch.Tensor]:
         def cat(name: str) -> torch.Tensor:
-            values = getattr(self, name)
-            return dim_zero_cat(values).double() if len(values) else torch.zeros(0, dtype=torch.float64)
+            return cat_state(getattr(self, name))
 
         nan = torch.tensor(float("nan"), dtype=torch.float64)
         spread, paired, gen, gen_all = cat("spread"), cat("paired_spread"), cat("generator"), cat("generator_all")
