@@ -325,8 +325,13 @@ def test_the_closed_loop_page_shows_seeds_baselines_tests_and_the_rankings(tmp_p
     }
     for row, seeds in figures.items():
         for seed, (ape, success, open_ape) in enumerate(seeds):
-            run = client.create_run(experiment, run_name=f"{row}__heldout__clean", tags={
-                "source_row": row, "dataset": "heldout", "condition": "clean", "scale": "quickstart"})
+            tags = {"source_row": row, "dataset": "heldout", "condition": "clean", "scale": "quickstart"}
+            if row == "cond":  # the trained run the drive came from, with its margin's activity at the end
+                source = client.create_run(experiment, run_name="cond").info.run_id
+                client.log_metric(source, "margin/active", 0.25 * seed)
+                client.set_tag(source, "mlflow.parentRunId", "a-training-run-is-not-a-drive")
+                tags["source_run"] = source
+            run = client.create_run(experiment, run_name=f"{row}__heldout__clean", tags=tags)
             rid = run.info.run_id
             client.log_param(rid, "cfg/seed", seed)
             metrics = {"closed_loop/ape_cm": ape, "closed_loop/success_rate": success,
@@ -340,6 +345,10 @@ def test_the_closed_loop_page_shows_seeds_baselines_tests_and_the_rankings(tmp_p
     assert "### heldout, clean (100 scenarios)" in text
     assert "| BC | 3 | 99% ± 1 pt | n/a | n/a | 11.00 ± 1.00 |" in text
     assert "| *Nav2-like shortest path* | 6 |" in text
+    rows = {line.split(" | ")[0]: line for line in text.splitlines() if line.startswith("| BC |")
+            or line.startswith("| Cond-DBC |")}
+    assert rows["| BC"].endswith("| no margin |")
+    assert rows["| Cond-DBC"].endswith("| 25.0% ± 25 pt |")  # 0, 25 and 50 % over its three seeds
     assert "by open-loop planner APE: Cond-DBC < BC; by closed-loop APE: BC < Cond-DBC: **they disagree**" in text
     welch = next(line for line in text.splitlines() if line.startswith("| heldout, clean: BC vs Cond-DBC | ape_cm"))
     assert "Welch" in welch and "| significant |" in welch  # 10 cm apart with sd 1: p about 2e-4 before Holm

@@ -48,6 +48,8 @@ FIGURES: tuple[tuple[str, str, str, bool | None], ...] = (
 )
 REFERENCES = {"baseline/shortest/": "Nav2-like shortest path", "baseline/heading/": "heading template",
               "followed/": "demonstration followed", "demonstration/": "demonstration replayed"}
+MARGIN_ACTIVE = "margin/active"
+"""A guided row's share of active margins in its last training epoch (its source run's; BC has none)."""
 TESTED = ("ape_cm", "success_rate", "plausibility_cm", "mode_switches")
 """The figures the page tests: the deciding one (closed-loop APE) first."""
 
@@ -160,6 +162,7 @@ def fetch_drives(tracking_uri: str, scale: str | None = None) -> dict[tuple[str,
     client = MlflowClient(tracking_uri=tracking_uri)
     experiment = client.get_experiment_by_name(CLOSED_LOOP_TABLE)
     cells: dict[tuple[str, str, str], Cell] = {}
+    margins: dict[str, float | None] = {}
     if experiment is None:
         return cells
     query = "attributes.status = 'FINISHED'" + (f" and tags.scale = '{scale}'" if scale else "")
@@ -175,6 +178,15 @@ def fetch_drives(tracking_uri: str, scale: str | None = None) -> dict[tuple[str,
         if seed in cell.seeds:
             continue  # an older drive of the same seed
         cell.seeds[seed] = dict(run.data.metrics)
+        source = tags.get("source_run")
+        if source:  # the trained run's own record: whether a guided row's margin still acted at the end
+            if source not in margins:
+                try:
+                    margins[source] = client.get_run(source).data.metrics.get(MARGIN_ACTIVE)
+                except Exception:  # noqa: BLE001 - a deleted source run: its margin is unknown
+                    margins[source] = None
+            if margins[source] is not None:
+                cell.seeds[seed][MARGIN_ACTIVE] = margins[source]
         if run.info.end_time and run.info.start_time:
             cell.seconds += (run.info.end_time - run.info.start_time) / 1000.0
     return cells
@@ -255,6 +267,9 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
         "path against the whole demonstration; plausibility against the nearest of the demonstration and its "
         "alternatives; commits: within 5 cm of one of them; mode switches: how often the plan's turn side or radius "
         "band changed between replans, per scenario.", "",
+        "A guided row is guidance only where its margin acted: the last column is the share of its training "
+        "instances whose margin was active in the last epoch (its training run's `margin/active`); near 0, the row "
+        "trained as BC did at the end.", "",
         "Which figure decides: the success rate first (a planner that collides or stalls is not deployable), then "
         "the closed-loop APE; plausibility, commitment and mode switches say whether the robot drove a turn an "
         "operator drew.", ""]
@@ -266,12 +281,14 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
             continue
         n_scen = int(max((m.get("closed_loop/episodes", 0) for c in here for m in c.seeds.values()), default=0))
         parts += [f"### {dataset}, {condition} ({n_scen} scenarios)", ""]
-        header = ["planner", "runs", *[f[0] for f in FIGURES], "open-loop planner APE (cm)"]
+        header = ["planner", "runs", *[f[0] for f in FIGURES], "open-loop planner APE (cm)",
+                  "margin active, last epoch"]
         parts += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
         for c in here:
             cols = [labels.get(c.row, c.row), str(len(c.seeds))]
             cols += [_mean_sd(c.values(f"closed_loop/{key}"), fmt) for _, key, fmt, _ in FIGURES]
             cols.append(_mean_sd(c.values("test/planner/ape_cm"), ".2f"))
+            cols.append(_mean_sd(c.values(MARGIN_ACTIVE), ".1%") if c.values(MARGIN_ACTIVE) else "no margin")
             parts.append("| " + " | ".join(cols) + " |")
             csv_rows.append([dataset, condition, c.row, len(c.seeds)]
                             + [float(np.mean(c.values(f"closed_loop/{k}"))) if c.values(f"closed_loop/{k}") else ""
@@ -284,7 +301,7 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
                 continue
             cols = [f"*{name}*", str(len(pooled.seeds))]
             cols += [_mean_sd(pooled.values(f"closed_loop/{prefix}{key}"), fmt) for _, key, fmt, _ in FIGURES]
-            cols.append("")
+            cols += ["", ""]
             parts.append("| " + " | ".join(cols) + " |")
         parts.append("")
         # tests: every pair of rows (Welch), every row against the Nav2-like and heading baselines (paired by seed)
