@@ -25,8 +25,9 @@ __all__ = ["critic", "format_report"]
 log = logging.getLogger(__name__)
 
 
-def _test_loader(cfg: DictConfig):
-    """The test set of ``cfg.data`` (its ``test_shape`` only), without the training set a data module needs."""
+def _test_loader(cfg: DictConfig, encoding: str = "binary"):
+    """The test set of ``cfg.data`` (its ``test_shape`` only), without the training set a data module needs; its
+    start and goal drawn with ``encoding``, the expert's (:attr:`ExpertModule.marker_encoding`)."""
     from torch.utils.data import DataLoader, Subset
 
     from spade.data import DatasetError, PathDataset
@@ -38,7 +39,7 @@ def _test_loader(cfg: DictConfig):
             "(data.test_dir=DIR), or build it first (any `python -m spade.train +experiment=...` of this scale and "
             "data generates it, or `python -m spade.annotate preset=test out_dir=DIR`)"
         )
-    dataset = PathDataset(str(test_dir))
+    dataset = PathDataset(str(test_dir), encoding=encoding)
     shape = cfg.data.get("test_shape")
     idx = [i for i, s in enumerate(dataset.labels("shape")) if shape in (None, s)]
     if not idx:
@@ -67,7 +68,7 @@ def critic(cfg: DictConfig) -> dict[str, Any]:
                          "diffusion expert (python -m spade.train +experiment=cond_expert_L, or spade/models/weights/)")
     expert = load_lightning(ExpertModule, str(cfg.ckpt_path))
     config.check_expert(expert.conditional, f"ckpt_path={cfg.ckpt_path}")
-    loader, dataset = _test_loader(cfg)
+    loader, dataset = _test_loader(cfg, expert.marker_encoding)
     expert.check_compatible(in_channels=3, image_size=dataset.image_size, source=f"ckpt_path={cfg.ckpt_path}")
     student = None
     if cfg.get("student_ckpt"):

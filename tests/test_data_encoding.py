@@ -114,15 +114,26 @@ def test_the_planner_draws_the_markers_its_model_was_trained_on(tmp_path: Path) 
         Planner(bad)
 
 
-def test_a_guided_row_with_a_sub_pixel_encoding_is_refused(tmp_path: Path) -> None:
+def test_an_expert_judges_only_students_whose_markers_it_was_trained_on(tmp_path: Path) -> None:
+    """A guided row may use any marker encoding, as long as its expert was trained on the same one: the expert
+    records its data's encoding, an expert saved before it did was trained on binary discs."""
     from spade.experiments.checks import validate_train_config
+    from spade.training.errors import ExpertMismatchError
+    from spade.training.expert_module import ExpertModule
     from spade.utils.config import compose_config
-    from spade.utils.errors import ConfigError
 
     cfg = compose_config("train", ["+experiment=t1_medium_conddbc_L", f"paths.root_dir={tmp_path}",
                                    "data.encoding=aa_disc", "scale=tiny"])
-    with pytest.raises(ConfigError, match="data.encoding=aa_disc with a diffusion margin"):
-        validate_train_config(cfg)
+    validate_train_config(cfg)  # the config alone cannot know the expert's encoding: the student checks on load
+    old = ExpertModule(conditional=True, preset="tiny")
+    assert old.marker_encoding == "binary"
+    old.check_compatible(in_channels=3, image_size=None, source="old", encoding="binary")
+    with pytest.raises(ExpertMismatchError, match="'binary' markers.*'gaussian'.*data.encoding=binary"):
+        old.check_compatible(in_channels=3, image_size=None, source="old", encoding="gaussian")
+    new = ExpertModule(conditional=True, preset="tiny", marker_encoding="gaussian")
+    new.check_compatible(in_channels=3, image_size=None, source="new", encoding="gaussian")
+    with pytest.raises(ExpertMismatchError, match="'gaussian' markers"):
+        new.check_compatible(in_channels=3, image_size=None, source="new", encoding="aa_disc")
 
 
 def test_a_small_blob_between_pixels_still_has_a_centre() -> None:

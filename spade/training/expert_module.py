@@ -92,6 +92,7 @@ class ExpertModule(PathPlanningModule):
         val_metric_batches: int | None = 1,
         grid_size: int = 8,
         image_size: int | None = None,
+        marker_encoding: str | None = None,
     ) -> None:
         super().__init__(optimizer, metrics, val_metric_batches, grid_size)
         self.lr_scheduler_factory = lr_scheduler
@@ -117,8 +118,11 @@ class ExpertModule(PathPlanningModule):
         """The EMA copy of the denoiser: what sampling (evaluation) and the diffusion margin use."""
         return self.ema.module
 
-    def check_compatible(self, in_channels: int, image_size: tuple[int, int] | None, source: str) -> None:
-        """Raise a clear error when this expert cannot judge a student's paths on the given data."""
+    def check_compatible(self, in_channels: int, image_size: tuple[int, int] | None, source: str,
+                         encoding: str | None = None) -> None:
+        """Raise a clear error when this expert cannot judge a student's paths on the given data: other channels,
+        another window size, or start and goal markers drawn another way (``encoding``, the data's
+        ``data.encoding``; an expert saved before the encoding was recorded was trained on ``binary`` discs)."""
         from spade.training.errors import ExpertMismatchError
 
         expected = in_channels if self.conditional else in_channels + 1
@@ -135,11 +139,24 @@ class ExpertModule(PathPlanningModule):
                 f"expert {source} was trained on {trained} x {trained} instances, the student's are "
                 f"{image_size[0]} x {image_size[1]}: use an expert trained at the same scale"
             )
+        if encoding is not None and encoding != self.marker_encoding:
+            raise ExpertMismatchError(
+                f"expert {source} was trained on states whose start and goal are drawn as {self.marker_encoding!r} "
+                f"markers, the student's data draw them as {encoding!r} (data.encoding): train the student with "
+                f"data.encoding={self.marker_encoding}, or an expert with data.encoding={encoding}"
+            )
+
+    @property
+    def marker_encoding(self) -> str:
+        """How the states this expert was trained on draw the start and goal (:mod:`spade.data.encoding`)."""
+        return str(self.hparams.get("marker_encoding") or "binary")
 
     def setup(self, stage: str) -> None:
         dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
         if dm is not None and self.hparams.get("image_size") is None:
             self.hparams["image_size"] = int(dm.image_size[0])
+        if dm is not None and stage == "fit" and self.hparams.get("marker_encoding") is None:
+            self.hparams["marker_encoding"] = str(getattr(dm, "encoding", "binary"))
 
     # -- training ------------------------------------------------------------------------------------------
     def model_input(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor | None]:

@@ -108,7 +108,7 @@ class StudentModule(PathPlanningModule):
     def margin(self) -> DiffusionMargin | None:
         return self._margin[0] if self._margin else None
 
-    def load_margin(self, image_size: tuple[int, int] | None = None) -> None:
+    def load_margin(self, image_size: tuple[int, int] | None = None, encoding: str | None = None) -> None:
         """Load the frozen expert named by ``margin.expert_ckpt`` as the :class:`ExpertModule` it was trained in
         (``load_from_checkpoint``, safely) and build the margin from it (:meth:`use_expert`); once."""
         if self.margin_cfg is None or self._margin:
@@ -116,15 +116,16 @@ class StudentModule(PathPlanningModule):
         from spade.training.expert_module import ExpertModule
 
         ckpt = self.hparams.margin["expert_ckpt"]
-        self.use_expert(load_lightning(ExpertModule, ckpt), image_size, source=str(ckpt))
+        self.use_expert(load_lightning(ExpertModule, ckpt), image_size, source=str(ckpt), encoding=encoding)
 
     def use_expert(self, expert: ExpertModule, image_size: tuple[int, int] | None = None,
-                   source: str = "the expert") -> None:
+                   source: str = "the expert", encoding: str | None = None) -> None:
         """The margin of ``expert`` (:meth:`DiffusionMargin.from_expert`: frozen, its EMA denoiser and noise
         schedule), after checking it against this student's data and the kind of expert the method needs."""
         if self.margin_cfg is None:
             raise ValueError("this student has no margin options (margin=null): nothing to use an expert for")
-        expert.check_compatible(in_channels=self.net.in_channels, image_size=image_size, source=source)
+        expert.check_compatible(in_channels=self.net.in_channels, image_size=image_size, source=source,
+                                encoding=encoding)
         self.margin_cfg.check_expert(expert.conditional, source)
         margin = DiffusionMargin.from_expert(expert, self.margin_cfg)
         self._margin[:] = [margin.to(device=self.device, dtype=self.dtype)]
@@ -132,7 +133,7 @@ class StudentModule(PathPlanningModule):
     def setup(self, stage: str) -> None:
         if stage == "fit" and self.margin_cfg is not None:
             dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
-            self.load_margin(getattr(dm, "image_size", None))
+            self.load_margin(getattr(dm, "image_size", None), getattr(dm, "encoding", None))
 
     def _apply(self, fn: Callable, recurse: bool = True) -> StudentModule:
         """Move and cast the frozen expert with the student (``.to(device)``, ``.to(dtype)``, ``.double()``,

@@ -88,12 +88,6 @@ def _check_model(cfg: DictConfig) -> None:
         _check_choice(cfg, "model.size", presets("student"))
         _check_number(cfg, "model.bc_pos_weight", 0, low_open=True, none_ok=True, fix=" (null: plain BCE)")
         _margin_config(cfg)  # model.margin's options, by MarginConfig's checks (lambda_dm >= 0, kind...)
-        guided = bool(_get(cfg, "model.margin") not in (_MISSING, None) and len(_get(cfg, "model.margin")))
-        encoding = _get(cfg, "data.encoding")
-        if guided and encoding not in (_MISSING, None, "binary"):
-            raise ConfigError(f"data.encoding={encoding} with a diffusion margin: the experts see the state with the "
-                              "binary start and goal discs they were trained on; train guided rows with "
-                              "data.encoding=binary (recipe.encoding), or margin=none")
     if role is not None:
         encoding = _get(cfg, "data.encoding")
         from spade.data.encoding import MARKER_ENCODINGS
@@ -102,9 +96,6 @@ def _check_model(cfg: DictConfig) -> None:
             raise ConfigError(f"data.encoding={encoding!r} is not a marker encoding; use one of "
                               f"{list(MARKER_ENCODINGS)} (binary: the paper's discs)")
     if role == "expert":
-        if _get(cfg, "data.encoding") not in (_MISSING, None, "binary"):
-            raise ConfigError(f"data.encoding={_get(cfg, 'data.encoding')} for an expert: the experts are trained on "
-                              "the binary start and goal discs (data.encoding=binary)")
         kind = "cond_expert" if _get(cfg, "model.conditional") is not False else "uncond_expert"
         _check_choice(cfg, "model.preset", presets(kind))
         _check_number(cfg, "model.ema_decay", 0, 1, high_open=True)
