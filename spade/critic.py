@@ -82,6 +82,12 @@ def critic(cfg: DictConfig) -> dict[str, Any]:
         student=student, draws_per_band=int(c.draws_per_band), bands=int(c.bands), seed=int(cfg.seed),
         max_instances=c.max_instances, title=f"{Path(str(cfg.ckpt_path)).name}: score={config.score}, "
         f"agent_input={config.agent_input}, t in [{config.t_min}, {margin.t_max})")
+    samples = cfg.critic.get("expert_samples", 0)
+    if samples:
+        from spade.training.teacher import planner_figures
+
+        metrics.update(planner_figures(expert, loader, samples=int(samples), student=student,
+                                       max_instances=c.max_instances))
     _log(cfg, config, metrics, picture)
     _write_page(cfg, config, metrics, picture, time.perf_counter() - start)
     return metrics
@@ -114,6 +120,7 @@ def _write_page(cfg: DictConfig, config, metrics: dict[str, float], picture, sec
                     + " | ".join(f"{metrics.get(f'critic/win/{name}/{b}', float('nan')):.2f}" for b in bands)
                     + f" | {'-' if tie is None else f'{tie:.2f}'} | {metrics[f'critic/ratio/{name}']:.2f} |")
     student = [f"- {k}: {v:.4g}" for k, v in metrics.items() if k.startswith("critic/student/")]
+    planner = _planner_section(metrics)
     text = "\n".join([
         f"# The expert as a critic: {Path(str(cfg.ckpt_path)).name}, margin on agent input `{config.agent_input}`, "
         f"score `{config.score}`",
@@ -133,6 +140,7 @@ def _write_page(cfg: DictConfig, config, metrics: dict[str, float], picture, sec
         *rows,
         "",
         *(["Student:", "", *student, ""] if student else []),  # a blank line: Markdown needs one before a list
+        *planner,
         f"![critic]({stem}.png)",
         "",
         "Provenance:",
@@ -148,6 +156,35 @@ def _write_page(cfg: DictConfig, config, metrics: dict[str, float], picture, sec
     page.write_text(text)
     print(f"results page: {page}")
     return page
+
+
+PLANNER_COLUMNS = (("planner APE (cm)", "ape_cm", ".2f"), ("> 20 cm", "over_20cm_rate", ".1%"),
+                   ("failures", "failure_rate", ".1%"), ("APE / floor", "ape_over_floor", ".2f"),
+                   ("plausibility (cm)", "plausibility_cm", ".2f"), ("commits", "commit_rate", ".0%"))
+
+
+def _planner_section(metrics: dict[str, float]) -> list[str]:
+    """The page's section on the expert as a planner beside the student (:mod:`spade.training.teacher`)."""
+    if "expert/planner/ape_cm" not in metrics:
+        return []
+    k = int(metrics["expert/samples"])
+    rows = [("expert, one sample", "expert/planner/"), (f"expert, mean of {k} samples' maps", "expert/mean_map/planner/"),
+            ("student", "student/planner/")]
+    lines = ["The expert as a planner (each path decoded by the planner), on the same "
+             f"{int(metrics['expert/instances'])} instances:", "",
+             "| predictor | " + " | ".join(label for label, _, _ in PLANNER_COLUMNS) + " |",
+             "|---|" + "---:|" * len(PLANNER_COLUMNS)]
+    for label, prefix in rows:
+        if f"{prefix}ape_cm" in metrics:
+            cells = [format(metrics[f"{prefix}{key}"], fmt) if f"{prefix}{key}" in metrics else "n/a"
+                     for _, key, fmt in PLANNER_COLUMNS]
+            lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    lines += ["", f"Spread of two samples' planner paths: {metrics['expert/spread_cm']:.2f} cm, against the "
+              f"generator's {metrics['expert/generator_spread_cm']:.2f} cm (ratio {metrics['expert/spread_ratio']:.2f}; "
+              "1: as wide as the operator's choices). A perfectly calibrated sampler's single sample is about the "
+              "generator's spread from the demonstration. Sampling: "
+              f"{metrics['expert/seconds_per_sample'] * 1000:.0f} ms per instance and sample on this machine.", ""]
+    return lines
 
 
 def _log(cfg: DictConfig, config, metrics: dict[str, float], picture) -> None:
@@ -175,7 +212,10 @@ def format_report(metrics: dict[str, float]) -> str:
         tie = metrics.get(f"critic/tie/{name}")
         lines.append(f"{name:12s} {metrics[f'critic/win/{name}']:6.2f} {'' if tie is None else f'{tie:6.2f}':>6s} "
                      f"{metrics[f'critic/ratio/{name}']:6.2f}")
-    for key in ("critic/win_min", "critic/student/margin", "critic/student/spearman_ape", "critic/student/ape_cm"):
+    for key in ("critic/win_min", "critic/student/margin", "critic/student/spearman_ape",
+                "critic/student/spearman_planner_ape", "critic/student/spearman_plausibility", "critic/student/ape_cm",
+                "expert/planner/ape_cm", "expert/planner/plausibility_cm", "expert/mean_map/planner/ape_cm",
+                "student/planner/ape_cm", "student/planner/plausibility_cm", "expert/spread_ratio"):
         if key in metrics:
             lines.append(f"{key}: {metrics[key]:.4g}")
     return "\n".join(lines)
@@ -184,8 +224,9 @@ def format_report(metrics: dict[str, float]) -> str:
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="critic")
 @task
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.checks import exit_on_user_error
+    from spade.experiments.checks import exit_on_user_error, validate_critic_config
 
+    exit_on_user_error(validate_critic_config)(cfg)  # every bad input: one `error:` line, exit 2, before any work
     metrics = exit_on_user_error(critic)(cfg)
     print(format_report(metrics))
 

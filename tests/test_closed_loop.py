@@ -306,6 +306,8 @@ def test_an_experts_test_logs_its_planner_spread_against_the_generators(spade_ho
     assert metrics["test/generator_spread_cm"] > 0.0  # the tiny test set draws alternatives
     assert math.isfinite(metrics["test/planner/spread_ratio"])
     assert metrics["test/seconds_per_sample"] > 0.0
+    # the mean of the K samples' maps, decoded by the planner, beside the one sample
+    assert math.isfinite(metrics["test/mean_map/planner/ape_cm"]) and "test/mean_map/planner/plausibility_cm" in metrics
 
 
 # -- the results page ------------------------------------------------------------------------------------------------

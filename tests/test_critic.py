@@ -167,6 +167,37 @@ def test_a_students_margin_activity_and_its_rank_correlation_with_ape() -> None:
     assert m["critic/win/student"] == pytest.approx(2 / 3)
     assert m["critic/student/margin"] > 0
     assert m["critic/student/spearman_ape"] == pytest.approx(1.0)
+    # the planner's reading: the decoded path of the worse predictions is further from the demonstration too
+    assert m["critic/student/spearman_planner_ape"] == pytest.approx(1.0)
+    assert "critic/student/spearman_plausibility" not in m  # no alternatives: no plausibility to rank by
+
+
+def test_the_margins_rank_correlation_with_plausibility_sees_a_plausible_other_turn() -> None:
+    """A student that draws an alternative demonstration is wrong by APE but plausible: the plausibility error
+    (against the nearest plausible path) is ~0 there, and the Spearman against it is computed per instance."""
+    paths = _paths()[:4]
+    b = batch_of(paths)
+    demo = widen_path(b["path"], 3)
+    other = paths[0].copy()  # instance 0's alternative: the same start and goal, bowed up to 4 px to the side
+    other[:, 0] += 4.0 * np.sin(np.linspace(0.0, np.pi, len(other)))
+    alternatives = torch.full((4, 1, *b["waypoints"].shape[1:]), float("nan"))
+    alternatives[0, 0] = torch.tensor(other, dtype=torch.float32)
+    for i in (1, 2, 3):
+        alternatives[i, 0] = b["waypoints"][i] + 9.0  # far from anything the student draws
+    b["alternatives"] = alternatives
+    drawn = widen_path(draw_polylines([other, *paths[1:]], SIZE, SIZE), 3)
+
+    class Student(nn.Module):  # instance 0: the alternative; the others: the demonstration
+        def forward(self, state):
+            return (drawn * 2 - 1) * 8
+
+    margin = _margin(demo * 2 - 1, agent_input="straight_through")
+    errors = measure_errors(margin, [b], ROBOT_X, 3, corruptions=[], student=Student(), bands=1)
+    assert errors.planner_ape_cm[0] > 15.0  # up to 4 px = 40 cm from the demonstration
+    assert errors.plausibility_cm[0] < 0.25 * errors.planner_ape_cm[0]  # ... but next to a plausible one
+    m = critic_metrics(errors, margin)
+    assert -1.0 <= m["critic/student/spearman_plausibility"] <= 1.0
+    assert m["critic/student/plausibility_cm"] < m["critic/student/planner_ape_cm"]
 
 
 def test_band_edges_cover_the_range() -> None:
@@ -253,6 +284,12 @@ def test_critic_command_scores_an_expert_and_a_student_and_writes_its_page(spade
     assert "| blur |" in text and "- commit: " in text and "- wall time: " in text
     assert "Provenance:\n\n- command: " in text and "Student:\n\n- " in text  # lists after a blank line
     assert str(spade_home) not in text  # paths relative to SPADE_HOME (spade.utils.provenance.shown_path)
+    # the expert as a planner beside the student, on the same instances (spade.training.teacher)
+    for key in ("expert/planner/ape_cm", "expert/mean_map/planner/ape_cm", "student/planner/ape_cm",
+                "expert/spread_cm", "expert/seconds_per_sample"):
+        assert key in metrics and metrics[key] >= 0.0, key
+    assert metrics["expert/instances"] == 6.0
+    assert "| expert, one sample |" in text and "| student |" in text and "generator's" in text
     assert "blur" in format_report(metrics)
 
 

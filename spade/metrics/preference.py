@@ -62,6 +62,18 @@ def _mean_distances(pred: np.ndarray, paths: np.ndarray) -> np.ndarray:
     return np.linalg.norm(paths - p[None], axis=2).mean(axis=1)
 
 
+def instance_errors(polyline: np.ndarray | None, waypoints: np.ndarray, alternatives: np.ndarray | None,
+                    cm_per_px: float) -> tuple[float, float]:
+    """One instance's ``(ape_cm, plausibility_cm)`` of a predicted path (window pixels): its APE to the demonstration
+    and to the nearest path of the plausible set (:func:`plausible_set`); NaN where the prediction failed, and a NaN
+    plausibility where the instance has no alternatives."""
+    if polyline is None or len(polyline) < 2:
+        return float("nan"), float("nan")
+    paths = plausible_set(waypoints, alternatives)
+    dist = _mean_distances(polyline, paths) * cm_per_px
+    return float(dist[0]), float(dist.min()) if len(paths) >= 2 else float("nan")
+
+
 class PreferenceMetrics(Metric):
     """``floor_cm``, ``ape_over_floor``, ``plausibility_cm``, ``commit_rate`` (see the module docstring) of one
     predictor's polylines; additive states (``cat`` and ``sum``), so the figures are right under DDP."""

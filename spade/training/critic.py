@@ -13,9 +13,12 @@ equal-width bands of the margin's timestep range. Reported, per candidate and pe
   demonstration); ``critic/tie/<candidate>`` is the share of instances left out that way. For the student it is
   the share of active margins, over every instance;
 - ``critic/ratio/<candidate>``: the candidate's mean denoising error over the demonstration's;
-- for a student, ``critic/student/margin`` (the mean clipped margin, an estimate of L_DM) and
-  ``critic/student/spearman_ape`` (the rank correlation of the instance's margin with its APE: a critic that
-  teaches gives the worse predictions the larger margins).
+- for a student, ``critic/student/margin`` (the mean clipped margin, an estimate of L_DM) and the rank correlation
+  (Spearman) of the instance's margin with how wrong the student is there: ``critic/student/spearman_ape`` (the
+  paper extraction's APE), ``critic/student/spearman_planner_ape`` (the planner's path against the demonstration)
+  and ``critic/student/spearman_plausibility`` (the planner's path against the nearest plausible demonstration,
+  where the test set has alternatives: wrong in a way no operator drew). A critic that teaches gives the worse
+  predictions the larger margins; 0 pushes on instances at random.
 
 The FID lesson (README): validate a measuring instrument against known corruptions before trusting what it
 measures. ``python -m spade.critic`` runs this on any expert checkpoint; every expert's training run logs it.
@@ -51,7 +54,9 @@ def band_edges(t_min: int, t_max: int, bands: int) -> list[tuple[int, int]]:
 class CriticErrors:
     """Denoising errors of one critic measurement: ``demo`` and each of ``candidates`` (N, D) for N instances and
     D shared draws, whose timesteps are ``t`` (N, D) and bands ``band`` (D,) (an index into ``bands``);
-    ``ape_cm`` (N,) the student's per-instance APE score when a student was measured."""
+    ``ape_cm`` (N,) the student's per-instance APE score when a student was measured; ``planner_ape_cm`` and
+    ``plausibility_cm`` (N,) its planner path's APE and distance to the nearest plausible demonstration (NaN where
+    the planner failed or the instance has no alternatives)."""
 
     t: torch.Tensor
     band: torch.Tensor
@@ -59,6 +64,8 @@ class CriticErrors:
     demo: torch.Tensor
     candidates: dict[str, torch.Tensor]
     ape_cm: torch.Tensor | None = None
+    planner_ape_cm: torch.Tensor | None = None
+    plausibility_cm: torch.Tensor | None = None
     differs: dict[str, torch.Tensor] = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
 
@@ -95,7 +102,12 @@ def measure_errors(margin: DiffusionMargin, batches: Iterable[dict], robot_x: fl
     names = list(corruptions)
     edges = band_edges(margin.config.t_min, margin.t_max, bands)
     gen = torch.Generator(device="cpu").manual_seed(int(seed))
-    ts, demo, apes = [], [], []
+    from spade.metrics._inputs import per_instance_resolution
+    from spade.metrics.decoding import PathDecoder
+    from spade.metrics.preference import instance_errors
+
+    decoder = PathDecoder(force_endpoints=True)
+    ts, demo, apes, planner_apes, plausible = [], [], [], [], []
     cands: dict[str, list[torch.Tensor]] = {name: [] for name in names + ([STUDENT] if student is not None else [])}
     differs: dict[str, list[torch.Tensor]] = {name: [] for name in cands}
     seen = 0
@@ -117,6 +129,16 @@ def measure_errors(margin: DiffusionMargin, batches: Iterable[dict], robot_x: fl
             ape = APE()
             ape.update(prob.cpu(), state.cpu(), waypoints.cpu(), resolution)
             apes.append(torch.cat([s.reshape(-1) for s in ape.scores]).float())
+            res = per_instance_resolution(resolution, b)
+            alts = batch.get("alternatives")
+            alts = alts[take].numpy() if alts is not None else None
+            wps = waypoints.numpy()
+            for i in range(b):
+                decoded = decoder.decode_state(prob[i, 0].cpu().numpy(), state[i].cpu().numpy(), float(res[i]))
+                errs = instance_errors(decoded.points if decoded.ok else None, wps[i],
+                                       None if alts is None else alts[i], float(res[i]) * 100.0)
+                planner_apes.append(errs[0])
+                plausible.append(errs[1])
         agent = {name: margin.agent_path(img) for name, img in images.items()}
         demo_seen = margin.agent_path(target)  # the demonstration as the margin would see it, once per batch
         for name, img in agent.items():
@@ -145,14 +167,21 @@ def measure_errors(margin: DiffusionMargin, batches: Iterable[dict], robot_x: fl
         t=torch.cat(ts), band=band, bands=edges, demo=torch.cat(demo),
         candidates={name: torch.cat(v) for name, v in cands.items()},
         ape_cm=torch.cat(apes) if apes else None,
+        planner_ape_cm=torch.tensor(planner_apes, dtype=torch.float64) if student is not None else None,
+        plausibility_cm=torch.tensor(plausible, dtype=torch.float64) if student is not None else None,
         differs={name: torch.cat(v) for name, v in differs.items()},
         meta={"corruption_set": CORRUPTION_SET_VERSION, "draws_per_band": draws_per_band, "seed": seed},
     )
 
 
 def _spearman(a: torch.Tensor, b: torch.Tensor) -> float:
+    """Spearman's rank correlation of ``a`` and ``b`` over the instances where both are finite (NaN with fewer
+    than 3 or no spread)."""
     from scipy.stats import spearmanr
 
+    a, b = a.double(), b.double()
+    keep = torch.isfinite(a) & torch.isfinite(b)
+    a, b = a[keep], b[keep]
     if len(a) < 3 or float(a.std()) == 0 or float(b.std()) == 0:
         return float("nan")
     return float(spearmanr(a.numpy(), b.numpy()).statistic)
@@ -182,6 +211,10 @@ def critic_metrics(errors: CriticErrors, margin: DiffusionMargin, per_band: bool
             if errors.ape_cm is not None:
                 out["critic/student/spearman_ape"] = _spearman(per_instance, errors.ape_cm)
                 out["critic/student/ape_cm"] = float(errors.ape_cm.mean())
+            for key, values in (("planner_ape", errors.planner_ape_cm), ("plausibility", errors.plausibility_cm)):
+                if values is not None and bool(torch.isfinite(values).any()):
+                    out[f"critic/student/spearman_{key}"] = _spearman(per_instance, values)
+                    out[f"critic/student/{key}_cm"] = float(values[torch.isfinite(values)].mean())
     corruption_wins = [v for k, v in out.items() if k.startswith("critic/win/") and k.count("/") == 2
                        and not k.endswith(f"/{STUDENT}") and v == v]
     if corruption_wins:

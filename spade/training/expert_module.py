@@ -86,6 +86,7 @@ class ExpertModule(PathPlanningModule):
         sampler: str = "ddim",
         num_inference_steps: int = 50,
         sample_seed: int = 0,
+        test_samples: int = 4,
         optimizer: Callable[..., torch.optim.Optimizer] | None = None,
         lr_scheduler: Callable[..., Any] | None = None,
         metrics: dict | None = None,
@@ -100,6 +101,9 @@ class ExpertModule(PathPlanningModule):
             raise ValueError(f"sampler must be 'ddim' or 'ddpm', got {sampler!r}")
         if not 0.0 <= ema_decay < 1.0:
             raise ValueError(f"ema_decay must be in [0, 1), got {ema_decay}")
+        if isinstance(test_samples, bool) or not isinstance(test_samples, int) or test_samples < 2:
+            raise ValueError(f"test_samples must be an integer >= 2 (two samples measure the spread), got "
+                             f"{test_samples!r}")
         self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"], logger=False)  # as StudentModule's
         self.conditional = conditional
         self.net = build_model("cond_expert" if conditional else "uncond_expert", preset)
@@ -215,26 +219,34 @@ class ExpertModule(PathPlanningModule):
         return prob
 
     def on_test_epoch_start(self) -> None:
+        from spade.metrics.path_metrics import PathMetrics
         from spade.metrics.preference import SpreadMetrics
 
         super().on_test_epoch_start()
         self.sample_seconds, self.sample_count = 0.0, 0
         self._spread = SpreadMetrics().to(self.device)
+        metrics = dict(self.hparams.get("metrics") or {})
+        self._mean_map = PathMetrics(**{**metrics, "fid": False}).to(self.device)
 
     def test_step(self, batch: dict, batch_idx: int) -> None:
-        """The test of every predictor (:class:`PathPlanningModule`), then a second, independent sample of each
-        instance: the spread of the expert's planner paths against the generator's (``test/planner/spread_cm``,
-        ``test/generator_spread_cm``, ``test/planner/spread_ratio``; :class:`~spade.metrics.preference.SpreadMetrics`).
-        A teacher narrower than the operator's choices can only teach one of them."""
+        """The expert as a planner. ``test_samples`` (K) independent samples of each instance: the first is the
+        test of every predictor (:class:`PathPlanningModule`: ``test/planner/*`` is one sample decoded by the
+        planner, what a robot asking the expert once would get); the mean of the K probability maps, decoded, is
+        ``test/mean_map/*`` (what K samples buy); the first two give the spread of its planner paths against the
+        generator's (``test/planner/spread_cm``, ``test/generator_spread_cm``, ``test/planner/spread_ratio``;
+        :class:`~spade.metrics.preference.SpreadMetrics`): a teacher narrower than the operator's choices can only
+        teach one of them. ``test/seconds_per_sample`` is the sampling time per instance and sample."""
+        k = int(self.hparams.get("test_samples", 2) or 2)
+        seed = int(self.hparams.sample_seed)
         t0 = time.perf_counter()
-        first = self.sample_paths(batch["state"])
+        samples = [self.sample_paths(batch["state"], seed=seed + i) for i in range(k)]
         self.sample_seconds += time.perf_counter() - t0
-        self.sample_count += batch["state"].shape[0]
-        self._test_with(first, batch)
-        second = self.sample_paths(batch["state"], seed=int(self.hparams.sample_seed) + 1)
+        self.sample_count += batch["state"].shape[0] * k
+        self._test_with(samples[0], batch)
+        self._mean_map.update(torch.stack(samples).mean(0), batch)
         decode = self.test_metrics.decode
         paths = [[d.points if d.ok else None for d in decode(p, batch["state"], batch["resolution"])]
-                 for p in (first, second)]
+                 for p in samples[:2]]
         self._spread.update(paths[0], paths[1], batch["waypoints"], batch.get("alternatives"), batch["resolution"])
 
     def on_test_epoch_end(self) -> None:
@@ -246,4 +258,9 @@ class ExpertModule(PathPlanningModule):
             self.log_dict({"test/planner/spread_cm": out["spread_cm"], "test/planner/spread_ratio": out["spread_ratio"],
                            "test/generator_spread_cm": out["generator_spread_cm"]}, sync_dist=False)
             self._spread = None
+        mean_map = getattr(self, "_mean_map", None)
+        if mean_map is not None and mean_map.ape.total > 0:
+            self.log_dict({f"test/mean_map/{key}": value for key, value in mean_map.compute().items()
+                           if key.startswith("planner/")}, sync_dist=False)
+            self._mean_map = None
         super().on_test_epoch_end()

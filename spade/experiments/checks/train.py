@@ -41,12 +41,13 @@ def validate_train_config(cfg: DictConfig) -> None:
     for key in ("train", "test", "test_untrained"):
         _check_bool(cfg, key)
     _check_logger_store(cfg)
-    metric = _get(cfg, "optimized_metric")
-    if metric not in (_MISSING, None) and not isinstance(metric, str):
-        raise ConfigError(f"optimized_metric={metric!r} must be a metric name such as val/loss_bc")
+    for key in ("closed_loop",):
+        _check_bool(cfg, key)
+    _check_registry(cfg)
     _check_trainer(cfg)
     _check_data(cfg)
     _check_model(cfg)
+    _check_optimized_metric(cfg)
     _check_checkpoints(cfg)
     _check_datasets(cfg)
 
@@ -56,6 +57,64 @@ def validate_checkpoints(cfg: DictConfig) -> None:
     ``model.margin.expert_ckpt``), again after the prerequisites filled paths from the Model Registry: a
     fetched model passes the same checks as one given by path."""
     _check_checkpoints(cfg)
+
+
+def _check_registry(cfg: DictConfig) -> None:
+    """``registry.*``: a name prefix (a string, or null: nothing registered), ``promote`` a strict boolean (``maybe``
+    would have promoted the new version to @champion), ``tags`` a mapping."""
+    _check_bool(cfg, "registry.promote")
+    prefix = _get(cfg, "registry.prefix")
+    if prefix not in (_MISSING, None) and (not isinstance(prefix, str) or not prefix.strip()):
+        raise ConfigError(f"registry.prefix={prefix!r} is not a model name prefix; set registry.prefix=NAME (letters, "
+                          "digits, '-', '_') or registry.prefix=null to register nothing")
+    tags = _get(cfg, "registry.tags")
+    if tags not in (_MISSING, None) and not isinstance(tags, Mapping):
+        raise ConfigError(f"registry.tags={tags!r} is not a mapping; set registry.tags={{KEY: VALUE}} or leave it {{}}")
+
+
+def fit_metrics(cfg: DictConfig) -> set[str] | None:
+    """The metrics the configured module logs while it trains (what ``optimized_metric`` may name: it picks the
+    best checkpoint, so a test metric would never be seen): ``val/`` + the validation figures
+    (:class:`~spade.metrics.path_metrics.PathMetrics` without the planner, with its preference and FID keys), the
+    role's losses, and a guided student's margin figures. None for a module this check does not know."""
+    role = _model_role(cfg)
+    if role is None:
+        return None
+    import warnings
+
+    from spade.metrics.path_metrics import PathMetrics
+    from spade.metrics.preference import PREFERENCE_KEYS
+
+    with warnings.catch_warnings():  # compute() before update(): the keys, not values, are wanted
+        warnings.simplefilter("ignore")
+        figures = set(PathMetrics(planner=False, fid=False).compute())
+    figures |= {"floor_cm", *PREFERENCE_KEYS, "fid", "fid_real_count", "fid_fake_count"}
+    names = {f"val/{k}" for k in figures}
+    if role == "student":
+        names |= {"val/loss_bc", "train/loss", "train/loss_bc"}
+        if _get(cfg, "model.margin") not in (_MISSING, None, {}):
+            names |= {"train/loss_dm", "train/margin_active", "margin/active", "margin/value"}
+    else:
+        names |= {"val/loss", "train/loss"}
+    return names
+
+
+def _check_optimized_metric(cfg: DictConfig) -> None:
+    """``optimized_metric`` names a metric the module logs while training (:func:`fit_metrics`): a misspelt one
+    failed only after the first validation (the checkpoint callback monitors it), an epoch of work lost."""
+    metric = _get(cfg, "optimized_metric")
+    if metric in (_MISSING, None):
+        return
+    if not isinstance(metric, str) or not metric.strip():
+        raise ConfigError(f"optimized_metric={metric!r} must be a metric name such as val/score_cm; set "
+                          "optimized_metric=val/score_cm (a student) or val/loss (an expert)")
+    names = fit_metrics(cfg)
+    if names is None or metric in names:
+        return
+    role = _model_role(cfg)
+    shown = sorted(n for n in names if n.startswith("val/"))
+    raise ConfigError(f"optimized_metric={metric} is not a metric the {role} logs while training; set it to one of "
+                      f"{', '.join(shown)} (or {', '.join(sorted(names - set(shown)))})")
 
 
 def _check_trainer(cfg: DictConfig) -> None:
@@ -101,6 +160,7 @@ def _check_model(cfg: DictConfig) -> None:
         _check_number(cfg, "model.ema_decay", 0, 1, high_open=True)
         _check_choice(cfg, "model.sampler", ["ddim", "ddpm"])
         _check_int(cfg, "model.num_inference_steps", 1)
+        _check_int(cfg, "model.test_samples", 2)
         _check_int(cfg, "model.num_train_timesteps", 2)
 
 
