@@ -64,9 +64,10 @@ def check_dataset(root: str | Path | None, generate: Any, key: str = "data.train
         more = f" (and {len(diff) - 8} more)" if len(diff) > 8 else ""
         raise DatasetSettingsError(
             f"{key}={root} was generated with other settings (dataset {settings_fingerprint(recorded)}, config "
-            f"{settings_fingerprint(wanted)}): {shown}{more}. The dataset is kept as it is: set paths.data_dir "
-            f"(or {key}) to another folder to generate these settings there, or change the config back to the "
-            "dataset's settings"
+            f"{settings_fingerprint(wanted)}): {shown}{more}. The dataset is kept as it is: if it is your own "
+            f"(made with spade.annotate or spade.sketch), pass data=own with {key}={root} (own data is read as it is, "
+            f"never regenerated); otherwise set paths.data_dir (or {key}) to another folder to generate these "
+            "settings there, or change the config back to the dataset's settings"
         )
 
 

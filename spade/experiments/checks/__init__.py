@@ -12,7 +12,8 @@ exit status 2 at the entry points (``HYDRA_FULL_ERROR=1`` shows the traceback in
   silently reused for other settings);
 - :mod:`~spade.experiments.checks.annotate`, :mod:`~spade.experiments.checks.export`,
   :mod:`~spade.experiments.checks.plan`, :mod:`~spade.experiments.checks.bench`,
-  :mod:`~spade.experiments.checks.report`, :mod:`~spade.experiments.checks.sketch`: the other commands';
+  :mod:`~spade.experiments.checks.report`, :mod:`~spade.experiments.checks.sketch`,
+  :mod:`~spade.experiments.checks.critic`: the other commands';
 - what they share: :mod:`~spade.experiments.checks.values` (typed getters), :mod:`~spade.experiments.checks.data`,
   :mod:`~spade.experiments.checks.windows`, :mod:`~spade.experiments.checks.checkpoints`,
   :mod:`~spade.experiments.checks.files` (inputs, outputs, maps), :mod:`~spade.experiments.checks.store` (MLflow
@@ -22,6 +23,7 @@ exit status 2 at the entry points (``HYDRA_FULL_ERROR=1`` shows the traceback in
 from spade.experiments.checks.annotate import validate_annotate_config
 from spade.experiments.checks.bench import validate_bench_config
 from spade.experiments.checks.checkpoints import checkpoint_info, geometry_mismatch
+from spade.experiments.checks.critic import validate_critic_config
 from spade.experiments.checks.errors import ConfigError, UserError, exit_on_user_error, user_errors
 from spade.experiments.checks.evaluate import validate_evaluate_config
 from spade.experiments.checks.export import validate_export_config
@@ -46,6 +48,7 @@ __all__ = [
     "validate_annotate_config",
     "validate_bench_config",
     "validate_checkpoints",
+    "validate_critic_config",
     "validate_evaluate_config",
     "validate_export_config",
     "validate_plan_config",

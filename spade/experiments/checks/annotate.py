@@ -15,7 +15,16 @@ from spade.annotation.split import parse_split
 from spade.annotation.templates import SHAPES
 from spade.data.writer import check_output_dir
 from spade.experiments.checks.files import _input_file, _same_file
-from spade.experiments.checks.values import _check_bool, _check_choice, _check_int, _get, _unset
+from spade.experiments.checks.values import (
+    _MISSING,
+    _check_bool,
+    _check_choice,
+    _check_int,
+    _check_int_value,
+    _check_number_value,
+    _get,
+    _unset,
+)
 from spade.experiments.checks.windows import check_window_holds_manoeuvre
 from spade.utils.errors import ConfigError
 
@@ -66,4 +75,71 @@ def validate_annotate_config(cfg: Mapping[str, Any] | DictConfig) -> None:
                               "such as warehouse:1") from None
     settings = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)
     parse_split(settings)  # SplitError, a ConfigError: the key, its value and the fix in one line
+    check_annotation_settings(settings, "")
     check_window_holds_manoeuvre(settings, "")
+
+
+#: The annotation settings' numbers (conf/annotate.yaml): key, (low, low_open, high, high_open, none_ok, integer).
+#: A negative robot radius or inflation, a zero spacing, a probability above 1 would be written into a dataset's
+#: generator record (or loop for ever); each is refused in one line before any map is loaded.
+_ANNOTATION_NUMBERS: dict[str, tuple[float | None, bool, float | None, bool, bool, bool]] = {
+    "robot.radius_m": (0, True, None, False, False, False),
+    "robot.inflation_radius_m": (0, False, None, False, False, False),
+    "robot.cost_scaling_factor": (0, True, None, False, False, False),
+    "window.margin_m": (0, False, None, False, True, False),
+    "template.p_mirror": (0, False, 1, False, True, False),
+    "template.step_m": (0, True, None, False, True, False),
+    "template.keypoint_spacing_m": (0, True, None, False, True, False),
+    "scenario.goal_clearance_m": (0, False, None, False, True, False),
+    "scenario.sketch_clearance_m": (0, False, None, False, True, False),
+    "scenario.areas_per_map": (1, False, None, False, True, True),
+    "scenario.first_index": (0, False, None, False, True, True),
+    "scenario.headings_per_goal": (1, False, None, False, True, True),
+    "scenario.max_attempts": (1, False, None, False, True, True),
+    "scenario.max_per_map": (1, False, None, False, True, True),
+    "scenario.max_failures": (1, False, None, False, True, True),
+    "execution.cost_weight": (0, False, None, False, True, False),
+    "execution.crop_pad_m": (0, False, None, False, True, False),
+    "execution.simplify_px": (0, False, None, False, True, False),
+    "execution.smoothing_px": (0, False, None, False, True, False),
+    "execution.step_px": (0, True, None, False, True, False),
+    "execution.max_deviation_m": (0, True, None, False, True, False),
+    "execution.shape_tolerance_deg": (0, True, 180, False, True, False),
+    "execution.heading_window_m": (0, True, None, False, True, False),
+    "instances.spacing_m": (0, True, None, False, True, False),
+    "instances.min_remaining_m": (0, False, None, False, True, False),
+    "instances.disc_radius_m": (0, True, None, False, True, False),
+    "alternatives.count": (0, False, 255, False, True, True),
+    "alternatives.batch": (1, False, None, False, True, True),
+    "alternatives.max_draws": (1, False, None, False, True, True),
+    "preview.count": (0, False, None, False, True, True),
+    "preview.scale": (1, False, None, False, True, True),
+}
+
+
+def _setting(settings: Mapping[str, Any], dotted: str) -> Any:
+    node: Any = settings
+    for part in dotted.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return _MISSING
+        node = node[part]
+    return node
+
+
+def check_annotation_settings(settings: Mapping[str, Any], where: str) -> None:
+    """The annotation settings' numbers typed and ranged (:data:`_ANNOTATION_NUMBERS`): a robot radius > 0, an
+    inflation >= 0, spacings > 0, probabilities in [0, 1], counts >= 1. ``where`` prefixes the key in the message
+    (``""`` for spade.annotate, ``"annotate."`` for the sketch server, ``"data.train_generate: "`` for a dataset a
+    run generates)."""
+    for key, (low, low_open, high, high_open, none_ok, integer) in _ANNOTATION_NUMBERS.items():
+        value = _setting(settings, key)
+        if value is _MISSING:
+            continue
+        name = f"{where}{key}"
+        fix = f" (conf/annotate.yaml: {key})"
+        if integer:
+            _check_int_value(name, value, None if low is None else int(low), None if high is None else int(high),
+                             none_ok=none_ok, fix=fix)
+        else:
+            _check_number_value(name, value, low, high, low_open=low_open, high_open=high_open, none_ok=none_ok,
+                                fix=fix)

@@ -7,7 +7,14 @@ from collections.abc import Sequence
 from omegaconf import DictConfig
 
 from spade.experiments.checks.files import _output_file, check_paths
-from spade.experiments.checks.values import _MISSING, _check_bool, _check_int, _get
+from spade.experiments.checks.values import (
+    _MISSING,
+    _check_bool,
+    _check_int,
+    _check_int_list,
+    _check_number,
+    _get,
+)
 from spade.utils.errors import ConfigError
 
 
@@ -32,3 +39,21 @@ def validate_bench_config(cfg: DictConfig, known_sections: Sequence[str]) -> Non
             raise ConfigError(f"sections: unknown {', '.join(unknown)}; use sections=[...] with some of "
                               f"{', '.join(known_sections)}")
     _check_int(cfg, "threads", 1, none_ok=True, fix=" (null: all cores)")
+    _check_int(cfg, "seed", 0, 2**32 - 1)
+    # sizes and counts of the sections: a batch of 0 would print a latency for nothing
+    for key in ("student.image_sizes", "student.batches", "experts.ddim_steps", "training.image_sizes",
+                "decoder.image_sizes", "quality.ddim_steps", "annotation_scaling.image_sizes",
+                "annotation_scaling.workers"):
+        _check_int_list(cfg, key, 1, none_ok=True)
+    for key in ("student.runs", "experts.image_size", "experts.num_train_timesteps", "experts.max_timed_steps",
+                "training.batch_size", "training.runs", "decoder.instances", "metrics.image_size",
+                "metrics.instances", "metrics.fid_images", "metrics.batch", "data.window_px", "data.train_instances",
+                "data.test_instances", "data.workers", "quality.samples", "quality.train_steps",
+                "quality.num_train_timesteps", "annotation_scaling.num_instances", "dataset.image_size",
+                "dataset.waypoints"):
+        _check_int(cfg, key, 1, none_ok=True)
+    _check_int(cfg, "training.warmup", 0, none_ok=True)
+    _check_number(cfg, "data.resolution_m", 0, low_open=True, none_ok=True)
+    _check_number(cfg, "data.spacing_m", 0, low_open=True, none_ok=True)
+    for key in ("student.onnx", "training.batched_terms", "metrics.sensitivity"):
+        _check_bool(cfg, key)

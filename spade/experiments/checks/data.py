@@ -46,6 +46,9 @@ def _check_data(cfg: DictConfig) -> None:
         root = _get(cfg, f"data.{name}_dir")
         settings = dataset_settings(Path(str(root)), generate)
         scaled = _get(cfg, "scale.annotate") not in (_MISSING, None)
+        from spade.experiments.checks.annotate import check_annotation_settings
+
+        check_annotation_settings(settings, f"data.{name}_generate: ")
         check_window_holds_manoeuvre(settings, "scale.annotate" if scaled else f"data.{name}_generate")
         _check_window_size(cfg, settings, "scale.annotate" if scaled else f"data.{name}_generate")
         _check_map_entries(cfg, name, settings.get("maps"))
@@ -55,11 +58,32 @@ def _check_data(cfg: DictConfig) -> None:
                               f"scale.{name}_instances")
 
 
-def _check_datasets(cfg: DictConfig) -> None:
-    """An existing dataset at ``data.train_dir`` / ``data.test_dir`` holds the config's generation settings
-    (:func:`spade.data.checks.check_dataset`): a dataset is never silently reused for other settings."""
-    for name in ("train", "test"):
-        check_dataset(_dir(cfg, f"data.{name}_dir"), _opt(cfg, f"data.{name}_generate"), f"data.{name}_dir")
+def _check_datasets(cfg: DictConfig, names: tuple[str, ...] = ("train", "test")) -> None:
+    """An existing dataset at ``data.train_dir`` / ``data.test_dir`` (those of ``names``) holds the config's
+    generation settings (:func:`spade.data.checks.check_dataset`): a dataset is never silently reused for other
+    settings; and it opens with the loaders' own checks (:func:`check_existing_dataset`), before any MLflow run:
+    a truncated, edited or poisoned dataset is refused in one line without leaving a FAILED run behind."""
+    for name in names:
+        key = f"data.{name}_dir"
+        root = _dir(cfg, key)
+        check_dataset(root, _opt(cfg, f"data.{name}_generate"), key)
+        if root is not None and (Path(root).expanduser() / "manifest.json").is_file():
+            check_existing_dataset(key, Path(root).expanduser())
+
+
+def check_existing_dataset(key: str, root: Path) -> Any:
+    """The dataset at ``root`` opened as the loaders open it (:class:`~spade.data.PathDataset`: manifest and its
+    checksum, every file's size and sha256, finite polylines and poses); returns it. A problem is one line naming
+    ``key``, the file and the fix (:class:`~spade.data.format.DatasetError`, a user error). The hashes are
+    remembered (:func:`spade.utils.hashing.file_sha256`), so the data module's own opening does not read the files
+    again."""
+    from spade.data import DatasetError, PathDataset
+
+    try:
+        return PathDataset(root)
+    except DatasetError as exc:
+        text = str(exc)
+        raise DatasetError(text if text.startswith(key) else f"{key}={root}: {text}") from None
 
 
 def _check_folder_path(key: str, value: Any) -> None:

@@ -12,6 +12,7 @@ from spade.experiments.checks.values import (
     _check_bool,
     _check_choice,
     _check_int,
+    _check_int_list,
     _check_number,
     _get,
     _unset,
@@ -48,8 +49,60 @@ def validate_export_config(cfg: DictConfig) -> None:
     _check_int(cfg, "opset", 7, fix=", e.g. opset=17")
     _check_int(cfg, "parity_batch", 1)
     _check_int(cfg, "latency_runs", 0)
+    _check_int_list(cfg, "latency_batches", 1, none_ok=True, fix=", e.g. latency_batches=[1,8]")
     _check_int(cfg, "threads", 1, none_ok=True, fix=" (null: all cores)")
     _check_number(cfg, "tolerance", 0, none_ok=True, fix=" (null: only report)")
     report = _get(cfg, "report_path")
     if not _unset(report):
         _output_file("report_path", report, {"ckpt_path": ckpt}, "give a new .json file", overwrite=overwrite)
+    _check_register(cfg, fmt)
+
+
+def _mlflow_name_problem(kind: str, value: str) -> str | None:
+    """What MLflow's registry would say of a model ``kind`` (name / alias) ``value`` (None: accepted), asked of its
+    own validators before any export is written; None too where this MLflow has none of them."""
+    try:
+        from mlflow.exceptions import MlflowException
+        from mlflow.utils import validation
+    except ImportError:  # pragma: no cover - MLflow is a dependency
+        return None
+    checks = (["_validate_model_name"] if kind == "name"
+              else ["_validate_model_alias_name", "_validate_model_alias_name_reserved"])
+    for name in checks:
+        check = getattr(validation, name, None)
+        if check is None:
+            continue
+        try:
+            check(value)
+        except MlflowException as exc:
+            return str(getattr(exc, "message", exc)).splitlines()[0]
+    return None
+
+
+def _check_register(cfg: DictConfig, fmt: str) -> None:
+    """``register=`` (a registered model name, or null) and ``alias=``, checked before the export is written: a bad
+    value used to fail after the export (one left a registered version without its alias)."""
+    register = _get(cfg, "register")
+    if _unset(register):
+        return
+    if not isinstance(register, str):
+        raise ConfigError(f"register={register!r} is not a model name; set register=NAME (e.g. spade-student) or "
+                          "register=null")
+    if fmt != "onnx":
+        raise ConfigError(f"register={register}: only ONNX exports are registered as MLflow Models; pass format=onnx "
+                          "(or drop register=)")
+    if (problem := _mlflow_name_problem("name", register)) is not None:
+        raise ConfigError(f"register={register!r} is not a registered model name ({problem}); use letters, digits, "
+                          "'-', '_' and '.', e.g. register=spade-student")
+    alias = _get(cfg, "alias")
+    if alias not in (_MISSING, None, ""):
+        if not isinstance(alias, str) or (problem := _mlflow_name_problem("alias", alias)) is not None:
+            why = "not a string" if not isinstance(alias, str) else problem
+            raise ConfigError(f"alias={alias!r} is not a model alias ({why}); use letters, digits, '_' and '-', e.g. "
+                              "alias=champion, or alias=null for none")
+    from spade.experiments.checks.store import check_server, check_store_file
+
+    uri = _get(cfg, "paths.mlflow_tracking_uri")
+    if not _unset(uri):
+        check_store_file("paths.mlflow_tracking_uri", str(uri))
+        check_server("paths.mlflow_tracking_uri", str(uri))

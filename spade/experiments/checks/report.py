@@ -10,7 +10,7 @@ from omegaconf import DictConfig
 
 from spade.deploy.outputs import replace_refusal
 from spade.experiments.checks.files import check_path_value, check_paths
-from spade.experiments.checks.store import _store_path, check_store_file
+from spade.experiments.checks.store import _store_path, check_server, check_store_file
 from spade.experiments.checks.values import _MISSING, _check_bool, _get, _unset
 from spade.experiments.tables import TABLES, get_table
 from spade.utils.errors import ConfigError
@@ -51,6 +51,11 @@ def validate_report_config(cfg: DictConfig) -> None:
     """``spade.report``'s checks: the table exists, the MLflow store is there (a missing one would be created
     empty and every row reported missing), and the pages go where they replace nothing unasked
     (:func:`_check_output_dir`)."""
+    for key in ("paper", "chart", "log_to_runs", "overwrite"):
+        _check_bool(cfg, key)  # strict: log_to_runs=maybe would have written into every row's run
+    labels = _get(cfg, "closed_loop_labels")
+    if labels not in (_MISSING, None) and not isinstance(labels, dict):
+        raise ConfigError(f"closed_loop_labels={labels!r} is not a mapping; set closed_loop_labels={{ROW: LABEL}}")
     table = _get(cfg, "table")
     if str(table) not in ("all", "closed_loop"):  # closed_loop: spade.experiments.closed_loop_table
         try:
@@ -69,5 +74,6 @@ def validate_report_config(cfg: DictConfig) -> None:
         raise ConfigError(f"tracking_uri={uri}: {path} is a directory, not an MLflow SQLite store; point it at the "
                           "store file, e.g. sqlite:///PATH/logs/mlflow.db")
     check_store_file("tracking_uri", str(uri))
+    check_server("tracking_uri", str(uri))
     check_paths(cfg)
     _check_output_dir(cfg)

@@ -50,4 +50,7 @@ def validate_sketch_config(cfg: DictConfig) -> None:
         settings = annotation_config(flatten_overrides(overrides) if isinstance(overrides, Mapping) else [])
     except Exception as exc:  # noqa: BLE001 - an override Hydra cannot apply
         raise ConfigError(f"annotate: {exc}".replace("\n", " ")) from None
+    from spade.experiments.checks.annotate import check_annotation_settings
+
+    check_annotation_settings(settings, "annotate.")
     check_window_holds_manoeuvre(settings, "annotate")

@@ -47,9 +47,41 @@ def check_store_file(key: str, uri: str) -> None:
                           "MLFLOW_TRACKING_URI) at the MLflow store the runs were logged to")
 
 
+#: Seconds a tracking server has to answer the check's one request (MLflow's own client would retry for minutes).
+SERVER_TIMEOUT_S = 5.0
+
+
+def check_server(key: str, uri: str, timeout: float = SERVER_TIMEOUT_S) -> None:
+    """An ``http(s)://`` tracking URI must answer, checked with one request of ``timeout`` seconds before any work:
+    MLflow's client retries an unreachable server with back-off (``MLFLOW_HTTP_REQUEST_MAX_RETRIES``, 7 by default,
+    ``MLFLOW_HTTP_REQUEST_TIMEOUT`` 120 s each), so a wrong port failed after minutes, with a traceback. Any HTTP
+    answer (even 401 or 404: a proxy, a server with authentication) counts as reachable; MLflow's own errors then
+    speak for it."""
+    import urllib.error
+    import urllib.request
+
+    if not uri.startswith(("http://", "https://")):
+        return
+    url = uri.rstrip("/") + "/health"
+    try:
+        with urllib.request.urlopen(urllib.request.Request(url, method="GET"), timeout=timeout):  # noqa: S310
+            return
+    except urllib.error.HTTPError:
+        return  # it answered
+    except (urllib.error.URLError, OSError, ValueError) as exc:
+        reason = getattr(exc, "reason", exc)
+        raise ConfigError(f"{key}={uri}: no tracking server answers there within {timeout:g} s ({reason}); start it "
+                          f"(mlflow server --port PORT) or point {key} (or SPADE_HOME / MLFLOW_TRACKING_URI) at a "
+                          "reachable server or a sqlite:/// store") from None
+
+
 def _check_logger_store(cfg: DictConfig) -> None:
     """The store a run logs to, when it is an existing SQLite file, must be an MLflow store
-    (:func:`check_store_file`): someone else's database is never written."""
+    (:func:`check_store_file`): someone else's database is never written; a tracking server must answer
+    (:func:`check_server`)."""
+    if _get(cfg, "logger.mlflow") in (None, {}):
+        return  # logger=none: nothing is logged
     uri = _get(cfg, "logger.mlflow.tracking_uri")
     if not _unset(uri):
         check_store_file("logger.mlflow.tracking_uri", str(uri))
+        check_server("logger.mlflow.tracking_uri", str(uri))

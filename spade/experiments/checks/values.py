@@ -52,7 +52,12 @@ def _dir(cfg: DictConfig, key: str) -> str | None:
 
 def _check_int(cfg: DictConfig, key: str, low: int | None = None, high: int | None = None, *, none_ok: bool = False,
                extra: tuple[int, ...] = (), fix: str = "") -> None:
-    value = _get(cfg, key)
+    _check_int_value(key, _get(cfg, key), low, high, none_ok=none_ok, extra=extra, fix=fix)
+
+
+def _check_int_value(key: str, value: Any, low: int | None = None, high: int | None = None, *,
+                     none_ok: bool = False, extra: tuple[int, ...] = (), fix: str = "") -> None:
+    """:func:`_check_int` of a value already read (``key`` names it in the message)."""
     if value is _MISSING or (value is None and none_ok):
         return
     rng = _range_text(low, high, extra)
@@ -64,9 +69,32 @@ def _check_int(cfg: DictConfig, key: str, low: int | None = None, high: int | No
         raise ConfigError(f"{key}={value} is out of range; set it to an integer {rng}{fix}")
 
 
+def _check_int_list(cfg: DictConfig, key: str, low: int | None = 1, *, none_ok: bool = False,
+                    fix: str = "") -> None:
+    """A non-empty list of integers, each >= ``low`` (e.g. batch sizes: ``[0]`` is refused)."""
+    value = _get(cfg, key)
+    if value is _MISSING or (value is None and none_ok):
+        return
+    example = f", e.g. {key}=[1,8]"
+    if not isinstance(value, list) or not value:
+        raise ConfigError(f"{key}={value!r} is not a non-empty list of integers; set it to a list of integers "
+                          f"{_range_text(low, None, ())}{fix or example}")
+    for item in value:
+        if not _is_int(item) or (low is not None and item < low):
+            raise ConfigError(f"{key}={value!r} holds {item!r}, which is not an integer {_range_text(low, None, ())}; "
+                              f"set it to a list of integers {_range_text(low, None, ())}{fix or example}")
+
+
 def _check_number(cfg: DictConfig, key: str, low: float | None = None, high: float | None = None, *,
                   low_open: bool = False, high_open: bool = False, none_ok: bool = False, fix: str = "") -> None:
-    value = _get(cfg, key)
+    _check_number_value(key, _get(cfg, key), low, high, low_open=low_open, high_open=high_open, none_ok=none_ok,
+                        fix=fix)
+
+
+def _check_number_value(key: str, value: Any, low: float | None = None, high: float | None = None, *,
+                        low_open: bool = False, high_open: bool = False, none_ok: bool = False,
+                        fix: str = "") -> None:
+    """:func:`_check_number` of a value already read (``key`` names it in the message)."""
     if value is _MISSING or (value is None and none_ok):
         return
     lo = "" if low is None else f"{'>' if low_open else '>='} {low:g}"

@@ -1,0 +1,79 @@
+"""``spade.critic``'s checks, before any model or test set is loaded and before any MLflow run: the expert and
+the optional student (role, kind, geometry), the margin's options, the test set it scores, the numbers of its
+measurement, the store and the results folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from spade.experiments.checks.checkpoints import _check_checkpoint, _check_geometry
+from spade.experiments.checks.data import _check_folder_path
+from spade.experiments.checks.files import check_path_value, check_paths
+from spade.experiments.checks.store import _check_logger_store
+from spade.experiments.checks.values import _MISSING, _check_int, _get, _unset
+from spade.utils.errors import ConfigError
+
+
+def validate_critic_config(cfg: DictConfig) -> None:
+    """``spade.critic``'s checks: every bad input is one line naming the key, its value and the fix, before the
+    expert is loaded (a garbage store failed after a minute of measuring; a student given as the expert, a missing
+    test set or ``critic.bands=0`` with a traceback)."""
+    from spade.experiments.checks.train import _check_expert_kind, _margin_config
+
+    check_paths(cfg)
+    _check_int(cfg, "seed", 0, 2**32 - 1, fix=", e.g. seed=0")
+    fix = ("pass a diffusion expert checkpoint (python -m spade.train +experiment=cond_expert_L, or "
+           "spade/models/weights/)")
+    ckpt = _get(cfg, "ckpt_path")
+    if _unset(ckpt):
+        raise ConfigError(f"ckpt_path is not set; {fix} (ckpt_path=PATH)")
+    _margin_config(cfg)  # model.margin's options, by MarginConfig's own checks
+    info = _check_checkpoint("ckpt_path", ckpt, "expert", fix)
+    _check_test_set(cfg)
+    _check_expert_kind(cfg, ckpt, info)  # Cond-DBC needs a conditional expert, DBC an unconditional one
+    _check_geometry("ckpt_path", ckpt, info, cfg, ("test_dir",))
+    student = _get(cfg, "student_ckpt")
+    if not _unset(student):
+        info = _check_checkpoint("student_ckpt", student, "student",
+                                 "pass a student checkpoint written by python -m spade.train, or student_ckpt=null")
+        _check_geometry("student_ckpt", student, info, cfg, ("test_dir",))
+    _check_int(cfg, "critic.max_instances", 1, none_ok=True, fix=" (null: the whole test set)")
+    _check_int(cfg, "critic.draws_per_band", 1, fix=", e.g. critic.draws_per_band=2")
+    _check_int(cfg, "critic.bands", 1, fix=", e.g. critic.bands=5")
+    _check_int(cfg, "critic.batch_size", 1, fix=", e.g. critic.batch_size=32")
+    width = _get(cfg, "data.target_width_px")
+    if width is not _MISSING and (not isinstance(width, int) or isinstance(width, bool) or width < 1 or width % 2 == 0):
+        raise ConfigError(f"data.target_width_px={width!r} is not an odd number of pixels >= 1; set it to 1 (or 3, 5, "
+                          "...)")
+    _check_logger_store(cfg)
+    out = _get(cfg, "output_dir")
+    if out is not _MISSING and out is not None:
+        check_path_value("output_dir", out, "set output_dir to a folder for the results page (null: no page)")
+        if Path(str(out)).expanduser().is_file():
+            raise ConfigError(f"output_dir={out} is a file; give a folder for the results page (null: no page)")
+
+
+def _check_test_set(cfg: DictConfig) -> None:
+    """The critic scores the test set alone (``data.test_dir``): it must hold a dataset, opened with the loaders'
+    checks (files, checksums, finite values), and instances of ``data.test_shape``. No training set is needed."""
+    from spade.experiments.checks.data import check_existing_dataset
+
+    test_dir = _get(cfg, "data.test_dir")
+    _check_folder_path("data.test_dir", test_dir)
+    fix = ("pass the test set the expert is judged on (data.test_dir=DIR), or build it first (any `python -m "
+           "spade.train +experiment=...` of this scale and data generates it, or `python -m spade.annotate "
+           "preset=test out_dir=DIR`)")
+    if _unset(test_dir):
+        raise ConfigError(f"data.test_dir is not set; {fix}")
+    root = Path(str(test_dir)).expanduser()
+    if not (root / "manifest.json").is_file():
+        raise ConfigError(f"data.test_dir={test_dir} holds no dataset; {fix}")
+    dataset = check_existing_dataset("data.test_dir", root)
+    shape = _get(cfg, "data.test_shape")
+    if shape not in (_MISSING, None) and dataset is not None:
+        shapes = sorted(set(dataset.labels("shape")))
+        if shape not in shapes:
+            raise ConfigError(f"data.test_shape={shape!r}: {test_dir} holds no instances of that shape (it holds "
+                              f"{shapes}); set data.test_shape to one of them, or data.test_shape=null for all")
