@@ -11,7 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from spade.utils.errors import ConfigError
 
-__all__ = ["build_core", "build_planner", "run"]
+__all__ = ["build_core", "build_planner", "checked_options", "run"]
 
 log = logging.getLogger("spade.ros")
 
@@ -60,15 +60,98 @@ def warm_up(planner: Any) -> float:
     return time.perf_counter() - t0
 
 
-def build_core(cfg: DictConfig, planner: Any) -> Any:
-    from spade.ros.core import CoreSettings, PlannerCore
+def build_core(cfg: DictConfig, planner: Any, settings: Any = None) -> Any:
+    from spade.ros.core import PlannerCore
+
+    return PlannerCore(planner, settings if settings is not None else core_settings(cfg))
+
+
+def core_settings(cfg: DictConfig) -> Any:
+    """``cfg.node`` as :class:`spade.ros.core.CoreSettings`, typed and ranged (ConfigError naming the option)."""
+    from spade.ros.core import CoreSettings
 
     node = _options(cfg, "node")
     try:
-        settings = CoreSettings(**node)
+        return CoreSettings(**node)
     except TypeError as err:
         raise ConfigError(f"node: {err}; the keys are those of conf/ros.yaml's node block") from None
-    return PlannerCore(planner, settings)
+    except ValueError as err:
+        raise ConfigError(f"{err} (conf/ros.yaml's node block)") from None
+
+
+def action_settings(cfg: DictConfig) -> Any:
+    """``cfg.action`` as :class:`spade.ros.action.ActionSettings`, typed and ranged."""
+    from spade.ros.action import ActionSettings
+    from spade.ros.action_types import DISTROS
+    from spade.ros.core import check_option
+
+    raw = _options(cfg, "action")
+    known = set(ActionSettings.__dataclass_fields__)
+    unknown = sorted(set(raw) - known)
+    if unknown:
+        raise ConfigError(f"action.{unknown[0]}: no such option; the keys are {sorted(known)}")
+    try:
+        out: dict[str, Any] = {}
+        if "enabled" in raw:
+            out["enabled"] = check_option("action.enabled", raw["enabled"], "bool")
+        if "name" in raw:
+            name = check_option("action.name", raw["name"], "str")
+            if not name.strip("/ ") or any(c.isspace() for c in name):
+                raise ValueError(f"action.name={name!r}: a ROS 2 action name such as /compute_path_to_pose")
+            out["name"] = name
+        if "distro" in raw:
+            distro = str(raw["distro"]).lower()
+            if distro in ("kilted", "rolling"):
+                distro = "jazzy"
+            if distro not in DISTROS:
+                raise ValueError(f"action.distro={raw['distro']!r}: the robot's ROS 2 distribution, one of "
+                                 f"{list(DISTROS)} (kilted and rolling use jazzy's layout)")
+            out["distro"] = distro
+        for key, low, inclusive in (("wait_s", 0.0, True), ("timeout_s", 0.0, False), ("result_timeout_s", 0.0, True)):
+            if key in raw:
+                out[key] = check_option(f"action.{key}", raw[key], "float", low, inclusive)
+        if "planner_ids" in raw:
+            ids = raw["planner_ids"] or []
+            if isinstance(ids, str) or not all(isinstance(v, str) for v in ids):
+                raise ValueError(f"action.planner_ids={ids!r}: a list of names, e.g. [GridBased] ([]: any)")
+            out["planner_ids"] = tuple(ids)
+    except ValueError as err:
+        raise ConfigError(f"{err} (conf/ros.yaml's action block)") from None
+    return ActionSettings(**out)
+
+
+def checked_options(cfg: DictConfig) -> dict[str, Any]:
+    """Every option of the node, typed and ranged before any work (before the model loads or DDS starts)."""
+    from spade.ros.node_options import TOPIC_KEYS
+
+    topics = _options(cfg, "topics")
+    unknown = sorted(set(topics) - set(TOPIC_KEYS))
+    if unknown:
+        raise ConfigError(f"topics.{unknown[0]}: no such topic; the keys are {list(TOPIC_KEYS)}")
+    for key, value in topics.items():
+        if value is not None and not isinstance(value, str):
+            raise ConfigError(f"topics.{key}={value!r}: a ROS 2 topic name such as /{key}")
+        if value and any(c.isspace() for c in value):
+            raise ConfigError(f"topics.{key}={value!r}: a ROS 2 topic name has no spaces")
+    pose_type = cfg.get("pose_type", "amcl")
+    if pose_type not in ("amcl", "stamped"):
+        raise ConfigError(f"pose_type={pose_type!r}: use amcl (PoseWithCovarianceStamped) or stamped (PoseStamped)")
+    try:
+        from spade.ros.node_options import check_qos
+
+        qos = check_qos(_options(cfg, "qos"))
+    except ValueError as err:
+        raise ConfigError(f"{err} (conf/ros.yaml's qos block)") from None
+    max_seconds = cfg.get("max_seconds")
+    if max_seconds is not None:
+        try:
+            from spade.ros.core import check_option
+
+            max_seconds = check_option("max_seconds", max_seconds, "float", 0.0, False)
+        except ValueError as err:
+            raise ConfigError(str(err)) from None
+    return {"topics": topics, "pose_type": str(pose_type), "qos": qos, "node": core_settings(cfg),
+            "action": action_settings(cfg), "max_seconds": max_seconds}
 
 
 def _domain_id(cfg: DictConfig) -> int:
@@ -84,41 +167,67 @@ def _domain_id(cfg: DictConfig) -> int:
 
 def run(cfg: DictConfig) -> dict[str, int]:
     """Run the node (or the replay) the config describes; returns the core's message and outcome counts."""
+    options = checked_options(cfg)
     if cfg.get("replay"):
         from spade.ros.recording import replay_bag
 
         planner = build_planner(cfg)
-        core = build_core(cfg, planner)
-        return replay_bag(core, Path(str(cfg.replay)), _options(cfg, "topics"),
+        core = build_core(cfg, planner, options["node"])
+        return replay_bag(core, Path(str(cfg.replay)), options["topics"],
                           out=cfg.get("replay_out") and Path(str(cfg.replay_out)))
+    domain = _domain_id(cfg)
     from spade.ros.node import PlannerNode, Topics
 
-    domain = _domain_id(cfg)
-    topics = _options(cfg, "topics")
-    try:
-        topics_cfg = Topics(**{k: str(v or "") for k, v in topics.items()})
-    except TypeError as err:
-        raise ConfigError(f"topics: {err}; the keys are map, pose, goal, plan, confidence") from None
-    pose_type = str(cfg.get("pose_type", "amcl"))
-    if pose_type not in ("amcl", "stamped"):
-        raise ConfigError(f"pose_type={pose_type!r}: use amcl (PoseWithCovarianceStamped) or stamped (PoseStamped)")
+    topics_cfg = Topics(**{k: str(v or "") for k, v in options["topics"].items()})
+    pose_type = options["pose_type"]
+    foxglove = _foxglove_options(cfg)
     planner = build_planner(cfg)
-    core = build_core(cfg, planner)
+    core = build_core(cfg, planner, options["node"])
     recorder = None
     if cfg.get("record"):
         from spade.ros.recording import NodeRecorder
 
         recorder = NodeRecorder(Path(str(cfg.record)), topics_cfg, pose_type)
-    node = PlannerNode(core, domain_id=domain, topics=topics_cfg, pose_type=pose_type, qos=_options(cfg, "qos"),
-                       recorder=recorder)
-    log.info("spade.ros node up on DDS domain %d: map %s, pose %s (%s), goal %s -> plan %s", domain, topics_cfg.map,
-             topics_cfg.pose, pose_type, topics_cfg.goal, topics_cfg.plan)
+    node = PlannerNode(core, domain_id=domain, topics=topics_cfg, pose_type=pose_type, qos=options["qos"],
+                       recorder=recorder, action=options["action"])
+    live = None
+    if foxglove is not None:
+        from spade.ros.live import FoxgloveLive
+
+        live = FoxgloveLive(**foxglove)
+        node.observers.append(live)
+    log.info("spade.ros node up on DDS domain %d: map %s, pose %s (%s), goal %s -> plan %s%s", domain, topics_cfg.map,
+             topics_cfg.pose, pose_type, topics_cfg.goal, topics_cfg.plan,
+             f"; action {options['action'].name} ({options['action'].distro} layout)" if node.action else "")
     try:
-        node.spin(cfg.get("max_seconds"))
+        node.spin(options["max_seconds"])
     finally:
         node.close()
+        if live is not None:
+            live.close()
         if recorder is not None:
             recorder.close()
             log.info("recording written to %s", recorder.path)
     log.info("spade.ros node stopped: %s", core.counts)
     return core.counts
+
+
+def _foxglove_options(cfg: DictConfig) -> dict[str, Any] | None:
+    """``foxglove=true`` (and ``foxglove_host``, ``foxglove_port``): the live Foxglove server's options, or None.
+    Checked before any work; a missing foxglove-sdk is refused with the install line."""
+    from spade.ros.core import check_option
+
+    try:
+        enabled = check_option("foxglove", cfg.get("foxglove", False), "bool")
+        port = check_option("foxglove_port", cfg.get("foxglove_port", 8765), "int", 0, True, high=65535)
+        host = check_option("foxglove_host", cfg.get("foxglove_host", "127.0.0.1"), "str")
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
+    if not enabled:
+        return None
+    import importlib.util
+
+    if importlib.util.find_spec("foxglove") is None:
+        raise ConfigError("foxglove=true needs the foxglove-sdk package: pip install \"spade[ros]\" (or "
+                          "pip install foxglove-sdk), or leave foxglove=false")
+    return {"host": host, "port": int(port)}

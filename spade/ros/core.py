@@ -33,7 +33,8 @@ import numpy as np
 from spade.maps.occupancy import OccupancyMap
 from spade.ros.convert import MessageError, grid_to_map, pose_from_msg
 
-__all__ = ["CoreSettings", "PlanEvent", "PlannerCore", "distance_to_polyline", "replan_trigger"]
+__all__ = ["CoreSettings", "PlanEvent", "PlannerCore", "check_option", "distance_to_polyline", "off_plan_reason",
+           "replan_trigger"]
 
 log = logging.getLogger("spade.ros")
 
@@ -51,6 +52,60 @@ class CoreSettings:
     replan_every_m: float | None = None  # plan again after the robot moved this far since the last plan (None: never)
     lethal_threshold: int = 100          # OccupancyGrid values at or above it are obstacles (Nav2's default)
     map_frame: str | None = None         # None: the map message's frame_id ("map" when it is empty)
+    max_map_cells: int = 25_000_000      # a map larger than this (as given, or at the student's resolution) is refused
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+# name -> (kind, lower bound, lower bound inclusive, may be None); kinds: float, int, bool, str
+_SETTING_TYPES: dict[str, tuple[str, float | None, bool, bool]] = {
+    "replan_distance_m": ("float", 0.0, False, False), "goal_reached_m": ("float", 0.0, False, False),
+    "subgoal_replan_m": ("float", 0.0, True, False), "replan_on_map": ("bool", None, True, False),
+    "min_replan_interval_s": ("float", 0.0, True, False), "replan_every_m": ("float", 0.0, False, True),
+    "lethal_threshold": ("int", 1, True, False), "map_frame": ("str", None, True, True),
+    "max_map_cells": ("int", 1, True, False),
+}
+
+
+def check_option(key: str, value: Any, kind: str, low: float | None = None, inclusive: bool = True,
+                 nullable: bool = False, *, high: float | None = None, example: Any = None) -> Any:
+    """``value`` as ``kind`` (float, int, bool, str) in range, or ValueError naming ``key``, what it takes and the
+    fix: booleans are strict (true / false), numbers finite."""
+    if value is None:
+        if nullable:
+            return None
+        raise ValueError(f"{key}=null: give a value ({kind})")
+    if kind == "bool":
+        if isinstance(value, bool):
+            return value
+        raise ValueError(f"{key}={value!r}: a boolean; pass {key}=true or {key}=false")
+    if kind == "str":
+        if isinstance(value, str):
+            return value
+        raise ValueError(f"{key}={value!r}: a string; quote it ({key}='...')")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (kind == "int" and isinstance(value, float)
+                                                                         and not float(value).is_integer()):
+        what = "an integer" if kind == "int" else "a number"
+        hint = example if example is not None else (low if low is not None and inclusive else 1)
+        raise ValueError(f"{key}={value!r}: {what}; pass e.g. {key}={hint}")
+    number = int(value) if kind == "int" else float(value)
+    if not math.isfinite(float(number)):
+        raise ValueError(f"{key}={value!r}: a finite number")
+    if low is not None and (number < low or (number == low and not inclusive)):
+        raise ValueError(f"{key}={value!r}: must be {'>=' if inclusive else '>'} {low:g}")
+    if high is not None and number > high:
+        raise ValueError(f"{key}={value!r}: must be <= {high:g}")
+    return number
+
+
+def check_settings(settings: Any, prefix: str = "node.") -> None:
+    """Type and range every field of a :class:`CoreSettings` (ValueError naming the option and the fix)."""
+    for key, (kind, low, inclusive, nullable) in _SETTING_TYPES.items():
+        default = CoreSettings.__dataclass_fields__[key].default
+        value = check_option(prefix + key, getattr(settings, key), kind, low, inclusive, nullable,
+                             high=100 if key == "lethal_threshold" else None, example=default)
+        object.__setattr__(settings, key, value)
 
 
 @dataclass
@@ -64,6 +119,7 @@ class PlanEvent:
     stamp_ns: int
     seconds: float
     goal_yaw: float | None = None
+    error: str | None = None  # the planner raised (query only): its message
 
     @property
     def success(self) -> bool:
@@ -99,6 +155,12 @@ def replan_trigger(settings: CoreSettings, pose: np.ndarray, plan: np.ndarray | 
     attempt; ``seconds_since_try``: the time since it."""
     if seconds_since_try < settings.min_replan_interval_s:
         return None
+    return off_plan_reason(settings, pose, plan, subgoal, tried_at)
+
+
+def off_plan_reason(settings: CoreSettings, pose: np.ndarray, plan: np.ndarray | None, subgoal: bool,
+                    tried_at: np.ndarray | None) -> str | None:
+    """:func:`replan_trigger` without the interval: why a pose calls for a new plan, or None."""
     moved = math.inf if tried_at is None else float(np.linalg.norm(pose[:2] - tried_at[:2]))
     if plan is not None:
         off = distance_to_polyline(pose[:2], plan)
@@ -124,6 +186,7 @@ class _State:
     subgoal: bool = False
     tried_at: np.ndarray | None = None  # the pose of the last attempt
     tried_time: float = -math.inf
+    pending: str | None = None          # a pose called for a plan before min_replan_interval_s passed: plan then
     counts: dict[str, int] = field(default_factory=dict)
 
 
@@ -161,6 +224,12 @@ class PlannerCore:
     def handle_map(self, msg: Any) -> PlanEvent | None:
         """A ``nav_msgs/OccupancyGrid``: the map to plan on from now on (a malformed one is logged, the previous
         map kept)."""
+        too_big = self.map_too_big(msg)
+        if too_big is not None:
+            self._count("too_big")
+            log.warning("map refused (keeping the previous one): %s", too_big)
+            return None
+        t0 = time.perf_counter()
         try:
             m = grid_to_map(msg, lethal_threshold=self.settings.lethal_threshold)
         except MessageError as err:
@@ -171,6 +240,10 @@ class PlannerCore:
             self._count("malformed")
             log.warning("unreadable map ignored: %s: %s", type(err).__name__, err)
             return None
+        seconds = time.perf_counter() - t0
+        if seconds > 1.0:
+            log.warning("converting the map took %.1f s; a smaller map (a costmap window) keeps the node responsive",
+                        seconds)
         self._count("map")
         first = self.state.map is None
         self.state.map = m
@@ -180,6 +253,29 @@ class PlannerCore:
                 m.resolution, m.origin[0], m.origin[1], self.state.frame)
         if self.state.goal is not None and (first or self.settings.replan_on_map):
             return self._plan("map")
+        return None
+
+    def map_too_big(self, msg: Any) -> str | None:
+        """Why a ``nav_msgs/OccupancyGrid`` is too large to take (its cells, or its cells once resampled to the
+        student's resolution, above ``max_map_cells``: memory and time grow with them), or None."""
+        try:
+            width, height = int(msg.info.width), int(msg.info.height)
+            resolution = float(msg.info.resolution)
+        except Exception:  # noqa: BLE001 - malformed: grid_to_map says why
+            return None
+        limit = int(self.settings.max_map_cells)
+        if width * height > limit:
+            return (f"{width} x {height} cells ({width * height:,}) exceed node.max_map_cells={limit:,}; publish a "
+                    "smaller map (a costmap window around the robot) or raise node.max_map_cells")
+        target = float(getattr(self.planner, "resolution", 0.0) or 0.0)
+        if target > 0 and math.isfinite(resolution) and resolution > target:
+            scale = resolution / target
+            w, h = math.ceil(width * scale), math.ceil(height * scale)
+            if w * h > limit:
+                return (f"{width} x {height} cells at {resolution:g} m/cell become {w:,} x {h:,} cells "
+                        f"({w * h:,}) at the student's {target:g} m/cell, more than node.max_map_cells={limit:,} "
+                        "(memory and time grow with them); publish a smaller map (a costmap window around the "
+                        "robot) or raise node.max_map_cells")
         return None
 
     def handle_pose(self, msg: Any) -> PlanEvent | None:
@@ -209,8 +305,42 @@ class PlannerCore:
             return self._plan("pose")
         if s.tried_at is None and s.plan is None:
             return None  # no attempt yet (a goal that waits for the map)
-        reason = replan_trigger(self.settings, pose, s.plan, s.subgoal, s.tried_at, self.clock() - s.tried_time)
-        return self._plan(reason) if reason is not None else None
+        reason = off_plan_reason(self.settings, pose, s.plan, s.subgoal, s.tried_at)
+        if reason is None:
+            s.pending = None
+            return None
+        if self.clock() - s.tried_time < self.settings.min_replan_interval_s:
+            s.pending = reason  # too soon: plan once the interval has passed (tick), even if no other pose comes
+            return None
+        return self._plan(reason)
+
+    def tick(self) -> PlanEvent | None:
+        """Called by the node between messages: plans for a pose that called for it before
+        ``min_replan_interval_s`` had passed, as soon as it has (a robot standing still sends no new pose)."""
+        s = self.state
+        if s.pending is None or s.goal is None or s.pose is None:
+            return None
+        if self.clock() - s.tried_time < self.settings.min_replan_interval_s:
+            return None
+        reason, s.pending = s.pending, None
+        return self._plan(f"{reason} (after the interval)")
+
+    def query(self, pose: Any, goal: Any, trigger: str = "query") -> PlanEvent:
+        """One plan on the latest map from ``pose`` (x, y, yaw) to ``goal`` (x, y[, yaw]) that leaves the topic
+        goal's state alone (the action server's goals); a planner that raises gives ``error``."""
+        s = self.state
+        goal = np.asarray(goal, dtype=np.float64).reshape(-1)
+        goal_yaw = float(goal[2]) if goal.size > 2 else None
+        t0 = time.perf_counter()
+        if s.map is None:
+            return PlanEvent(trigger, None, s.frame, self.now_ns(), 0.0, goal_yaw, error="no map yet")
+        try:
+            result = self.planner.plan(s.map, np.asarray(pose, dtype=np.float64), goal[:2])
+        except Exception as err:  # noqa: BLE001 - a query the planner cannot take must not stop the node
+            log.error("planning failed (%s): %s: %s", trigger, type(err).__name__, err)
+            return PlanEvent(trigger, None, s.frame, self.now_ns(), time.perf_counter() - t0, goal_yaw,
+                             error=f"{type(err).__name__}: {err}")
+        return PlanEvent(trigger, result, s.frame, self.now_ns(), time.perf_counter() - t0, goal_yaw)
 
     def handle_goal(self, msg: Any) -> PlanEvent | None:
         """A ``geometry_msgs/PoseStamped`` goal (RViz2's "2D Goal Pose"): plan to it."""
@@ -237,7 +367,7 @@ class PlannerCore:
         assert s.goal is not None
         if s.map is None or s.pose is None:
             return None
-        s.tried_at, s.tried_time = s.pose.copy(), self.clock()
+        s.tried_at, s.tried_time, s.pending = s.pose.copy(), self.clock(), None
         t0 = time.perf_counter()
         try:
             result = self.planner.plan(s.map, s.pose, s.goal[:2])

@@ -35,8 +35,9 @@ from cyclonedds.util import duration
 
 from spade.ros import messages as M
 from spade.ros.core import PlanEvent, PlannerCore
+from spade.ros.node_options import QOS_KEYS, check_qos
 
-__all__ = ["PlannerNode", "Topics", "make_qos", "ros_topic"]
+__all__ = ["PlannerNode", "QOS_KEYS", "Topics", "check_qos", "make_qos", "ros_topic"]
 
 log = logging.getLogger("spade.ros")
 
@@ -70,11 +71,13 @@ class Topics:
     confidence: str = "/plan_confidence"  # empty: not published
 
 
-def _qos(spec: Mapping[str, Any] | None, default: Qos) -> Qos:
+def _qos(spec: Mapping[str, Any] | None, default: Qos, default_spec: tuple[bool, bool, int]) -> Qos:
     if not spec:
         return default
-    return make_qos(str(spec.get("reliability", "reliable")) == "reliable",
-                    str(spec.get("durability", "volatile")) == "transient_local", int(spec.get("depth", 1)))
+    reliable, transient, depth = default_spec
+    return make_qos(spec["reliability"] == "reliable" if "reliability" in spec else reliable,
+                    spec["durability"] == "transient_local" if "durability" in spec else transient,
+                    int(spec.get("depth", depth)))
 
 
 class PlannerNode:
@@ -86,26 +89,28 @@ class PlannerNode:
         topics: the ROS topic names.
         pose_type: ``amcl`` (``PoseWithCovarianceStamped``, default) or ``stamped`` (``PoseStamped``).
         qos: per-topic overrides, e.g. ``{"map": {"reliability": "reliable", "durability": "transient_local",
-            "depth": 1}}``.
+            "depth": 1}}`` (:func:`check_qos`).
+        recorder: a :class:`spade.ros.recording.NodeRecorder` (or None).
+        action: :class:`spade.ros.action.ActionSettings`; when enabled, the ``ComputePathToPose`` action server.
     """
 
     def __init__(self, core: PlannerCore, *, domain_id: int = 0, topics: Topics | None = None,
                  pose_type: str = "amcl", qos: Mapping[str, Mapping[str, Any]] | None = None,
-                 recorder: Any = None) -> None:
+                 recorder: Any = None, action: Any = None) -> None:
         if pose_type not in POSE_TYPES:
             raise ValueError(f"pose_type must be one of {sorted(POSE_TYPES)}, got {pose_type!r}")
         self.core = core
         self.topics = topics or Topics()
         self.recorder = recorder
-        qos = dict(qos or {})
+        qos = check_qos(qos)
         self.participant = DomainParticipant(int(domain_id))
         p = self.participant
         # AMCL latches its pose (transient-local): a robot standing still publishes no new one, so the node reads the
         # last one; a PoseStamped source is taken to be volatile (a transient-local reader would not match it).
         amcl = POSE_TYPES[pose_type] is M.PoseWithCovarianceStamped
-        defaults = {"map": make_qos(True, True, 1), "pose": make_qos(True, amcl, 1), "goal": make_qos(True, False, 10),
-                    "plan": make_qos(True, True, 1), "confidence": make_qos(True, True, 1)}
-        q = {k: _qos(qos.get(k), v) for k, v in defaults.items()}
+        specs = {"map": (True, True, 1), "pose": (True, amcl, 1), "goal": (True, False, 10), "plan": (True, True, 1),
+                 "confidence": (True, True, 1)}
+        q = {k: _qos(qos.get(k), make_qos(*v), v) for k, v in specs.items()}
         self.map_reader = DataReader(p, Topic(p, ros_topic(self.topics.map), M.OccupancyGrid), qos=q["map"])
         self.pose_reader = DataReader(p, Topic(p, ros_topic(self.topics.pose), POSE_TYPES[pose_type]), qos=q["pose"])
         self.goal_reader = DataReader(p, Topic(p, ros_topic(self.topics.goal), M.PoseStamped), qos=q["goal"])
@@ -117,10 +122,17 @@ class PlannerNode:
         self._readers = [("map", self.map_reader, core.handle_map), ("pose", self.pose_reader, core.handle_pose),
                          ("goal", self.goal_reader, core.handle_goal)]
         self._conditions = [ReadCondition(r, mask) for _, r, _ in self._readers]
+        self.action = None
+        if action is not None and action.enabled:
+            from spade.ros.action import ActionServer, GoalLogic
+
+            self.action = ActionServer(p, GoalLogic(core, action, on_path=self._publish_path))
+            self._conditions += self.action.conditions
         for c in self._conditions:
             self.waitset.attach(c)
         self.stop_event = threading.Event()
         self.published = 0
+        self.observers: list[Any] = []  # e.g. the live Foxglove server: on_message(name, msg), on_plan(event, path)
 
     # -- publishing ----------------------------------------------------------------------------------------------
     def publish(self, event: PlanEvent) -> None:
@@ -130,15 +142,27 @@ class PlannerNode:
         result = event.result
         goal_yaw = None if result.subgoal else event.goal_yaw
         msg = M.path(result.waypoints, event.frame_id, event.stamp_ns, goal_yaw)
-        self.plan_writer.write(msg)
-        if self.recorder is not None:
-            self.recorder.message("plan", msg)
+        self._publish_path(msg, event)
         if self.confidence_writer is not None and math.isfinite(event.confidence):
             confidence = M.Float32(float(event.confidence))
             self.confidence_writer.write(confidence)
             if self.recorder is not None:
                 self.recorder.message("confidence", confidence)
         self.published += 1
+
+    def _publish_path(self, msg: Any, event: PlanEvent) -> None:
+        """Write a ``nav_msgs/Path`` on the plan topic (a topic goal's plan, or an action goal's as
+        ``planner_server`` publishes its own), record it, tell the observers."""
+        self.plan_writer.write(msg)
+        if self.recorder is not None:
+            self.recorder.message("plan", msg)
+            if hasattr(self.recorder, "plan"):
+                self.recorder.plan(event, msg)
+        for observer in self.observers:
+            try:
+                observer.on_plan(event, msg)
+            except Exception as err:  # noqa: BLE001 - a viewer must never stop the node
+                log.warning("observer %s failed on a plan: %s: %s", type(observer).__name__, type(err).__name__, err)
 
     # -- the loop ------------------------------------------------------------------------------------------------
     def spin_once(self, timeout_s: float = 0.1) -> int:
@@ -159,6 +183,11 @@ class PlannerNode:
                 taken += 1
                 if self.recorder is not None:
                     self.recorder.message(name, sample)
+                for observer in self.observers:
+                    try:
+                        observer.on_message(name, sample)
+                    except Exception as err:  # noqa: BLE001 - a viewer must never stop the node
+                        log.warning("observer %s failed on a %s message: %s", type(observer).__name__, name, err)
                 try:
                     event = handle(sample)
                 except Exception as err:  # noqa: BLE001 - the core logs and survives; this is its last guard
@@ -166,6 +195,18 @@ class PlannerNode:
                     continue
                 if event is not None:
                     self.publish(event)
+        try:
+            event = self.core.tick()
+        except Exception as err:  # noqa: BLE001 - the core logs and survives; this is its last guard
+            log.exception("a deferred re-plan failed: %s", err)
+            event = None
+        if event is not None:
+            self.publish(event)
+        if self.action is not None:
+            try:
+                taken += self.action.poll()
+            except Exception as err:  # noqa: BLE001 - a bad request must not stop the node
+                log.exception("the action server failed: %s", err)
         return taken
 
     def spin(self, max_seconds: float | None = None) -> None:
