@@ -23,6 +23,10 @@ def report_files(table: Any, chart: bool = True) -> list[str]:
     no ``_comparisons.csv``: listed anyway, an existing one is not replaced unasked either)."""
     if str(table) == "closed_loop":
         return ["closed_loop.md", "closed_loop.csv"]
+    if str(table) == "teacher":
+        from spade.experiments.teacher_table import TEACHER_FILES
+
+        return list(TEACHER_FILES)
     tables = list(TABLES.values()) if str(table) == "all" else [get_table(table)]
     return [name for t in tables
             for name in (f"{t.key}.md", f"{t.key}.csv", f"{t.key}_comparisons.csv", *([f"{t.key}.png"] if chart else []))]
@@ -57,7 +61,7 @@ def validate_report_config(cfg: DictConfig) -> None:
     if labels not in (_MISSING, None) and not isinstance(labels, dict):
         raise ConfigError(f"closed_loop_labels={labels!r} is not a mapping; set closed_loop_labels={{ROW: LABEL}}")
     table = _get(cfg, "table")
-    if str(table) not in ("all", "closed_loop"):  # closed_loop: spade.experiments.closed_loop_table
+    if str(table) not in ("all", "closed_loop", "teacher"):  # not paper tables: closed_loop_table, teacher_table
         try:
             get_table(table)
         except (KeyError, ValueError) as exc:

@@ -113,6 +113,15 @@ def report(cfg: DictConfig) -> list[Report]:
         text, files = closed_loop_report(cfg.tracking_uri, cfg.get("output_dir"), cfg.scale.name if cfg.get("scale")
                                          else None, labels=cfg.get("closed_loop_labels"))
         return [Report(None, {}, [], text, files)]  # type: ignore[arg-type]
+    if str(cfg.table) == "teacher":  # not a paper table: experts as planners (spade/experiments/teacher_table)
+        from omegaconf import OmegaConf
+
+        from spade.experiments.teacher_table import teacher_report
+
+        settings = OmegaConf.to_container(cfg.teacher, resolve=True) if cfg.get("teacher") else {}
+        text, files = teacher_report(cfg.tracking_uri, cfg.get("output_dir"), settings,
+                                     cfg.scale.name if cfg.get("scale") else None)
+        return [Report(None, {}, [], text, files)]  # type: ignore[arg-type]
     tables = list(TABLES.values()) if str(cfg.table) == "all" else [get_table(cfg.table)]
     # `scale` is the config group of conf/scale (so that scale=cpu reads as everywhere else); its name filters runs.
     scale = cfg.scale.name if cfg.get("scale") else None

@@ -1,0 +1,90 @@
+"""The teacher page (spade.report table=teacher) from hand-made MLflow runs: experts as planners beside their
+students, the targets against the student of the same markers, and guided students against their BC twins."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+
+def _run(client, experiment: str, name: str, seed: int, encoding: str, metrics: dict[str, float]) -> None:  # noqa: ANN001
+    run = client.create_run(experiment, run_name=name, tags={"scale": "quickstart"})
+    rid = run.info.run_id
+    client.log_param(rid, "cfg/seed", seed)
+    client.log_param(rid, "cfg/data/encoding", encoding)
+    client.log_param(rid, "cfg/data/test_dir", "/somewhere/data/quickstart/test")
+    for key, value in metrics.items():
+        client.log_metric(rid, key, value)
+    client.set_terminated(rid, "FINISHED")
+
+
+def test_the_teacher_page_checks_each_expert_against_its_student_and_guidance_against_bc(tmp_path: Path) -> None:
+    from mlflow import MlflowClient
+
+    from spade.experiments.teacher_table import teacher_report
+
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    client = MlflowClient(tracking_uri=uri)
+    teacher, encoding = client.create_experiment("teacher"), client.create_experiment("encoding")
+    # a good teacher on Gaussian markers: plausible, 0.5x its student's APE, but narrower than the generator
+    _run(client, teacher, "good", 42, "gaussian", {
+        "test/planner/ape_cm": 2.0, "test/planner/plausibility_cm": 0.8, "test/planner/spread_ratio": 0.5,
+        "test/generator_spread_cm": 4.0, "test/seconds_per_sample": 0.01, "test/mean_map/planner/ape_cm": 1.9,
+        "test/planner/over_20cm_rate": 0.0})
+    # a binary expert no better than its student
+    _run(client, teacher, "old", 42, "binary", {"test/planner/ape_cm": 4.3, "test/planner/plausibility_cm": 2.2,
+                                                "test/planner/spread_ratio": 0.67, "test/generator_spread_cm": 4.1})
+    for seed, (gauss, binary) in enumerate([(3.9, 4.2), (4.0, 4.3), (4.1, 4.4)]):
+        _run(client, encoding, "bc_gauss", seed, "gaussian", {
+            "test/planner/ape_cm": gauss, "test/planner/plausibility_cm": 2.0 + seed / 10,
+            "test/baseline/shortest/planner/ape_cm": 40.0, "test/planner/commit_rate": 0.1,
+            "test/planner/over_20cm_rate": 0.01})
+        _run(client, encoding, "bc_binary", seed, "binary", {"test/planner/ape_cm": binary,
+                                                             "test/planner/plausibility_cm": 2.1})
+        _run(client, teacher, "guided", seed, "gaussian", {
+            "test/planner/ape_cm": gauss - 0.05, "test/planner/plausibility_cm": 1.9, "margin/active": 0.3,
+            "test/planner/commit_rate": 0.2, "test/planner/over_20cm_rate": 0.01})
+    settings = {
+        "experts": [{"table": "teacher", "row": "good", "label": "good teacher"},
+                    {"table": "teacher", "row": "old", "label": "old expert"},
+                    {"table": "teacher", "row": "never_ran", "label": "unrun"}],
+        "students": [{"table": "encoding", "row": "bc_binary", "label": "BC binary"},
+                     {"table": "encoding", "row": "bc_gauss", "label": "BC gaussian"}],
+        "guided": [{"table": "teacher", "row": "guided", "label": "Cond-DBC",
+                    "against": {"table": "encoding", "row": "bc_gauss"}}],
+    }
+    text, files = teacher_report(uri, tmp_path / "out", settings, "quickstart")
+    assert files["markdown"].read_text() == text and files["csv"].is_file()
+    assert "| good teacher, one sample | gaussian | 1 | 2.00 |" in text
+    assert "| BC gaussian | gaussian | 3 | 4.00 ± 0.10 |" in text
+    assert "| unrun | ? | 0 | missing" in text
+    assert "| shortest path (Nav2-like) (on binary states) |" not in text  # the first student row had no baselines
+    good = next(line for line in text.splitlines() if line.startswith("- good teacher against BC gaussian"))
+    assert "plausibility 0.80 cm (target ≤ 1.0: met)" in good
+    assert "planner APE 2.00 cm = 0.50x the student's 4.00 (target ≤ 0.8x = 3.20 cm: met)" in good
+    assert "spread 0.50x the generator's (target within ±20%: not met)" in good
+    assert "4.00 cm, above the APE target" in good  # a calibrated single sample cannot be at 0.8x here
+    old = next(line for line in text.splitlines() if line.startswith("- old expert against BC binary"))
+    assert "plausibility 2.20 cm (target ≤ 1.0: not met)" in old and "(target ≤ 0.8x = 3.44 cm: not met)" in old
+    # one-sample tests with Holm, and the verdict in words
+    assert "the expert plans better than its student by planner APE (2.00 vs 4.00 cm), significant" in text
+    assert "| old expert vs BC binary | planner/ape_cm | 4.30 | 4.30 |" in text
+    # guidance against the BC twin: Welch, the margin's activity; the real-map rows are missing and untested
+    assert "| Cond-DBC | held-out map | 3 | 3.95 ± 0.10 |" in text and "| 30% ± 0% |" in text
+    assert "| Cond-DBC | unseen real maps | 0 | missing |" in text
+    assert "| Cond-DBC vs BC twin (bc_gauss), held-out map | planner/ape_cm | 3.95 | 4.00 |" in text
+    assert "guidance plans better by planner APE (3.95 vs 4.00 cm), not significant" in text
+    assert "- commit: " in text and "- machine: " in text and "/somewhere" not in text.split("Test set:")[0]
+
+
+def test_the_teacher_page_is_a_report_table(tmp_path: Path) -> None:
+    """spade.report table=teacher composes, checks its output files and names them."""
+    from spade.experiments.checks.report import report_files
+    from spade.utils.config import compose_config
+
+    assert report_files("teacher") == ["teacher.md", "teacher.csv"]
+    cfg = compose_config("report", ["table=teacher", f"paths.root_dir={tmp_path}"])
+    assert [e["row"] for e in cfg.teacher.experts][0] == "teacher_shipped_binary"
+    assert cfg.teacher.guided[0].against.row == "enc_gaussian_L"
+    pytest.importorskip("scipy")
