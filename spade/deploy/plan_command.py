@@ -61,6 +61,7 @@ def run_plan(cfg: DictConfig) -> tuple[PlanResult, Path]:
                          "export) or set the SPADE_PLANNER_MODEL environment variable")
     options: dict[str, Any] = OmegaConf.to_container(cfg.planner, resolve=True)  # type: ignore[assignment]
     planner = Planner(cfg.model_path, device=cfg.device, **options)
+    print(f"# model: {planner!r}", flush=True)  # its window and the robot footprint it was trained for
     m = load_map(cfg.map)
     result = planner.plan(m, list(cfg.start), list(cfg.goal))
     out = Path(cfg.out)

@@ -5,11 +5,13 @@ A **checkpoint** written by ``python -m spade.train`` carries, next to Lightning
     {"role": "student" | "expert", "config": <net.config>,
      "data": {"image_size": [H, W], "resolution_m": ..., "frame": {"kind": "robot", "size_px": S,
               "robot_px": [x, y], "heading": "up"}, "input_encoding": INPUT_ENCODING,
-              "disc_radius_m": ..., "margin_m": ...},
+              "disc_radius_m": ..., "margin_m": ...,
+              "footprint": {"radius_m": ..., "inflation_radius_m": ...}},
      "mlflow_run_id": ...}
 
 (:func:`checkpoint_entry`, called by ``PathPlanningModule.on_save_checkpoint``). ``data`` describes the windows
-the network was trained on; ``frame`` is the robot frame of :mod:`spade.maps.frame` (absent in models
+the network was trained on (``footprint``: the robot radius and inflation its demonstrations assumed, from the
+annotation's ``robot`` block); ``frame`` is the robot frame of :mod:`spade.maps.frame` (absent in models
 trained on the older, axis-aligned windows). An **export** (ONNX ``metadata_props["spade"]``, TorchScript extra
 file ``spade.json``) carries the same entry as JSON plus the export's own fields (:func:`export_metadata`).
 
@@ -60,6 +62,9 @@ __all__ = [
 INPUT_ENCODING = "occupancy code * 0.5 (unknown 0, free 0.5, occupied 1), start, goal"
 """The network input, as every model file records it (``spade.data.PathDataset`` builds it); how the start and goal
 are drawn is ``data.marker_encoding`` (:mod:`spade.data.encoding`; ``binary`` where a model file predates it)."""
+DEFAULT_FOOTPRINT = {"radius_m": 0.105, "inflation_radius_m": 0.55}
+"""conf/annotate.yaml's ``robot`` (a TurtleBot3 Burger with Nav2's default inflation): what a model file that
+predates footprint records was trained for, unless its user changed the annotation config."""
 ENTRY_KEY = "spade"  # the checkpoint entry, and the ONNX metadata_props key
 TORCHSCRIPT_METADATA_FILE = "spade.json"
 INPUT_NAME, OUTPUT_NAME = "state", "logits"
@@ -152,12 +157,26 @@ def _annotation_geometry(datamodule: Any) -> dict[str, float]:
         generator = getattr(datamodule, "annotation_settings", None) or {}
     except Exception:  # no manifest yet, or not a SPADE dataset: the planner falls back to the annotation defaults
         return {}
-    out = {}
+    out: dict[str, Any] = {}
     for key, section, name in (("disc_radius_m", "instances", "disc_radius_m"), ("margin_m", "window", "margin_m")):
         value = (generator.get(section) or {}).get(name)
         if isinstance(value, (int, float)):
             out[key] = float(value)
+    footprint = footprint_of(generator.get("robot"))
+    if footprint:
+        out["footprint"] = footprint
     return out
+
+
+def footprint_of(robot: Any) -> dict[str, float] | None:
+    """``{"radius_m", "inflation_radius_m"}`` of an annotation ``robot`` block (the robot the demonstrations'
+    clearances assumed), or None when it does not hold both as numbers."""
+    if not isinstance(robot, Mapping):
+        return None
+    values = {k: robot.get(k) for k in ("radius_m", "inflation_radius_m")}
+    if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values.values()):
+        return {k: float(v) for k, v in values.items()}
+    return None
 
 
 def write_checkpoint_entry(checkpoint: dict[str, Any], role: str, net: nn.Module, datamodule: Any = None,
@@ -178,6 +197,10 @@ def export_metadata(info: Mapping[str, Any], fmt: str, *, source: str | Path, op
     data = dict(info.get("data") or {})
     robot_frame(info, source)
     data.setdefault("input_encoding", INPUT_ENCODING)
+    if not footprint_of(data.get("footprint")):
+        # A checkpoint from before footprints were recorded: its data came from conf/annotate.yaml's robot unless
+        # its user changed it; the export says it is assumed (the planner shows it so).
+        data["footprint"] = {**DEFAULT_FOOTPRINT, "assumed": True}
     size = [int(v) for v in data["image_size"]]
     out = {
         "role": info.get("role"),

@@ -8,6 +8,7 @@ Examples::
     python -m spade.ros model=student.onnx                        # /map, /amcl_pose, /goal_pose -> /plan
     python -m spade.ros model=student.onnx topics.plan=/spade/plan domain_id=7 record=session_bag
     python -m spade.ros model=student.onnx replay=robot_bag replay_out=replanned_bag
+    python -m spade.ros sim map=site.yaml model=student.onnx                # the desk simulator (conf/ros_sim.yaml)
 """
 
 from __future__ import annotations
@@ -41,11 +42,24 @@ def main(cfg: DictConfig) -> None:
     exit_on_errors(user_errors)(run)(cfg)
 
 
+@hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="ros_sim")
+@task
+def sim_main(cfg: DictConfig) -> None:
+    from spade.ros.sim import run_sim
+
+    status = exit_on_errors(user_errors)(run_sim)(cfg)
+    if status:
+        raise SystemExit(status)
+
+
 def cli() -> None:
-    """The ``spade-ros`` console script."""
-    sys.argv = [sys.argv[0], *(("model_path=" + a[len("model="):]) if a.startswith("model=") else a
-                                for a in sys.argv[1:])]
-    run_entry_point(main)
+    """The ``spade-ros`` console script (``spade-ros sim ...``: the desk simulator)."""
+    args = sys.argv[1:]
+    sim = bool(args) and args[0] == "sim"
+    if sim:
+        args = args[1:]
+    sys.argv = [sys.argv[0], *(("model_path=" + a[len("model="):]) if a.startswith("model=") else a for a in args)]
+    run_entry_point(sim_main if sim else main)
 
 
 if __name__ == "__main__":

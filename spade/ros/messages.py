@@ -22,7 +22,7 @@ from cyclonedds.idl.types import array, float32, float64, int8, int32, sequence,
 __all__ = [
     "Float32", "Header", "MapMetaData", "OccupancyGrid", "Path", "Point", "Pose", "PoseStamped", "PoseWithCovariance",
     "PoseWithCovarianceStamped", "Quaternion", "ROS_TYPES", "Time", "occupancy_grid", "path", "pose", "pose_stamped",
-    "pose_with_covariance", "stamp",
+    "pose_with_covariance", "stamp", "TFMessage", "Transform", "TransformStamped", "Vector3", "tf_message",
 ]
 
 
@@ -116,11 +116,41 @@ class Path(IdlStruct, typename="nav_msgs::msg::dds_::Path_"):
     poses: sequence[PoseStamped] = field(default_factory=list)
 
 
+@dataclass
+@annotate.final
+class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
+    x: float64 = 0.0
+    y: float64 = 0.0
+    z: float64 = 0.0
+
+
+@dataclass
+@annotate.final
+class Transform(IdlStruct, typename="geometry_msgs::msg::dds_::Transform_"):
+    translation: Vector3 = field(default_factory=Vector3)
+    rotation: Quaternion = field(default_factory=Quaternion)
+
+
+@dataclass
+@annotate.final
+class TransformStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TransformStamped_"):
+    header: Header = field(default_factory=Header)
+    child_frame_id: str = ""
+    transform: Transform = field(default_factory=Transform)
+
+
+@dataclass
+@annotate.final
+class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
+    transforms: sequence[TransformStamped] = field(default_factory=list)
+
+
 ROS_TYPES = {
     "nav_msgs/msg/OccupancyGrid": OccupancyGrid, "nav_msgs/msg/Path": Path, "nav_msgs/msg/MapMetaData": MapMetaData,
     "geometry_msgs/msg/PoseStamped": PoseStamped, "geometry_msgs/msg/PoseWithCovarianceStamped":
     PoseWithCovarianceStamped, "geometry_msgs/msg/Pose": Pose, "std_msgs/msg/Header": Header,
-    "std_msgs/msg/Float32": Float32, "builtin_interfaces/msg/Time": Time,
+    "std_msgs/msg/Float32": Float32, "builtin_interfaces/msg/Time": Time, "tf2_msgs/msg/TFMessage": TFMessage,
+    "geometry_msgs/msg/TransformStamped": TransformStamped,
 }
 """The ROS 2 name of each type (as ``ros2 interface show`` and rosbag2 write it) -> its DDS type here."""
 
@@ -174,3 +204,14 @@ def path(waypoints: Any, frame_id: str = "map", ns: int | None = None, goal_yaw:
     yaws = path_yaws(pts, goal_yaw)
     return Path(Header(t, frame_id),
                 [PoseStamped(Header(Time(t.sec, t.nanosec), frame_id), pose(x, y, a)) for (x, y), a in zip(pts, yaws)])
+
+
+def tf_message(xy_yaw: Sequence[float], parent: str = "map", child: str = "base_link", ns: int | None = None
+               ) -> TFMessage:
+    """A ``tf2_msgs/TFMessage`` with one transform ``parent`` -> ``child`` at pose ``xy_yaw`` (as ``/tf`` carries
+    the robot's pose; the desk simulator and recordings publish ``map`` -> ``base_link``)."""
+    from spade.ros.convert import yaw_to_quaternion
+
+    x, y, yaw = (float(v) for v in xy_yaw)
+    return TFMessage([TransformStamped(Header(stamp(ns), parent), child,
+                                       Transform(Vector3(x, y, 0.0), Quaternion(*yaw_to_quaternion(yaw))))])
