@@ -75,6 +75,8 @@ def test_a_model_without_a_footprint_says_so() -> None:
         assert check_footprint(None, None, None, "refuse", "m.onnx") is None
     with pytest.warns(UserWarning, match="records no robot footprint"):
         assert check_footprint(None, 0.2, None, "refuse", "m.onnx") is None
+    with pytest.warns(UserWarning, match="only a warning"):  # an assumed footprint cannot refuse a robot
+        assert check_footprint({**DEFAULT_FOOTPRINT, "assumed": True}, 0.3, None, "refuse", "m.onnx")["assumed"]
 
 
 def test_the_node_and_spade_plan_take_the_footprint_options() -> None:

@@ -399,7 +399,9 @@ def check_footprint(recorded: Any, radius_m: float | None, inflation_m: float | 
                "the trained robot's clearances; generate data for this robot (python -m spade.annotate "
                "robot.radius_m=... robot.inflation_radius_m=...; docs/how-to/own-map-footprint.md) and train on it, "
                "or pass footprint_mismatch=warn to plan anyway")
-    if mismatch == "refuse":
+    if footprint.get("assumed"):
+        message += " (the model file predates footprint records: its footprint is assumed, so this is only a warning)"
+    if mismatch == "refuse" and not footprint.get("assumed"):
         raise PlannerConfigError(message)
     warnings.warn(message, UserWarning, stacklevel=3)
     return footprint
