@@ -63,7 +63,7 @@ class PathDataModule(L.LightningDataModule):
 
     def __init__(
         self,
-        train_dir: str | Path,
+        train_dir: str | Path | None,
         test_dir: str | Path | None = None,
         train_generate: Any = None,
         test_generate: Any = None,
@@ -92,7 +92,7 @@ class PathDataModule(L.LightningDataModule):
             raise ValueError(f"data.batch_size must be >= 1, got {batch_size}")
         if num_workers < 0:
             raise ValueError(f"data.num_workers must be >= 0, got {num_workers}")
-        self.train_dir = Path(train_dir)
+        self.train_dir = Path(train_dir) if train_dir not in (None, "") else None
         self.test_dir = Path(test_dir) if test_dir else None
         self.train_generate, self.test_generate = train_generate, test_generate
         self.val_fraction, self.split_seed = val_fraction, split_seed
@@ -110,16 +110,29 @@ class PathDataModule(L.LightningDataModule):
         self.train_set = self.val_set = self.test_set = None
 
     # -- Lightning hooks -------------------------------------------------------------------------------------
+    def _testing_only(self) -> bool:
+        """Whether the trainer only tests (``spade.evaluate``, an untrained model's test) with a test set of its
+        own: then the training set is neither built nor read (a machine that evaluates needs no training data)."""
+        if self.test_dir is None or self.trainer is None:
+            return False
+        from lightning.pytorch.trainer.states import TrainerFn
+
+        return self.trainer.state.fn == TrainerFn.TESTING
+
     def prepare_data(self) -> None:
-        for key, root, config in (("data.train_dir", self.train_dir, self.train_generate),
-                                  ("data.test_dir", self.test_dir, self.test_generate)):
+        sets = [("data.train_dir", self.train_dir, self.train_generate),
+                ("data.test_dir", self.test_dir, self.test_generate)]
+        if self._testing_only():
+            sets = sets[1:]
+        for key, root, config in sets:
             check_dataset(root, config, key)  # an existing dataset made with other settings, or not a dataset
             if root is None or (root / "manifest.json").is_file():
                 continue
             if config is None:
                 raise DatasetError(
-                    f"{root}: dataset missing and no generator config given. Build it with "
-                    f"`python -m spade.annotate out_dir={root}` or set the data config's *_generate."
+                    f"{key}={root}: dataset missing and no generator config given (data=own reads datasets as they "
+                    f"are); build it with `python -m spade.annotate out_dir={root}`, or point {key} at an existing "
+                    "dataset"
                 )
             if self.generator is None:
                 raise DatasetError(
@@ -139,17 +152,26 @@ class PathDataModule(L.LightningDataModule):
                 check_dataset(root, config, key)
 
     def setup(self, stage: str | None = None) -> None:
-        if self.train_set is None:
+        # A test with a test set of its own reads that set alone: spade.evaluate needs no training data. The
+        # training set, when a later stage loads it, is still checked against the test set (size, leaks).
+        test_only = stage == "test" and self.test_dir is not None
+        if self.train_set is None and not test_only:
+            if self.train_dir is None:
+                raise DatasetError("data.train_dir is not set; point it at a training set (data=own "
+                                   "data.train_dir=DIR), or give a test set (data.test_dir=DIR) to test alone")
             full = PathDataset(self.train_dir, encoding=self.encoding)
             train, val = split_by_scenario(full.labels("scenario_id"), self.val_fraction, self.split_seed)
             if self.max_train_instances:
                 train = train[: self.max_train_instances]
                 val = val[: max(1, self.max_train_instances // 4)] if val else val
             self.train_set, self.val_set = Subset(full, train), Subset(full, val)
+            if self.test_set is not None and self.test_dir is not None:  # tested alone first (test_untrained)
+                self._check_compatible(self.test_set.dataset)
         if self.test_set is None:
             if self.test_dir is not None:
                 test = PathDataset(self.test_dir, encoding=self.encoding)
-                self._check_compatible(test)
+                if self.train_set is not None:
+                    self._check_compatible(test)
                 shapes = test.labels("shape")
                 idx = [i for i, s in enumerate(shapes) if self.test_shape in (None, s)]
                 if not idx:
@@ -193,11 +215,18 @@ class PathDataModule(L.LightningDataModule):
                                f"{self.train_dir} (most of their windows identical): a leak. Make the test set from "
                                "other demonstrations (another seed, other sketches or another map)")
 
+    def _windows_root(self) -> Path:
+        """The dataset whose windows describe this data: the training set's, or, when only a test set was read
+        (a test of its own), the test set's."""
+        if self.train_set is None and self.test_set is not None and self.test_dir is not None:
+            return self.test_dir
+        return self.train_dir
+
     @property
     def image_size(self) -> tuple[int, int]:
         if self.train_set is not None:
             return self.train_set.dataset.image_size
-        manifest = read_manifest(self.train_dir)
+        manifest = read_manifest(self._windows_root())
         return manifest.height, manifest.width
 
     @property
@@ -205,21 +234,21 @@ class PathDataModule(L.LightningDataModule):
         """The training windows' frame (the manifest's ``frame``: robot pixel, heading up)."""
         if self.train_set is not None:
             return self.train_set.dataset.frame
-        return dict(read_manifest(self.train_dir).frame)
+        return dict(read_manifest(self._windows_root()).frame)
 
     @property
     def annotation_settings(self) -> dict[str, Any]:
         """The annotation settings the training set was generated with (its manifest's ``generator``): a
         checkpoint records the start/goal disc radius and the goal margin from them
         (:func:`spade.models.modelfile.checkpoint_entry`)."""
-        return dict(read_manifest(self.train_dir).generator)
+        return dict(read_manifest(self._windows_root()).generator)
 
     @property
     def resolution(self) -> float:
         """Metres per pixel of the training windows."""
         if self.train_set is not None:
             return float(self.train_set.dataset.resolution)
-        return float(read_manifest(self.train_dir).resolution)
+        return float(read_manifest(self._windows_root()).resolution)
 
     def _loader(self, dataset: Subset, shuffle: bool, batch_size: int, evaluation: bool = False) -> DataLoader:
         sampler = self._evaluation_sampler(dataset) if evaluation else None

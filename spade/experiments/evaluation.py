@@ -44,6 +44,9 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     model = load_module(cfg.ckpt_path)
     datamodule = hydra.utils.instantiate(cfg.data)
     _use_models_encoding(datamodule, cfg.ckpt_path)
+    from spade.experiments.tracking.runs import ensure_logger_store
+
+    ensure_logger_store(cfg)  # a fresh store's tables, created by one process at a time
     loggers = instantiate_loggers(cfg.get("logger"))
     trainer = hydra.utils.instantiate(cfg.trainer, logger=loggers or False, callbacks=[])
     try:

@@ -131,6 +131,9 @@ def fetch_registered(tracking_uri: str, name: str, cache_dir: str | Path,
     when ``name`` is not registered."""
     from mlflow import MlflowClient
 
+    from spade.experiments.tracking.runs import ensure_store
+
+    ensure_store(tracking_uri)  # a fresh store's tables, created by one process at a time
     client = MlflowClient(tracking_uri=tracking_uri)
     chosen = resolve_version(client, name, version)
     if chosen is None:

@@ -168,5 +168,7 @@ async def validation_error(request: Request, exc: RequestValidationError) -> JSO
                         status_code=422)
 
 
-async def request_error(request: Request, exc: RequestError) -> JSONResponse:
-    return JSONResponse({"error": str(exc)}, status_code=exc.status)
+async def request_error(request: Request, exc: Exception) -> JSONResponse:
+    """A refused request (:class:`RequestError`) or a sketch file the store refuses
+    (:class:`~spade.sketching.storage.StorageError`): ``{"error": ...}`` with its 4xx status."""
+    return JSONResponse({"error": str(exc)}, status_code=int(getattr(exc, "status", 400)))

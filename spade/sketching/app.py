@@ -22,6 +22,7 @@ from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from spade.sketching.api import request_error, router, validation_error
+from spade.sketching.storage import StorageError
 from spade.sketching.workspace import RequestError, SketchWorkspace, annotation_config
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
@@ -109,6 +110,7 @@ def create_app(workspace: SketchWorkspace, hosts: Sequence[str] = ()) -> FastAPI
         return await call_next(request)
     app.add_exception_handler(RequestValidationError, validation_error)  # type: ignore[arg-type]
     app.add_exception_handler(RequestError, request_error)  # type: ignore[arg-type]
+    app.add_exception_handler(StorageError, request_error)  # type: ignore[arg-type]  # the file's state: 4xx
     app.include_router(router(workspace))
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
 

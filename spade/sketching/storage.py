@@ -23,13 +23,14 @@ from typing import Any
 import yaml
 
 from spade.annotation.sketch_file import load_sketch_file
+from spade.utils.errors import UserError
 
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
 
 
-class StorageError(ValueError):
-    """A change the sketch file refuses (unknown name, name taken, file of another map); ``status`` is the HTTP
-    status the API answers with."""
+class StorageError(UserError, ValueError):
+    """A change the sketch file refuses (unknown name, name taken, file of another map, a file that is no sketch
+    file); ``status`` is the HTTP status the API answers with. At start-up it is a user error: one line, exit 2."""
 
     def __init__(self, message: str, status: int = 400) -> None:
         super().__init__(message)
@@ -50,25 +51,40 @@ class SketchStore:
         self._lock = threading.Lock()
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if self.path.exists():
-            doc = self._read()
-            if doc["map"] != self.map_ref and _resolved(doc["map"], self.path) != self.map_ref:
-                raise StorageError(f"sketch file {self.path} holds sketches of map {doc['map']!r}, not "
-                                   f"{self.map_ref!r}; pass another out_dir= (one sketch file per map)", status=409)
+            doc = self._read()  # refuses a file of another map (one sketch file, one map)
             if doc["scenarios"]:
-                load_sketch_file(self.path)  # a hand-edited file must still be one spade.annotate reads
+                try:
+                    load_sketch_file(self.path)  # a hand-edited file must still be one spade.annotate reads
+                except Exception as exc:  # noqa: BLE001 - SketchFileError and what a parser says of a bad file
+                    raise StorageError(f"sketch file {self.path} cannot be read by spade.annotate ({exc}); fix it, "
+                                       "move it away or pass another out_dir=", status=409) from None
 
     # -- reading ---------------------------------------------------------------------------------------------
     def _read(self) -> dict[str, Any]:
+        """The file as it is now, checked on every request: a sketch file (readable YAML with ``map`` and a list
+        of ``scenarios``) of this server's map. A file another server (of another map) or an edit of its ``map:``
+        changed while this one runs is refused (409), never written into: one sketch file, one map."""
         if not self.path.exists():
             return {"map": self.map_ref, "scenarios": []}
-        doc = yaml.safe_load(self.path.read_text()) or {}
+        try:
+            doc = yaml.safe_load(self.path.read_text()) or {}
+        except (yaml.YAMLError, UnicodeDecodeError, OSError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise StorageError(f"sketch file {self.path} is not readable YAML ({first}); fix it or move it away (or "
+                               "pick another out_dir=): nothing is saved into it meanwhile", status=409) from None
         if not isinstance(doc, dict) or "map" not in doc:
             raise StorageError(f"{self.path} is not a sketch file (no 'map' key); move it away or pick another "
                                "out_dir=", status=409)
         scenarios = doc.get("scenarios") or []
-        if not isinstance(scenarios, list):
-            raise StorageError(f"{self.path}: 'scenarios' is not a list", status=409)
-        return {"map": str(doc["map"]), "scenarios": scenarios}
+        if not isinstance(scenarios, list) or not all(isinstance(e, dict) for e in scenarios):
+            raise StorageError(f"{self.path}: 'scenarios' is not a list of sketches; fix it or move it away",
+                               status=409)
+        recorded = str(doc["map"])
+        if recorded != self.map_ref and _resolved(recorded, self.path) != self.map_ref:
+            raise StorageError(f"sketch file {self.path} holds sketches of map {recorded!r}, not {self.map_ref!r} "
+                               "(this server's map); one sketch file holds one map: pass another out_dir= (a second "
+                               "server on this folder, or an edit of the file's map:, changed it)", status=409)
+        return {"map": recorded, "scenarios": scenarios}
 
     def list(self) -> list[dict[str, Any]]:
         """Every saved sketch, in file order: ``name``, ``shape``, ``waypoints`` and the stats saved with it."""

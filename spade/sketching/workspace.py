@@ -381,6 +381,9 @@ class SketchWorkspace:
         """Load a student (checkpoint or ONNX) as the planner; a wrong file is a :class:`RequestError`."""
         from spade.deploy.planner import Planner, PlannerConfigError
 
+        if "\x00" in str(path):  # the OS refuses such a path (ValueError: embedded null byte): a 400, not a 500
+            raise RequestError("model path holds a NUL byte, which no file name can; give the path of a student "
+                               "checkpoint (.ckpt) or its export (.onnx, .pt)", status=400)
         p = Path(str(path)).expanduser()
         if p.suffix.lower() not in MODEL_SUFFIXES:  # refused before the file is even looked at
             raise RequestError(f"model {p.name!r} is not a model file: give a student checkpoint (.ckpt) from "

@@ -14,7 +14,8 @@ from spade.annotation.sources import expand_map_specs
 from spade.annotation.split import parse_split
 from spade.annotation.templates import SHAPES
 from spade.data.writer import check_output_dir
-from spade.experiments.checks.files import _input_file, _same_file
+from spade.annotation.sources import parse_procedural
+from spade.experiments.checks.files import _input_file, _same_file, check_map_size, check_writable
 from spade.experiments.checks.values import (
     _MISSING,
     _check_bool,
@@ -40,6 +41,7 @@ def validate_annotate_config(cfg: Mapping[str, Any] | DictConfig) -> None:
     overwrite = _get(cfg, "overwrite")
     out_dir = Path(str(_get(cfg, "out_dir"))).expanduser()
     check_output_dir(out_dir, bool(overwrite))
+    check_writable("out_dir", out_dir, "choose an out_dir in a folder you can write")
     _check_int(cfg, "seed", 0, 2**32 - 1, fix=", e.g. seed=0")
     _check_int(cfg, "workers", 0, fix=" (0 or 1: in this process)")
     _check_choice(cfg, "start_method", ["spawn", "forkserver", "fork"])
@@ -69,10 +71,13 @@ def validate_annotate_config(cfg: Mapping[str, Any] | DictConfig) -> None:
             if shape not in SHAPES:
                 raise ConfigError(f"shape={shape!r} is not one of {list(SHAPES)}; use shape=L, shape=U or shape=[L,U]")
         try:
-            expand_map_specs(_get(cfg, "maps"))
+            specs = expand_map_specs(_get(cfg, "maps"))
         except (ValueError, FileNotFoundError) as exc:
             raise ConfigError(f"maps={_get(cfg, 'maps')}: {exc}; give a folder of ROS map yamls, yaml paths or specs "
                               "such as warehouse:1") from None
+        for spec in specs:
+            if parse_procedural(spec) is None:
+                check_map_size("maps", spec, _get(cfg, "window.resolution_m"))
     settings = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)
     parse_split(settings)  # SplitError, a ConfigError: the key, its value and the fix in one line
     check_annotation_settings(settings, "")

@@ -10,7 +10,7 @@ from omegaconf import DictConfig
 
 from spade.experiments.checks.checkpoints import _check_checkpoint, _check_geometry
 from spade.experiments.checks.data import _check_folder_path
-from spade.experiments.checks.files import check_path_value, check_paths
+from spade.experiments.checks.files import check_path_value, check_paths, check_writable
 from spade.experiments.checks.store import _check_logger_store
 from spade.experiments.checks.values import _MISSING, _check_int, _get, _unset
 from spade.utils.errors import ConfigError
@@ -53,6 +53,8 @@ def validate_critic_config(cfg: DictConfig) -> None:
         check_path_value("output_dir", out, "set output_dir to a folder for the results page (null: no page)")
         if Path(str(out)).expanduser().is_file():
             raise ConfigError(f"output_dir={out} is a file; give a folder for the results page (null: no page)")
+        check_writable("output_dir", Path(str(out)).expanduser() / "page.md",
+                       "give a folder you can write for the results page (null: no page)")
 
 
 def _check_test_set(cfg: DictConfig) -> None:

@@ -51,7 +51,7 @@ def _check_data(cfg: DictConfig) -> None:
         check_annotation_settings(settings, f"data.{name}_generate: ")
         check_window_holds_manoeuvre(settings, "scale.annotate" if scaled else f"data.{name}_generate")
         _check_window_size(cfg, settings, "scale.annotate" if scaled else f"data.{name}_generate")
-        _check_map_entries(cfg, name, settings.get("maps"))
+        _check_map_entries(cfg, name, settings.get("maps"), (settings.get("window") or {}).get("resolution_m"))
         num = settings.get("num_instances")
         if num is not None and (not _is_int(num) or num < 1):
             raise ConfigError(f"data.{name}_generate num_instances={num!r} must be an integer >= 1; set "
@@ -82,7 +82,10 @@ def check_existing_dataset(key: str, root: Path) -> Any:
     try:
         return PathDataset(root)
     except DatasetError as exc:
-        text = str(exc)
+        text = str(exc).rstrip()
+        if "; " not in text and ". " in text:  # "<what is wrong>; <the fix>", as every refusal reads
+            what, fix = text.split(". ", 1)
+            text = f"{what}; {fix[:1].lower()}{fix[1:]}"
         raise DatasetError(text if text.startswith(key) else f"{key}={root}: {text}") from None
 
 
@@ -101,15 +104,21 @@ def _check_folder_path(key: str, value: Any) -> None:
             return
 
 
-def _check_map_entries(cfg: DictConfig, name: str, maps: Any) -> None:
+def _check_map_entries(cfg: DictConfig, name: str, maps: Any, resolution_m: Any = None) -> None:
     """Every map a dataset is generated from exists (a yaml, a folder of them or a ``kind:seed`` generator spec):
     an unknown entry is named before any work, never reported as a dataset "generated with other settings"."""
     if maps is None:
         return
     try:
-        expand_map_specs(maps)
+        specs = expand_map_specs(maps)
     except (FileNotFoundError, ValueError) as exc:
         where = "scale.train_maps" if name == "train" and _get(cfg, "scale.train_maps") not in (_MISSING, None) \
             else f"data.{name}_generate"
         raise ConfigError(f"{where}: {exc.args[0] if exc.args else exc}; fix that entry, e.g. warehouse:1 or the path "
                           "of a ROS map yaml (nothing was generated or changed)") from None
+    from spade.annotation.sources import parse_procedural
+    from spade.experiments.checks.files import check_map_size
+
+    for spec in specs:
+        if parse_procedural(spec) is None:
+            check_map_size(f"data.{name}_generate maps", spec, resolution_m)

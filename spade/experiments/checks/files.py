@@ -4,6 +4,7 @@ the folders everything is written under (``paths.*``), which are neither empty n
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -94,7 +95,74 @@ def _output_file(key: str, value: Any, inputs: Mapping[str, Path | None], fix: s
         raise ConfigError(f"{key}={value} must end with {' or '.join(suffixes)}; {fix}")
     if (refusal := replace_refusal(key, path, overwrite is True, label)) is not None:
         raise ConfigError(refusal)
+    check_writable(key, path, fix)
     return path
+
+
+#: The most cells a map may hold, as read and after resampling to the window's metres per pixel: a grid, its costmap
+#: and distance transforms take tens of bytes a cell, so 10^8 cells is already several GiB. A larger map is refused
+#: in one line before it is read (a huge image raised PIL's DecompressionBombError; a 5 m/cell map resampled to
+#: 0.05 m/px asked for 37 GiB).
+MAX_MAP_CELLS = 100_000_000
+_BYTES_PER_CELL = 40  # the grid, inflation costs, distances and the planner's arrays, roughly
+
+
+def check_map_size(key: str, yaml_path: str | Path, resolution_m: float | None = None) -> None:
+    """A ROS map's image has at most :data:`MAX_MAP_CELLS` pixels, and so has the map resampled to
+    ``resolution_m`` (None: not resampled here); read from the image's header only."""
+    from PIL import Image
+
+    try:
+        meta = read_map_yaml(yaml_path)
+    except MapFormatError as exc:
+        raise ConfigError(f"{key}={yaml_path}: {exc}") from None
+    fix = "crop the map (or save it at a coarser resolution)"
+    try:
+        limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None  # the header alone: no bomb to fear yet
+        try:
+            with Image.open(meta.image_path) as img:
+                width, height = img.size
+        finally:
+            Image.MAX_IMAGE_PIXELS = limit
+    except Exception:  # noqa: BLE001 - unreadable: the map loader names it with its own fix
+        return
+    if width * height > MAX_MAP_CELLS:
+        raise ConfigError(f"{key}={yaml_path}: its image {meta.image_path.name} is {width} x {height} px "
+                          f"({width * height / 1e6:,.0f} M cells), more than SPADE reads (at most "
+                          f"{MAX_MAP_CELLS / 1e6:,.0f} M cells); {fix}")
+    if resolution_m is None or not _is_number(resolution_m) or resolution_m <= 0:
+        return
+    factor = meta.resolution / float(resolution_m)
+    w, h = math.ceil(width * factor), math.ceil(height * factor)
+    if w * h > MAX_MAP_CELLS:
+        gib = w * h * _BYTES_PER_CELL / 2**30
+        raise ConfigError(f"{key}={yaml_path}: {width} x {height} cells at {meta.resolution:g} m/cell resampled to "
+                          f"{float(resolution_m):g} m/px is {w} x {h} cells (about {gib:,.0f} GiB to hold), more than "
+                          f"SPADE handles (at most {MAX_MAP_CELLS / 1e6:,.0f} M cells); {fix}, or use a coarser "
+                          "window.resolution_m")
+
+
+def check_writable(key: str, path: str | Path, fix: str) -> None:
+    """The folder a file or folder ``path`` would be written into (its nearest existing ancestor) can be written:
+    a read-only folder or file system is refused in one line before any work (a ``PermissionError`` traceback at
+    the end of a command before). An existing file at ``path`` must be replaceable too."""
+    import tempfile
+
+    target = Path(str(path)).expanduser()
+    folder = next((p for p in (target.parent, *target.parent.parents) if p.exists()), None)
+    if folder is None or not folder.is_dir():
+        return  # a file where a folder should be: the callers name it
+    problem = None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        problem = "is not writable"
+    else:
+        try:
+            with tempfile.TemporaryFile(dir=folder):  # a read-only file system, even for root
+                pass
+        except OSError as exc:
+            problem = f"cannot be written ({exc.strerror or exc})"
+    if problem is not None:
+        raise ConfigError(f"{key}={path}: the folder {folder} {problem}; {fix}")
 
 
 def _map_files(key: str, spec: Any) -> list[Path]:
@@ -112,6 +180,7 @@ def _map_files(key: str, spec: Any) -> list[Path]:
         meta = read_map_yaml(path)
     except MapFormatError as exc:
         raise ConfigError(f"{key}={spec}: {exc}") from None
+    check_map_size(key, path)
     return [path, Path(meta.image_path)]
 
 

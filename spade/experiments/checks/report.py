@@ -9,7 +9,7 @@ from typing import Any
 from omegaconf import DictConfig
 
 from spade.deploy.outputs import replace_refusal
-from spade.experiments.checks.files import check_path_value, check_paths
+from spade.experiments.checks.files import check_path_value, check_paths, check_writable
 from spade.experiments.checks.store import _store_path, check_server, check_store_file
 from spade.experiments.checks.values import _MISSING, _check_bool, _get, _unset
 from spade.experiments.tables import TABLES, get_table
@@ -42,6 +42,7 @@ def _check_output_dir(cfg: DictConfig) -> None:
     folder = Path(str(out)).expanduser()
     if folder.is_file():
         raise ConfigError(f"output_dir={out} is a file; give a folder for the report files")
+    check_writable("output_dir", folder / "report.md", "give a folder you can write (null: print only)")
     _check_bool(cfg, "overwrite")
     overwrite = _get(cfg, "overwrite") is True
     for name in report_files(_get(cfg, "table"), _get(cfg, "chart") is not False):

@@ -8,7 +8,15 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from spade.experiments.checks.checkpoints import _check_checkpoint
-from spade.experiments.checks.files import MODEL_SUFFIXES, _input_file, _map_files, check_path_value, check_paths
+from spade.experiments.checks.files import (
+    MODEL_SUFFIXES,
+    _input_file,
+    _map_files,
+    check_map_size,
+    check_path_value,
+    check_paths,
+    check_writable,
+)
 from spade.experiments.checks.values import _MISSING, _check_int, _get, _unset
 from spade.experiments.checks.windows import check_window_holds_manoeuvre
 from spade.utils.errors import ConfigError
@@ -33,6 +41,9 @@ def validate_sketch_config(cfg: DictConfig) -> None:
     check_path_value("out_dir", out, "give a folder for sketches.yaml and dataset/ (or leave out_dir unset)")
     if not _unset(out) and Path(str(out)).expanduser().is_file():
         raise ConfigError(f"out_dir={out} is a file; give a folder for sketches.yaml and dataset/")
+    if not _unset(out):
+        check_writable("out_dir", Path(str(out)).expanduser() / "sketches.yaml",
+                       "give a folder you can write for sketches.yaml and dataset/")
     for key in ("models", "allowed_hosts"):
         value = _get(cfg, key)
         if value not in (_MISSING, None) and not isinstance(value, list):
@@ -53,4 +64,7 @@ def validate_sketch_config(cfg: DictConfig) -> None:
     from spade.experiments.checks.annotate import check_annotation_settings
 
     check_annotation_settings(settings, "annotate.")
+    files = _map_files("map", _get(cfg, "map"))
+    if files:
+        check_map_size("map", files[0], (settings.get("window") or {}).get("resolution_m"))
     check_window_holds_manoeuvre(settings, "annotate")

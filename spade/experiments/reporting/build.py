@@ -126,4 +126,4 @@ def report(cfg: DictConfig) -> list[Report]:
     # `scale` is the config group of conf/scale (so that scale=cpu reads as everywhere else); its name filters runs.
     scale = cfg.scale.name if cfg.get("scale") else None
     return [build_report(t, cfg.tracking_uri, cfg.get("output_dir"), scale, cfg.get("paper", True),
-                         cfg.get("chart", True), cfg.get("log_to_runs", True)) for t in tables]
+                         cfg.get("chart", True), cfg.get("log_to_runs", False) is True) for t in tables]

@@ -25,12 +25,15 @@ Only Lightning's public ``MLFlowLogger`` API is used (``experiment``: its ``Mlfl
 
 from __future__ import annotations
 
+import contextlib
 import datetime
+import fcntl
 import logging
 import os
 import signal
 import socket
 import weakref
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -122,6 +125,50 @@ def start_run_logging(cfg: DictConfig, model: L.LightningModule, loggers: list[L
         ml.experiment.set_tag(ml.run_id, "fid_extractor", fid)
 
 
+# -- the store ------------------------------------------------------------------------------------------------------
+@contextlib.contextmanager
+def store_lock(tracking_uri: str | None) -> Iterator[None]:
+    """An exclusive ``fcntl`` lock on ``<store>.lock`` beside a local SQLite store (nothing for a server or a file
+    store): the processes of SPADE that open one store take turns while MLflow creates its tables."""
+    from spade.experiments.checks.store import _store_path
+
+    uri = str(tracking_uri or "")
+    path = _store_path(uri) if uri.startswith("sqlite:") else None
+    if path is None:
+        yield
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path.with_name(path.name + ".lock"), "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def ensure_store(tracking_uri: str | None) -> None:
+    """Open the store at ``tracking_uri`` once, creating a fresh SQLite store's tables under :func:`store_lock`.
+
+    MLflow creates a new SQLite store's schema (its Alembic migrations) the first time a client opens it, and two
+    processes doing so at once collide (``duplicate column name``): two ``spade.train`` started together on a fresh
+    store crashed one of them. Under the lock the first creates the tables and the second finds them. A store that
+    cannot be opened is left to the run's own logger to report."""
+    if not tracking_uri or not str(tracking_uri).startswith("sqlite:"):
+        return
+    from mlflow import MlflowClient
+
+    with store_lock(tracking_uri):
+        MlflowClient(tracking_uri=str(tracking_uri)).search_experiments(max_results=1)
+
+
+def ensure_logger_store(cfg: DictConfig) -> None:
+    """:func:`ensure_store` for the store of ``cfg``'s MLflow logger (nothing without one)."""
+    logger_cfg = (cfg.get("logger") or {}).get("mlflow")
+    if not logger_cfg or "MLFlowLogger" not in str(logger_cfg.get("_target_", "")):
+        return
+    ensure_store(OmegaConf.select(cfg, "logger.mlflow.tracking_uri"))
+
+
 # -- the run's process and status -------------------------------------------------------------------------------
 PROCESS_TAGS = ("spade.host", "spade.pid", "spade.proc_start")  # a RUNNING run's process (mark_stale_runs)
 
@@ -199,6 +246,7 @@ def mark_stale_runs(cfg: DictConfig) -> list[str]:
     from mlflow import MlflowClient
 
     resolved = OmegaConf.to_container(logger_cfg, resolve=True)
+    ensure_store(resolved.get("tracking_uri"))  # a fresh store's tables, created by one process at a time
     client = MlflowClient(tracking_uri=resolved.get("tracking_uri"))
     experiment = client.get_experiment_by_name(str(resolved.get("experiment_name")))
     if experiment is None:
