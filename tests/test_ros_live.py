@@ -151,3 +151,26 @@ def test_the_shipped_layout_is_a_foxglove_layout_of_spades_channels() -> None:
     served = {topic for topic, _ in CHANNELS.values()} | {"/plan_confidence"}  # the node's confidence topic
     assert set(layout["configById"]["3D!spade"]["topics"]) <= served
     assert layout["configById"]["RawMessages!plan"]["topicPath"] in served
+
+
+def test_recordings_carry_tf_and_the_students_window(tmp_path: Path) -> None:
+    mcap_ros2 = pytest.importorskip("mcap_ros2.reader")
+    from spade.deploy.planner import PlanWindow
+    from spade.maps import FREE, OccupancyMap
+    from spade.maps.frame import RobotFrame
+    from spade.ros.node import Topics
+    from spade.ros.recording import NodeRecorder
+
+    m = OccupancyMap(np.full((100, 100), FREE, np.uint8), 0.1, (0.0, 0.0, 0.0))
+    window = PlanWindow(m, RobotFrame.for_size(16).place(np.array([50.0, 50.0]), 0.0))
+    recorder = NodeRecorder(tmp_path / "s.mcap", Topics())
+    recorder.message("pose", M.pose_with_covariance((5.0, 5.0, 0.0), "map", 10**9), 10**9)
+    result = NS(window=window, probability=np.full((16, 16), 0.5), pose=np.array([5.0, 5.0, 0.0]))
+    recorder.plan(NS(result=result, stamp_ns=2 * 10**9, frame_id="map"), None)
+    recorder.close()
+    got = [(r.channel.topic, r.ros_msg) for r in mcap_ros2.read_ros2_messages(str(tmp_path / "s.mcap"))]
+    topics = [t for t, _ in got]
+    assert topics.count("/tf") == 2 and "/plan_window" in topics and "/plan_probability" in topics
+    children = {msg.transforms[0].child_frame_id for t, msg in got if t == "/tf"}
+    assert children == {"base_link", "spade_window"}
+    assert set(dict(got)["/plan_probability"].data) == {50}

@@ -230,11 +230,42 @@ class NodeRecorder:
         self.bag = BagWriter(path, latched=[self.topics["map"]])
         self.path = self.bag.path
 
+    EXTRA = {"tf": ("/tf", "tf2_msgs/msg/TFMessage"), "window": ("/plan_window", "nav_msgs/msg/OccupancyGrid"),
+             "probability": ("/plan_probability", "nav_msgs/msg/OccupancyGrid")}
+
     def message(self, name: str, sample: Any, ns: int | None = None) -> None:
         try:
             self.bag.write(self.topics[name], self.types[name], bytes(sample.serialize()), ns)
+            if name == "pose":  # the robot in /tf too (map -> base_link), for Foxglove's 3D panel
+                from spade.ros import messages as M
+                from spade.ros.convert import pose_from_msg
+
+                frame, pose = pose_from_msg(sample)
+                self._extra("tf", M.tf_message(pose, frame or "map", "base_link"), ns)
         except Exception as err:  # noqa: BLE001 - the recording must never stop the node
             log.warning("recording a %s message failed: %s: %s", name, type(err).__name__, err)
+
+    def _extra(self, key: str, msg: Any, ns: int | None) -> None:
+        topic, typename = self.EXTRA[key]
+        self.bag.write(topic, typename, bytes(msg.serialize()), ns)
+
+    def plan(self, event: Any, path: Any) -> None:
+        """A published plan's student window and probabilities (``/plan_window``, ``/plan_probability``, frame
+        ``spade_window``) and where that window lies (``/tf``: map -> spade_window)."""
+        try:
+            from spade.ros import messages as M
+            from spade.ros.live import WINDOW_FRAME, window_grids
+
+            grids = window_grids(event.result, event.stamp_ns)
+            pose = getattr(event.result, "pose", None)
+            if grids is None or pose is None:
+                return
+            self._extra("tf", M.tf_message(pose, event.frame_id, WINDOW_FRAME, event.stamp_ns), None)
+            self._extra("window", grids[0], None)
+            if grids[1] is not None:
+                self._extra("probability", grids[1], None)
+        except Exception as err:  # noqa: BLE001 - the recording must never stop the node
+            log.warning("recording a plan's window failed: %s: %s", type(err).__name__, err)
 
     def close(self) -> Path:
         return self.bag.close()
