@@ -21,7 +21,8 @@ SOFTWARE = "SPADE"  # the PNG tEXt "Software" value of every picture SPADE write
 REPORT_PROVENANCE = "- command: `python -m spade.report"  # the provenance line of every spade.report page
 #: The header of each CSV file spade.report writes (spade.experiments.reporting.files, the closed-loop page):
 #: its first fields, or (for <table>.csv, whose metric columns vary) fields it always holds.
-REPORT_CSV_HEADS = (("kind", "comparison", "row", "baseline", "metric"), ("dataset", "condition", "row", "seeds"))
+REPORT_CSV_HEADS = (("kind", "comparison", "row", "baseline", "metric"), ("dataset", "condition", "row", "seeds"),
+                    ("predictor", "reading", "markers", "seeds"))  # ... and the teacher page's
 REPORT_CSV_FIELDS = frozenset({"table", "shape", "row", "status", "n_seeds", "seeds", "run_id", "n_runs"})
 BENCH_KEYS = frozenset({"mode", "machine", "settings"})  # the top level of spade.bench's JSON (spade.perf.bench)
 _HEAD_BYTES = 1 << 20  # how much of a text file is read to recognise it

@@ -56,6 +56,7 @@ class Row:
     seeds: list[str] = field(default_factory=list)
     params: dict[str, str] = field(default_factory=dict)
     seconds: float = 0.0
+    test_sets: set[str] = field(default_factory=set)  # "name (digest)" of the runs' MLflow test dataset inputs
 
     def values(self, key: str) -> list[float]:
         return [m[key] for m in self.runs if key in m and not math.isnan(m[key])]
@@ -65,11 +66,16 @@ class Row:
         return statistics.fmean(v) if v else None
 
 
+def _test_sets(run: Any) -> set[str]:
+    inputs = getattr(getattr(run, "inputs", None), "dataset_inputs", None) or []
+    return {f"{d.dataset.name} ({d.dataset.digest})" for d in inputs if any(t.value == "test" for t in d.tags)}
+
+
 def _cell(row: Row, key: str, fmt: str) -> str:
     values = row.values(key)
     if not values:
         return "n/a"
-    if len(values) == 1:
+    if len(set(values)) == 1:
         return format(values[0], fmt)
     sd = statistics.stdev(values)
     return f"{format(statistics.fmean(values), fmt)} ± {format(sd, fmt)}"
@@ -91,7 +97,8 @@ def _rows(client: Any, sources: Sequence[Mapping[str, str]], kind: str, scale: s
             runs=[dict(r.data.metrics) for r in runs], seeds=[str(r.data.params.get("cfg/seed", "?")) for r in runs],
             params={k: v for k, v in runs[0].data.params.items() if k in ("cfg/data/test_dir", "cfg/model/preset",
                     "cfg/trainer/max_epochs", "cfg/model/ema_decay", "cfg/model/test_samples")},
-            seconds=sum(((r.info.end_time or 0) - (r.info.start_time or 0)) / 1000.0 for r in runs)))
+            seconds=sum(((r.info.end_time or 0) - (r.info.start_time or 0)) / 1000.0 for r in runs),
+            test_sets=set().union(*(_test_sets(r) for r in runs))))
     return rows
 
 
@@ -261,8 +268,7 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
             word = "better" if a < b else "worse" if a > b else "the same"
             verdicts.append(f"- {what}: guidance plans {word} by planner APE ({a:.2f} vs {b:.2f} cm), {sig}"
                             + (f" (Holm p {ph:.3g})" if ph is not None else ""))
-    test_dirs = sorted({shown_path(r.params["cfg/data/test_dir"]) for r in experts + students
-                        if "cfg/data/test_dir" in r.params})
+    test_sets = sorted(set().union(*(r.test_sets for r in experts + students)))
     seconds = sum(r.seconds for r in experts)
     parts = [
         "# The teacher: each expert as a planner beside its student",
@@ -273,7 +279,10 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
         "decides is the planner's APE and its tail (> 20 cm), then plausibility (the APE to the nearest plausible "
         "demonstration) and commitment; a teacher is worth its cost where it plans better than its student.",
         "",
-        f"Test set: {', '.join(test_dirs) or 'n/a'}" + (f", scale {scale}" if scale else "") + ".",
+        f"Test set (MLflow dataset input, name and digest): {', '.join(test_sets) or 'not recorded'}"
+        + (f", scale {scale}" if scale else "") + "."
+        + (" **The rows were tested on different sets: compare only rows on the same one.**" if len(test_sets) > 1
+           else ""),
         "",
         *lines,
         "",
