@@ -53,6 +53,10 @@ def test_the_summary_says_when_the_student_loses_and_when_it_learned_nothing() -
     nothing = learning_verdict(metrics(**{"test/failure_rate": 1.0}))
     assert len(nothing) == 1 and "no path" in nothing[0]
     assert learning_verdict({}) == []
+    # an expert's test (it measures its samples' spread) is the expert's verdict, not a student's
+    expert = learning_verdict(metrics(**{"test/planner/spread_cm": 2.0}))
+    assert any(line.startswith("  verdict          : the expert beats") for line in expert)
+    assert not any("the student" in line for line in expert)
 
 
 def test_evaluate_ends_with_the_same_verdict() -> None:

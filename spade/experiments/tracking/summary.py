@@ -57,10 +57,12 @@ def learning_verdict(metrics: dict[str, Any]) -> list[str]:
     failures = metrics.get("test/failure_rate")
     if failures is None:
         return []
+    # an expert's test (the expert as a planner) is the only one that measures the spread of its samples
+    who = "the expert" if "test/planner/spread_cm" in metrics else "the student"
     if failures >= 0.999:
-        return ["  verdict          : the student extracted no path on any test instance: it has not learned yet. "
+        return [f"  verdict          : {who} extracted no path on any test instance: it has not learned yet. "
                 "Train longer (trainer.max_epochs) or on more demonstrations (the training set's num_instances)"]
-    lines = [f"  verdict          : {line}" for line in verdict_lines(metrics, "test", "the student")]
+    lines = [f"  verdict          : {line}" for line in verdict_lines(metrics, "test", who)]
     if any(v.outcome == "loses to" for v in verdicts(metrics, "test")):
         lines.append("  verdict          : it loses to a baseline that learns nothing: give it more demonstrations or "
                      "epochs before trusting it")
