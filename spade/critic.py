@@ -120,7 +120,7 @@ def _write_page(cfg: DictConfig, config, metrics: dict[str, float], picture, sec
                     + " | ".join(f"{metrics.get(f'critic/win/{name}/{b}', float('nan')):.2f}" for b in bands)
                     + f" | {'-' if tie is None else f'{tie:.2f}'} | {metrics[f'critic/ratio/{name}']:.2f} |")
     student = [f"- {k}: {v:.4g}" for k, v in metrics.items() if k.startswith("critic/student/")]
-    planner = _planner_section(metrics)
+    planner = _planner_section(metrics) + _search_section(metrics)
     text = "\n".join([
         f"# The expert as a critic: {Path(str(cfg.ckpt_path)).name}, margin on agent input `{config.agent_input}`, "
         f"score `{config.score}`",
@@ -184,6 +184,29 @@ def _planner_section(metrics: dict[str, float]) -> list[str]:
               "1: as wide as the operator's choices). A perfectly calibrated sampler's single sample is about the "
               "generator's spread from the demonstration. Sampling: "
               f"{metrics['expert/seconds_per_sample'] * 1000:.0f} ms per instance and sample on this machine.", ""]
+    return lines
+
+
+def _search_section(metrics: dict[str, float]) -> list[str]:
+    """The Spearman of the student's margin with how wrong it is, under each score and timestep band (the same
+    draws: :func:`spade.training.critic._spearman_search`), for each figure of wrongness measured."""
+    lines: list[str] = []
+    for key, what in (("plausibility", "the planner path's distance to the nearest plausible demonstration"),
+                      ("planner_ape", "the planner path's APE")):
+        prefix = f"critic/search/spearman_{key}/"
+        found = {k[len(prefix):]: v for k, v in metrics.items() if k.startswith(prefix)}
+        if not found:
+            continue
+        scores = sorted({k.split("/")[0] for k in found})
+        bands = sorted({k.split("/", 1)[1] for k in found if "/" in k})
+        lines += [f"Spearman of the student's per-instance margin with {what}, by score and timestep band (the same "
+                  "draws; 0.3 or more: the margin pushes hardest where the student is most wrong):", "",
+                  "| score | all t | " + " | ".join(b.replace("t", "t ", 1) for b in bands) + " |",
+                  "|---|" + "---:|" * (len(bands) + 1)]
+        for score in scores:
+            cells = [found.get(score, float("nan")), *[found.get(f"{score}/{b}", float("nan")) for b in bands]]
+            lines.append(f"| {score} | " + " | ".join(f"{v:.2f}" for v in cells) + " |")
+        lines.append("")
     return lines
 
 

@@ -169,6 +169,10 @@ def test_a_students_margin_activity_and_its_rank_correlation_with_ape() -> None:
     assert m["critic/student/spearman_ape"] == pytest.approx(1.0)
     # the planner's reading: the decoded path of the worse predictions is further from the demonstration too
     assert m["critic/student/spearman_planner_ape"] == pytest.approx(1.0)
+    # the same draws under every score: the search over formulations without a training run each
+    for score in ("difference", "log_ratio", "relative"):
+        assert -1.0 <= m[f"critic/search/spearman_planner_ape/{score}"] <= 1.0
+    assert m["critic/search/spearman_planner_ape/difference"] == pytest.approx(m["critic/student/spearman_planner_ape"])
     assert "critic/student/spearman_plausibility" not in m  # no alternatives: no plausibility to rank by
 
 

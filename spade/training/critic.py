@@ -187,6 +187,21 @@ def _spearman(a: torch.Tensor, b: torch.Tensor) -> float:
     return float(spearmanr(a.numpy(), b.numpy()).statistic)
 
 
+def _spearman_search(errors: CriticErrors, margin: DiffusionMargin, student_err: torch.Tensor, values: torch.Tensor,
+                     key: str, masks: list[tuple[str, torch.Tensor]]) -> dict[str, float]:
+    """The Spearman of the student's per-instance margin with ``values`` under every score of :data:`SCORES` and
+    in every timestep band, from the same draws: which formulation knows where the student is wrong, measured
+    without a training run each (``critic/search/spearman_<key>/<score>[/<band>]``)."""
+    from spade.training.margin import SCORES
+
+    out = {}
+    for score in SCORES:
+        scores = margin.score(student_err, errors.demo, score=score)
+        for suffix, mask in masks:
+            out[f"critic/search/spearman_{key}/{score}{suffix}"] = _spearman(scores[:, mask].mean(1), values)
+    return out
+
+
 def critic_metrics(errors: CriticErrors, margin: DiffusionMargin, per_band: bool = True) -> dict[str, float]:
     """The critic's figures (module docstring) from measured errors, with ``margin``'s score (its ``score``
     option; the errors already went through its ``agent_path``)."""
@@ -215,6 +230,8 @@ def critic_metrics(errors: CriticErrors, margin: DiffusionMargin, per_band: bool
                 if values is not None and bool(torch.isfinite(values).any()):
                     out[f"critic/student/spearman_{key}"] = _spearman(per_instance, values)
                     out[f"critic/student/{key}_cm"] = float(values[torch.isfinite(values)].mean())
+                    if per_band:
+                        out.update(_spearman_search(errors, margin, err, values, key, masks))
     corruption_wins = [v for k, v in out.items() if k.startswith("critic/win/") and k.count("/") == 2
                        and not k.endswith(f"/{STUDENT}") and v == v]
     if corruption_wins:

@@ -230,12 +230,16 @@ class DiffusionMargin(nn.Module):
         expert_x0, _ = expert_input(state, target, self.conditional)
         return self._errors(agent_x0, expert_x0, noise, t, cond)
 
-    def score(self, agent_err: torch.Tensor, expert_err: torch.Tensor) -> torch.Tensor:
-        """One draw's margin per sample (``score``): > 0 where the expert rates the agent worse."""
-        if self.config.score == "difference":
+    def score(self, agent_err: torch.Tensor, expert_err: torch.Tensor, score: str | None = None) -> torch.Tensor:
+        """One draw's margin per sample (``score``, default the config's): > 0 where the expert rates the agent
+        worse. The critic passes each of :data:`SCORES` to compare them on the same draws."""
+        score = score or self.config.score
+        if score not in SCORES:
+            raise ValueError(f"unknown score {score!r}; choose one of {list(SCORES)}")
+        if score == "difference":
             return agent_err - expert_err
         floor = expert_err.detach().clamp_min(ERROR_FLOOR)
-        if self.config.score == "log_ratio":
+        if score == "log_ratio":
             return torch.log(agent_err.clamp_min(ERROR_FLOOR)) - torch.log(floor)
         return (agent_err - expert_err) / floor
 
