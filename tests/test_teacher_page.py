@@ -88,3 +88,19 @@ def test_the_teacher_page_is_a_report_table(tmp_path: Path) -> None:
     assert [e["row"] for e in cfg.teacher.experts][0] == "teacher_shipped_binary"
     assert cfg.teacher.guided[0].against.row == "enc_gaussian_L"
     pytest.importorskip("scipy")
+
+
+def test_early_stopping_is_offered_as_a_callback(tmp_path: Path) -> None:
+    """+callbacks/extra@callbacks.early_stopping=early_stopping adds Lightning's EarlyStopping on the optimized metric."""
+    from lightning.pytorch.callbacks import EarlyStopping
+
+    from spade.experiments.checks import validate_train_config
+    from spade.training.instantiate import instantiate_callbacks
+    from spade.utils.config import compose_config
+
+    cfg = compose_config("train", ["+experiment=quickstart", f"paths.root_dir={tmp_path}",
+                                   "+callbacks/extra@callbacks.early_stopping=early_stopping",
+                                   "callbacks.early_stopping.patience=3", f"paths.output_dir={tmp_path}/out"])
+    validate_train_config(cfg)
+    stops = [cb for cb in instantiate_callbacks(cfg.callbacks) if isinstance(cb, EarlyStopping)]
+    assert len(stops) == 1 and stops[0].monitor == "val/score_cm" and stops[0].patience == 3
