@@ -43,6 +43,10 @@ def checkpoint(path: Path, role: str = "student", size: int = 32, resolution: fl
                              "frame": RobotFrame.for_size(size).to_json()}
     if role == "expert":
         data["spade"]["config"] = {**data["spade"]["config"], "role": "cond_expert"}
+    else:  # loadable by Lightning as well (spade.evaluate)
+        import lightning
+
+        data.update({"pytorch-lightning_version": lightning.__version__, "hyper_parameters": {"size": "small"}})
     torch.save(data, path)
     return path
 

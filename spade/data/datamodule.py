@@ -154,7 +154,7 @@ class PathDataModule(L.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         # A test with a test set of its own reads that set alone: spade.evaluate needs no training data. The
         # training set, when a later stage loads it, is still checked against the test set (size, leaks).
-        test_only = stage == "test" and self.test_dir is not None
+        test_only = stage == "test" and self._testing_only()
         if self.train_set is None and not test_only:
             if self.train_dir is None:
                 raise DatasetError("data.train_dir is not set; point it at a training set (data=own "
