@@ -1,4 +1,5 @@
-"""Contact sheet of instances: the four channels as one colour overlay per instance."""
+"""Contact sheet of instances: the four channels as one colour overlay per instance, in SPADE's palette
+(:mod:`spade.utils.palette`: the demonstration green, the robot blue, the goal red)."""
 
 from __future__ import annotations
 
@@ -8,14 +9,17 @@ from typing import Sequence
 import numpy as np
 from PIL import Image
 
+from spade.utils import palette
+
 OCCUPANCY_GREY = np.array([0, 128, 255], dtype=np.uint8)  # unknown black, free grey, obstacle white (Nav2/RViz)
-PATH_RGB = (230, 30, 30)
-START_RGB = (30, 200, 30)
-GOAL_RGB = (40, 110, 255)
+PATH_RGB = palette.rgb(palette.DEMONSTRATION)
+START_RGB = palette.rgb(palette.ROBOT)
+GOAL_RGB = palette.rgb(palette.GOAL)
 
 
 def overlay(occupancy: np.ndarray, start: np.ndarray, goal: np.ndarray, path: np.ndarray) -> np.ndarray:
-    """(H, W, 3) uint8 image: occupancy in grey levels, path red, start green, goal blue (drawn in that order)."""
+    """(H, W, 3) uint8 image: occupancy in grey levels, demonstration green, start (the robot) blue, goal red
+    (drawn in that order)."""
     grey = OCCUPANCY_GREY[np.asarray(occupancy, dtype=np.uint8)]
     rgb = np.repeat(grey[..., None], 3, axis=2)
     for mask, colour in ((path, PATH_RGB), (start, START_RGB), (goal, GOAL_RGB)):

@@ -9,6 +9,7 @@ from PIL import Image, ImageDraw
 
 from spade.deploy.planner import PlanResult
 from spade.maps import FREE, OCCUPIED, OccupancyMap, generate_map, load_ros_map
+from spade.utils import palette
 
 __all__ = ["load_map", "plan_image", "plan_text"]
 
@@ -30,8 +31,8 @@ def plan_image(m: OccupancyMap, result: PlanResult, context_m: float = 1.0, widt
                probability: bool = True) -> Image.Image:
     """A picture of a plan over the map: the robot-frame window (blue outline, its top edge ahead of the robot)
     and ``context_m`` around it (or around start and goal when the query failed before a window was placed),
-    the predicted path probabilities (magenta), the waypoints (green), the robot (blue, with its heading) and
-    the goal (red)."""
+    the predicted path probabilities (magenta), the waypoints (cyan, the prediction's colour; amber when of low
+    confidence), the robot (blue, with its heading) and the goal (red): :mod:`spade.utils.palette`."""
     pts = [p for p in (result.start, result.goal) if p is not None]
     if result.window is not None:
         x0, y0, x1, y1 = result.window.bounds_m
@@ -45,9 +46,9 @@ def plan_image(m: OccupancyMap, result: PlanResult, context_m: float = 1.0, widt
     c0, r0 = np.clip(np.floor(corners[0]).astype(int), 0, [m.width - 1, m.height - 1])
     c1, r1 = np.clip(np.ceil(corners[1]).astype(int), 0, [m.width - 1, m.height - 1])
     grid = m.grid[r0:r1 + 1, c0:c1 + 1]
-    rgb = np.full((*grid.shape, 3), 150.0)  # unknown: grey
-    rgb[grid == FREE] = 255.0
-    rgb[grid == OCCUPIED] = 0.0
+    rgb = np.full((*grid.shape, 3), float(palette.UNKNOWN_GREY))
+    rgb[grid == FREE] = float(palette.FREE_GREY)
+    rgb[grid == OCCUPIED] = float(palette.OCCUPIED_GREY)
     if probability and result.probability is not None and result.window is not None:
         rows, cols = np.mgrid[r0:r1 + 1, c0:c1 + 1]
         win = np.rint(result.window.to_window(m.pixel_to_world(np.stack([cols, rows], axis=-1)))).astype(int)
@@ -55,7 +56,8 @@ def plan_image(m: OccupancyMap, result: PlanResult, context_m: float = 1.0, widt
         inside = (win[..., 0] >= 0) & (win[..., 0] < w) & (win[..., 1] >= 0) & (win[..., 1] < h)
         alpha = np.zeros(grid.shape)
         alpha[inside] = 0.7 * result.probability[win[..., 1][inside], win[..., 0][inside]]
-        rgb = rgb * (1 - alpha[..., None]) + alpha[..., None] * np.array([230.0, 0.0, 200.0])
+        shade = np.array(palette.rgb(palette.PROBABILITY), dtype=np.float64)
+        rgb = rgb * (1 - alpha[..., None]) + alpha[..., None] * shade
     scale = max(1, int(round(width_px / max(grid.shape[1], 1))))
     img = Image.fromarray(rgb.astype(np.uint8)).resize((grid.shape[1] * scale, grid.shape[0] * scale),
                                                        Image.NEAREST)
@@ -67,11 +69,12 @@ def plan_image(m: OccupancyMap, result: PlanResult, context_m: float = 1.0, widt
 
     if result.window is not None:
         outline = [tuple(p) for p in screen(result.window.corners_m)]
-        draw.line([*outline, outline[0]], fill=(40, 90, 255), width=max(1, scale // 2))
+        draw.line([*outline, outline[0]], fill=palette.rgb(palette.WINDOW), width=max(1, scale // 2))
     if len(result.waypoints) >= 2:
-        # green: a confident plan; orange: low confidence (or the Nav2-like fallback that replaced it)
+        # the prediction's cyan: a confident plan; amber: low confidence (or the Nav2-like fallback that replaced it)
         low = bool(getattr(result, "low_confidence", False))
-        colour, dots = ((255, 140, 0), (200, 100, 0)) if low else ((0, 170, 0), (0, 120, 0))
+        colour = palette.rgb(palette.LOW_CONFIDENCE if low else palette.PREDICTION)
+        dots = tuple(int(0.7 * c) for c in colour)
         line = [tuple(p) for p in screen(result.waypoints)]
         draw.line(line, fill=colour, width=max(2, scale // 2))
         for x, y in line:
@@ -80,17 +83,21 @@ def plan_image(m: OccupancyMap, result: PlanResult, context_m: float = 1.0, widt
     if result.pose is not None:
         x, y, yaw = result.pose
         tip = np.array([x, y]) + 3 * radius / scale * m.resolution * np.array([np.cos(yaw), np.sin(yaw)])
-        draw.line([tuple(screen(np.array([x, y]))), tuple(screen(tip))], fill=(30, 60, 255), width=max(2, scale // 2))
-    for point, colour in ((result.start, (30, 60, 255)), (result.goal, (230, 30, 30))):
+        draw.line([tuple(screen(np.array([x, y]))), tuple(screen(tip))], fill=palette.rgb(palette.ROBOT),
+                  width=max(2, scale // 2))
+    for point, colour in ((result.start, palette.rgb(palette.ROBOT)),
+                          (result.goal, palette.rgb(palette.GOAL))):
         if point is not None:
             x, y = screen(point)
             draw.ellipse([x - radius, y - radius, x + radius, y + radius], fill=colour, outline=(0, 0, 0))
     return with_legend(img)
 
 
-LEGEND = (("plan", (0, 170, 0), "line"), ("low-confidence plan", (255, 140, 0), "line"),
-          ("student's window", (40, 90, 255), "box"), ("robot + heading", (30, 60, 255), "dot"),
-          ("goal", (230, 30, 30), "dot"), ("path probability", (230, 0, 200), "shade"),
+LEGEND = (("plan", palette.rgb(palette.PREDICTION), "line"),
+          ("low-confidence plan", palette.rgb(palette.LOW_CONFIDENCE), "line"),
+          ("student's window", palette.rgb(palette.WINDOW), "box"),
+          ("robot + heading", palette.rgb(palette.ROBOT), "dot"),
+          ("goal", palette.rgb(palette.GOAL), "dot"), ("path probability", palette.rgb(palette.PROBABILITY), "shade"),
           ("free / occupied / unknown", None, "cells"))
 
 
@@ -123,7 +130,8 @@ def with_legend(img: Image.Image) -> Image.Image:
             elif kind == "shade":
                 draw.rectangle([x0, y - 5, x0 + 16, y + 5], fill=colour)
             else:
-                for i, shade in enumerate((255, 0, 150)):  # the map's free, occupied and unknown cells
+                # the map's free, occupied and unknown cells
+                for i, shade in enumerate((palette.FREE_GREY, palette.OCCUPIED_GREY, palette.UNKNOWN_GREY)):
                     draw.rectangle([x0 + 6 * i, y - 5, x0 + 6 * i + 5, y + 5], fill=(shade, shade, shade),
                                    outline=(120, 120, 120))
             draw.text((x0 + 22, y - 6), label, fill=(0, 0, 0), font=font)

@@ -79,7 +79,9 @@ def source_runs(client: Any, table: str, row: str, scale: str | None) -> list[An
         if run.data.tags.get("mlflow.parentRunId"):
             continue  # a baseline's child run
         by_seed.setdefault(run.data.params.get("cfg/seed", run.info.run_id), run)
-    return list(by_seed.values())
+    from spade.experiments.tracking.predictors import with_predictor_figures
+
+    return with_predictor_figures(client, list(by_seed.values()))  # its baselines' figures, from its child runs
 
 
 def _finished_drives(client: Any) -> set[tuple[str, str]]:

@@ -124,9 +124,11 @@ class PathPlanningModule(L.LightningModule):
             scenario = str(ids[i]) if ids is not None and i < len(ids) else f"#{len(picks) + 1}"
             if any(scenario == p[0] for p in picks):
                 continue
+            alternatives = batch.get("alternatives")
             picks.append((scenario, batch["state"][i].detach().cpu(), batch["path"][i].detach().cpu(),
                           prob[i].detach().cpu(), batch["waypoints"][i].detach().cpu(),
-                          float(batch["resolution"][i])))
+                          float(batch["resolution"][i]),
+                          alternatives[i].detach().cpu() if alternatives is not None else None))
 
     def on_validation_epoch_start(self) -> None:
         self._picture_picks: list[tuple] = []
@@ -138,7 +140,8 @@ class PathPlanningModule(L.LightningModule):
         picks = self.__dict__.pop("_picture_picks", None)
         if picks and not self.trainer.sanity_checking:
             stack = [torch.stack([p[k] for p in picks]) for k in (1, 2, 3, 4)]
-            grid = prediction_grid(*stack, torch.tensor([p[5] for p in picks]), titles=[p[0] for p in picks])
+            grid = prediction_grid(*stack, torch.tensor([p[5] for p in picks]), titles=[p[0] for p in picks],
+                                   alternatives=[p[6] for p in picks])
             log_image(self.logger, grid, f"predictions/epoch{self.current_epoch:03d}.png", self.trainer.log_dir)
         if self.val_metrics.ape.total > 0:
             self.log_dict({f"val/{k}": v for k, v in self.val_metrics.compute().items()}, sync_dist=False)

@@ -1,44 +1,54 @@
-"""Pictures of predictions a person can read: per instance, the state with the demonstration, and the prediction.
+"""Pictures of predictions a person can read: per instance, one panel with the prediction over the demonstration.
 
-Each instance is one row of two panels (one column of two when a picture holds more than ``ROWS_MAX``), upscaled: left, the occupancy (unknown dark, free grey, obstacles white)
-with the demonstrated path (green), the robot (blue) and the goal (red); right, the predicted path probability as a
-heat map over the dimmed occupancy, with the path extracted from it (cyan, which no value of the heat map's
-black-red-yellow scale takes) and the demonstration (green, thin) for comparison. The row's title gives the
-instance's APE (or the reason extraction failed). The legend is at the top, where MLflow's Artifacts tab shows a
-picture first, and a picture is at most ``MAX_HEIGHT_PX`` tall (so that it is read at a glance, not scrolled).
-The validation picture shows the first instances of the first batch; the test step keeps the worst instances,
-each from another scenario (a scenario's instances are near-duplicates), and the median ones.
+Each instance is one panel: the occupancy, dimmed (unknown darkest, free dark grey, obstacles light grey), the
+predicted path probability as a heat map (inferno: black, purple, red, yellow), the robot's start disc and the goal
+in their colours, and on top the demonstration (green), the test set's plausible alternative demonstrations where
+the batch has ``alternatives`` (light green, dashed) and the path extracted from the prediction (cyan, which no value
+of the heat map takes): a prediction that misses the demonstration is seen as two lines apart. Colours:
+:mod:`spade.utils.palette`. The panel's title gives the instance (its scenario, or worst / median with its index)
+and its APE (or the reason extraction failed). Up to four instances sit in one row, more in two rows (the per-epoch
+validation picture's eight: four by two); a picture is at most ``MAX_WIDTH_PX`` wide and ``MAX_HEIGHT_PX`` tall,
+with titles and the legend (at the top, where MLflow's Artifacts tab shows a picture first) in text that reads at
+that size, without zoom. The validation picture shows the first instance of each scenario of the first batches; the
+test step keeps the worst instances, each from another scenario (a scenario's instances are near-duplicates), and
+the median ones.
 """
 
 from __future__ import annotations
 
 import io
+import math
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import torch
 
-from spade.data.polyline import resample_polyline
+from spade.utils import palette
 
 MAX_HEIGHT_PX = 900
-MAX_WIDTH_PX = 1800  # the wide layout (more than ROWS_MAX instances): one column per instance
-ROWS_MAX = 4
+MAX_WIDTH_PX = 1200  # what MLflow's artifact view shows at a laptop's width without shrinking it much
+COLUMNS_MAX = 4  # instances in one row; more go to a second row
+ROWS_MAX = 4  # kept for callers: a picture of up to this many instances is one row of panels
 MIN_PANEL_PX = 128
-EXTRACTED_COLOUR = "#00e5ff"  # cyan: stands out on the inferno heat map (black, purple, red, yellow)
+FONT_PT = 12  # titles and legend: 12 pt at 100 dpi, about 16 px high
+EXTRACTED_COLOUR = palette.PREDICTION  # cyan: stands out on the inferno heat map (black, purple, red, yellow)
 
 
 def overlay(state: torch.Tensor, target: torch.Tensor, prob: torch.Tensor | None = None) -> np.ndarray:
-    """An RGB uint8 (H, W, 3) picture of one instance: occupancy grey levels, demonstration green, robot blue,
-    goal red; a prediction, when given, in magenta with its probability as intensity."""
+    """An RGB uint8 (H, W, 3) picture of one instance: occupancy grey levels, demonstration, robot and goal in
+    their palette colours; a prediction, when given, in the prediction's colour with its probability as
+    intensity."""
     occ = state[0].float().cpu().numpy()
     grey = np.where(occ >= 0.75, 235.0, np.where(occ >= 0.25, 130.0, 35.0))
     rgb = np.repeat(grey[..., None], 3, axis=2)
     gt = target[0].float().cpu().numpy() > 0.5
-    rgb[gt] = [40, 200, 60]
+    rgb[gt] = palette.rgb(palette.DEMONSTRATION)
     if prob is not None:
         p = prob[0].float().cpu().numpy()[..., None].clip(0, 1)
-        rgb = rgb * (1 - p) + np.array([230.0, 40, 220]) * p
-    rgb[state[1].cpu().numpy() > 0.5] = [40, 90, 255]
-    rgb[state[2].cpu().numpy() > 0.5] = [240, 40, 40]
+        rgb = rgb * (1 - p) + np.array(palette.rgb(palette.PREDICTION), dtype=np.float64) * p
+    rgb[state[1].cpu().numpy() > 0.5] = palette.rgb(palette.ROBOT)
+    rgb[state[2].cpu().numpy() > 0.5] = palette.rgb(palette.GOAL)
     return rgb.clip(0, 255).astype(np.uint8)
 
 
@@ -53,74 +63,110 @@ def _instance_ape(prob: np.ndarray, state: np.ndarray, waypoints: np.ndarray, re
     return polyline_ape(result.points, waypoints) * resolution * 100.0, result.points, None
 
 
+def _alternatives_of(alternatives: Any, i: int) -> list[np.ndarray]:
+    """Instance ``i``'s plausible alternatives as (N, 2) arrays (rows that are all NaN are empty slots)."""
+    if alternatives is None:
+        return []
+    item = alternatives[i]
+    if item is None:
+        return []
+    arr = item.float().cpu().numpy() if isinstance(item, torch.Tensor) else np.asarray(item, dtype=np.float64)
+    if arr.ndim == 2:
+        arr = arr[None]
+    return [a for a in arr if np.isfinite(a).all()]
+
+
+def panel_image(state: np.ndarray, prob: np.ndarray) -> np.ndarray:
+    """An RGB float (H, W, 3) image in [0, 1] of one instance's panel under its lines: the dimmed occupancy, the
+    probability heat map where p >= 0.02, the robot and the goal."""
+    import matplotlib
+
+    occ = state[0]
+    dim = np.where(occ >= 0.75, 0.6, np.where(occ >= 0.25, 0.25, 0.06))
+    rgb = np.repeat(dim[..., None], 3, axis=2)
+    heat = matplotlib.colormaps[palette.PROBABILITY_CMAP](prob)[..., :3]
+    shown = (prob >= 0.02)[..., None]
+    rgb = np.where(shown, 0.1 * rgb + 0.9 * heat, rgb)
+    rgb[state[1] > 0.5] = np.array(palette.rgb(palette.ROBOT)) / 255.0
+    rgb[state[2] > 0.5] = np.array(palette.rgb(palette.GOAL)) / 255.0
+    return rgb
+
+
+def legend_handles(alternatives: bool) -> list[Any]:
+    """The legend of a prediction picture: every colour it uses, named."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles = [Line2D([], [], color=palette.DEMONSTRATION, lw=3, label="demonstration")]
+    if alternatives:
+        handles.append(Line2D([], [], color=palette.ALTERNATIVE, lw=2.5, ls="--", label="plausible alternative"))
+    handles += [Line2D([], [], color=palette.PREDICTION, lw=3, label="path extracted from the prediction"),
+                Patch(facecolor="#f8a21c", edgecolor="#50105a", label="predicted probability (dark 0, yellow 1)"),
+                Line2D([], [], marker="o", color=palette.ROBOT, lw=0, markersize=9, label="robot (heading up)"),
+                Line2D([], [], marker="o", color=palette.GOAL, lw=0, markersize=9, label="goal")]
+    return handles
+
+
 def prediction_grid(state: torch.Tensor, target: torch.Tensor, prob: torch.Tensor,
                     waypoints: torch.Tensor | None = None, resolution: torch.Tensor | float = 0.1,
-                    titles: list[str] | None = None, upscale: int = 4) -> np.ndarray:
-    """An RGB uint8 picture of a batch (B, ...) (see the module docstring): up to ``ROWS_MAX`` instances one row
-    each; more (the per-epoch validation picture) one column each, so that every panel keeps at least
-    ``MIN_PANEL_PX`` pixels and the legend and titles stay whole."""
+                    titles: list[str] | None = None, upscale: int = 4, alternatives: Any = None) -> np.ndarray:
+    """An RGB uint8 picture of a batch (B, ...) (see the module docstring): one panel per instance, up to
+    ``COLUMNS_MAX`` in a row, each at least ``MIN_PANEL_PX`` pixels, the legend at the top. ``alternatives``: per
+    instance, the test set's plausible alternatives ((K, N, 2) with all-NaN rows for empty slots, or None).
+    ``target`` (the demonstration's raster) is drawn as the demonstration when there are no waypoints."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
-    from matplotlib.lines import Line2D
 
     b, _, h, w = state.shape
     res = np.broadcast_to(np.asarray(resolution.cpu() if isinstance(resolution, torch.Tensor) else resolution,
                                      dtype=np.float64).reshape(-1), (b,))
-    wide = b > ROWS_MAX
+    columns = b if b <= COLUMNS_MAX else math.ceil(b / 2) if b <= 2 * COLUMNS_MAX else COLUMNS_MAX
+    rows = math.ceil(b / columns)
+    has_alternatives = any(_alternatives_of(alternatives, i) for i in range(b)) if alternatives is not None else False
+    legend_in = 0.8 if columns >= 3 else 1.25  # the legend's rows: two or three of entries
+    title_in = 0.62  # two lines of title over each panel
     inch = max(1.6, upscale * w / 100.0)
-    if wide:  # one column per instance, at most MAX_WIDTH_PX wide, never under MIN_PANEL_PX a panel
-        inch = max(MIN_PANEL_PX / 100.0, min(inch, (MAX_WIDTH_PX / 100.0 - 0.4) / b - 0.15))
-        fig, grid = plt.subplots(2, b, figsize=(b * (inch + 0.15) + 0.4, 2 * (inch + 0.35) + 0.9), squeeze=False,
-                                 dpi=100)
-        axes = grid.T  # axes[i] = (state panel, prediction panel) of instance i
-        total_height = 2 * (inch + 0.35) + 0.9
-    else:
-        inch = max(0.5, min(inch, (MAX_HEIGHT_PX / 100.0 - 0.6) / b - 0.35))  # at most MAX_HEIGHT_PX tall
-        fig, axes = plt.subplots(b, 2, figsize=(2 * inch + 0.4, b * (inch + 0.35) + 0.6), squeeze=False, dpi=100)
-        total_height = b * (inch + 0.35) + 0.6
-    for i in range(b):
-        st = state[i].float().cpu().numpy()
-        p = prob[i, 0].float().cpu().numpy().clip(0, 1)
-        left = overlay(state[i], target[i])
-        occ = st[0]
-        dim = np.where(occ >= 0.75, 0.55, np.where(occ >= 0.25, 0.25, 0.05))
-        axes[i, 0].imshow(left, interpolation="nearest")
-        axes[i, 1].imshow(dim, cmap="gray", vmin=0, vmax=1, interpolation="nearest")
-        axes[i, 1].imshow(np.ma.masked_less(p, 0.02), cmap="inferno", vmin=0, vmax=1, interpolation="nearest",
-                          alpha=0.9)
-        label = titles[i] if titles else ""
+    inch = min(inch, (MAX_WIDTH_PX / 100.0 - 0.3) / columns - 0.15,
+               (MAX_HEIGHT_PX / 100.0 - legend_in - 0.2) / rows - title_in)
+    inch = max(inch, MIN_PANEL_PX / 100.0)
+    gap = 0.15  # inches between panels and at the picture's edges
+    width_in = columns * (inch + gap) + gap
+    height_in = rows * (inch + title_in) + legend_in + gap
+    fig = plt.figure(figsize=(width_in, height_in), dpi=100)
+    axes = []
+    for k in range(b):  # placed by hand: each panel under its own two title lines, the legend above them all
+        r, c = divmod(k, columns)
+        left = gap + c * (inch + gap)
+        bottom = height_in - legend_in - (r + 1) * (inch + title_in) + gap / 2
+        axes.append(fig.add_axes((left / width_in, bottom / height_in, inch / width_in, inch / height_in)))
+    for k, ax in enumerate(axes):
+        ax.set_xticks([])
+        ax.set_yticks([])
+        st = state[k].float().cpu().numpy()
+        p = prob[k, 0].float().cpu().numpy().clip(0, 1)
+        ax.imshow(panel_image(st, p), interpolation="nearest")
+        for alt in _alternatives_of(alternatives, k):
+            ax.plot(alt[:, 0], alt[:, 1], color=palette.ALTERNATIVE, lw=2.0, ls="--")
+        name = titles[k] if titles else f"#{k + 1}"
         if waypoints is not None:
-            wp = waypoints[i].float().cpu().numpy()
-            axes[i, 1].plot(wp[:, 0], wp[:, 1], color="#28c83c", lw=1.0)
-            ape, extracted, failure = _instance_ape(p, st, wp, float(res[i]))
+            wp = waypoints[k].float().cpu().numpy()
+            ax.plot(wp[:, 0], wp[:, 1], color=palette.DEMONSTRATION, lw=2.6)
+            ape, extracted, failure = _instance_ape(p, st, wp, float(res[k]))
             if extracted is not None:
-                axes[i, 1].plot(extracted[:, 0], extracted[:, 1], color=EXTRACTED_COLOUR, lw=1.6)
-                label = f"{label}  APE {ape:.1f} cm".strip()
+                ax.plot(extracted[:, 0], extracted[:, 1], color=palette.PREDICTION, lw=2.2)
+                figure = f"APE {ape:.1f} cm"
             else:
-                label = f"{label}  no path: {failure}".strip()
-        for ax in axes[i]:
-            ax.set_xticks([])
-            ax.set_yticks([])
-        if wide:
-            axes[i, 0].set_title(titles[i] if titles else f"#{i + 1}", fontsize=8)
-            axes[i, 1].set_title((label or "prediction").replace(titles[i] if titles else "", "").strip() or
-                                 "prediction", fontsize=8)
+                figure = f"no path: {failure}"
         else:
-            axes[i, 0].set_title("state + demonstration", fontsize=8)
-            axes[i, 1].set_title(label or "prediction", fontsize=8)
-    if wide:
-        axes[0, 0].set_ylabel("state + demonstration", fontsize=8)
-        axes[0, 1].set_ylabel("prediction", fontsize=8)
-    handles = [Line2D([], [], color="#28c83c", lw=2, label="demonstration"),
-               Line2D([], [], color=EXTRACTED_COLOUR, lw=2, label="extracted prediction"),
-               Line2D([], [], marker="o", color="#285aff", lw=0, label="robot (heading up)"),
-               Line2D([], [], marker="o", color="#f02828", lw=0, label="goal")]
-    top = (0.4 if wide else 0.5) / total_height  # the legend's share of the height, at the top
-    fig.tight_layout(rect=(0, 0, 1, 1 - top))
-    fig.legend(handles=handles, loc="upper center", ncol=4 if wide else 2, fontsize=7, facecolor="#777777",
-               framealpha=1.0)
+            demo = target[k, 0].float().cpu().numpy() > 0.5
+            ax.imshow(np.ma.masked_where(~demo, demo), cmap=matplotlib.colors.ListedColormap([palette.DEMONSTRATION]),
+                      interpolation="nearest")
+            figure = "prediction"
+        ax.set_title(f"{name}\n{figure}", fontsize=FONT_PT, linespacing=1.1)
+    fig.legend(handles=legend_handles(has_alternatives), loc="upper center", ncol=3 if columns >= 3 else 2,
+               fontsize=FONT_PT - 1, facecolor="#777777", framealpha=1.0, labelcolor="white", handlelength=2.2)
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     plt.close(fig)
@@ -137,6 +183,7 @@ class TestRecords:
         self.apes: list[float] = []
         self.items: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]] = []
         self.scenarios: list[str | None] = []
+        self.alternatives: list[np.ndarray | None] = []  # the test set's plausible alternatives, when it has them
 
     @property
     def count(self) -> int:
@@ -150,10 +197,15 @@ class TestRecords:
         res = np.broadcast_to(np.asarray(batch["resolution"].cpu() if isinstance(batch["resolution"], torch.Tensor)
                                          else batch["resolution"], dtype=np.float64).reshape(-1), (len(state),))
         scenarios = batch.get("scenario_id")
+        alternatives = batch.get("alternatives")
+        if isinstance(alternatives, torch.Tensor):
+            alternatives = alternatives.detach().float().cpu().numpy()
         for i in range(len(state)):
             ape, _, _ = _instance_ape(p[i, 0], state[i], wps[i], float(res[i]))
             self.apes.append(ape)
             self.scenarios.append(str(scenarios[i]) if scenarios is not None and i < len(scenarios) else None)
+            self.alternatives.append(np.asarray(alternatives[i], dtype=np.float32) if alternatives is not None
+                                     else None)
             self.items.append(((state[i] * 2).round().astype(np.uint8), (path[i] > 0.5).astype(np.uint8),
                                (p[i] * 255).round().astype(np.uint8), wps[i].astype(np.float32), float(res[i])))
 
@@ -163,8 +215,10 @@ class TestRecords:
         prob = torch.from_numpy(np.stack([self.items[i][2] for i in indices]).astype(np.float32) / 255)
         wps = torch.from_numpy(np.stack([self.items[i][3] for i in indices]))
         res = torch.tensor([self.items[i][4] for i in indices])
-        titles = [f"{label} #{i}" for i in indices]
-        return prediction_grid(st, path, prob, wps, res, titles)
+        titles = [f"{label} #{i}" + (f" ({self.scenarios[i]})" if i < len(self.scenarios) and self.scenarios[i]
+                                      else "") for i in indices]
+        alternatives = [self.alternatives[i] if i < len(self.alternatives) else None for i in indices]
+        return prediction_grid(st, path, prob, wps, res, titles, alternatives=alternatives)
 
     def pictures(self, n: int = 4) -> dict[str, np.ndarray]:
         """``worst`` and ``median`` pictures of ``n`` instances each (failures count as the worst); the worst come

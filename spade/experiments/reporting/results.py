@@ -139,13 +139,18 @@ def welch(a: list[float], b: list[float]) -> tuple[float | None, str]:
 
 
 def _search_all_runs(client: Any, experiment_id: str, filter_string: str) -> list[Any]:
+    """The runs that match, each with its baselines' and untrained model's figures (its child runs) folded back
+    under the run's names (``test/baseline/<name>/...``: :func:`spade.experiments.tracking.predictors.
+    with_predictor_figures`)."""
+    from spade.experiments.tracking.predictors import with_predictor_figures
+
     runs, token = [], None
     while True:
         page = client.search_runs([experiment_id], filter_string=filter_string, max_results=1000, page_token=token)
         runs.extend(page)
         token = page.token
         if not token:
-            return runs
+            return with_predictor_figures(client, runs)
 
 
 def _seed(run: Any) -> int | None:

@@ -30,26 +30,40 @@ One module per job:
 - :mod:`~spade.experiments.tracking.summary`: the closing lines of ``spade.train``;
 - :mod:`~spade.experiments.tracking.report`: ``spade.report``'s table published in MLflow.
 
-The names below are re-exported for the callers that import them from the package.
+The names below are re-exported for the callers that import them from the package (imported on first use).
 """
 
 from __future__ import annotations
 
-from spade.experiments.tracking.dataset_inputs import (
-    DatasetUse,
-    dataset_fingerprint,
-    dataset_uses,
-    log_dataset_inputs,
-)
-from spade.experiments.tracking.descriptions import figures_table, prerequisite_uses, run_description
-from spade.experiments.tracking.experiment_tags import KIND_TAG, NOTE_TAG, VIEW_TAG
-from spade.experiments.tracking.links import ui_lines
-from spade.experiments.tracking.params import run_params
-from spade.experiments.tracking.predictors import PREDICTOR_TAG, TOP_LEVEL_FILTER, is_predictor_run, log_predictor_runs
-from spade.experiments.tracking.report import publish_report
-from spade.experiments.tracking.run_report import log_run_report
-from spade.experiments.tracking.runs import bind_experiment, finish_evaluation, finish_run, start_run_logging
-from spade.experiments.tracking.summary import run_summary
+import importlib
+from typing import Any
+
+# name -> module: imported on first use (PEP 562), so that a torch- and Lightning-free module of this package
+# (predictors, links, run_report) can be imported without the ones that need Lightning (runs, logger)
+_EXPORTS = {
+    "DatasetUse": "dataset_inputs", "dataset_fingerprint": "dataset_inputs", "dataset_uses": "dataset_inputs",
+    "log_dataset_inputs": "dataset_inputs",
+    "figures_table": "descriptions", "prerequisite_uses": "descriptions", "run_description": "descriptions",
+    "KIND_TAG": "experiment_tags", "NOTE_TAG": "experiment_tags", "VIEW_TAG": "experiment_tags",
+    "ui_lines": "links",
+    "run_params": "params",
+    "PREDICTOR_TAG": "predictors", "TOP_LEVEL_FILTER": "predictors", "is_predictor_run": "predictors",
+    "log_predictor_runs": "predictors", "with_predictor_figures": "predictors",
+    "publish_report": "report",
+    "log_run_report": "run_report",
+    "bind_experiment": "runs", "finish_evaluation": "runs", "finish_run": "runs", "start_run_logging": "runs",
+    "run_summary": "summary",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "KIND_TAG",

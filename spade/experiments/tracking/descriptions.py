@@ -1,8 +1,10 @@
 """A run's description in the MLflow UI (markdown) and the descriptions of the models it registers.
 
-:func:`run_description` is the run's one-paragraph summary: row, approach, data, prerequisites (linked to the
-runs that trained them), the command that regenerates it, its test figures next to the classical baselines and
-the untrained model (:func:`figures_table`) when it logged them, and links to its prediction pictures.
+:func:`run_description` opens with the run's test figures next to the classical baselines and the untrained model
+(:func:`figures_table`: rounded, units in the headers), first so that the UI shows it without "Show more", then
+the verdict, then one paragraph: row, approach, data (the test set's composition: :func:`test_composition`),
+prerequisites (linked to the runs that trained them), the measured wall time, the command that regenerates it, and
+links to its prediction pictures.
 :func:`model_description` and :func:`version_description` describe a registered model and one of its versions.
 """
 
@@ -38,6 +40,10 @@ def _fmt(key: str, value: float | None) -> str:
         return "n/a"
     if key.endswith("_cm"):  # a description's figures to what they mean: a tenth of a centimetre (the tables keep .2f)
         return f"{value:.1f}"
+    if key.endswith("_rate"):  # a share, in per cent (the header says %)
+        return f"{100 * value:.0f}"
+    if key == "fid":
+        return f"{value:.2f}"
     metric = METRICS.get(key) or METRICS.get(key.replace("/", "_"))  # "planner/ape_cm" -> planner_ape_cm
     return metric.format(value) if metric else f"{value:.4g}"
 
@@ -48,7 +54,7 @@ def figure_rows(metrics: dict[str, float]) -> list[tuple[str, dict[str, float]]]
     rows: list[tuple[str, dict[str, float]]] = []
     own = {k: metrics[f"test/{k}"] for k in FIGURES if f"test/{k}" in metrics}
     if own:
-        rows.append(("this model", own))
+        rows.append((THIS_MODEL, own))
     baselines: dict[str, dict[str, float]] = {}
     for key, value in metrics.items():
         match = re.fullmatch(r"test/baseline/([^/]+)/(.+)", key)
@@ -61,20 +67,22 @@ def figure_rows(metrics: dict[str, float]) -> list[tuple[str, dict[str, float]]]
     return rows
 
 
-# the columns of the figures table: short headers (the units and meanings are in FIGURES_MEANING, under the table)
-FIGURE_HEADERS = {"ape_cm": "APE", "fid": "FID", "hd19": "Hd19", "failure_rate": "failures",
-                  "over_20cm_rate": ">20 cm", "planner/ape_cm": "planner APE",
-                  "planner/over_20cm_rate": "planner >20 cm", "planner/plausibility_cm": "plausibility",
-                  "planner/commit_rate": "commits"}
+THIS_MODEL = "this model"
+# the columns of the figures table: short headers with units (the meanings are in FIGURES_MEANING, under the table)
+FIGURE_HEADERS = {"ape_cm": "APE cm", "fid": "FID", "hd19": "Hd19 n", "failure_rate": "fail %",
+                  "over_20cm_rate": ">20cm %", "planner/ape_cm": "plan APE cm",
+                  "planner/over_20cm_rate": "plan >20cm %", "planner/plausibility_cm": "plaus. cm",
+                  "planner/commit_rate": "commit %"}
 FIGURES_MEANING = (
-    "APE: mean distance in cm between the path extracted from the prediction and the demonstration (lower is "
-    "better; an instance with no extracted path is a failure, not averaged); FID: Frechet distance between features "
-    "of the predicted and the demonstrated paths (lower: more alike in shape); Hd19: test instances whose "
-    "Hausdorff distance to the demonstration exceeds 0.95 m (the paper's 19 px: stray artifacts); failures: share "
-    "of instances from which no path could be extracted; >20 cm: share of instances whose APE exceeds 20 cm "
-    "(failures included); planner: the same for the path the planner decodes by search (what a robot would drive); "
-    "plausibility: cm from the planner's path to the nearest of the demonstration and its alternatives (a path an "
-    "operator could have drawn: 0); commits: share of instances whose path follows one of them, not a blend."
+    "Lower is better, except commit. APE: mean distance in cm between the path extracted from the prediction and "
+    "the demonstration (an instance with no extracted path is a failure, not averaged); FID: Frechet distance "
+    "between features of the predicted and the demonstrated paths (more alike in shape: lower); Hd19: the number of "
+    "test instances whose Hausdorff distance to the demonstration exceeds 0.95 m (the paper's 19 px: stray "
+    "artifacts); fail: per cent of instances from which no path could be extracted; >20cm: per cent of instances "
+    "whose APE exceeds 20 cm (failures included); plan: the same for the path the planner decodes by search (what a "
+    "robot would drive); plaus.: plausibility, cm from the planner's path to the nearest of the demonstration and "
+    "its alternatives (a path an operator could have drawn: 0); commit: per cent of instances whose path follows one "
+    "of them, not a blend."
 )
 
 
@@ -96,9 +104,10 @@ def figures_table(metrics: dict[str, float]) -> str:
     rows = figure_rows(metrics)
     if not rows:
         return ""
-    cells = [["test set", *(FIGURE_HEADERS[k] for k in FIGURES)]]
+    shown = [k for k in FIGURES if any(k in figs for _, figs in rows)]  # no column of n/a only
+    cells = [["test set", *(FIGURE_HEADERS[k] for k in shown)]]
     for label, figs in rows:
-        cells.append([f"**{label}**" if label == "this model" else label, *(_fmt(k, figs.get(k)) for k in FIGURES)])
+        cells.append([f"**{label}**" if label == THIS_MODEL else label, *(_fmt(k, figs.get(k)) for k in shown)])
     return "\n".join(_padded(cells)) + "\n\n" + FIGURES_MEANING
 
 
@@ -180,11 +189,53 @@ def guidance_verdict(history: list[tuple[int, float, float]] | None) -> str | No
     return f"margin active by epoch  {epochs}  -> {verdict}"
 
 
+def wall_time(seconds: float | None) -> str | None:
+    """``5 min 43 s``, ``1 h 02 min``, ``12 s`` (None for an unknown time)."""
+    if seconds is None or not math.isfinite(seconds) or seconds < 0:
+        return None
+    total = int(round(seconds))
+    if total < 60:
+        return f"{total} s"
+    minutes, secs = divmod(total, 60)
+    if minutes < 60:
+        return f"{minutes} min {secs:02d} s"
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours} h {minutes:02d} min"
+
+
+def test_composition(use: DatasetUse, shape: str | None = None) -> str:
+    """The test set as the run used it, against the set on disk: ``263 L instances of a 600-instance L+U set (40
+    scenarios)`` when the run kept part of it (its row's shape), ``all 600 instances (L+U, 40 scenarios)`` when it
+    used it whole; the count alone when the manifest cannot be read."""
+    from spade.experiments.tracking.dataset_inputs import dataset_profile
+
+    used = use.instances
+    try:
+        profile = dataset_profile(use.root)
+    except (OSError, ValueError):
+        profile = {}
+    total, shapes, scenarios = profile.get("instances"), profile.get("shapes") or [], profile.get("scenarios")
+    kinds = "+".join(shapes)
+    extra = f"{scenarios} scenarios" if scenarios else ""
+    if used is None:
+        return "all instances"
+    if total is None:
+        return f"{used} instances"
+    if used >= int(total):
+        inside = ", ".join(p for p in (kinds, extra) if p)
+        return f"all {used} instances" + (f" ({inside})" if inside else "")
+    kept = f"{used} {shape} instances" if shape and len(shapes) > 1 else f"{used} instances"
+    return f"{kept} of a {total}-instance{' ' + kinds if kinds else ''} set" + (f" ({extra} in all)" if extra else "")
+
+
 def run_description(cfg: DictConfig, metrics: dict[str, float], uses: list[DatasetUse],
                     prerequisites: list[PrerequisiteUse], pictures: list[str] | None = None,
                     run: tuple[str, str] | None = None,
-                    margin_history: list[tuple[int, float, float]] | None = None) -> str:
-    """A run's one-paragraph summary (markdown): row, approach, data, prerequisites, test figures and baselines."""
+                    margin_history: list[tuple[int, float, float]] | None = None,
+                    seconds: float | None = None) -> str:
+    """A run's description (markdown): the test figures next to the baselines and the untrained model first (the
+    lines the MLflow UI shows before "Show more"), the verdict, then row, approach, data, prerequisites, guidance,
+    the measured wall time (``seconds``) and the command that regenerates it, and the pictures."""
     tags = dict(cfg.get("tags") or {})
     row = cfg.get("run_name") or tags.get("row") or "run"
     what = what_it_is(tags)
@@ -209,7 +260,7 @@ def run_description(cfg: DictConfig, metrics: dict[str, float], uses: list[Datas
         extra = f", validated on {n(val[0])} of its held-out scenarios" if val else ""
         parts.append(f"Trained on `{train[0].name.split(' (')[0]}` ({n(train[0])}{extra}).")
     if test:
-        parts.append(f"Tested on `{test[0].name}` ({n(test[0])}).")
+        parts.append(f"Tested on `{test[0].name}`: {test_composition(test[0], tags.get('shape'))}.")
     if prerequisites:
         items = []
         for p in prerequisites:
@@ -223,17 +274,26 @@ def run_description(cfg: DictConfig, metrics: dict[str, float], uses: list[Datas
     guidance = guidance_verdict(margin_history)
     if guidance:
         parts.append(f"Guidance: {guidance}.")
+    took = wall_time(seconds)
+    if took:
+        parts.append(f"Wall time: {took} (measured: the run's start to its end, test included).")
     command = regenerate_command(cfg)
     if command:
         parts.append(f"Regenerate: `{command}`.")
-    text = " ".join(parts)
     table = figures_table(metrics)
-    text += ("\n\n" + table) if table else "\n\nNo test figures (the run was not tested)."
+    if table:
+        figures, meaning = table.split("\n\n", 1)
+        text = figures
+    else:
+        text, meaning = "No test figures (the run was not tested).", ""
     from spade.metrics.verdict import verdict_lines
 
-    verdict = verdict_lines(metrics, "test", "this model")
+    verdict = verdict_lines(metrics, "test", THIS_MODEL)
     if verdict:
         text += "\n\n**Verdict.** " + " ".join(f"{line[0].upper()}{line[1:]}." for line in verdict)
+    text += "\n\n" + " ".join(parts)
+    if meaning:
+        text += "\n\n" + meaning
     if pictures:
         shown = [f"[{p}]({artifact_url('', *run, p)})" if run else f"`{p}`" for p in pictures]
         text += "\n\nPictures (Artifacts tab): " + ", ".join(shown) + "."

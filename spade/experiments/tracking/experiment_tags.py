@@ -75,7 +75,8 @@ def experiment_description(name: str, cfg: DictConfig | None = None) -> str:
             "The README's first command (`make quickstart`, i.e. `python -m spade.train +experiment=quickstart`): "
             "a small Cond-DBC student trained on L-shape demonstrations with a tiny conditional expert's guidance, "
             "tested next to the same student untrained and the classical baselines. Not a paper table; it shows "
-            "the whole pipeline in about half an hour on a CPU. Regenerate: `make quickstart`."
+            "the whole pipeline on a CPU (each run's description gives its measured wall time). Regenerate: "
+            "`make quickstart`."
         )
     if name == "smoke":
         return (

@@ -77,3 +77,32 @@ def model_note(logged: Any) -> str:
         return ""
     return (f"\n\nModel: the best checkpoint as an MLflow Model (ONNX), `{logged.run_uri}` (`{logged.model_uri}`): "
             f"`python -m spade.plan MAP.yaml start=X,Y,YAW goal=X,Y model={logged.run_uri}`.")
+
+
+def logged_model_description(cfg: DictConfig, metrics: dict[str, float], run: tuple[str, str, str],
+                             run_uri: str) -> str:
+    """The logged model's description (its page in the MLflow UI): what it is, the run that trained it (linked),
+    its test figures (the trained student's own, :func:`~spade.experiments.tracking.descriptions.figures_table`
+    without the references: those are the run's child runs) and how to plan with it."""
+    from spade.experiments.tracking.descriptions import FIGURES, figures_table, what_it_is
+    from spade.experiments.tracking.links import relative_run_link
+
+    experiment_id, run_id, run_name = run
+    own = {k: v for k, v in metrics.items() if k.startswith("test/") and not k.startswith("test/baseline/")}
+    table = figures_table({k: v for k, v in own.items() if k[len("test/"):] in FIGURES})
+    tags = dict(cfg.get("tags") or {})
+    text = (f"The best checkpoint of run [{run_name}]({relative_run_link(experiment_id, run_id)}) "
+            f"({what_it_is(tags)}, {tags.get('shape', '?')}-shape paths, scale `{tags.get('scale', '?')}`) as ONNX. "
+            f"Its metrics are its test figures on the run's test set; the baselines and the untrained model it was "
+            f"compared with are the run's child runs. Plan with it: `python -m spade.plan MAP.yaml start=X,Y,YAW "
+            f"goal=X,Y model={run_uri}`.")
+    return (table.split("\n\n", 1)[0] + "\n\n" + text) if table else text
+
+
+def describe_logged_model(client: Any, logged: LoggedStudent, cfg: DictConfig, metrics: dict[str, float],
+                          run: tuple[str, str, str]) -> None:
+    """Set the logged model's description (tag ``mlflow.note.content``: :func:`logged_model_description`)."""
+    from spade.experiments.tracking.experiment_tags import NOTE_TAG
+
+    model_id = logged.model_uri.split("/")[-1] if logged.model_uri.startswith("models:/") else logged.model_uri
+    client.set_logged_model_tags(model_id, {NOTE_TAG: logged_model_description(cfg, metrics, run, logged.run_uri)})

@@ -32,6 +32,7 @@ import logging
 import os
 import signal
 import socket
+import time
 import weakref
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -51,7 +52,13 @@ from spade.experiments.tracking.descriptions import (
     version_description,
 )
 from spade.experiments.tracking.experiment_tags import NOTE_TAG, ensure_experiment_tags
-from spade.experiments.tracking.logged_model import LoggedStudent, model_note, try_log_student_model
+from spade.experiments.tracking.logged_model import (
+    LoggedStudent,
+    describe_logged_model,
+    model_note,
+    try_log_student_model,
+)
+from spade.experiments.tracking.logger import held_metrics
 from spade.experiments.tracking.params import run_params
 from spade.experiments.tracking.predictors import is_predictor_run
 from spade.utils.processes import pid_alive, process_start
@@ -339,20 +346,32 @@ def describe_run(cfg: DictConfig, ml: MLFlowLogger, datamodule: Any, contexts: t
     except (OSError, ValueError) as exc:  # an unreadable manifest: the run itself is fine, say so
         log.warning("datasets not logged as MLflow inputs: %s", exc)
     run = client.get_run(run_id)
-    metrics = dict(run.data.metrics)
-    history = None
-    if "margin/active" in metrics:  # a guided student: its margin's activity per epoch (step = epoch)
-        values = {m.step: m.value for m in client.get_metric_history(run_id, "margin/value")}
-        history = [(m.step, m.value, values.get(m.step, float("nan")))
-                   for m in sorted(client.get_metric_history(run_id, "margin/active"), key=lambda m: m.step)]
+    metrics = {**dict(run.data.metrics), **held_metrics(ml)}  # the references' figures: held back by the logger
+    history = margin_history(client, run_id) if "margin/active" in metrics else None
+    end = run.info.end_time or int(time.time() * 1000)
+    seconds = (end - run.info.start_time) / 1000.0 if run.info.start_time else None
     description = run_description(cfg, metrics, uses, prerequisite_uses(cfg, client), _picture_paths(client, run_id),
-                                  (str(run.info.experiment_id), run_id), history)
+                                  (str(run.info.experiment_id), run_id), history, seconds)
     description += _references_note(metrics, (str(run.info.experiment_id), run_id)) + model_note(logged_model)
     client.set_tag(run_id, NOTE_TAG, description)
+    if logged_model is not None:
+        _nicety("the logged model's description", describe_logged_model, client, logged_model, cfg, metrics,
+                (str(run.info.experiment_id), run_id, str(run.info.run_name)))
     global _last_run
     _last_run = RunRef(str(client.tracking_uri), str(run.info.experiment_id), run_id, str(run.info.run_name),
                        logged_model.run_uri if logged_model is not None else None)
     return uses, metrics, description
+
+
+def margin_history(client: Any, run_id: str) -> list[tuple[int, float, float]]:
+    """A guided student's margin activity per epoch, ``[(epoch, active, value)]``, from the run's ``margin/*``
+    (logged at the global step of each epoch's validation, tag ``spade.margin_step=global``; older runs: step =
+    epoch)."""
+    from spade.training.progress_picture import epoch_series
+
+    series = epoch_series(client, run_id)
+    values = dict(series.get("margin/value", []))
+    return [(epoch, active, values.get(epoch, float("nan"))) for epoch, active in series.get("margin/active", [])]
 
 
 def _nicety(what: str, step: Any, *args: Any) -> Any:
@@ -375,7 +394,7 @@ def _predictors_and_report(cfg: DictConfig, client: Any, run_id: str, uses: list
     tags = dict(cfg.get("tags") or {})
     role = str(tags.get("role") or "model")
     test_uses = [u for u in uses if u.context == "test"]
-    _nicety("predictor runs", log_predictor_runs, client, run_id, role, what_it_is(tags), test_uses)
+    _nicety("predictor runs", log_predictor_runs, client, run_id, role, what_it_is(tags), test_uses, metrics)
     _nicety("run report", log_run_report, client, run_id, str(cfg.get("run_name") or "run"), description, metrics,
             role)
 
