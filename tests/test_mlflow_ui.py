@@ -422,7 +422,6 @@ def test_a_dataset_a_parallel_job_logs_at_the_same_moment_is_linked_not_an_error
 def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(tmp_path: Path) -> None:
     from omegaconf import OmegaConf
 
-    from spade.experiments.tables import METRICS
     from spade.experiments.tracking import DatasetUse, prerequisite_uses, run_description
 
     ml = _logger(tmp_path, "table1")
@@ -448,19 +447,20 @@ def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(
     uses = [DatasetUse(tmp_path / "tiny/lshape", "tiny/lshape (train split)", "training", 160),
             DatasetUse(tmp_path / "tiny/test", "tiny/test", "test", 43)]
     text = run_description(cfg, metrics, uses, prerequisites, ["predictions/test_worst.png"])
-    assert text.startswith("**t1_small_conddbc_L**: Cond-DBC student (size small, 118k parameters), L-shape paths")
-    assert "Trained on `tiny/lshape` (160 instances)" in text and "Tested on `tiny/test` (43 instances)" in text
+    # issue 48: the table first (the UI shows it without "Show more"), units in its headers, shares in per cent
+    assert text.startswith("| test set ") and "APE cm" in text.splitlines()[0]
+    assert "**t1_small_conddbc_L**: Cond-DBC student (size small, 118k parameters), L-shape paths" in text
+    assert "Trained on `tiny/lshape` (160 instances)" in text and "Tested on `tiny/test`: 43 instances." in text
     assert "registered model `spade-cond_expert-L-tiny-abc v1`, run [cond_expert_L](#/experiments/" in text
     assert "Regenerate: `python -m spade.train +experiment=t1_small_conddbc_L scale=tiny`" in text
-    rate = METRICS["failure_rate"].format  # the tables' own number formats; centimetres to 0.1 cm (issue 22)
     # aligned columns (issue 39): labels left, figures right, every line of the table as wide as its header
-    assert f"| **this model**     |   4.5 | n/a |    3 |     {rate(0.02)} |" in text
-    assert f"| baseline: straight |  30.2 | n/a |  n/a |     {rate(0.0)} |" in text
-    assert "| untrained          | 190.0 |" in text
+    assert "| **this model**     |    4.5 |      3 |      2 |" in text
+    assert "| baseline: straight |   30.2 |    n/a |      0 |" in text
+    assert "| untrained          |  190.0 |" in text
     table = [line for line in text.splitlines() if line.startswith("|")]
     assert len({len(line) for line in table}) == 1 and table[0].startswith("| test set ")
-    assert "APE: mean distance in cm" in text and "Hd19: test instances whose Hausdorff distance" in text
-    assert "FID: Frechet distance" in text and "failures: share of instances" in text and ">20 cm: share" in text
+    assert "APE: mean distance in cm" in text and "Hd19: the number of test instances whose Hausdorff" in text
+    assert "fail: per cent of instances" in text and ">20cm: per cent" in text
     assert "`predictions/test_worst.png`" in text
     linked = run_description(cfg, metrics, uses, prerequisites, ["predictions/test_worst.png"], ("5", "ab12"))
     assert ("[predictions/test_worst.png](#/experiments/5/runs/ab12/artifacts/predictions/test_worst.png"
