@@ -10,6 +10,7 @@ data config's ``*_generate`` entry is :func:`spade.data.settings.annotation_conf
 from __future__ import annotations
 
 import logging
+import math
 import time
 from pathlib import Path
 from typing import Any, Mapping
@@ -100,8 +101,36 @@ def annotate(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
         "rejections": dict(sorted(stats.rejections.items())),
         "preview": str(preview) if preview else None,
     }
+    warning = few_scenarios_warning(len(stats.scenarios), is_test_part(cfg, split, out_dir))
+    if warning:
+        summary["warning"] = warning
+        log.warning("%s", warning)
     log.info("annotation done: %s", summary)
     return summary
+
+
+FEW_SCENARIOS = 30  # a test part with fewer scenarios than this gets a warning in the summary
+
+
+def is_test_part(cfg: Mapping[str, Any], split: Any, out_dir: Path) -> bool:
+    """Whether this run writes a test set: ``split=<mode>:test``, the transfer preset's ``split=test``, or an
+    output folder named as one (``.../test``, ``own_test``)."""
+    if split is not None and getattr(split, "part", None) == "test":
+        return True
+    return cfg.get("split") == "test" or "test" in out_dir.name.lower()
+
+
+def few_scenarios_warning(scenarios: int, test_part: bool) -> str | None:
+    """The summary's warning for a test part of fewer than :data:`FEW_SCENARIOS` scenarios, with the uncertainty
+    that implies: a scenario's instances are near-duplicates, so a share measured on the set (a failure rate, the
+    share over 20 cm) is known to about +-1.96 * sqrt(0.25 / scenarios), the 95 % interval's half-width at 50 %."""
+    if not test_part or scenarios <= 0 or scenarios >= FEW_SCENARIOS:
+        return None
+    half = 100 * 1.96 * math.sqrt(0.25 / scenarios)
+    return (f"this test part has only {scenarios} scenarios: a share measured on it (a failure rate, the share "
+            f"over 20 cm) is uncertain by up to about +-{half:.0f} percentage points (95 % interval), and two models "
+            f"that differ by less cannot be told apart; draw more scenarios (more sketches or templates, a larger "
+            f"split_fraction for the test part) for figures to compare (at least {FEW_SCENARIOS})")
 
 
 def _map_info(source: Any) -> dict[str, Any]:
