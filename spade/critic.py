@@ -93,6 +93,12 @@ def critic(cfg: DictConfig) -> dict[str, Any]:
     return metrics
 
 
+def page_stem(cfg: DictConfig, config) -> str:
+    """The name (without suffix) of the results page and picture of ``cfg``'s critic with margin ``config``."""
+    stem = f"critic_{Path(str(cfg.ckpt_path)).stem}_{config.agent_input}_{config.score}"
+    return stem + ("_student" if cfg.get("student_ckpt") else "")
+
+
 def _write_page(cfg: DictConfig, config, metrics: dict[str, float], picture, seconds: float) -> Path | None:
     """The results page: the figures (:func:`format_report`), per band, with command, commit, date, machine and
     wall time, next to its picture, in ``cfg.output_dir``."""
@@ -100,16 +106,15 @@ def _write_page(cfg: DictConfig, config, metrics: dict[str, float], picture, sec
 
     from PIL import Image
 
+    from spade.deploy.outputs import save_png
     from spade.utils.provenance import command_line, commit, machine, shown_path
 
     if not cfg.get("output_dir"):
         return None
     out = Path(str(cfg.output_dir))
     out.mkdir(parents=True, exist_ok=True)
-    stem = f"critic_{Path(str(cfg.ckpt_path)).stem}_{config.agent_input}_{config.score}"
-    if cfg.get("student_ckpt"):
-        stem += "_student"
-    Image.fromarray(picture).save(out / f"{stem}.png")
+    stem = page_stem(cfg, config)
+    save_png(Image.fromarray(picture), out / f"{stem}.png")
     bands = sorted({k.rsplit("/", 1)[1] for k in metrics if k.startswith("critic/win/") and k.count("/") == 3})
     names = [k.split("/")[2] for k in metrics if k.startswith("critic/win/") and k.count("/") == 2]
     header = "| candidate | win (all t) | " + " | ".join(b.replace("t", "t ", 1) for b in bands) + " | ties | error ratio |"

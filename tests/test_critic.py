@@ -294,6 +294,12 @@ def test_critic_command_scores_an_expert_and_a_student_and_writes_its_page(spade
         assert key in metrics and metrics[key] >= 0.0, key
     assert metrics["expert/instances"] == 6.0
     assert "| expert, one sample |" in text and "| student |" in text and "generator's" in text
+    # a rerun replaces the page SPADE wrote only with overwrite=true (checked before any measuring)
+    from spade.experiments.checks import validate_critic_config
+    from spade.utils.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="pass overwrite=true"):
+        validate_critic_config(cfg)
     assert "blur" in format_report(metrics)
 
 

@@ -19,6 +19,7 @@ from PIL import Image, PngImagePlugin
 
 SOFTWARE = "SPADE"  # the PNG tEXt "Software" value of every picture SPADE writes (save_png, the report's chart)
 REPORT_PROVENANCE = "- command: `python -m spade.report"  # the provenance line of every spade.report page
+CRITIC_PROVENANCE = "- command: `python -m spade.critic"  # ... and of every spade.critic page
 #: The header of each CSV file spade.report writes (spade.experiments.reporting.files, the closed-loop page):
 #: its first fields, or (for <table>.csv, whose metric columns vary) fields it always holds.
 REPORT_CSV_HEADS = (("kind", "comparison", "row", "baseline", "metric"), ("dataset", "condition", "row", "seeds"),
@@ -56,7 +57,8 @@ def written_by_spade(path: str | Path) -> bool:
                                               or BENCH_KEYS <= set(raw))
         if suffix == ".md":
             with p.open(encoding="utf-8") as fh:
-                return f"\n{REPORT_PROVENANCE}" in fh.read(_HEAD_BYTES)
+                head = fh.read(_HEAD_BYTES)
+                return f"\n{REPORT_PROVENANCE}" in head or f"\n{CRITIC_PROVENANCE}" in head
         if suffix == ".csv":
             with p.open(newline="", encoding="utf-8") as fh:
                 header = next(csv.reader([fh.readline(_HEAD_BYTES)]), [])

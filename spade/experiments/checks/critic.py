@@ -12,7 +12,7 @@ from spade.experiments.checks.checkpoints import _check_checkpoint, _check_geome
 from spade.experiments.checks.data import _check_folder_path
 from spade.experiments.checks.files import check_path_value, check_paths, check_writable
 from spade.experiments.checks.store import _check_logger_store
-from spade.experiments.checks.values import _MISSING, _check_int, _get, _unset
+from spade.experiments.checks.values import _MISSING, _check_bool, _check_int, _get, _unset
 from spade.utils.errors import ConfigError
 
 
@@ -29,7 +29,7 @@ def validate_critic_config(cfg: DictConfig) -> None:
     ckpt = _get(cfg, "ckpt_path")
     if _unset(ckpt):
         raise ConfigError(f"ckpt_path is not set; {fix} (ckpt_path=PATH)")
-    _margin_config(cfg)  # model.margin's options, by MarginConfig's own checks
+    margin = _margin_config(cfg)  # model.margin's options, by MarginConfig's own checks
     info = _check_checkpoint("ckpt_path", ckpt, "expert", fix)
     _check_test_set(cfg)
     _check_expert_kind(cfg, ckpt, info)  # Cond-DBC needs a conditional expert, DBC an unconditional one
@@ -43,6 +43,11 @@ def validate_critic_config(cfg: DictConfig) -> None:
     _check_int(cfg, "critic.draws_per_band", 1, fix=", e.g. critic.draws_per_band=2")
     _check_int(cfg, "critic.bands", 1, fix=", e.g. critic.bands=5")
     _check_int(cfg, "critic.batch_size", 1, fix=", e.g. critic.batch_size=32")
+    _check_int(cfg, "critic.expert_samples", 0, fix=" (0: no planner figures; 2 or more: K samples per instance)")
+    if _get(cfg, "critic.expert_samples") == 1:
+        raise ConfigError("critic.expert_samples=1: two samples at least measure the spread; set it to 0 (no planner "
+                          "figures) or 2 or more (e.g. 4)")
+    _check_bool(cfg, "overwrite")
     width = _get(cfg, "data.target_width_px")
     if width is not _MISSING and (not isinstance(width, int) or isinstance(width, bool) or width < 1 or width % 2 == 0):
         raise ConfigError(f"data.target_width_px={width!r} is not an odd number of pixels >= 1; set it to 1 (or 3, 5, "
@@ -55,6 +60,16 @@ def validate_critic_config(cfg: DictConfig) -> None:
             raise ConfigError(f"output_dir={out} is a file; give a folder for the results page (null: no page)")
         check_writable("output_dir", Path(str(out)).expanduser() / "page.md",
                        "give a folder you can write for the results page (null: no page)")
+        if margin is not None:
+            from spade.critic import page_stem
+            from spade.deploy.outputs import replace_refusal
+
+            for suffix in (".md", ".png"):
+                path = Path(str(out)).expanduser() / (page_stem(cfg, margin) + suffix)
+                refusal = replace_refusal("output_dir", path, _get(cfg, "overwrite") is True,
+                                          label=f"output_dir={out}: {path}")
+                if refusal is not None:
+                    raise ConfigError(refusal)
 
 
 def _check_test_set(cfg: DictConfig) -> None:
