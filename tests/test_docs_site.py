@@ -237,3 +237,36 @@ def test_the_readme_is_a_front_page_whose_links_resolve() -> None:
     for link in links:
         if not re.match(r"[a-z]+://", link):
             assert (REPO / link).exists(), f"README links to {link}, which does not exist"
+
+
+@pytest.mark.slow  # a site build and a browser
+@pytest.mark.timeout(240)
+def test_a_results_page_fits_its_column_in_a_browser(built: tuple[Path, str]) -> None:
+    """The encoding results page (its tables are the widest) rendered by chromium at 1600x1000 and at a laptop's
+    1280x800: nothing overflows the content column (the page does not scroll sideways, every table fits its
+    column); a screenshot goes to ``test-artifacts/docs/`` (the folder is printed)."""
+    from browser_support import ARTIFACTS, browser_page, chromium_path, screenshot
+
+    chromium_path()
+    site, _ = built
+    page_file = site / "results" / "encoding" / "index.html"
+    print(f"\nscreenshots: {(ARTIFACTS / 'docs').resolve()}")
+    for width, height in ((1600, 1000), (1280, 800)):
+        with browser_page(width=width, height=height) as page:
+            page.goto(page_file.as_uri())
+            page.wait_for_selector(".md-content table")
+            widths = page.evaluate("""() => {
+                const column = document.querySelector('.md-content');
+                const tables = [...column.querySelectorAll('table')].map(t => {
+                    const box = t.parentElement;  // material's scroll wrapper (overflow: auto)
+                    return [t.scrollWidth, box.clientWidth, t.innerText.slice(0, 60)];
+                });
+                return {column: [column.scrollWidth, column.clientWidth],
+                        page: [document.documentElement.scrollWidth, document.documentElement.clientWidth],
+                        tables};
+            }""")
+            assert widths["page"][0] <= widths["page"][1], f"{width}px: the page scrolls sideways: {widths}"
+            assert widths["column"][0] <= widths["column"][1], f"{width}px: the column overflows: {widths}"
+            wide = [t for t in widths["tables"] if t[0] > t[1] + 1]
+            assert not wide, f"{width}px: tables wider than the column (scrolled, cut): {wide}"
+            screenshot(page, f"docs/results_encoding_{width}x{height}.png")
