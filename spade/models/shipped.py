@@ -52,13 +52,24 @@ class ShippedModel:
 
 
 SHIPPED: dict[str, ShippedModel] = {
-    # The scale=cpu conditional expert (cpu_lite, x0, 11 epochs = 594 steps, seed 42): on the 263 held-out L test
-    # instances 5.06 cm APE, Hd19 5 (README, Table 1's L half), against the heading template's 12.09 cm.
+    # The scale=cpu conditional expert on the paper's binary start and goal discs (cpu_lite, x0, 11 epochs = 594
+    # steps, seed 42): the guidance and paper rows on binary markers learn from it. Its figures as a planner beside
+    # its student: docs/results/teacher.md (python -m spade.report table=teacher).
     "cond_expert_L": ShippedModel(
         file="cond_expert_L_cpu_lite_x0.ckpt",
         sha256="38eac1a15b252ec6ba92bb93739130e21eec5451ad763eca6ad7e91c630b2460",
         rebuild="python -m spade.train +experiment=cond_expert_L scale=cpu seed=42, then python -m "
                 "spade.models.shipped ckpt=<its registered checkpoint> name=cond_expert_L",
+        role="expert",
+    ),
+    # The teacher (issue 47): the same network on the quickstart's data with Gaussian start and goal markers (the
+    # students' encoding since issue 45), 48 epochs of 54 steps, EMA 0.999, seed 42, its best epoch by validation
+    # loss. The quickstart's student learns from it. Its figures: docs/results/teacher.md.
+    "cond_expert_L_gaussian": ShippedModel(
+        file="cond_expert_L_gaussian_cpu_lite_x0.ckpt",
+        sha256="5dc7c060d0154e76dac7360c484948339ab37c62096833f54cadd03048be64ca",
+        rebuild="python -m spade.train +experiment=teacher_L seed=42 threads=2, then python -m spade.models.shipped "
+                "ckpt=<its best checkpoint> name=cond_expert_L_gaussian",
         role="expert",
     ),
 }
