@@ -31,6 +31,24 @@ def test_the_quickstart_expert_is_the_pinned_scale_cpu_conditional_expert() -> N
     assert "optimizer_states" not in load_checkpoint(path)  # weights, not a resumable fit
 
 
+def test_the_teacher_is_pinned_and_judges_only_gaussian_markers() -> None:
+    """The teacher the quickstart's student learns from (issue 47): trained on Gaussian start and goal markers, it
+    says so, and refuses a student whose data draw binary discs."""
+    from spade.training.errors import ExpertMismatchError
+    from spade.training.expert_module import ExpertModule
+
+    path = shipped_path("cond_expert_L_gaussian")
+    assert file_sha256(path) == SHIPPED["cond_expert_L_gaussian"].sha256
+    info = read_info(path)
+    assert info["role"] == "expert" and info["data"]["marker_encoding"] == "gaussian"
+    assert "+experiment=teacher_L seed=42" in info["shipped"]["rebuild"]
+    expert = load_lightning(ExpertModule, path)
+    assert expert.marker_encoding == "gaussian" and expert.hparams["prediction_type"] == "sample"
+    expert.check_compatible(in_channels=3, image_size=(64, 64), source="teacher", encoding="gaussian")
+    with pytest.raises(ExpertMismatchError, match="data.encoding=gaussian"):
+        expert.check_compatible(in_channels=3, image_size=(64, 64), source="teacher", encoding="binary")
+
+
 def test_the_shipped_expert_prefers_demonstrated_paths_to_straight_lines(tmp_path: Path) -> None:
     """What makes it a teacher: on fresh robot-frame L demonstrations (64 px, 0.1 m/px, maps the expert never saw
     in this order) its margin says the straight start-to-goal segment is less expert-like than the demonstration
