@@ -37,7 +37,7 @@ from spade.annotation.scenarios import (
 )
 from spade.annotation.split import Split, in_scenario_part, parse_split
 from spade.annotation.templates import SHAPES, check_shape
-from spade.data.rasterize import Instance, fits_robot_frame
+from spade.data.rasterize import Instance
 from spade.utils.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -438,17 +438,71 @@ def _summary(result: ScenarioResult, n_instances: int) -> dict[str, Any]:
     }
 
 
+@dataclass(frozen=True)
+class SketchWindowFit:
+    """How a sketch fits the student's window (:func:`sketch_window_fit`): the window's pose, the waypoints (indices
+    from 0) less than the margin inside it and the executed path's points (map pixels) less than half the margin
+    inside it."""
+
+    pose: Any  # spade.maps.frame.WindowPose
+    outside_waypoints: list[int]
+    outside_points: np.ndarray
+
+    @property
+    def fits(self) -> bool:
+        return not self.outside_waypoints and not len(self.outside_points)
+
+
+def sketch_window_fit(waypoints_px: np.ndarray, executed_px: np.ndarray | None, frame: Any, margin_px: float,
+                      heading_px: float) -> SketchWindowFit:
+    """Where an operator's sketch puts the student's window, and what of it lies outside.
+
+    The window is the one the sketching page draws while the operator sketches: the robot at the first waypoint,
+    heading towards the sketch's point ``heading_px`` along it (``execution.heading_window_m``). The sketch fits when
+    every waypoint lies ``margin_px`` inside the window (the straight legs between them then do too: the window is
+    convex) and the executed path stays ``margin_px / 2`` inside it. The verdict moves with the sketch: shifting a
+    whole sketch over the map does not change it (the executed path, snapped to the map's cells, moves by up to a
+    cell against the sketch, which the half margin absorbs), unlike a check at the executed path's first cell and
+    heading, which flipped on centimetres."""
+    wp = np.asarray(waypoints_px, dtype=np.float64)
+    steps = np.linalg.norm(np.diff(wp, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(steps)])
+    reach = min(float(heading_px), float(arc[-1]))
+    k = int(np.clip(np.searchsorted(arc, reach, side="right") - 1, 0, len(wp) - 2))
+    t = 0.0 if steps[k] == 0 else (reach - arc[k]) / steps[k]
+    ahead = wp[k] + t * (wp[k + 1] - wp[k]) - wp[0]
+    pose = frame.place(wp[0], float(np.arctan2(ahead[1], ahead[0])))
+
+    def outside(points: np.ndarray, margin: float) -> np.ndarray:
+        local = pose.to_window(points)
+        return ((local < margin) | (local > frame.size - 1 - margin)).any(axis=1)
+
+    bad_points = np.zeros((0, 2))
+    if executed_px is not None and len(executed_px):
+        pts = np.asarray(executed_px, dtype=np.float64)
+        bad_points = pts[outside(pts, margin_px / 2.0)]
+    return SketchWindowFit(pose, np.flatnonzero(outside(wp, margin_px)).tolist(), bad_points)
+
+
 def execute_operator_sketch(ctx: MapContext, shape: str, waypoints_px: Any, cfg: Mapping[str, Any]) -> ExecutedPath:
     """Execute one operator sketch (map pixel waypoints) and apply every check of :func:`sketch_instances`;
-    raise :class:`Rejection` when one fails (``spade.sketching`` executes the browser's sketches with it)."""
+    raise :class:`Rejection` when one fails (``spade.sketching`` executes the browser's sketches with it). The
+    window check is :func:`sketch_window_fit`'s (the window the sketching page draws)."""
     from spade.annotation.sketch_file import densify
 
     frame = window_frame(cfg)
+    res = ctx.costmap.resolution
     executed = execute_sketch(ctx.costmap, waypoints_px, densify(waypoints_px, 0.5), SHAPES[shape], cfg["execution"])
-    if not fits_robot_frame(executed.points, frame, float(cfg["window"]["margin_m"]) / ctx.costmap.resolution):
-        raise Rejection("window", f"the executed path does not fit the {frame.size} px robot-frame window "
-                                  f"(robot at pixel {frame.robot_px}, heading up) with "
-                                  f"{cfg['window']['margin_m']} m margin", executed.points)
+    margin_m = float(cfg["window"]["margin_m"])
+    fit = sketch_window_fit(waypoints_px, executed.points, frame, margin_m / res,
+                            float(cfg["execution"]["heading_window_m"]) / res)
+    if not fit.fits:
+        named = ", ".join(f"#{i + 1}" for i in fit.outside_waypoints)
+        where = (f"waypoint{'s' * (len(fit.outside_waypoints) > 1)} {named} less than {margin_m:g} m inside"
+                 if named else f"{len(fit.outside_points)} points of the executed path less than "
+                               f"{margin_m / 2:g} m inside")
+        raise Rejection("window", f"{where} the {frame.size} px robot-frame window (robot at the first waypoint, "
+                                  "heading along the sketch)", executed.points)
     return executed
 
 

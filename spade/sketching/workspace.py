@@ -25,13 +25,14 @@ from PIL import Image
 from scipy.spatial import cKDTree
 
 from spade.annotation.execution import Rejection
-from spade.annotation.pipeline import execute_operator_sketch
-from spade.annotation.scenarios import costmap_context
+from spade.annotation.pipeline import execute_operator_sketch, sketch_window_fit
+from spade.annotation.scenarios import costmap_context, window_frame
 from spade.annotation.sketch_file import Sketch, SketchFileError, densify, sketch_to_pixels
 from spade.annotation.sources import load_map_sources, parse_procedural
 from spade.annotation.templates import SHAPES, check_shape
 from spade.maps import FREE, OCCUPIED
 from spade.sketching.storage import SketchStore, StorageError
+from spade.utils import palette
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +47,8 @@ REASONS = {
     "non_free": "the executed path runs off the free space (closer to an obstacle than the robot radius)",
     "deviation": "the executed path strays too far from the sketch (an obstacle or a too tight corner in the way)",
     "shape": "the executed path does not turn like the shape: an L turns 90 degrees, a U 180 degrees",
-    "window": "the executed path does not fit the student's window (sketch a shorter manoeuvre)",
+    "window": "the sketch does not fit the student's window drawn from its first waypoint (sketch a shorter "
+              "manoeuvre, or start it closer to the turn)",
 }
 
 
@@ -185,13 +187,31 @@ class SketchWorkspace:
             "bounds_m": self.bounds_m(),
             "shapes": sorted(SHAPES), "shape_turn_deg": dict(SHAPES),
             "robot": {"radius_m": float(robot["radius_m"]), "inflation_radius_m": float(robot["inflation_radius_m"])},
+            "footprint": self.footprint(),
             "window": {"size_px": int(self.cfg["window"]["size_px"]), "resolution_m": self.resolution,
-                       "margin_m": float(self.cfg["window"]["margin_m"])},
+                       "margin_m": float(self.cfg["window"]["margin_m"]),
+                       "robot_px": list(window_frame(self.cfg).robot_px),
+                       "heading_m": float(self.cfg["execution"]["heading_window_m"]),
+                       "path_margin_m": float(self.cfg["window"]["margin_m"]) / 2.0},
+            "palette": dict(palette.LABELS),
             "execution": {k: self.cfg["execution"][k] for k in ("max_deviation_m", "shape_tolerance_deg")},
             "sketch_file": str(self.store.path), "dataset_dir": str(self.dataset_dir),
             "build_command": self.build_command,
             "model": self.model_info(),
         }
+
+    def footprint(self) -> dict[str, Any]:
+        """The robot footprint the page draws: the loaded model's (its file records the footprint its
+        demonstrations assumed), else the annotation settings' ``robot`` (what a dataset built here assumes)."""
+        robot = self.cfg["robot"]
+        own = {"radius_m": float(robot["radius_m"]), "inflation_radius_m": float(robot["inflation_radius_m"])}
+        recorded = getattr(self.planner, "footprint", None) if self.planner is not None else None
+        if recorded:
+            differs = any(abs(float(recorded[k]) - own[k]) > 1e-6 for k in own)
+            return {"radius_m": float(recorded["radius_m"]), "inflation_radius_m": float(recorded["inflation_radius_m"]),
+                    "source": "model", "assumed": bool(recorded.get("assumed", False)),
+                    "differs_from_settings": differs, "settings": own}
+        return {**own, "source": "settings", "assumed": False, "differs_from_settings": False, "settings": own}
 
     def bounds_m(self) -> dict[str, float]:
         """The map's extent in map-frame metres."""
@@ -232,6 +252,27 @@ class SketchWorkspace:
         except SketchFileError as exc:
             raise RequestError(str(exc).replace("sketch 'sketch': ", "")) from None
 
+    def _off_map(self, waypoints: np.ndarray) -> list[int]:
+        """Indices of the waypoints outside the map (the cells it has)."""
+        px = self.map.world_to_pixel(waypoints)
+        h, w = self.map.grid.shape
+        return np.flatnonzero((px[:, 0] < -0.5) | (px[:, 0] > w - 0.5) | (px[:, 1] < -0.5)
+                              | (px[:, 1] > h - 0.5)).tolist()
+
+    def window_of(self, px: np.ndarray, executed: np.ndarray | None = None) -> tuple[Any, dict[str, Any]]:
+        """The student's window the sketch (map pixels) puts it in (:func:`sketch_window_fit`, as the page draws it
+        while sketching): the fit and, in metres, the window's corners and its margin's."""
+        frame = window_frame(self.cfg)
+        res = self.ctx.costmap.resolution
+        margin = float(self.cfg["window"]["margin_m"]) / res
+        fit = sketch_window_fit(px, executed, frame, margin, float(self.cfg["execution"]["heading_window_m"]) / res)
+        lo, hi, m_lo, m_hi = -0.5, frame.size - 0.5, margin, frame.size - 1 - margin
+        corners = np.array([[lo, lo], [hi, lo], [hi, hi], [lo, hi]])
+        inner = np.array([[m_lo, m_lo], [m_hi, m_lo], [m_hi, m_hi], [m_lo, m_hi]])
+        return fit, {"corners_m": self._metres(fit.pose.to_map(corners)),
+                     "margin_m": self._metres(fit.pose.to_map(inner)),
+                     "outside_waypoints": fit.outside_waypoints}
+
     def _inside(self, xy: np.ndarray, what: str) -> None:
         b = self.bounds_m()
         if not (b["x_min"] <= xy[0] <= b["x_max"] and b["y_min"] <= xy[1] <= b["y_max"]):
@@ -246,8 +287,17 @@ class SketchWorkspace:
         except ValueError as exc:
             raise RequestError(str(exc)) from None
         wp = _finite_points(waypoints, "waypoints")
-        px = self._to_px(shape, wp)
         t0 = time.perf_counter()
+        if off := self._off_map(wp):
+            b = self.bounds_m()
+            named = ", ".join(f"#{i + 1} ({wp[i, 0]:.2f}, {wp[i, 1]:.2f}) m" for i in off)
+            return {"accepted": False, "shape": shape, "reason": "sketch_off_map", "detail": "",
+                    "message": f"rejected (sketch_off_map): waypoint{'s' * (len(off) > 1)} {named} "
+                               f"lie{'s' * (len(off) == 1)} outside map {self.map.name!r}, which spans "
+                               f"x [{b['x_min']:.2f}, {b['x_max']:.2f}] m, y [{b['y_min']:.2f}, {b['y_max']:.2f}] m",
+                    "path": [], "offending": [], "offending_waypoints": off, "window": None,
+                    "execute_ms": round(1e3 * (time.perf_counter() - t0), 1)}
+        px = self._to_px(shape, wp)
         with self._exec_lock:
             try:
                 executed = execute_operator_sketch(self.ctx, shape, px, self.cfg)
@@ -259,7 +309,9 @@ class SketchWorkspace:
                        "deviation_m": round(executed.deviation_m, 3),
                        "min_clearance_m": round(executed.min_clearance_m, 3),
                        "message": f"accepted: {executed.length_m:.2f} m, turns {executed.turn_deg:.0f} deg, "
-                                  f"at most {executed.deviation_m:.2f} m from the sketch"}
+                                  f"at most {executed.deviation_m:.2f} m from the sketch, inside the student's "
+                                  "window"}
+                out["window"] = self.window_of(px, executed.points)[1]
         out["execute_ms"] = round(1e3 * (time.perf_counter() - t0), 1)
         return out
 
@@ -283,6 +335,9 @@ class SketchWorkspace:
         elif path is not None and rej.reason == "non_free":
             cells = np.clip(np.rint(path[:, ::-1]).astype(np.int64), 0, np.array(cm.grid.shape) - 1)
             offending = path[cm.clearance_px[cells[:, 0], cells[:, 1]] < cm.robot_radius_px]
+        elif rej.reason == "window":
+            fit, _ = self.window_of(px, path)
+            offending_waypoints, offending = fit.outside_waypoints, fit.outside_points
         elif path is not None and rej.reason == "deviation":
             dist, _ = cKDTree(densify(px, 0.5)).query(path)
             offending = path[dist * res > float(self.cfg["execution"]["max_deviation_m"])]
@@ -291,12 +346,15 @@ class SketchWorkspace:
         words = REASONS.get(rej.reason, rej.reason)
         if offending_waypoints:
             words += " (waypoint " + ", ".join(f"#{i + 1}" for i in offending_waypoints) + ")"
-        generic = rej.reason in ("sketch_off_map", "sketch_off_free", "no_path")  # the detail repeats the words
+        generic = rej.reason in ("sketch_off_map", "sketch_off_free", "no_path", "window")  # the detail repeats
+        if rej.reason == "window" and not offending_waypoints and len(offending):
+            words += (f" ({len(offending)} points of the executed path less than "
+                      f"{float(self.cfg['window']['margin_m']) / 2:g} m inside it)")
         message = f"rejected ({rej.reason}): {words}" + (f"; {rej.detail}" if rej.detail and not generic else "")
         return {"accepted": False, "shape": shape, "reason": rej.reason, "detail": rej.detail, "message": message,
                 "path": self._metres(path) if path is not None else [],
                 "offending": self._metres(offending) if len(offending) else [],
-                "offending_waypoints": offending_waypoints}
+                "offending_waypoints": offending_waypoints, "window": self.window_of(px, path)[1]}
 
     def save(self, shape: Any, waypoints: Any, name: str | None = None) -> dict[str, Any]:
         """Execute again (the server never trusts a client's result) and append an accepted sketch to the file."""
@@ -375,7 +433,8 @@ class SketchWorkspace:
         if self.planner is None:
             return None
         h, w = self.planner.image_size
-        return {"path": self.model_path, "image_size": [h, w], "resolution_m": self.planner.resolution}
+        return {"path": self.model_path, "image_size": [h, w], "resolution_m": self.planner.resolution,
+                "footprint": self.footprint()}
 
     def load_model(self, path: str | Path) -> dict[str, Any]:
         """Load a student (checkpoint or ONNX) as the planner; a wrong file is a :class:`RequestError`."""
@@ -471,7 +530,7 @@ class SketchWorkspace:
         inside = (win[..., 0] >= 0) & (win[..., 0] < w) & (win[..., 1] >= 0) & (win[..., 1] < h)
         rgba = np.zeros((*rows.shape, 4), np.uint8)
         p = prob[win[..., 1][inside], win[..., 0][inside]]
-        rgba[inside, :3] = (230, 0, 200)
+        rgba[inside, :3] = palette.rgb(palette.PROBABILITY)
         rgba[inside, 3] = np.where(p > 0.02, 40 + 200 * p, 0).astype(np.uint8)
         top_left = m.pixel_to_world(np.array([c0 - 0.5, r0 - 0.5], dtype=np.float64))
         bottom_right = m.pixel_to_world(np.array([c1 + 0.5, r1 + 0.5], dtype=np.float64))
@@ -491,14 +550,13 @@ class SketchWorkspace:
             return None
         from spade.metrics.baselines import baseline_polylines
 
-        colours = {"straight": "#777777", "shortest": "#00a0a0", "heading": "#e69a00"}
         t0 = time.perf_counter()
         out = []
         for name, poly in baseline_polylines(np.asarray(result.state), float(self.planner.resolution)).items():
             metres = np.asarray(result.window.to_world(poly)) if poly is not None else np.zeros((0, 2))
             length = float(np.linalg.norm(np.diff(metres, axis=0), axis=1).sum()) if len(metres) > 1 else 0.0
             out.append({"name": name, "success": poly is not None, "waypoints": np.round(metres, 4).tolist(),
-                        "length_m": round(length, 3), "colour": colours.get(name, "#00a0a0")})
+                        "length_m": round(length, 3), "colour": palette.predictor_colour(f"baseline-{name}")})
         ms = round(1e3 * (time.perf_counter() - t0), 1)
         for b in out:
             b["all_ms"] = ms
