@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -29,6 +30,9 @@ MAP = "aws-robomaker-small-warehouse-world/small_warehouse_005.yaml"
 L_MAIN = [[-3.0, -5.0], [-3.0, -4.0], [-3.0, -3.0], [-2.85, -2.45], [-2.45, -2.1], [-2.0, -2.0], [-1.2, -2.0]]
 L_TAB_A = [[0.0, -6.0], [0.0, -5.0], [0.0, -4.0], [-0.15, -3.45], [-0.55, -3.1], [-1.0, -3.0], [-1.8, -3.0]]
 L_TAB_B = [[-6.0, -5.0], [-6.0, -3.0], [-4.0, -3.0]]
+# An L whose goal lies 3 m to the right of its start: outside the 6.4 m window's margin (waypoint #7).
+L_WIDE = [[-3.0, -5.5], [-3.0, -4.0], [-3.0, -3.0], [-2.85, -2.45], [-2.45, -2.1], [-2.0, -2.0], [0.0, -2.0]]
+SHIFT_M = np.array([0.02, -0.02]) / np.sqrt(2.0)  # 2 cm
 
 
 def free_port() -> int:
@@ -56,13 +60,17 @@ def server(maps_dir: Path, tmp_path: Path) -> Iterator[tuple[str, Path]]:
     """``python -m spade.sketch MAP port=... out_dir=... model=...`` on 127.0.0.1: (base url, out_dir)."""
     port, out = free_port(), tmp_path / "sketches"
     # SPADE_SKETCH_TEST_MODEL: a trained student (64 px x 0.1 m, e.g. scale=tiny) for the README's pictures
-    model = os.environ.get("SPADE_SKETCH_TEST_MODEL") or student_checkpoint(tmp_path / "student.ckpt")
+    model = tmp_path / "student.ckpt"  # in the server's folder: the page shows paths relative to it
+    if os.environ.get("SPADE_SKETCH_TEST_MODEL"):
+        shutil.copyfile(os.environ["SPADE_SKETCH_TEST_MODEL"], model)
+    else:
+        student_checkpoint(model)
     cmd = [sys.executable, "-m", "spade.sketch", str(maps_dir / MAP), f"port={port}", f"out_dir={out}",
            f"model={model}", "annotate.window.size_px=64",
            "annotate.window.resolution_m=0.1", "annotate.instances.spacing_m=0.1", "annotate.preview.count=8",
            f"hydra.run.dir={tmp_path / 'hydra'}"]
     log = open(tmp_path / "server.log", "w")
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env={**os.environ})
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=log, stderr=subprocess.STDOUT, env={**os.environ})
     url = f"http://127.0.0.1:{port}"
     try:
         deadline = time.monotonic() + 150  # a loaded 2-core machine takes ~35 s (torch, hydra, costmap)
@@ -144,9 +152,16 @@ def test_sketch_execute_save_build_and_plan_in_the_browser(server: tuple[str, Pa
         drawn = np.asarray(page.evaluate("window.spade.state.waypoints"))
         res = page.evaluate("window.spade.state.meta.resolution") / page.evaluate("window.spade.state.view.scale")
         assert np.abs(drawn - np.asarray(L_MAIN)).max() < 2 * res  # within two screen pixels
+        # the student's window is drawn while sketching, before any execution, with the fit's verdict
+        before = page.evaluate("window.spade.state.window")
+        assert before and page.get_attribute("#window-fit", "data-fits") == "1", page.inner_text("#window-fit")
+        assert "Fits the student's window" in page.inner_text("#window-fit")
+        assert page.inner_text("#fit") == "Fit"  # the view's button keeps its label
         page.click("#execute")
         page.wait_for_selector("#result.accepted")
         assert "Accepted" in page.inner_text("#result") and page.is_enabled("#save")
+        served = page.evaluate("window.spade.state.execution.window.corners_m")
+        np.testing.assert_allclose(before["corners"], served, atol=0.01)  # the page draws the window checked
         screenshot(page, "sketch_2_executed.png")
 
         t0 = time.perf_counter()
@@ -158,6 +173,33 @@ def test_sketch_execute_save_build_and_plan_in_the_browser(server: tuple[str, Pa
         assert [(s.name, s.shape) for s in saved.sketches] == [("L000", "L")]
         np.testing.assert_allclose(saved.sketches[0].waypoints_m, drawn, atol=1e-3)
         screenshot(page, "sketch_3_saved.png")
+
+        # a sketch outside the window: seen before executing, the waypoint named; shifted by 2 cm, the same verdict
+        page.click("#clear")
+        verdicts = []
+        for shift in (np.zeros(2), SHIFT_M, -SHIFT_M):
+            page.click("#clear")
+            click_world(page, (np.asarray(L_WIDE) + shift).tolist())
+            assert page.get_attribute("#window-fit", "data-fits") == "0", page.inner_text("#window-fit")
+            assert json.loads(page.get_attribute("#window-fit", "data-outside")) == [6], page.inner_text("#window-fit")
+            assert "#7 outside the student's window" in page.inner_text("#window-fit")
+            if not verdicts:
+                screenshot(page, "sketch_2b_window_before_execute.png")
+            page.click("#execute")
+            page.wait_for_selector("#result.rejected")
+            result = page.evaluate("window.spade.state.execution")
+            verdicts.append((result["reason"], result["offending_waypoints"]))
+            assert "waypoint #7" in page.inner_text("#result") and "#6" not in page.inner_text("#result")
+        assert verdicts == [("window", [6])] * 3, verdicts
+        screenshot(page, "sketch_2c_window_rejected.png")
+        for shift in (SHIFT_M, -SHIFT_M):  # the accepted L, shifted by 2 cm: accepted too
+            page.click("#clear")
+            click_world(page, (np.asarray(L_MAIN) + shift).tolist())
+            assert page.get_attribute("#window-fit", "data-fits") == "1"
+            page.click("#execute")
+            page.wait_for_selector("#result.accepted, #result.rejected")
+            assert "Accepted" in page.inner_text("#result"), page.inner_text("#result")
+        page.click("#clear")
 
         # a rejected sketch: a straight drive labelled U, the reason in words
         page.check("input[name=shape][value=U]")

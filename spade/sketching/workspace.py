@@ -33,6 +33,7 @@ from spade.annotation.templates import SHAPES, check_shape
 from spade.maps import FREE, OCCUPIED
 from spade.sketching.storage import SketchStore, StorageError
 from spade.utils import palette
+from spade.utils.provenance import shown_path
 
 log = logging.getLogger(__name__)
 
@@ -196,6 +197,7 @@ class SketchWorkspace:
             "palette": dict(palette.LABELS),
             "execution": {k: self.cfg["execution"][k] for k in ("max_deviation_m", "shape_tolerance_deg")},
             "sketch_file": str(self.store.path), "dataset_dir": str(self.dataset_dir),
+            "sketch_file_shown": shown_path(self.store.path),  # the page shows paths relative to the project
             "build_command": self.build_command,
             "model": self.model_info(),
         }
@@ -371,7 +373,8 @@ class SketchWorkspace:
                 "count": len(self.store.list()), "save_ms": round(1e3 * (time.perf_counter() - t0), 1)}
 
     def sketches(self) -> dict[str, Any]:
-        return {"map": self.map_ref, "sketch_file": str(self.store.path), "sketches": self.store.list()}
+        return {"map": self.map_ref, "sketch_file": str(self.store.path), "sketch_file_shown": shown_path(self.store.path),
+                "sketches": self.store.list()}
 
     def delete(self, name: str) -> dict[str, Any]:
         try:
@@ -410,6 +413,7 @@ class SketchWorkspace:
         try:
             watcher.start()
             job.summary = annotate(cfg)
+            job.summary["out_dir_shown"] = shown_path(job.summary.get("out_dir", self.dataset_dir))
             job.instances = int(job.summary["instances"])
             job.state = "done"
         except Exception as exc:  # reported to the page, the server keeps running
@@ -433,7 +437,8 @@ class SketchWorkspace:
         if self.planner is None:
             return None
         h, w = self.planner.image_size
-        return {"path": self.model_path, "image_size": [h, w], "resolution_m": self.planner.resolution,
+        return {"path": self.model_path, "path_shown": shown_path(self.model_path or ""),
+                "image_size": [h, w], "resolution_m": self.planner.resolution,
                 "footprint": self.footprint()}
 
     def load_model(self, path: str | Path) -> dict[str, Any]:

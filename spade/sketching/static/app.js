@@ -6,6 +6,8 @@ const canvas = $("canvas");
 const g = canvas.getContext("2d");
 
 const FREEHAND_STEP_M = 0.3;
+const OFF_MAP = "#2e3440";  // around the map: darker than any map grey (unknown cells are grey 160)
+let C = {};                 // the palette (spade/utils/palette.py), from GET /api/map: C.robot, C.prediction, ...
 const state = {
   meta: null,              // GET /api/map
   mapImg: null, costImg: null,
@@ -33,6 +35,34 @@ function screenToWorld(sx, sy) {
   return [m.origin[0] + (sx - v.ox) / v.scale * m.resolution,
           m.origin[1] + (m.height_px - (sy - v.oy) / v.scale) * m.resolution];
 }
+// The student's window where the sketch puts it, as the server checks it (spade.annotation.pipeline.
+// sketch_window_fit): the robot at the first waypoint, heading towards the sketch's point heading_m along it; the
+// waypoints must lie margin_m inside it. Corners in map metres; outside: indices of the waypoints that do not.
+function sketchWindow(points) {
+  const m = state.meta, w = m.window;
+  if (!points || points.length < 2) return null;
+  const res = w.resolution_m, size = w.size_px, [rx, ry] = w.robot_px, margin = w.margin_m / res;
+  let reach = w.heading_m, ahead = points[points.length - 1];
+  for (let i = 1; i < points.length; i++) {
+    const [ax, ay] = points[i - 1], [bx, by] = points[i], len = Math.hypot(bx - ax, by - ay);
+    if (len >= reach && len > 0) { ahead = [ax + (bx - ax) * reach / len, ay + (by - ay) * reach / len]; break; }
+    reach -= len;
+  }
+  const [x0, y0] = points[0];
+  let fx = ahead[0] - x0, fy = ahead[1] - y0;
+  const n = Math.hypot(fx, fy) || 1; fx /= n; fy /= n;
+  const toMap = (u, v) => [x0 + ((u - rx) * fy + (ry - v) * fx) * res, y0 + (-(u - rx) * fx + (ry - v) * fy) * res];
+  const toWindow = ([x, y]) => { const dx = x - x0, dy = y - y0; return [rx + (dx * fy - dy * fx) / res, ry - (dx * fx + dy * fy) / res]; };
+  const rect = (lo, hi) => [toMap(lo, lo), toMap(hi, lo), toMap(hi, hi), toMap(lo, hi)];
+  const outside = [];
+  points.forEach((p, i) => {
+    const [u, v] = toWindow(p);
+    if (u < margin || v < margin || u > size - 1 - margin || v > size - 1 - margin) outside.push(i);
+  });
+  return { corners: rect(-0.5, size - 0.5), margin: rect(margin, size - 1 - margin), outside,
+           heading: Math.atan2(fy, fx), size_m: size * res };
+}
+
 function canvasPoint(ev) {
   const r = canvas.getBoundingClientRect();
   return [ev.clientX - r.left, ev.clientY - r.top];
@@ -120,6 +150,100 @@ function drawScaleBar() {
   g.restore();
 }
 
+function drawGrid() {
+  // metre grid over the map, its spacing chosen for the zoom (a line every 40 px or more), labelled at the edges
+  const m = state.meta, b = m.bounds_m, pxPerMetre = state.view.scale / m.resolution;
+  const step = niceLength(40 / pxPerMetre);
+  const [ax, ay] = worldToScreen(b.x_min, b.y_max), [bx, by] = worldToScreen(b.x_max, b.y_min);
+  g.save();
+  g.beginPath(); g.rect(ax, ay, bx - ax, by - ay); g.clip();
+  g.strokeStyle = "rgba(40,60,110,.18)"; g.lineWidth = 1;
+  g.beginPath();
+  for (let x = Math.ceil(b.x_min / step) * step; x <= b.x_max; x += step) { const [sx] = worldToScreen(x, 0); g.moveTo(Math.round(sx) + 0.5, ay); g.lineTo(Math.round(sx) + 0.5, by); }
+  for (let y = Math.ceil(b.y_min / step) * step; y <= b.y_max; y += step) { const [, sy] = worldToScreen(0, y); g.moveTo(ax, Math.round(sy) + 0.5); g.lineTo(bx, Math.round(sy) + 0.5); }
+  g.stroke();
+  g.restore();
+  g.save();
+  g.strokeStyle = "#cfd6e4"; g.lineWidth = 1; g.strokeRect(ax - 0.5, ay - 0.5, bx - ax + 1, by - ay + 1);  // the map's edge
+  // labels: dark text on a white halo, legible over the map, the costmap and the dark surround alike
+  g.font = "bold 11px system-ui, sans-serif"; g.lineWidth = 3; g.strokeStyle = "#fff"; g.fillStyle = "#1d2330";
+  g.lineJoin = "round"; g.textAlign = "center"; g.textBaseline = "top";
+  const label = (v, unit) => `${+v.toFixed(2)}${unit}`;
+  const text = (t, x, y) => { g.strokeText(t, x, y); g.fillText(t, x, y); };
+  for (let x = Math.ceil(b.x_min / step) * step; x <= b.x_max; x += step) {
+    const [sx] = worldToScreen(x, 0);
+    if (sx > 40 && sx < canvas.width - 24) text(label(x, " m"), sx, 3);
+  }
+  g.textAlign = "left"; g.textBaseline = "middle";
+  for (let y = Math.ceil(b.y_min / step) * step; y <= b.y_max; y += step) {
+    const [, sy] = worldToScreen(0, y);
+    if (sy > 24 && sy < canvas.height - 40) text(label(y, " m"), 3, sy);
+  }
+  g.restore();
+  // the map frame: its origin and axes, 1 m each, where the origin is on the map
+  if (b.x_min <= 0 && 0 <= b.x_max && b.y_min <= 0 && 0 <= b.y_max) {
+    const [ox, oy] = worldToScreen(0, 0), len = Math.max(24, pxPerMetre);
+    g.save(); g.strokeStyle = "#111"; g.fillStyle = "#111"; g.lineWidth = 2; g.font = "bold 11px system-ui, sans-serif";
+    g.beginPath(); g.moveTo(ox, oy); g.lineTo(ox + len, oy); g.moveTo(ox, oy); g.lineTo(ox, oy - len); g.stroke();
+    g.fillText("x", ox + len + 3, oy + 4); g.fillText("y", ox - 3, oy - len - 4);
+    g.beginPath(); g.arc(ox, oy, 3, 0, 2 * Math.PI); g.fill();
+    g.restore();
+  }
+}
+
+function footprint() { return state.meta.footprint || state.meta.robot; }
+
+function drawFootprint(x, y) {
+  // the robot's footprint to scale (radius), its inflation dashed
+  const f = footprint(), ppm = state.view.scale / state.meta.resolution, [sx, sy] = worldToScreen(x, y);
+  g.save();
+  g.beginPath(); g.arc(sx, sy, Math.max(2, f.radius_m * ppm), 0, 2 * Math.PI);
+  g.fillStyle = hexAlpha(C.robot, 0.35); g.fill(); g.strokeStyle = C.robot; g.lineWidth = 1.5; g.stroke();
+  g.beginPath(); g.arc(sx, sy, (f.radius_m + f.inflation_radius_m) * ppm, 0, 2 * Math.PI);
+  g.setLineDash([3, 3]); g.strokeStyle = hexAlpha(C.robot, 0.6); g.lineWidth = 1; g.stroke();
+  g.restore();
+}
+
+function hexAlpha(hex, a) {
+  const v = parseInt(hex.slice(1), 16);
+  return `rgba(${(v >> 16) & 255},${(v >> 8) & 255},${v & 255},${a})`;
+}
+
+function drawWindow(win, outsideCount) {
+  // the student's window (solid) and the margin the sketch must keep inside it (dashed)
+  polyline([...win.corners, win.corners[0]], C.window, 2);
+  polyline([...win.margin, win.margin[0]], hexAlpha(C.window, 0.8), 1.2, [6, 4]);
+  const top = win.corners.reduce((a, p) => (worldToScreen(...p)[1] < worldToScreen(...a)[1] ? p : a));
+  let [sx, sy] = worldToScreen(...top);
+  g.save(); g.font = "bold 12px system-ui, sans-serif"; g.textAlign = "center"; g.textBaseline = "bottom";
+  const text = `student's window ${win.size_m.toFixed(1)} m` + (outsideCount ? ` (${outsideCount} outside)` : "");
+  const w = g.measureText(text).width + 8;
+  sx = Math.min(Math.max(sx, w / 2 + 4), canvas.width - w / 2 - 4); sy = Math.max(sy, 40);  // kept on the canvas
+  g.fillStyle = "rgba(255,255,255,.85)"; g.fillRect(sx - w / 2, sy - 19, w, 16);
+  g.fillStyle = C.window; g.fillText(text, sx, sy - 4);
+  g.restore();
+}
+
+function drawLegend() {
+  const items = state.mode === "policy"
+    ? [["robot, its footprint and window", C.robot], ["goal", C.goal], ["plan (the student's path)", C.prediction],
+       ["path probability", C.probability], ["baseline: straight line", C["baseline-straight"]],
+       ["baseline: Nav2-like shortest", C["baseline-shortest"]], ["baseline: heading template", C["baseline-heading"]]]
+    : [["start, footprint, student's window", C.robot], ["sketch waypoints, executed path", C.demonstration],
+       ["goal (last waypoint)", C.goal], ["outside the window / rejected part", C["low-confidence"]],
+       ["rejected execution", "#555"]];
+  g.save(); g.font = "12px system-ui, sans-serif";
+  const w = Math.max(...items.map(([t]) => g.measureText(t).width)) + 40, h = 18 * items.length + 10;
+  const x0 = canvas.width - w - 10, y0 = 22;
+  g.fillStyle = "rgba(255,255,255,.9)"; g.fillRect(x0, y0, w, h); g.strokeStyle = "#99a"; g.strokeRect(x0 + 0.5, y0 + 0.5, w, h);
+  items.forEach(([t, c], i) => {
+    const y = y0 + 14 + 18 * i;
+    g.fillStyle = c; g.fillRect(x0 + 8, y - 4, 20, 6);
+    g.fillStyle = "#222"; g.textBaseline = "middle"; g.fillText(t, x0 + 34, y);
+  });
+  g.restore();
+}
+
 function drawRobot(pose) {
   const [x, y, yaw] = pose;
   const [sx, sy] = worldToScreen(x, y);
@@ -127,7 +251,7 @@ function drawRobot(pose) {
   g.save();
   g.translate(sx, sy); g.rotate(-yaw);  // yaw counter-clockwise, screen y down
   g.beginPath(); g.moveTo(1.8 * r, 0); g.lineTo(-r, 0.9 * r); g.lineTo(-0.5 * r, 0); g.lineTo(-r, -0.9 * r); g.closePath();
-  g.fillStyle = "#1f4fe0"; g.fill(); g.strokeStyle = "#fff"; g.lineWidth = 1.5; g.stroke();
+  g.fillStyle = C.robot; g.fill(); g.strokeStyle = "#fff"; g.lineWidth = 1.5; g.stroke();
   g.restore();
 }
 
@@ -135,45 +259,77 @@ function draw() {
   if (!state.meta) return;
   const m = state.meta, v = state.view;
   g.setTransform(1, 0, 0, 1, 0, 0);
-  g.fillStyle = "#888"; g.fillRect(0, 0, canvas.width, canvas.height);
+  g.fillStyle = OFF_MAP; g.fillRect(0, 0, canvas.width, canvas.height);
   g.imageSmoothingEnabled = false;
   if (state.mapImg) g.drawImage(state.mapImg, v.ox, v.oy, m.width_px * v.scale, m.height_px * v.scale);
   if (state.showCostmap && state.costImg) g.drawImage(state.costImg, v.ox, v.oy, m.width_px * v.scale, m.height_px * v.scale);
+  drawGrid();
 
   // the saved sketches, thin; the one picked in the list, bold
-  state.saved.forEach((s) => { if (s.name !== state.selected) polyline(s.waypoints, "rgba(59,108,240,.55)", 1.5, [4, 4]); });
+  const saved = hexAlpha(C.demonstration, 0.55);
+  state.saved.forEach((s) => { if (s.name !== state.selected) polyline(s.waypoints, saved, 1.5, [4, 4]); });
   const sel = state.saved.find((s) => s.name === state.selected);
-  if (sel) { polyline(sel.waypoints, "#3b6cf0", 2.5, [6, 4]); sel.waypoints.forEach(([x, y]) => dot(x, y, 3, "#3b6cf0")); }
+  if (sel) { polyline(sel.waypoints, C.demonstration, 2.5, [6, 4]); sel.waypoints.forEach(([x, y]) => dot(x, y, 3, C.demonstration)); }
 
-  // the current sketch and its execution
-  const ex = state.execution;
-  if (ex && ex.path && ex.path.length) polyline(ex.path, ex.accepted ? "#12a150" : "#d9822b", 4);
-  if (ex && ex.offending && ex.offending.length) ex.offending.forEach(([x, y]) => dot(x, y, 3.5, "#e01b1b"));
-  polyline(state.waypoints, "#ff8c00", 2, [5, 4]);
-  const bad = new Set(ex && ex.offending_waypoints ? ex.offending_waypoints : []);
-  state.waypoints.forEach(([x, y], i) => {
-    const last = i === state.waypoints.length - 1;
-    dot(x, y, last ? 7 : 6, bad.has(i) ? "#e01b1b" : (last ? "#0a8f3c" : "#ff8c00"), "#fff");
-    const [sx, sy] = worldToScreen(x, y);
-    g.fillStyle = "#fff"; g.font = "bold 9px system-ui, sans-serif"; g.textAlign = "center"; g.textBaseline = "middle";
-    g.fillText(String(i + 1), sx, sy + 0.5);
-  });
-  g.textAlign = "start"; g.textBaseline = "alphabetic";
+  if (state.mode === "sketch") drawSketch();
 
   // the policy
   if (state.plan && state.plan.overlay && state.overlayImg) {
     const o = state.plan.overlay;
     const [ax, ay] = worldToScreen(o.x_min, o.y_max), [bx, by] = worldToScreen(o.x_max, o.y_min);
     g.drawImage(state.overlayImg, ax, ay, bx - ax, by - ay);
-    polyline([...o.window_m, o.window_m[0]], "#7a2cc9", 1.5, [4, 3]);  // the student's (rotated) window
+    polyline([...o.window_m, o.window_m[0]], C.window, 1.5, [4, 3]);  // the student's (rotated) window
   }
   if (state.plan && state.plan.baselines && $("show-baselines") && $("show-baselines").checked) {
-    state.plan.baselines.forEach((b) => polyline(b.waypoints, b.colour || "#0aa", 2, [3, 3]));
+    state.plan.baselines.forEach((b) => { polyline(b.waypoints, "#fff", 5); polyline(b.waypoints, b.colour, 3, [7, 4]); });
   }
-  if (state.plan && state.plan.waypoints.length) polyline(state.plan.waypoints, "#c000c0", 3);
-  if (state.goal) { dot(state.goal[0], state.goal[1], 7, "#e33", "#fff"); }
-  if (state.pose) drawRobot(state.pose);
+  if (state.plan && state.plan.waypoints.length) {
+    polyline(state.plan.waypoints, "#0b2530", 6);  // a dark edge: cyan reads over white, magenta and the baselines
+    polyline(state.plan.waypoints, C.prediction, 3.5);
+  }
+  if (state.goal) { dot(state.goal[0], state.goal[1], 7, C.goal, "#fff"); }
+  if (state.pose) { drawFootprint(state.pose[0], state.pose[1]); drawRobot(state.pose); }
   drawScaleBar();
+  drawLegend();
+}
+
+function drawSketch() {
+  // the current sketch: the student's window it puts the robot in (drawn before executing), its footprint,
+  // then its execution, then the waypoints, numbered from 1 like every message
+  const ex = state.execution;
+  const win = sketchWindow(state.waypoints);
+  state.window = win;
+  if (win) drawWindow(win, win.outside.length);
+  if (state.waypoints.length) drawFootprint(...state.waypoints[0]);
+  if (ex && ex.path && ex.path.length) polyline(ex.path, ex.accepted ? C.demonstration : "#555", 4, ex.accepted ? null : [8, 4]);
+  if (ex && ex.offending && ex.offending.length) ex.offending.forEach(([x, y]) => dot(x, y, 3.5, C["low-confidence"], "#000"));
+  polyline(state.waypoints, C.demonstration, 2, [5, 4]);
+  const bad = new Set([...(ex && ex.offending_waypoints ? ex.offending_waypoints : []), ...(win ? win.outside : [])]);
+  state.waypoints.forEach(([x, y], i) => {
+    const last = i === state.waypoints.length - 1;
+    if (bad.has(i)) { const [sx, sy] = worldToScreen(x, y); g.beginPath(); g.arc(sx, sy, 11, 0, 2 * Math.PI); g.lineWidth = 4; g.strokeStyle = C["low-confidence"]; g.stroke(); }
+    dot(x, y, last ? 8 : 7, i === 0 ? C.robot : (last ? C.goal : C.demonstration), bad.has(i) ? "#000" : "#fff");
+    const [sx, sy] = worldToScreen(x, y);
+    g.fillStyle = "#fff"; g.font = "bold 10px system-ui, sans-serif"; g.textAlign = "center"; g.textBaseline = "middle";
+    g.fillText(String(i + 1), sx, sy + 0.5);
+  });
+  g.textAlign = "start"; g.textBaseline = "alphabetic";
+}
+
+function showFit() {
+  // the live verdict of the window fit, before executing (the server's check is the same)
+  const el = $("window-fit"), win = sketchWindow(state.waypoints), w = state.meta.window;
+  if (!win) { el.textContent = ""; el.className = "fit"; delete el.dataset.fits; return; }
+  if (!win.outside.length) {
+    el.textContent = `Fits the student's window (${win.size_m.toFixed(1)} m, every waypoint ${w.margin_m} m inside it).`;
+    el.className = "fit fits"; el.dataset.fits = "1";
+  } else {
+    const named = win.outside.map((i) => `#${i + 1}`).join(", ");
+    el.textContent = `Waypoint${win.outside.length > 1 ? "s" : ""} ${named} outside the student's window ` +
+                     `(keep them ${w.margin_m} m inside the blue frame): sketch a shorter manoeuvre.`;
+    el.className = "fit outside"; el.dataset.fits = "0";
+  }
+  el.dataset.outside = JSON.stringify(win.outside);
 }
 
 // ---------------------------------------------------------------------------------------------- sketch editing
@@ -183,6 +339,7 @@ function sketchChanged() {
   $("save").disabled = true;
   $("result").textContent = ""; $("result").className = "result";
   $("waypoint-count").textContent = `${state.waypoints.length} waypoint${state.waypoints.length === 1 ? "" : "s"}`;
+  showFit();
   draw();
 }
 function undo() { if (state.history.length) { state.waypoints = state.history.pop(); sketchChanged(); } }
@@ -222,6 +379,7 @@ async function save() {
   pushHistory();
   state.waypoints = []; state.execution = null; $("save").disabled = true; $("sketch-name").value = "";
   $("waypoint-count").textContent = "0 waypoints";
+  showFit();
   await refreshSaved();
 }
 
@@ -233,7 +391,7 @@ async function refreshSaved() {
   state.savedKey = key;
   state.saved = r.data.sketches;
   $("saved-count").textContent = `(${state.saved.length})`;
-  $("sketch-file").textContent = r.data.sketch_file;
+  $("sketch-file").textContent = r.data.sketch_file_shown || r.data.sketch_file;
   const body = $("saved").querySelector("tbody");
   body.innerHTML = "";
   state.saved.forEach((s) => {
@@ -266,7 +424,7 @@ function showBuild(b) {
     const s = b.summary;
     const rej = Object.keys(s.rejections || {}).length ? `; rejected: ${JSON.stringify(s.rejections)}` : "";
     text = `done: ${s.instances} instances from ${s.scenarios_accepted} of ${s.scenarios_tried} sketches in ` +
-           `${b.seconds.toFixed(1)} s → ${s.out_dir}${rej}`;
+           `${b.seconds.toFixed(1)} s → ${s.out_dir_shown || s.out_dir}${rej}`;
   }
   if (b.state === "failed") text = `failed: ${b.error}`;
   $("build-status").textContent = text;
@@ -348,11 +506,17 @@ async function loadModel() {
   if (!r.ok) { setResult("plan-result", "error", r.data.error); return; }
   state.meta.model = r.data.model;
   showModel();
+  draw();
 }
 function showModel() {
   const m = state.meta.model;
-  $("model-info").textContent = m ? `model ${m.path} (${m.image_size[0]} px window at ${m.resolution_m} m/px)`
+  const f = m && m.footprint;
+  const fp = f && f.source === "model" ? `; trained for a robot radius ${f.radius_m} m + inflation ${f.inflation_radius_m} m` +
+      (f.assumed ? " (assumed: the file predates footprint records)" : "") +
+      (f.differs_from_settings ? `, NOT the ${f.settings.radius_m} m + ${f.settings.inflation_radius_m} m these sketches assume` : "") : "";
+  $("model-info").textContent = m ? `model ${m.path_shown || m.path} (${m.image_size[0]} px window at ${m.resolution_m} m/px${fp})`
                                   : "no model: start with model=student.ckpt, or load one here";
+  if (f) state.meta.footprint = f;
   $("plan").disabled = !m;
 }
 
@@ -386,7 +550,7 @@ window.addEventListener("mousemove", (ev) => {
     const last = state.waypoints[state.waypoints.length - 1];
     if (Math.hypot(x - last[0], y - last[1]) >= FREEHAND_STEP_M) { state.waypoints.push([x, y]); sketchChanged(); }
   }
-  else if (d.kind === "move") { state.waypoints[d.index] = [x, y]; state.execution = null; $("save").disabled = true; draw(); }
+  else if (d.kind === "move") { state.waypoints[d.index] = [x, y]; state.execution = null; $("save").disabled = true; showFit(); draw(); }
   else if (d.kind === "pose" && d.moved) { state.pose[2] = Math.atan2(-(sy - d.sy), sx - d.sx); poseToInputs(); draw(); }
 });
 
@@ -427,6 +591,8 @@ async function start() {
   if (!r.ok) { $("map-info").textContent = r.data.error; return; }
   state.meta = r.data;
   const m = state.meta;
+  C = m.palette;  // the palette as CSS custom properties too (--spade-robot, ...), for the panel's swatches
+  Object.entries(C).forEach(([k, v]) => document.documentElement.style.setProperty(`--spade-${k}`, v));
   $("map-info").innerHTML = "";
   $("map-info").appendChild(document.createTextNode(
     `${m.map_id}: ${m.size_m[0].toFixed(1)} × ${m.size_m[1].toFixed(1)} m (${m.width_px} × ${m.height_px} cells at ` +
@@ -453,11 +619,12 @@ $("load-model").onclick = loadModel;
 document.querySelectorAll("input[name=mode]").forEach((el) => el.onchange = () => {
   state.mode = document.querySelector("input[name=mode]:checked").value;
   canvas.style.cursor = state.mode === "policy" ? "cell" : "crosshair";
+  draw();
 });
 document.querySelectorAll("input[name=shape]").forEach((el) => el.onchange = () => { if (state.execution) sketchChanged(); });
 ["pose-x", "pose-y", "pose-yaw", "goal-x", "goal-y"].forEach((id) => $(id).addEventListener("change", poseFromInputs));
 window.addEventListener("resize", resize);
 
 // For scripts and the browser test: map metres <-> canvas pixels, the page's state.
-window.spade = { state, worldToScreen, screenToWorld, fit, draw };
+window.spade = { state, worldToScreen, screenToWorld, fit, draw, sketchWindow };
 start();
