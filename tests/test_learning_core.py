@@ -279,5 +279,6 @@ def test_cpu_scale_students_get_the_schedule_and_so_does_the_quickstart() -> Non
     assert {**quick.model.margin, "expert_ckpt": None, "lambda_dm": 0.3} == {**table.model.margin, "expert_ckpt": None,
                                                                            "lambda_dm": 0.3}
     assert quick.model.margin.lambda_dm == 0.3  # chosen on validation (README, Table 1's lambda grid)
-    assert quick.model.margin.expert_ckpt.endswith("spade/models/weights/cond_expert_L_cpu_lite_x0.ckpt")
+    assert quick.model.margin.expert_ckpt.endswith("spade/models/weights/cond_expert_L_gaussian_cpu_lite_x0.ckpt")
+    assert quick.data.encoding == table.data.encoding == "gaussian"  # the recipe's markers; the teacher's too
     assert quick.data.train_dir.endswith("/quickstart/lshape") and quick.data.batch_size == table.data.batch_size
