@@ -51,7 +51,7 @@ def digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest() if path.exists() else "absent"
 
 
-def student_checkpoint(path: Path, role: str = "student") -> Path:
+def student_checkpoint(path: Path, role: str = "student", footprint: dict | None = None) -> Path:
     """A checkpoint as spade.train writes it (untrained small student), without training."""
     import torch
 
@@ -62,6 +62,8 @@ def student_checkpoint(path: Path, role: str = "student") -> Path:
     net = build_model("student", "small")
     info = {"role": role, "config": dict(net.config),
             "data": {"image_size": [64, 64], "resolution_m": 0.1, "frame": RobotFrame.for_size(64).to_json()}}
+    if footprint:
+        info["data"]["footprint"] = footprint
     torch.save({"spade": info, "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}, path)
     return path
 
@@ -168,6 +170,15 @@ def test_the_page_gets_the_palette_and_the_footprint(setup, tmp_path: Path) -> N
     meta = client.get("/api/map").json()
     assert meta["palette"]["prediction"] == palette.PREDICTION and meta["palette"]["robot"] == palette.ROBOT
     assert meta["footprint"]["source"] == "settings" and meta["footprint"]["radius_m"] == meta["robot"]["radius_m"]
+    # a model that records its footprint: the page draws the model's, and says it differs from the settings'
+    ckpt = student_checkpoint(tmp_path / "out" / "wide_robot.ckpt", footprint={"radius_m": 0.3,
+                                                                             "inflation_radius_m": 0.4})
+    loaded = client.post("/api/model", json={"path": str(ckpt)})
+    assert loaded.status_code == 200, loaded.text
+    shown = loaded.json()["model"]["footprint"]
+    assert (shown["source"], shown["radius_m"], shown["inflation_radius_m"]) == ("model", 0.3, 0.4)
+    assert shown["differs_from_settings"] and shown["settings"]["radius_m"] == meta["robot"]["radius_m"]
+    assert client.get("/api/map").json()["footprint"] == shown
 
 
 # ------------------------------------------------------------------------------------------------ save, list, delete
