@@ -8,7 +8,7 @@ from typing import Any
 
 import hydra
 import lightning as L
-from omegaconf import DictConfig
+from omegaconf import DictConfig, open_dict
 
 from spade.training.instantiate import instantiate_loggers
 from spade.training.loading import load_module
@@ -44,6 +44,8 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     model = load_module(cfg.ckpt_path)
     datamodule = hydra.utils.instantiate(cfg.data)
     _use_models_encoding(datamodule, cfg.ckpt_path)
+    with open_dict(cfg):  # the run records the markers the test drew (cfg/data/encoding), not the config's default
+        cfg.data.encoding = datamodule.encoding
     from spade.experiments.tracking.runs import ensure_logger_store
 
     ensure_logger_store(cfg)  # a fresh store's tables, created by one process at a time
