@@ -44,8 +44,10 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     model = load_module(cfg.ckpt_path)
     datamodule = hydra.utils.instantiate(cfg.data)
     _use_models_encoding(datamodule, cfg.ckpt_path)
-    with open_dict(cfg):  # the run records the markers the test drew (cfg/data/encoding), not the config's default
+    with open_dict(cfg):  # the run records the markers the test drew (tag encoding), not the config's default
         cfg.data.encoding = datamodule.encoding
+        if cfg.get("tags") is not None:
+            cfg.tags.encoding = datamodule.encoding
     from spade.experiments.tracking.runs import ensure_logger_store
 
     ensure_logger_store(cfg)  # a fresh store's tables, created by one process at a time

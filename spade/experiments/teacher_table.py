@@ -91,7 +91,7 @@ def _rows(client: Any, sources: Sequence[Mapping[str, str]], kind: str, scale: s
             rows.append(Row(str(source.get("label", source["row"])), kind, "?"))
             continue
         runs = sorted(runs, key=lambda r: str(r.data.params.get("cfg/seed", "")))
-        encoding = {r.data.params.get("cfg/data/encoding", "binary") for r in runs}
+        encoding = {r.data.tags.get("encoding") or r.data.params.get("cfg/data/encoding", "binary") for r in runs}
         rows.append(Row(
             label=str(source.get("label", source["row"])), kind=kind, encoding=",".join(sorted(encoding)),
             runs=[dict(r.data.metrics) for r in runs], seeds=[str(r.data.params.get("cfg/seed", "?")) for r in runs],
