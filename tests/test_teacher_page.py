@@ -73,7 +73,7 @@ def test_the_teacher_page_checks_each_expert_against_its_student_and_guidance_ag
     assert "| Cond-DBC | held-out map | 3 | 3.95 ± 0.10 |" in text and "| 30% |" in text  # constant: no sd
     assert "| Cond-DBC | unseen real maps | 0 | missing |" in text
     assert "| Cond-DBC vs BC twin (bc_gauss), held-out map | planner/ape_cm | 3.95 | 4.00 |" in text
-    assert "guidance plans better by planner APE (3.95 vs 4.00 cm), not significant" in text
+    assert "the first plans better by planner APE (3.95 vs 4.00 cm), not significant" in text
     assert "- commit: " in text and "- machine: " in text
     assert "Test set (MLflow dataset input, name and digest): not recorded, scale quickstart." in text
 

@@ -145,7 +145,8 @@ def _guided(client: Any, guided: Sequence[Mapping[str, Any]], scale: str | None
             row = _rows(client, [{"table": item["table"], "row": f"{item['row']}{suffix}",
                                   "label": item.get("label", item["row"])}], "student", scale)[0]
             twin = _rows(client, [{"table": against.get("table", ""), "row": f"{against.get('row', '')}{suffix}",
-                                   "label": f"BC twin ({against.get('row', '?')})"}], "student", scale)[0]
+                                   "label": against.get("label") or f"BC twin ({against.get('row', '?')})"}],
+                         "student", scale)[0]
             for r in (row, twin):
                 if not r.runs:
                     lines.append(f"| {r.label} | {where} | 0 | " + " | ".join("missing" for _ in range(len(COLUMNS) + 1))
@@ -266,7 +267,7 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
                                  f"{'n/a' if p is None else f'{p:.3g}'} | {'n/a' if ph is None else f'{ph:.3g}'} | {sig} |")
         if key == "planner/ape_cm":
             word = "better" if a < b else "worse" if a > b else "the same"
-            verdicts.append(f"- {what}: guidance plans {word} by planner APE ({a:.2f} vs {b:.2f} cm), {sig}"
+            verdicts.append(f"- {what}: the first plans {word} by planner APE ({a:.2f} vs {b:.2f} cm), {sig}"
                             + (f" (Holm p {ph:.3g})" if ph is not None else ""))
     test_sets = sorted(set().union(*(r.test_sets for r in experts + students)))
     seconds = sum(r.seconds for r in experts)
