@@ -95,10 +95,9 @@ def critic(cfg: DictConfig) -> dict[str, Any]:
 
 def page_stem(cfg: DictConfig, config) -> str:
     """The name (without suffix) of the results page and picture of ``cfg``'s critic with margin ``config``."""
-    stem = f"critic_{Path(str(cfg.ckpt_path)).stem}_{config.agent_input}_{config.score}"
-    if config.t_min or config.t_max is not None:  # a timestep band other than the expert's whole range
-        stem += f"_t{config.t_min}-{config.t_max if config.t_max is not None else 'T'}"
-    return stem + ("_student" if cfg.get("student_ckpt") else "")
+    from spade.training.critic import page_stem as stem
+
+    return stem(str(cfg.ckpt_path), config, bool(cfg.get("student_ckpt")))
 
 
 def _write_page(cfg: DictConfig, config, metrics: dict[str, float], picture, seconds: float) -> Path | None:

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from spade.closedloop.follower import FollowerSettings, follow_step, lookahead_point
+from spade.deploy.follower import FollowerSettings, follow_step, lookahead_point
 from spade.closedloop.planners import BaselinePlanner, DemonstrationPlanner
 from spade.closedloop.scenarios import Scenario, scenario_starts
 from spade.closedloop.simulate import ClosedLoopSettings, Episode, PlanRecord, drive, replay

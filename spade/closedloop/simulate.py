@@ -3,7 +3,7 @@
 For every scenario (:mod:`spade.closedloop.scenarios`) the robot starts at the demonstration's start pose (moved by
 ``initial_offset`` when set) and drives toward its goal. It plans from its *believed* pose (the true pose plus
 localisation noise, when set) with the planner, exactly as the ROS 2 node calls it; follows the plan with the
-pure-pursuit follower (:mod:`spade.closedloop.follower`); and plans again by the node's rule
+pure-pursuit follower (:mod:`spade.deploy.follower`); and plans again by the node's rule
 (:func:`spade.ros.core.replan_trigger`: off the plan, near a sub-goal, or ``replan_every_m`` driven since the last
 plan). An episode ends:
 
@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from spade.closedloop.follower import FollowerSettings, follow_step
+from spade.deploy.follower import FollowerSettings, follow_step
 from spade.closedloop.scenarios import Scenario
 from spade.ros.core import CoreSettings, replan_trigger
 

@@ -17,7 +17,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from spade.closedloop.follower import FollowerSettings
+from spade.deploy.follower import FollowerSettings
 from spade.closedloop.scenarios import Scenario, load_scenarios
 from spade.closedloop.simulate import ClosedLoopSettings, Episode, drive, replay
 from spade.ros.core import CoreSettings

@@ -4,7 +4,7 @@ It plays map_server, AMCL and RViz2 for the planner node on DDS (no ROS install)
 (``nav_msgs/OccupancyGrid``, latched), the robot's pose (``PoseWithCovarianceStamped`` on ``/amcl_pose`` and
 ``map -> base_link`` on ``/tf``) at ``rate_hz``, and goals (``PoseStamped`` on ``/goal_pose``) from a list or at
 random; the robot follows the node's latest ``/plan`` with the closed-loop evaluation's pure-pursuit follower
-(:mod:`spade.closedloop.follower`). With ``use_action=true`` the goals go through the ``ComputePathToPose`` action
+(:mod:`spade.deploy.follower`). With ``use_action=true`` the goals go through the ``ComputePathToPose`` action
 instead (:class:`spade.ros.action.ActionClient`, re-sent every ``action_replan_s`` as Nav2's behaviour tree does).
 Given ``model=``, it starts the node itself (``python -m spade.ros``) as a child process.
 
@@ -55,7 +55,7 @@ class SimRobot:
     collisions: int = 0
 
     def step(self) -> np.ndarray:
-        from spade.closedloop.follower import FollowerSettings, follow_step
+        from spade.deploy.follower import FollowerSettings, follow_step
 
         if self.plan is None or len(self.plan) < 2:
             return self.pose

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -40,6 +41,17 @@ from spade.training.margin import DiffusionMargin
 __all__ = ["CriticErrors", "band_edges", "critic_metrics", "critic_report", "example_images", "measure_errors"]
 
 STUDENT = "student"
+
+
+def page_stem(ckpt_path: str, config: Any, student: bool) -> str:
+    """The name (without suffix) of ``spade.critic``'s results page and picture for the expert at ``ckpt_path``
+    under margin ``config``, with or without a student: the checks refuse to replace it unasked."""
+    from pathlib import Path
+
+    stem = f"critic_{Path(str(ckpt_path)).stem}_{config.agent_input}_{config.score}"
+    if config.t_min or config.t_max is not None:  # a timestep band other than the expert's whole range
+        stem += f"_t{config.t_min}-{config.t_max if config.t_max is not None else 'T'}"
+    return stem + ("_student" if student else "")
 
 
 def band_edges(t_min: int, t_max: int, bands: int) -> list[tuple[int, int]]:

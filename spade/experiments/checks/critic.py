@@ -61,11 +61,12 @@ def validate_critic_config(cfg: DictConfig) -> None:
         check_writable("output_dir", Path(str(out)).expanduser() / "page.md",
                        "give a folder you can write for the results page (null: no page)")
         if margin is not None:
-            from spade.critic import page_stem
+            from spade.training.critic import page_stem
             from spade.deploy.outputs import replace_refusal
 
             for suffix in (".md", ".png"):
-                path = Path(str(out)).expanduser() / (page_stem(cfg, margin) + suffix)
+                stem = page_stem(str(ckpt), margin, not _unset(student))
+                path = Path(str(out)).expanduser() / (stem + suffix)
                 refusal = replace_refusal("output_dir", path, _get(cfg, "overwrite") is True,
                                           label=f"output_dir={out}: {path}")
                 if refusal is not None:
