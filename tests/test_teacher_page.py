@@ -44,8 +44,12 @@ def test_the_teacher_page_checks_each_expert_against_its_student_and_guidance_ag
         _run(client, teacher, "guided", seed, "gaussian", {
             "test/planner/ape_cm": gauss - 0.05, "test/planner/plausibility_cm": 1.9, "margin/active": 0.3,
             "test/planner/commit_rate": 0.2, "test/planner/over_20cm_rate": 0.01})
+    trained = client.create_run(teacher, run_name="good_training").info.run_id
+    client.log_param(trained, "cfg/trainer/max_epochs", 48)
+    client.set_terminated(trained, "FAILED")
     settings = {
-        "experts": [{"table": "teacher", "row": "good", "label": "good teacher"},
+        "experts": [{"table": "teacher", "row": "good", "label": "good teacher",
+                     "trained_by": {"table": "teacher", "row": "good_training", "note": "after its test"}},
                     {"table": "teacher", "row": "old", "label": "old expert"},
                     {"table": "teacher", "row": "never_ran", "label": "unrun"}],
         "students": [{"table": "encoding", "row": "bc_binary", "label": "BC binary"},
@@ -75,6 +79,8 @@ def test_the_teacher_page_checks_each_expert_against_its_student_and_guidance_ag
     assert "| Cond-DBC vs BC twin (bc_gauss), held-out map | planner/ape_cm | 3.95 | 4.00 |" in text
     assert "the first plans better by planner APE (3.95 vs 4.00 cm), not significant" in text
     assert "- commit: " in text and "- machine: " in text
+    assert "- good teacher: run `teacher/good_training`" in text and "status FAILED (after its test)" in text
+    assert "trainer/max_epochs=48" in text
     assert "Test set (MLflow dataset input, name and digest): not recorded, scale quickstart." in text
 
 

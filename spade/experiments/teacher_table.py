@@ -163,6 +163,34 @@ def _guided(client: Any, guided: Sequence[Mapping[str, Any]], scale: str | None
     return lines, tests
 
 
+def _training_lines(client: Any, experts: Sequence[Mapping[str, Any]]) -> list[str]:
+    """One line per expert whose entry names its training run (``trained_by: {table, row}``): its status, epochs,
+    steps and wall time, read from MLflow (a run that failed after its training still carries them)."""
+    lines = []
+    for source in experts:
+        trained = source.get("trained_by")
+        if not trained:
+            continue
+        experiment = client.get_experiment_by_name(str(trained["table"]))
+        runs = [] if experiment is None else client.search_runs(
+            [experiment.experiment_id], f"attributes.run_name = '{trained['row']}'",
+            order_by=["attributes.start_time DESC"], max_results=1)
+        if not runs:
+            lines.append(f"- {source.get('label', source['row'])}: its training run `{trained['table']}/{trained['row']}` "
+                         "is not in this store")
+            continue
+        run = runs[0]
+        minutes = ((run.info.end_time or run.info.start_time) - run.info.start_time) / 60000.0
+        lines.append(f"- {source.get('label', source['row'])}: run `{trained['table']}/{trained['row']}` "
+                     f"({run.info.run_id[:8]}), status {run.info.status}"
+                     + (f" ({trained['note']})" if trained.get("note") else "")
+                     + f", {minutes:.0f} min; params as trained: "
+                     + ", ".join(f"{k.split('/', 1)[1]}={v}" for k, v in sorted(run.data.params.items())
+                                 if k in ("cfg/model/preset", "cfg/trainer/max_epochs", "cfg/model/ema_decay",
+                                          "cfg/data/encoding", "cfg/seed")))
+    return lines
+
+
 def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: Mapping[str, Any],
                    scale: str | None = None) -> tuple[str, dict[str, Path]]:
     """Render the teacher page from MLflow (module docstring); with ``output_dir`` also write ``teacher.md`` and
@@ -270,6 +298,7 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
             verdicts.append(f"- {what}: the first plans {word} by planner APE ({a:.2f} vs {b:.2f} cm), {sig}"
                             + (f" (Holm p {ph:.3g})" if ph is not None else ""))
     test_sets = sorted(set().union(*(r.test_sets for r in experts + students)))
+    training = _training_lines(client, list(settings.get("experts") or []))
     seconds = sum(r.seconds for r in experts)
     parts = [
         "# The teacher: each expert as a planner beside its student",
@@ -310,13 +339,14 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
         "",
         *(verdicts or ["- no comparison yet"]),
         "",
+        *(["Training records of the experts (their MLflow runs):", "", *training, ""] if training else []),
         "Provenance:",
         "",
         f"- command: `{command_line('spade.report')}`",
         f"- commit: {commit() or 'unknown (not a git checkout)'}",
         f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
         f"- machine: {machine()}",
-        f"- wall time of the expert runs counted (training and test): {seconds / 60:.0f} min",
+        f"- wall time of the expert test runs counted: {seconds / 60:.0f} min",
         f"- MLflow store {shown_path(str(tracking_uri))}; rows: "
         + ", ".join(f"`{s['table']}/{s['row']}`" for s in [*(settings.get('experts') or []),
                                                           *(settings.get('students') or []),
