@@ -236,17 +236,15 @@ class ExpertModule(PathPlanningModule):
         generator's (``test/planner/spread_cm``, ``test/generator_spread_cm``, ``test/planner/spread_ratio``;
         :class:`~spade.metrics.preference.SpreadMetrics`): a teacher narrower than the operator's choices can only
         teach one of them. ``test/seconds_per_sample`` is the sampling time per instance and sample."""
+        from spade.training.teacher import sample_maps, two_sample_paths
+
         k = int(self.hparams.get("test_samples", 2) or 2)
-        seed = int(self.hparams.sample_seed)
-        t0 = time.perf_counter()
-        samples = [self.sample_paths(batch["state"], seed=seed + i) for i in range(k)]
-        self.sample_seconds += time.perf_counter() - t0
+        samples, seconds = sample_maps(self, batch["state"], k)
+        self.sample_seconds += seconds
         self.sample_count += batch["state"].shape[0] * k
         self._test_with(samples[0], batch)
         self._mean_map.update(torch.stack(samples).mean(0), batch)
-        decode = self.test_metrics.decode
-        paths = [[d.points if d.ok else None for d in decode(p, batch["state"], batch["resolution"])]
-                 for p in samples[:2]]
+        paths = two_sample_paths(self.test_metrics.decode, samples, batch)
         self._spread.update(paths[0], paths[1], batch["waypoints"], batch.get("alternatives"), batch["resolution"])
 
     def on_test_epoch_end(self) -> None:

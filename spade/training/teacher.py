@@ -22,7 +22,22 @@ from typing import Any
 
 import torch
 
-__all__ = ["planner_figures"]
+__all__ = ["planner_figures", "sample_maps", "two_sample_paths"]
+
+
+@torch.no_grad()
+def sample_maps(expert: Any, state: torch.Tensor, samples: int) -> tuple[list[torch.Tensor], float]:
+    """``samples`` independent path maps of ``expert`` for ``state`` (seeds ``sample_seed``, ``+1``, ...) and the
+    seconds they took: the K samples of the expert as a planner, in its test and in ``spade.critic``."""
+    seed = int(expert.hparams.get("sample_seed", 0))
+    t0 = time.perf_counter()
+    maps = [expert.sample_paths(state, seed=seed + i) for i in range(samples)]
+    return maps, time.perf_counter() - t0
+
+
+def two_sample_paths(decode: Any, maps: list[torch.Tensor], batch: dict) -> list[list[Any]]:
+    """The planner's paths (None where it failed) of the first two sample maps: what the spread compares."""
+    return [[d.points if d.ok else None for d in decode(m, batch["state"], batch["resolution"])] for m in maps[:2]]
 
 
 @torch.no_grad()
@@ -39,7 +54,6 @@ def planner_figures(expert: Any, loader: Iterable[dict], samples: int = 4, stude
     single, mean_map = PathMetrics(**options), PathMetrics(**options)
     taught = PathMetrics(**options) if student is not None else None
     spread = SpreadMetrics()
-    seed = int(expert.hparams.get("sample_seed", 0))
     seconds, count, seen = 0.0, 0, 0
     for batch in loader:
         if max_instances is not None and seen >= max_instances:
@@ -47,13 +61,12 @@ def planner_figures(expert: Any, loader: Iterable[dict], samples: int = 4, stude
         take = slice(None) if max_instances is None else slice(0, max_instances - seen)
         batch = {k: (v[take] if isinstance(v, torch.Tensor) and v.dim() > 0 else v) for k, v in batch.items()}
         state = batch["state"].float()
-        t0 = time.perf_counter()
-        maps = [expert.sample_paths(state, seed=seed + i) for i in range(samples)]
-        seconds += time.perf_counter() - t0
+        maps, took = sample_maps(expert, state, samples)
+        seconds += took
         count += state.shape[0] * samples
         single.update(maps[0], batch)
         mean_map.update(torch.stack(maps).mean(0), batch)
-        paths = [[d.points if d.ok else None for d in single.decode(m, state, batch["resolution"])] for m in maps[:2]]
+        paths = two_sample_paths(single.decode, maps, {**batch, "state": state})
         spread.update(paths[0], paths[1], batch["waypoints"], batch.get("alternatives"), batch["resolution"])
         if taught is not None:
             taught.update(torch.sigmoid(student(state)), batch)
