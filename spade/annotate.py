@@ -29,7 +29,7 @@ __all__ = ["annotate", "main"]
 
 def _checked_annotate(cfg: DictConfig) -> dict:
     """The config and inputs checked first (one ``error:`` line, exit 2), then the run."""
-    from spade.experiments.checks import validate_annotate_config
+    from spade.config.annotate_checks import validate_annotate_config
 
     validate_annotate_config(cfg)
     return annotate(cfg)
@@ -38,7 +38,7 @@ def _checked_annotate(cfg: DictConfig) -> dict:
 @hydra.main(config_path=CONFIG_PATH, config_name="annotate", version_base="1.3")
 @task
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.checks import exit_on_user_error
+    from spade.config.refusals import exit_on_user_error
 
     summary = exit_on_user_error(_checked_annotate)(cfg)
     print(OmegaConf.to_yaml(OmegaConf.create(summary)))

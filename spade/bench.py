@@ -26,13 +26,14 @@ from omegaconf import DictConfig
 from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
 from spade.utils.errors import run_entry_point, task
 from spade.perf.bench import SECTIONS, bench  # noqa: F401  (also registers the ${quick_or:} resolver)
-from spade.perf.report import format_report, write_json
+from spade.perf.bench_report import format_report, write_json
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="bench")
 @task
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.checks import exit_on_user_error, validate_bench_config
+    from spade.config.bench_checks import validate_bench_config
+    from spade.config.refusals import exit_on_user_error
 
     exit_on_user_error(validate_bench_config)(cfg, SECTIONS)  # a bad value: one `error:` line, exit 2, before any section
     results = bench(cfg)

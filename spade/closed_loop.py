@@ -14,7 +14,7 @@ from spade.utils.errors import run_entry_point, task
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="closed_loop")
 @task
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.checks import exit_on_user_error
+    from spade.config.refusals import exit_on_user_error
     from spade.experiments.closed_loop_table import launch
 
     ran = exit_on_user_error(launch)(cfg)

@@ -253,7 +253,8 @@ def format_report(metrics: dict[str, float]) -> str:
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="critic")
 @task
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.checks import exit_on_user_error, validate_critic_config
+    from spade.config.critic_checks import validate_critic_config
+    from spade.config.refusals import exit_on_user_error
 
     exit_on_user_error(validate_critic_config)(cfg)  # every bad input: one `error:` line, exit 2, before any work
     metrics = exit_on_user_error(critic)(cfg)

@@ -25,10 +25,10 @@ log = logging.getLogger(__name__)
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="evaluate")
 @task
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.checks import exit_on_user_error
+    from spade.config.refusals import exit_on_user_error
 
     from spade.experiments.lifecycle import install_signal_handlers
-    from spade.experiments.tracking.summary import evaluation_summary
+    from spade.tracking.summary import evaluation_summary
 
     install_signal_handlers()  # SIGTERM / SIGINT end the run through an exception: its MLflow run is marked KILLED
 

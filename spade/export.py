@@ -5,7 +5,7 @@ checks that the file reproduces PyTorch's logits (prints the max absolute differ
 latency. ``register=NAME`` also logs the ONNX export as an MLflow Model (ONNX flavour, with its signature and window
 metadata) in the project's store, registers it as NAME and sets ``alias`` (``champion``) on the new version:
 ``python -m spade.plan ... model=models:/NAME@champion`` and ``python -m spade.ros model=models:/NAME@champion``
-then load it (:mod:`spade.deploy.registry`). See ``conf/export.yaml`` for the options and
+then load it (:mod:`spade.deploy.mlflow_models`). See ``conf/export.yaml`` for the options and
 :mod:`spade.deploy.export` for the file format. Inputs are checked first; a user error is one ``error:`` line, exit 2."""
 
 from __future__ import annotations
@@ -20,7 +20,8 @@ from omegaconf import DictConfig, OmegaConf
 from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
 from spade.utils.errors import ConfigError, run_entry_point, task
 from spade.deploy.export import ExportReport, export_student
-from spade.experiments.checks import exit_on_user_error, validate_export_config
+from spade.config.export_checks import validate_export_config
+from spade.config.refusals import exit_on_user_error
 
 log = logging.getLogger(__name__)
 OPTIONS = ("ckpt_path", "out_path", "format", "opset", "parity_batch", "tolerance", "latency_runs", "latency_batches",
@@ -28,7 +29,7 @@ OPTIONS = ("ckpt_path", "out_path", "format", "opset", "parity_batch", "toleranc
 
 
 def export(cfg: DictConfig) -> ExportReport:
-    """Check the config (:func:`~spade.experiments.config_checks.validate_export_config`: a student checkpoint in, an
+    """Check the config (:func:`~spade.config.export_checks.validate_export_config`: a student checkpoint in, an
     output that is neither it nor a folder), then run :func:`~spade.deploy.export.export_student` with it."""
     validate_export_config(cfg)
     # Only this task's keys are resolved: paths.output_dir needs a running Hydra app, and export() works without.
@@ -49,7 +50,7 @@ def export(cfg: DictConfig) -> ExportReport:
         if report.format != "onnx":
             raise ConfigError(f"register={options['register']}: only ONNX exports are registered as MLflow Models; "
                               "pass format=onnx")
-        from spade.deploy.registry import register_onnx_student
+        from spade.deploy.mlflow_models import register_onnx_student
 
         registered = register_onnx_student(report.out_path, str(options["register"]), options.get("alias") or None,
                                            tracking_uri=OmegaConf.select(cfg, "paths.mlflow_tracking_uri"))

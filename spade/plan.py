@@ -35,7 +35,7 @@ from spade.deploy.plan_picture import plan_text
 def _resolve_model_uri(cfg: DictConfig) -> None:
     """``model=models:/NAME@ALIAS`` (or ``runs:/...``): the registered ONNX student, downloaded from the project's
     MLflow store (``paths.mlflow_tracking_uri``) into ``paths.registry_cache_dir``; ``model_path`` becomes the file."""
-    from spade.deploy.registry import is_model_uri, resolve_model
+    from spade.deploy.mlflow_models import is_model_uri, resolve_model
 
     value = cfg.get("model_path")
     if value and is_model_uri(str(value)):
@@ -45,7 +45,7 @@ def _resolve_model_uri(cfg: DictConfig) -> None:
 
 def _checked_plan(cfg: DictConfig):  # noqa: ANN202
     """The config and inputs checked first (one ``error:`` line, exit 2), then the query."""
-    from spade.experiments.checks import validate_plan_config
+    from spade.config.plan_checks import validate_plan_config
 
     _resolve_model_uri(cfg)
     validate_plan_config(cfg)  # map and model files, pose and goal, a picture that is none of the inputs
@@ -64,7 +64,7 @@ def _checked_plan(cfg: DictConfig):  # noqa: ANN202
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="plan")
 @task
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.checks import exit_on_user_error
+    from spade.config.refusals import exit_on_user_error
 
     result, png, mcap = exit_on_user_error(_checked_plan)(cfg)
     print(plan_text(result, str(cfg.map), png), flush=True)

@@ -7,9 +7,9 @@
     else:
         print(result.code, result.reason)
 
-Implementation: :mod:`spade.deploy.planner`.
+Implementation: :mod:`spade.deploy.student_planner`.
 """
 
-from spade.deploy.planner import PlannerConfigError, PlanResult, Planner, PlanWindow
+from spade.deploy.student_planner import PlannerConfigError, PlanResult, Planner, PlanWindow
 
 __all__ = ["PlanResult", "PlanWindow", "Planner", "PlannerConfigError"]

@@ -22,7 +22,7 @@ from spade.experiments.reporting import report
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="report")
 @task
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.checks import exit_on_user_error
+    from spade.config.refusals import exit_on_user_error
 
     for rep in exit_on_user_error(report)(cfg):  # a missing store or table: one `error:` line, exit 2
         print(rep.text + "\n", flush=True)

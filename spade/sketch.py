@@ -36,7 +36,7 @@ def rewrite_argv(args: list[str]) -> list[str]:
 
 def _checked_app(cfg: DictConfig):  # noqa: ANN202
     """The config and inputs checked first (one ``error:`` line, exit 2), then the app."""
-    from spade.experiments.checks import validate_sketch_config
+    from spade.config.sketch_checks import validate_sketch_config
     from spade.sketching import build_app
 
     validate_sketch_config(cfg)
@@ -48,7 +48,7 @@ def _checked_app(cfg: DictConfig):  # noqa: ANN202
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="sketch")
 @task
 def main(cfg: DictConfig) -> None:
-    from spade.experiments.checks import exit_on_user_error
+    from spade.config.refusals import exit_on_user_error
     from spade.sketching import serve
 
     app = exit_on_user_error(_checked_app)(cfg)

@@ -21,9 +21,7 @@ from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 from spade.paths import CONFIG_PATH  # noqa: E402  (the configs, conf/ or the installed copy; registers resolvers)
 from spade.utils.errors import run_entry_point, task  # noqa: E402
-from spade.experiments.lifecycle import install_signal_handlers  # noqa: E402
-from spade.experiments.run import run  # noqa: E402
-from spade.experiments.checks import exit_on_user_error  # noqa: E402
+from spade.config.refusals import exit_on_user_error  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -31,6 +29,11 @@ log = logging.getLogger(__name__)
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="train")
 @task
 def main(cfg: DictConfig) -> float | None:
+    # here, not at the top: the training stack loads once the config has composed (``--help`` and Hydra's own
+    # errors need none of it), and its preflight (spade.config.preflight) is the only command's checks it loads
+    from spade.experiments.lifecycle import install_signal_handlers
+    from spade.experiments.run import run
+
     log.debug("Config:\n%s", OmegaConf.to_yaml(cfg))
     install_signal_handlers()
     renamed = cfg.get("deprecated_experiment")

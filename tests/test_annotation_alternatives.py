@@ -11,7 +11,7 @@ import pytest
 import torch
 from scipy import stats
 
-from spade.annotation.alternatives import (
+from spade.annotation.alternative_demonstrations import (
     AlternativesSettings,
     TemplateDraws,
     keypoint_polylines,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from spade.annotation.checks import instance_problems
+from spade.annotation.invariants import instance_problems
 from spade.annotation.execution import Rejection, execute_sketch, total_turn_deg
 from spade.annotation.scenarios import NoFreeAreaError, generate_scenario, prepare_map, scenario_rng
 from spade.annotation.sketch_file import densify

@@ -12,7 +12,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from spade.annotate import annotate
-from spade.annotation.checks import instance_problems
+from spade.annotation.invariants import instance_problems
 from spade.annotation.execution import total_turn_deg
 from spade.annotation.pipeline import NotEnoughInstancesError
 from spade.annotation.templates import SHAPES, UnknownShapeError

@@ -115,7 +115,7 @@ def test_one_scenario_is_shared_by_the_workers(tmp_path: Path) -> None:
     the scenarios come back as :func:`generate_scenario` computes them in one piece."""
     cfg = tiny_cfg(tmp_path / "unused", shape=["U"])
     contexts = _contexts(cfg)
-    pipeline._init_worker(contexts, cfg)
+    pipeline.init_worker(contexts, cfg)
     tasks = list(scenario_tasks(1, ["U"], 2))
     with _SlowThreads(2) as executor:
         got = [r for _, r in ordered_results(executor, iter(tasks), workers=2, states_per_task=3)]
@@ -142,7 +142,7 @@ def test_no_more_scenarios_are_planned_than_the_run_needs(tmp_path: Path, monkey
     executor = _SlowThreads(4)
 
     def threads(workers, start_method, ctxs, c):
-        pipeline._init_worker(ctxs, c)
+        pipeline.init_worker(ctxs, c)
         return executor
 
     monkeypatch.setattr(pipeline, "_executor", threads)

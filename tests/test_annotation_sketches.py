@@ -5,23 +5,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
 import pytest
 import yaml
 
 from spade.annotate import annotate
 from spade.annotation.sketch_file import SketchFileError, load_sketch_file
-from spade.maps import OccupancyMap, save_ros_map
+from factories import site_map
 from test_annotation_pipeline import check_dataset, small_cfg
-
-
-def site(tmp_path: Path) -> Path:
-    """A 12 m x 10 m walled site at 0.1 m/px with origin (-2, -1) and a block in the middle."""
-    g = np.ones((100, 120), np.uint8)
-    g[[0, -1], :] = 2
-    g[:, [0, -1]] = 2
-    g[45:55, 55:65] = 2
-    return save_ros_map(OccupancyMap(g, 0.1, origin=(-2.0, -1.0, 0.0), name="site"), tmp_path / "site.yaml")
 
 
 def write_sketches(tmp_path: Path, scenarios: list[dict]) -> Path:
@@ -35,7 +25,7 @@ U_SKETCH = {"shape": "U", "waypoints": [[0.0, 6.0], [2.5, 6.0], [3.1, 6.3], [3.3
 
 
 def test_sketch_file_becomes_a_dataset(tmp_path: Path) -> None:
-    site(tmp_path)
+    site_map(tmp_path, block=True)
     sketches = write_sketches(tmp_path, [L_SKETCH, U_SKETCH])
     annotate(small_cfg(tmp_path / "ds", sketches=str(sketches)))
     manifest = check_dataset(tmp_path / "ds", {"L", "U"}, 30.0)
@@ -45,7 +35,7 @@ def test_sketch_file_becomes_a_dataset(tmp_path: Path) -> None:
 
 
 def test_rejected_sketch_is_counted_not_silently_dropped(tmp_path: Path) -> None:
-    site(tmp_path)
+    site_map(tmp_path, block=True)
     straight = {"shape": "U", "name": "not_a_u", "waypoints": [[0.0, 1.0], [4.0, 1.0]]}
     annotate(small_cfg(tmp_path / "ds", sketches=str(write_sketches(tmp_path, [L_SKETCH, straight]))))
     extra = json.loads((tmp_path / "ds" / "manifest.json").read_text())["extra"]
@@ -53,14 +43,14 @@ def test_rejected_sketch_is_counted_not_silently_dropped(tmp_path: Path) -> None
 
 
 def test_sketch_outside_the_map_names_the_extent(tmp_path: Path) -> None:
-    site(tmp_path)
+    site_map(tmp_path, block=True)
     bad = {"shape": "L", "waypoints": [[0.0, 1.0], [15.0, 1.0], [15.0, 3.0]]}
     with pytest.raises(SketchFileError, match=r"waypoint #1 \(15\.00, 1\.00\) m lies outside .* x \[-2\.00, 10\.00\] m"):
         annotate(small_cfg(tmp_path / "ds", sketches=str(write_sketches(tmp_path, [bad]))))
 
 
 def test_malformed_sketch_files(tmp_path: Path) -> None:
-    site(tmp_path)
+    site_map(tmp_path, block=True)
     with pytest.raises(SketchFileError, match="expected keys 'map' and 'scenarios'"):
         (tmp_path / "a.yaml").write_text("scenarios: []\n")
         load_sketch_file(tmp_path / "a.yaml")

@@ -25,7 +25,7 @@ from spade.data import PathDataset
 from spade.data.checks import settings_difference
 from spade.data.datamodule import leaked_scenarios
 from spade.data.fingerprint import NON_SHAPING_KEYS, settings_fingerprint, shaping_settings
-from spade.experiments.checks import validate_annotate_config
+from spade.config.annotate_checks import validate_annotate_config
 from spade.utils.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]

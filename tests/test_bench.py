@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from spade.perf.report import check_targets, format_report
+from spade.perf.bench_report import check_targets, format_report
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -10,10 +10,10 @@ import pytest
 
 from spade.deploy.follower import FollowerSettings, follow_step, lookahead_point
 from spade.closedloop.planners import BaselinePlanner, DemonstrationPlanner
-from spade.closedloop.scenarios import Scenario, scenario_starts
+from spade.closedloop.scenario_loading import Scenario, scenario_starts
 from spade.closedloop.simulate import ClosedLoopSettings, Episode, PlanRecord, drive, replay
 from spade.data.polyline import resample_polyline
-from spade.deploy.planner import PlanResult
+from spade.deploy.student_planner import PlanResult
 from spade.maps.costmap import build_costmap
 from spade.maps.frame import RobotFrame
 from spade.maps.occupancy import FREE, OCCUPIED, OccupancyMap
@@ -232,7 +232,7 @@ def test_evaluate_drives_the_test_scenarios_in_closed_loop(spade_home, tiny_chec
     replayed demonstration scores success 1 and APE 0 (the scenarios are rebuilt right), the Nav2-like planner
     reaches the goal without collision (the simulator is sound); two runs with one seed drive the same paths."""
     from spade.experiments.evaluation import evaluate
-    from spade.experiments.tracking.summary import closed_loop_lines
+    from spade.tracking.summary import closed_loop_lines
     from spade.metrics.closed_loop import CLOSED_LOOP_KEYS
     from spade.utils.config import compose_config
 
@@ -254,7 +254,7 @@ def test_evaluate_drives_the_test_scenarios_in_closed_loop(spade_home, tiny_chec
     assert "test/ape_cm" not in only
     for key in ("closed_loop/ape_cm", "closed_loop/success_rate", "closed_loop/baseline/heading/ape_cm"):
         assert only[key] == first[key], key  # same seed, same noise, same paths
-    from spade.experiments.closed_loop import ClosedLoopConfigError
+    from spade.experiments.closed_loop_evaluation import ClosedLoopConfigError
     from spade.utils.errors import ConfigError
 
     with pytest.raises(ClosedLoopConfigError, match="noise_xy_m must be a number >= 0"):
@@ -267,7 +267,7 @@ def test_evaluate_drives_the_test_scenarios_in_closed_loop(spade_home, tiny_chec
 def test_episodes_are_recorded_for_foxglove_with_the_robots_tf(tmp_path) -> None:  # noqa: ANN001
     import mcap_ros2.reader
 
-    from spade.closedloop.recording import EPISODE_TOPICS, write_episodes_bag
+    from spade.closedloop.episode_recording import EPISODE_TOPICS, write_episodes_bag
 
     m = open_map()
     scs = [scenario(m, arc_l(np.array([2.0, 2.0 + k]), 1.0, 0.5, 1.0), sid=f"room/L{k:03d}") for k in range(2)]

@@ -1,4 +1,4 @@
-"""Console scripts beside ``python -m`` (issue 33): every script pyproject.toml declares imports and is callable,
+"""Console scripts beside ``python -m``: every script pyproject.toml declares imports and is callable,
 stands for an entry point that exists, and runs it as ``python -m`` does (same argv handling, same exit status)."""
 
 from __future__ import annotations

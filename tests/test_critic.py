@@ -13,7 +13,7 @@ from spade.metrics.baselines import draw_polylines
 from spade.metrics.corruptions import CORRUPTIONS, corrupt, gaussian_blur, shift_images, turn_point, wider_turn
 from spade.training.critic import band_edges, critic_metrics, measure_errors
 from spade.training.margin import DiffusionMargin, MarginConfig
-from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
+from spade.tracking.predictors import TOP_LEVEL_FILTER
 
 SIZE = 32
 ROBOT_X = 16.0
@@ -240,7 +240,7 @@ def test_bad_formulation_options_name_the_option() -> None:
 
 
 def test_the_run_summary_says_whether_guidance_acted_to_the_end() -> None:
-    from spade.experiments.tracking.summary import guidance_line
+    from spade.tracking.summary import guidance_line
 
     assert guidance_line(None) is None and guidance_line([]) is None
     died = guidance_line([(0, 1.0, 0.5), (1, 0.0, 0.0)])
@@ -249,8 +249,8 @@ def test_the_run_summary_says_whether_guidance_acted_to_the_end() -> None:
 
 
 def test_the_run_description_says_in_words_whether_guidance_acted(spade_home) -> None:
-    """Issue 39: whether guidance acted was hidden in the 10th chart section; the MLflow description says it."""
-    from spade.experiments.tracking import run_description
+    """Once, whether guidance acted was hidden in the 10th chart section; the MLflow description says it."""
+    from spade.tracking import run_description
     from training_helpers import compose_row
 
     cfg = compose_row("t1_small_conddbc_L", spade_home, "logger=none")
@@ -295,7 +295,7 @@ def test_critic_command_scores_an_expert_and_a_student_and_writes_its_page(spade
     assert metrics["expert/instances"] == 6.0
     assert "| expert, one sample |" in text and "| student |" in text and "generator's" in text
     # a rerun replaces the page SPADE wrote only with overwrite=true (checked before any measuring)
-    from spade.experiments.checks import validate_critic_config
+    from spade.config.critic_checks import validate_critic_config
     from spade.utils.errors import ConfigError
 
     with pytest.raises(ConfigError, match="pass overwrite=true"):

@@ -98,7 +98,7 @@ def test_the_floor_loses_the_rounding_under_a_sub_pixel_encoding(dataset: Path) 
 def test_the_planner_draws_the_markers_its_model_was_trained_on(tmp_path: Path) -> None:
     from test_planner import FRAME, RES, ROBOT_DATA, fresh_checkpoint
 
-    from spade.deploy.planner import Planner, PlannerConfigError
+    from spade.deploy.student_planner import Planner, PlannerConfigError
 
     goal = np.array([40.3, 20.6])
     robot = np.asarray(FRAME.robot_px)
@@ -117,8 +117,8 @@ def test_the_planner_draws_the_markers_its_model_was_trained_on(tmp_path: Path) 
 def test_an_expert_judges_only_students_whose_markers_it_was_trained_on(tmp_path: Path) -> None:
     """A guided row may use any marker encoding, as long as its expert was trained on the same one: the expert
     records its data's encoding, an expert saved before it did was trained on binary discs."""
-    from spade.experiments.checks import validate_train_config
-    from spade.training.errors import ExpertMismatchError
+    from spade.config.preflight import validate_train_config
+    from spade.training.expert_mismatch import ExpertMismatchError
     from spade.training.expert_module import ExpertModule
     from spade.utils.config import compose_config
 

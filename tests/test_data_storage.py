@@ -180,7 +180,7 @@ def test_settings_that_never_change_the_bytes_do_not_make_a_dataset_stale() -> N
 
 @pytest.mark.parametrize("name,row", [("waypoints", 3), ("pose", 1)])
 def test_poisoned_values_are_refused_even_with_their_checksums_recomputed(tmp_path: Path, name: str, row: int) -> None:
-    """Issue 51: NaN in a polyline, checksums recomputed, loaded and scored as no error at all; now refused."""
+    """Once, NaN in a polyline, checksums recomputed, loaded and scored as no error at all; now refused."""
     import hashlib
 
     root = tmp_path / "ds"

@@ -16,7 +16,7 @@ from spade.training.callbacks import ChannelsLast
 from spade.training.student_module import StudentModule
 from spade.utils.config import compose_config
 from training_helpers import compose_row
-from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
+from spade.tracking.predictors import TOP_LEVEL_FILTER
 
 REPO = Path(__file__).resolve().parents[1]
 ROW = "t1_small_bc_L"

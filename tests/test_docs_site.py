@@ -1,4 +1,4 @@
-"""The documentation (issues 33 and 48): the MkDocs site builds with ``--strict`` (a broken link, a missing page, an
+"""The documentation: the MkDocs site builds with ``--strict`` (a broken link, a missing page, an
 API reference that fails or any other warning fails it), its generated references cover every config and entry
 point, its nav holds every guide once (the ROS 2 deployment page included), the API reference agrees with the
 signatures, the results pages render (lists as lists, figures one per line, titles in the index) and name no path

@@ -1,4 +1,4 @@
-"""The tutorial *Your own map, end to end* (docs/tutorials/own-map.md) runs as written (issues 32 and 33): its shell
+"""The tutorial *Your own map, end to end* (docs/tutorials/own-map.md) runs as written: its shell
 blocks are read from the page and run in order, at the page's own sizes, with a real ROS map from SPADE_MAPS_DIR as
 ``site.yaml`` (training and test sets cut from it by area), so that a command the page shows and the code no longer
 accepts fails here, and so does a page whose recipe no longer teaches a student to beat the heading template."""

@@ -76,7 +76,7 @@ def test_row_composes_instantiates_and_runs_fast_dev_run(row: str, spade_home: P
 def test_every_row_composes_validates_and_instantiates(spade_home: Path, tiny_checkpoints: dict) -> None:
     """Every row of every table: its config passes the checks of spade.train, and its data module, model (with
     the student's size, the margin's expert kind, a pretrained student) and trainer are built."""
-    from spade.experiments.config_checks import validate_train_config
+    from spade.config.preflight import validate_train_config
 
     sizes = {"small": 1e5, "medium": 1e6, "large": 3e7}
     for row in ROWS:
@@ -121,7 +121,7 @@ def test_every_data_config_builds_a_missing_dataset_with_the_annotation_tool(tmp
     assert not (tmp_path / "missing").exists()
 
 
-# -- a table is rows x seeds in one multirun, at scale=cpu unless told, announced at its start (issue 24) ---------
+# -- a table is rows x seeds in one multirun, at scale=cpu unless told, announced at its start ---------
 def _table_config(table: str, home: Path, *overrides: str):
     """The table's composition as `python -m spade.train +experiment=TABLE ...` sees it (no scale forced)."""
     import spade.experiments.multirun  # noqa: F401  (registers ${spade_sweep:}, as the table's Hydra callback does)
@@ -261,7 +261,7 @@ def test_table_estimate_scales_with_the_speed_measured_on_this_machine(spade_hom
 
 def test_tiny_run_summary_says_pipeline_check(spade_home: Path) -> None:
     from spade.experiments.tables import TINY_NOTICE
-    from spade.experiments.tracking import run_summary
+    from spade.tracking import run_summary
 
     metrics = {"test/ape_cm": 12.0}
     assert TINY_NOTICE in run_summary(compose_row("smoke", spade_home, "logger=none"), metrics)
@@ -322,12 +322,12 @@ def test_guidance_composition_launches_its_six_rows(spade_home: Path) -> None:
 
 
 def test_run_summary_says_when_a_student_did_not_learn_and_how_to_use_its_checkpoint(spade_home: Path) -> None:
-    """Issue 32: a student that extracted nothing (failures 100 %) or lost to the heading template was reported
+    """A student that extracted nothing (failures 100 %) or lost to the heading template was reported
     like any other; the end of a run did not name the checkpoint that evaluate, export and plan need."""
-    from spade.experiments.tracking import run_summary
+    from spade.tracking import run_summary
 
     cfg = compose_row("t1_small_bc_L", spade_home, "logger=none")
-    # issue 45: the verdict names its figure (the planner's APE and tail) and judges every baseline
+    # the verdict names its figure (the planner's APE and tail) and judges every baseline
     nothing = {"test/failure_rate": 1.0, "test/ape_cm": float("nan"), "test/baseline/heading/ape_cm": 10.5}
     losing = {"test/failure_rate": 0.0, "test/planner/ape_cm": 12.0, "test/planner/over_20cm_rate": 0.1,
               "test/baseline/heading/planner/ape_cm": 10.5, "test/baseline/heading/planner/over_20cm_rate": 0.05,
@@ -355,7 +355,7 @@ def test_the_evaluate_command_names_a_rows_data_config(spade_home: Path, monkeyp
 
     from hydra.core.hydra_config import HydraConfig
 
-    from spade.experiments.tracking import run_summary
+    from spade.tracking import run_summary
 
     cfg = compose_row("sz_n300_e3_L", spade_home, "logger=none")
     monkeypatch.setattr(HydraConfig, "initialized", staticmethod(lambda: True))
@@ -366,7 +366,7 @@ def test_the_evaluate_command_names_a_rows_data_config(spade_home: Path, monkeyp
 
 
 def test_runs_on_own_data_log_to_their_own_experiment_never_a_paper_tables(spade_home: Path) -> None:
-    """Issue 32: a run on a user's own datasets went into ``table1`` and ``spade.report table=table1`` listed it as
+    """A run on a user's own datasets went into ``table1`` and ``spade.report table=table1`` listed it as
     a paper row. ``data=own`` (no generator) logs to ``own_<training folder>``."""
     from spade.experiments.tables import get_table
 
@@ -379,13 +379,13 @@ def test_runs_on_own_data_log_to_their_own_experiment_never_a_paper_tables(spade
 
 
 def test_the_regenerate_command_keeps_the_runs_data_and_seed(spade_home: Path, monkeypatch) -> None:
-    """Issue 32: one run's MLflow description gave a "regenerate" command without its data overrides (it would
+    """One run's MLflow description gave a "regenerate" command without its data overrides (it would
     train on procedural maps). The command keeps the command line's overrides, the seed, and drops a sweep's keys."""
     from types import SimpleNamespace
 
     from hydra.core.hydra_config import HydraConfig
 
-    from spade.experiments.tracking.descriptions import regenerate_command
+    from spade.tracking.descriptions import regenerate_command
 
     task = ["+experiment=t1_small_bc_L", "scale=quickstart", "data=own", "data.train_dir=/d/train",
             "data.test_dir=/d/test", "seed=3", "rows=[t1_small_bc_L]"]
@@ -407,7 +407,7 @@ def test_the_regenerate_command_keeps_the_runs_data_and_seed(spade_home: Path, m
         assert OmegaConf.to_container(again[key], resolve=True) == OmegaConf.to_container(cfg[key], resolve=True), key
 
 
-# -- recipes apart from budgets (issue 37): scale= sizes a run, recipe= holds the method --------------------------
+# -- recipes apart from budgets: scale= sizes a run, recipe= holds the method --------------------------
 SCALE_KEYS = {"name", "image_size", "resolution_m", "annotate", "train_instances", "test_instances",
               "transfer_instances", "train_maps", "max_epochs", "expert_max_epochs", "batch_size", "cond_expert_preset",
               "uncond_expert_preset", "ema_decay", "ddim_steps", "val_metric_batches", "critic_instances",

@@ -17,6 +17,7 @@ from spade.deploy.export import ExportError, example_states, export_student, rea
 from spade.maps.frame import RobotFrame
 from spade.models import build_model
 from spade.models.modelfile import INPUT_ENCODING, open_model
+from factories import hand_made_checkpoint
 
 REPO = Path(__file__).resolve().parents[1]
 PARITY_BOUND = 1e-4  # float32 reorderings in the runtimes stay near 1e-5 for logits of order 1-10
@@ -26,22 +27,6 @@ def robot_data(size: int = 32, resolution_m: float = 0.2) -> dict:
     """The ``data`` entry of a student trained on robot-frame windows of ``size`` px."""
     return {"image_size": [size, size], "resolution_m": resolution_m, "frame": RobotFrame.for_size(size).to_json(),
             "input_encoding": INPUT_ENCODING}
-
-
-def _hand_made_checkpoint(path: Path, role: str = "student", data: dict | None = None, size: str = "small") -> Path:
-    """A checkpoint of the layout a fit writes (state_dict with ``net.`` keys, ``spade`` entry), without Lightning."""
-    torch.manual_seed(0)
-    net = build_model("student", size)
-    with torch.no_grad():  # move the BatchNorm statistics off their defaults, so that eval mode is exercised
-        for module in net.modules():
-            if isinstance(module, torch.nn.BatchNorm2d):
-                module.running_mean.uniform_(-0.5, 0.5)
-                module.running_var.uniform_(0.5, 2.0)
-    info = {"role": role, "config": dict(net.config)}
-    if data is not None:
-        info["data"] = data
-    torch.save({"state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}, "spade": info}, path)
-    return path
 
 
 def test_onnx_export_of_a_fitted_student(tiny_checkpoints: dict[str, str], tmp_path: Path) -> None:
@@ -84,7 +69,7 @@ def test_onnx_export_of_a_fitted_student(tiny_checkpoints: dict[str, str], tmp_p
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")  # torch.jit.load: TorchScript is deprecated in torch 2.x
 def test_torchscript_export_carries_the_metadata(tmp_path: Path) -> None:
     data = robot_data()
-    ckpt = _hand_made_checkpoint(tmp_path / "s.ckpt", data=data)
+    ckpt = hand_made_checkpoint(tmp_path / "s.ckpt", data=data)
     report = export_student(ckpt, None, "torchscript", latency_runs=0, parity_batch=3)
     assert report.out_path == tmp_path / "s.pt" and report.latency_ms == {}
     assert report.max_abs_diff < PARITY_BOUND
@@ -104,7 +89,7 @@ def test_an_axis_aligned_student_is_refused_with_the_fix(tmp_path: Path) -> None
     """Students trained before robot-frame windows (no ``data``, or ``data`` without a frame) are not exported:
     no planner could build their windows."""
     for name, data in (("none", None), ("axis", {"image_size": [32, 32], "resolution_m": 0.2})):
-        ckpt = _hand_made_checkpoint(tmp_path / f"{name}.ckpt", data=data)
+        ckpt = hand_made_checkpoint(tmp_path / f"{name}.ckpt", data=data)
         with pytest.raises(ExportError, match=f"{name}.ckpt.*axis-aligned.*[Rr]etrain"):
             export_student(ckpt, tmp_path / f"{name}.onnx", "onnx", latency_runs=0)
         assert not (tmp_path / f"{name}.onnx").exists()
@@ -113,15 +98,15 @@ def test_an_axis_aligned_student_is_refused_with_the_fix(tmp_path: Path) -> None
 def test_bad_inputs_are_refused_with_the_fix(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match="spade.train"):
         export_student(tmp_path / "missing.ckpt")
-    expert = _hand_made_checkpoint(tmp_path / "expert.ckpt", role="expert")
+    expert = hand_made_checkpoint(tmp_path / "expert.ckpt", role="expert")
     with pytest.raises(ExportError, match="not 'student'"):
         export_student(expert, tmp_path / "e.onnx")
-    good = _hand_made_checkpoint(tmp_path / "s.ckpt", data=robot_data())
+    good = hand_made_checkpoint(tmp_path / "s.ckpt", data=robot_data())
     with pytest.raises(ExportError, match="format=onnx"):
         export_student(good, tmp_path / "s.tflite", "tflite")
     odd = {**robot_data(), "image_size": [30, 30], "frame": RobotFrame.for_size(30).to_json()}
     with pytest.raises(ExportError, match="multiple of 4"):
-        export_student(_hand_made_checkpoint(tmp_path / "odd.ckpt", data=odd), tmp_path / "odd.pt", "torchscript")
+        export_student(hand_made_checkpoint(tmp_path / "odd.ckpt", data=odd), tmp_path / "odd.pt", "torchscript")
 
 
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")  # the legacy ONNX exporter, as spade.deploy.export uses
@@ -145,7 +130,7 @@ def test_read_metadata_refuses_files_that_are_not_spade_exports(tmp_path: Path) 
 @pytest.mark.slow  # a python -m spade.export process; the export in-process: test_onnx_export_of_a_fitted_student
 def test_the_command_line_exports_and_reports(tmp_path: Path) -> None:
     pytest.importorskip("onnxruntime")
-    ckpt = _hand_made_checkpoint(tmp_path / "s.ckpt", data=robot_data())
+    ckpt = hand_made_checkpoint(tmp_path / "s.ckpt", data=robot_data())
     env = {**os.environ, "SPADE_HOME": str(tmp_path / "home")}
     cmd = [sys.executable, "-m", "spade.export", f"ckpt_path={ckpt}", f"out_path={tmp_path / 'cli.onnx'}",
            "latency_runs=2", f"report_path={tmp_path / 'report.json'}"]

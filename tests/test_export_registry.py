@@ -37,7 +37,7 @@ def test_export_registers_and_plan_loads_models_uri(tmp_path: Path, maps_dir: Pa
     assert str(version.version) == "1"
     # An earlier in-process test may have set mlflow's process-wide URIs (they win over the environment): this
     # store's, for this look-up only (the registry follows the tracking URI).
-    from spade.deploy.registry import using_tracking_uri
+    from spade.deploy.mlflow_models import using_tracking_uri
 
     with using_tracking_uri(store):
         model = mlflow.models.get_model_info("models:/spade-student@champion")

@@ -26,7 +26,8 @@ FLOORS = [
     {"ros"},
     {"closedloop"},
     {"sketching"},
-    {"experiments"},
+    {"experiments", "tracking",  # a run's MLflow record: imported by experiments, reads their tables
+     "config"},  # the commands' config checks: imported by experiments' runs, the report's checks read its tables
     {"perf"},
 ]
 TOP = len(FLOORS)  # spade/*.py entry points and spade/__init__.py

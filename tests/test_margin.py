@@ -99,7 +99,7 @@ class AnchoredDenoiser(TinyDenoiser):
 
 
 def _reference_margin(expert, state, prob, target, conditional: bool, clip: str, num_noise: int, seed: int):
-    """DESIGN.md section 4 written out: shared noise and timestep, K draws averaged, then clipped."""
+    """docs/method.md's training objective written out: shared noise and timestep, K draws averaged, then clipped."""
     g = torch.Generator().manual_seed(seed)
     if conditional:
         agent, demo, cond = 2 * prob - 1, 2 * target - 1, 2 * state - 1
@@ -190,7 +190,7 @@ def test_margin_is_the_denoising_error_in_the_experts_parameterisation(predictio
     assert student.grad is not None and student.grad.abs().sum() > 0
 
 
-# -- regression: the margin of a trained-from-checkpoint expert keeps its value (issue 19, part 4) ------------------
+# -- regression: the margin of a trained-from-checkpoint expert keeps its value ---------------------------------
 # Computed with the code before the margin was built from the ExpertModule (one input builder for the expert's
 # training step and the margin): (expert kind, prediction type, expert training steps, margin options) ->
 # the expert's training and validation losses, the student's L_DM, active share and total loss (lambda 2.5).
@@ -306,7 +306,7 @@ def test_margin_options_are_checked_once_and_name_the_option() -> None:
 
 
 def test_a_student_checkpoint_saved_with_guidance_hparams_loads_with_its_margin(tmp_path) -> None:
-    """Checkpoints written before issue 19 keep the margin's options as hyper-parameter ``guidance`` with
+    """Older checkpoints keep the margin's options as hyper-parameter ``guidance`` with
     ``weight`` for lambda: they load with the margin mapped to ``margin`` / ``lambda_dm`` (not silently as BC)."""
     import lightning
 

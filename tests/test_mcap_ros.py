@@ -16,7 +16,7 @@ from spade.maps import generate_map
 from spade.planner import PlanResult
 from spade.ros.convert import grid_to_map, quaternion_to_yaw
 from spade.ros.core import CoreSettings, PlannerCore
-from spade.ros.recording import BagError, BagWriter, _Msgs, replay_bag, write_plan_bag
+from spade.ros.recording import BagError, BagMessages, BagWriter, replay_bag, write_plan_bag
 
 mcap_ros2 = pytest.importorskip("mcap_ros2.reader")
 REPO = Path(__file__).resolve().parents[1]
@@ -80,7 +80,7 @@ def robot_bag(path: Path, frame: str = "map") -> Path:
     m = generate_map("warehouse", 2)
     t0 = 1_700_000_000_000_000_000
     with BagWriter(path) as bag:
-        msgs = _Msgs(bag.typestore)
+        msgs = BagMessages(bag.typestore)
         T = bag.typestore.types
         bag.write("/map", "nav_msgs/msg/OccupancyGrid", msgs.grid(m, "map", t0), t0)
 
@@ -284,7 +284,7 @@ def test_evaluate_writes_the_test_set_as_an_mcap(spade_home: Path, tiny_checkpoi
 
 
 def test_evaluate_refuses_a_recording_path_it_cannot_write(tmp_path: Path) -> None:
-    from spade.experiments.test_recording import check_recording_instances
+    from spade.experiments.prediction_recording import check_recording_instances
     from spade.ros.recording import check_recording_path
     from spade.utils.errors import ConfigError
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from spade.experiments.tracking.summary import evaluation_summary, learning_verdict
+from spade.tracking.summary import evaluation_summary, learning_verdict
 from spade.metrics.verdict import DECIDING_FIGURE, verdict_lines, verdicts
 
 

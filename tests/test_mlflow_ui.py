@@ -11,73 +11,13 @@ the experiments list: MLflow 3.17 opens it on the GenAI overview until the sideb
 
 from __future__ import annotations
 
-import os
 import re
-import signal
-import socket
-import subprocess
-import sys
-import time
-import urllib.request
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 
 from browser_support import browser_page, chromium_path, screenshot
-
-REPO = Path(__file__).resolve().parents[1]
-# The smoke experiment, cut to a couple of batches per stage (its expert prerequisite inherits the trainer keys).
-FAST = ["trainer.enable_progress_bar=false", "+trainer.limit_train_batches=2", "+trainer.limit_val_batches=1",
-        "+trainer.limit_test_batches=1"]
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def _wait_healthy(url: str, proc: subprocess.Popen, log: Path, timeout: float) -> None:
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        if proc.poll() is not None:
-            raise AssertionError(f"mlflow server exited ({proc.returncode}):\n{log.read_text()[-3000:]}")
-        try:
-            with urllib.request.urlopen(f"{url}/health", timeout=2) as response:
-                if response.status == 200:
-                    return
-        except OSError:
-            time.sleep(0.5)
-    raise AssertionError(f"mlflow server not healthy after {timeout:.0f} s:\n{log.read_text()[-3000:]}")
-
-
-def _printed(out: str, label: str) -> str:
-    match = re.search(rf"{label}:\s+(http://\S+)", out)
-    assert match, f"the run printed no {label!r} URL:\n{out[-3000:]}"
-    return match.group(1)
-
-
-@contextmanager
-def _mlflow_server(store: str, port: int, workdir: Path) -> Iterator[subprocess.Popen]:
-    """``mlflow server`` on 127.0.0.1:``port`` in front of ``store`` (one worker); stopped on exit."""
-    log = workdir / "server.log"
-    env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"}
-    with open(log, "w") as log_fh:
-        server = subprocess.Popen(
-            [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", store, "--host", "127.0.0.1",
-             "--port", str(port), "--workers", "1", "--default-artifact-root", str(workdir / "server-artifacts")],
-            cwd=workdir, env=env, stdout=log_fh, stderr=subprocess.STDOUT, start_new_session=True)
-    try:
-        yield server
-    finally:
-        os.killpg(server.pid, signal.SIGTERM)  # the server and its uvicorn worker (this test's own process group)
-        try:
-            server.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            os.killpg(server.pid, signal.SIGKILL)
-            server.wait()
+from mlflow_server_support import FAST, free_port, mlflow_server, printed, served_home, wait_healthy  # noqa: F401
 
 
 def _check_ui(experiment_url: str, run_url: str, run_name: str, dataset: str, described: str, picture: str,
@@ -87,7 +27,7 @@ def _check_ui(experiment_url: str, run_url: str, run_name: str, dataset: str, de
     (``children``: the baselines' and the untrained model's child runs) listed under it; the run page with its
     description (holding ``described``), metrics and datasets; a prediction picture through the Artifacts tab; and,
     in a fresh browser profile, the experiment clicked in the experiments list opening on its runs once the sidebar's
-    switch says "Model training" (what the printed lines ask: :data:`spade.experiments.tracking.links.SWITCH_HINT`)."""
+    switch says "Model training" (what the printed lines ask: :data:`spade.tracking.links.SWITCH_HINT`)."""
     run_id = re.search(r"/runs/([0-9a-f]{32})\?", run_url).group(1)
     _check_experiments_list(experiment_url.split("/#/")[0], experiment, run_id, run_name, shots)
     with browser_page(width=1800) as page:  # the runs table draws only the columns in view
@@ -161,11 +101,11 @@ def test_mlflow_ui_shows_a_spade_run_from_the_printed_urls(tmp_path: Path, monke
     from omegaconf import OmegaConf
 
     from factories import write_synthetic
-    from spade.experiments.tracking import (
+    from spade.tracking import (
         DatasetUse, bind_experiment, log_dataset_inputs, log_predictor_runs, run_description, ui_lines,
     )
 
-    port = _free_port()
+    port = free_port()
     base = f"http://127.0.0.1:{port}"
     monkeypatch.setenv("SPADE_MLFLOW_UI_URL", base)
     store = f"sqlite:///{tmp_path}/mlflow.db"
@@ -173,7 +113,7 @@ def test_mlflow_ui_shows_a_spade_run_from_the_printed_urls(tmp_path: Path, monke
         write_synthetic(tmp_path / "tiny" / name, n=9, seed=seed)
     ml = _logger(tmp_path, "smoke")
     bind_experiment(ml)  # creates the store before the server opens it
-    with _mlflow_server(store, port, tmp_path) as server:  # boots while the run is recorded
+    with mlflow_server(store, port, tmp_path) as server:  # boots while the run is recorded
         client, run_id = ml.experiment, ml.run_id
         client.set_tag(run_id, "mlflow.runName", "ui_check")
         metrics = {"test/ape_cm": 12.5, "test/hd19": 2.0, "test/failure_rate": 0.1, "model/params": 118165.0,
@@ -190,47 +130,33 @@ def test_mlflow_ui_shows_a_spade_run_from_the_printed_urls(tmp_path: Path, monke
         log_predictor_runs(client, run_id, "student")  # its baselines as child runs, as spade.train logs them
         experiment_id = client.get_run(run_id).info.experiment_id
         _, run_line, experiment_line, _ = ui_lines(store, experiment_id, run_id)
-        _wait_healthy(base, server, tmp_path / "server.log", timeout=180)
+        wait_healthy(base, server, tmp_path / "server.log", timeout=180)
         _check_ui(experiment_line.split()[-1], run_line.split()[-1], "ui_check", "tiny/lshape", "Tested on", picture,
                   "mlflow_ui_recorded", children=("ui_check/baseline-straight",))
 
 
 @pytest.mark.slow  # trains the smoke experiment: about a minute on a quiet 2-core machine, several when shared
-def test_mlflow_ui_opens_the_smoke_run_from_the_urls_it_printed(tmp_path: Path) -> None:
-    chromium_path()  # skip (or fail in CI) before any training when there is no browser
-    pytest.importorskip("playwright.sync_api")
-    port = _free_port()
-    base = f"http://127.0.0.1:{port}"
-    store = f"sqlite:///{tmp_path}/logs/mlflow.db"
-    (tmp_path / "logs").mkdir()
-    env = {**os.environ, "SPADE_HOME": str(tmp_path), "PYTHONUNBUFFERED": "1", "SPADE_MLFLOW_UI_URL": base}
-    env.pop("MLFLOW_TRACKING_URI", None)
-    from mlflow import MlflowClient
-
-    client = MlflowClient(tracking_uri=store)
-    client.search_experiments()  # creates the store before the server and the run open it
-    with _mlflow_server(store, port, tmp_path) as server:  # boots while the run trains
-        train = subprocess.run([sys.executable, "-m", "spade.train", "+experiment=smoke", *FAST], cwd=REPO, env=env,
-                               capture_output=True, text=True, timeout=900)
-        out = train.stdout + train.stderr
-        assert train.returncode == 0, out[-3000:]
-        assert f"mlflow ui --backend-store-uri {store} --port {port}" in out
-        experiment_url, run_url = _printed(out, "experiment's runs"), _printed(out, "this run")
-        assert experiment_url.startswith(base) and "workflowType=machine_learning" in experiment_url
-        assert run_url.startswith(base) and "workflowType=machine_learning" in run_url
-        run_id = re.search(r"/runs/([0-9a-f]{32})\?", run_url).group(1)
-        pictures = sorted(a.path for a in client.list_artifacts(run_id, "predictions") if a.path.endswith(".png"))
-        assert pictures, "the run logged no prediction picture"
-        assert client.get_run(run_id).info.run_name == "smoke"
-        _wait_healthy(base, server, tmp_path / "server.log", timeout=180)
-        _check_ui(experiment_url, run_url, "smoke", "tiny/lshape", "Prerequisites: expert from", pictures[0],
-                  "mlflow_ui_smoke", prerequisite="cond_expert_L",
-                  children=("smoke/baseline-straight", "smoke/baseline-shortest", "smoke/baseline-heading"))
+def test_mlflow_ui_opens_the_smoke_run_from_the_urls_it_printed(served_home) -> None:  # noqa: ANN001
+    store, base, client = served_home.store, served_home.base, served_home.client
+    port = int(base.rsplit(":", 1)[1])
+    out = served_home.train("+experiment=smoke", *FAST)  # the server boots while the run trains
+    assert f"mlflow ui --backend-store-uri {store} --port {port}" in out
+    experiment_url, run_url = printed(out, "experiment's runs"), printed(out, "this run")
+    assert experiment_url.startswith(base) and "workflowType=machine_learning" in experiment_url
+    assert run_url.startswith(base) and "workflowType=machine_learning" in run_url
+    run_id = re.search(r"/runs/([0-9a-f]{32})\?", run_url).group(1)
+    pictures = sorted(a.path for a in client.list_artifacts(run_id, "predictions") if a.path.endswith(".png"))
+    assert pictures, "the run logged no prediction picture"
+    assert client.get_run(run_id).info.run_name == "smoke"
+    served_home.wait_healthy()
+    _check_ui(experiment_url, run_url, "smoke", "tiny/lshape", "Prerequisites: expert from", pictures[0],
+              "mlflow_ui_smoke", prerequisite="cond_expert_L",
+              children=("smoke/baseline-straight", "smoke/baseline-shortest", "smoke/baseline-heading"))
 
 
 # -- the pieces, without training or a browser (fast) ---------------------------------------------------------
 def test_printed_urls_open_runs_views(monkeypatch: pytest.MonkeyPatch) -> None:
-    from spade.experiments.tracking import ui_lines
+    from spade.tracking import ui_lines
 
     monkeypatch.delenv("SPADE_MLFLOW_UI_URL", raising=False)
     command, run, experiment, switch = ui_lines("sqlite:////x/mlflow.db", "3", "ab12")
@@ -258,7 +184,7 @@ def _logger(tmp_path: Path, experiment: str):
 def test_experiments_are_tagged_as_training_with_a_description(tmp_path: Path) -> None:
     import json
 
-    from spade.experiments.tracking import KIND_TAG, NOTE_TAG, VIEW_TAG, bind_experiment
+    from spade.tracking import KIND_TAG, NOTE_TAG, VIEW_TAG, bind_experiment
 
     ml = _logger(tmp_path, "table2")
     bind_experiment(ml)
@@ -284,7 +210,7 @@ def test_an_experiment_a_parallel_job_creates_first_is_bound_and_tagged(tmp_path
     job's create fails; the run still opens (one run, in that experiment) and the experiment is tagged."""
     from mlflow import MlflowClient
 
-    from spade.experiments.tracking import KIND_TAG, NOTE_TAG, VIEW_TAG, bind_experiment
+    from spade.tracking import KIND_TAG, NOTE_TAG, VIEW_TAG, bind_experiment
 
     create = MlflowClient.create_experiment
 
@@ -311,7 +237,7 @@ def test_a_tag_a_parallel_job_writes_at_the_same_moment_is_not_an_error(tmp_path
     from mlflow import MlflowClient
     from mlflow.exceptions import MlflowException
 
-    from spade.experiments.tracking import KIND_TAG, NOTE_TAG, VIEW_TAG, bind_experiment
+    from spade.tracking import KIND_TAG, NOTE_TAG, VIEW_TAG, bind_experiment
 
     set_tag = MlflowClient.set_experiment_tag
     raced: list[str] = []
@@ -344,7 +270,7 @@ def test_datasets_are_run_inputs_with_fingerprint_source_context_and_profile(tmp
     from types import SimpleNamespace
 
     from factories import write_synthetic
-    from spade.experiments.tracking import dataset_fingerprint, dataset_uses, log_dataset_inputs
+    from spade.tracking import dataset_fingerprint, dataset_uses, log_dataset_inputs
 
     for name, seed in (("lshape", 0), ("test", 1), ("lshape_again", 0)):
         write_synthetic(tmp_path / "tiny" / name, n=9, seed=seed)
@@ -380,7 +306,7 @@ def test_a_dataset_a_parallel_job_logs_at_the_same_moment_is_linked_not_an_error
     from mlflow.exceptions import MlflowException
 
     from factories import write_synthetic
-    from spade.experiments.tracking import dataset_uses, log_dataset_inputs
+    from spade.tracking import dataset_uses, log_dataset_inputs
 
     for name, seed in (("lshape", 0), ("test", 1)):
         write_synthetic(tmp_path / "tiny" / name, n=9, seed=seed)
@@ -422,7 +348,7 @@ def test_a_dataset_a_parallel_job_logs_at_the_same_moment_is_linked_not_an_error
 def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(tmp_path: Path) -> None:
     from omegaconf import OmegaConf
 
-    from spade.experiments.tracking import DatasetUse, prerequisite_uses, run_description
+    from spade.tracking import DatasetUse, prerequisite_uses, run_description
 
     ml = _logger(tmp_path, "table1")
     client = ml.experiment
@@ -447,20 +373,20 @@ def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(
     uses = [DatasetUse(tmp_path / "tiny/lshape", "tiny/lshape (train split)", "training", 160),
             DatasetUse(tmp_path / "tiny/test", "tiny/test", "test", 43)]
     text = run_description(cfg, metrics, uses, prerequisites, ["predictions/test_worst.png"])
-    # issue 48: the table first (the UI shows it without "Show more"), units in its headers, shares in per cent
+    # the table first (the UI shows it without "Show more"), units in its headers, shares in per cent
     assert text.startswith("| test set ") and "APE cm" in text.splitlines()[0]
     assert "**t1_small_conddbc_L**: Cond-DBC student (size small, 118k parameters), L-shape paths" in text
     assert "Trained on `tiny/lshape` (160 instances)" in text and "Tested on `tiny/test`: 43 instances." in text
     assert "registered model `spade-cond_expert-L-tiny-abc v1`, run [cond_expert_L](#/experiments/" in text
     assert "Regenerate: `python -m spade.train +experiment=t1_small_conddbc_L scale=tiny`" in text
-    # aligned columns (issue 39): labels left, figures right, every line of the table as wide as its header
+    # aligned columns: labels left, figures right, every line of the table as wide as its header
     assert "| **this model**     |    4.5 |      3 |      2 |" in text
     assert "| baseline: straight |   30.2 |    n/a |      0 |" in text
     assert "| untrained          |  190.0 |" in text
     table = [line for line in text.splitlines() if line.startswith("|")]
     assert len({len(line) for line in table}) == 1 and table[0].startswith("| test set ")
-    assert "APE: mean distance in cm" in text and "Hd19: the number of test instances whose Hausdorff" in text
-    assert "fail: per cent of instances" in text and ">20cm: per cent" in text
+    assert "APE cm: mean distance between" in text and "Hd19 n: instances whose Hausdorff distance" in text
+    assert "fail %: share of instances" in text and ">20cm %: share of instances" in text
     assert "`predictions/test_worst.png`" in text
     linked = run_description(cfg, metrics, uses, prerequisites, ["predictions/test_worst.png"], ("5", "ab12"))
     assert ("[predictions/test_worst.png](#/experiments/5/runs/ab12/artifacts/predictions/test_worst.png"

@@ -66,7 +66,7 @@ def student_checkpoint(path: Path, data: dict | None = DATA, **extra) -> Path:
 # ------------------------------------------------------------------------------------------------ safe loading
 def test_a_checkpoint_that_would_run_code_is_refused_and_nothing_runs(tmp_path: Path, spade_home: Path) -> None:
     from spade.evaluate import load_module
-    from spade.experiments.config_checks import checkpoint_info
+    from spade.config.checkpoint_checks import checkpoint_info
     from spade.planner import Planner
     from spade.training.instantiate import run_id_from_checkpoint
     from spade.training.student_module import StudentModule
@@ -104,7 +104,7 @@ def test_lightning_resume_and_test_checkpoints_are_loaded_safely(tmp_path: Path,
     from lightning.pytorch.demos.boring_classes import BoringModel
 
     from spade.experiments.run import from_checkpoint, train
-    from spade.experiments.config_checks import ConfigError
+    from spade.utils.errors import ConfigError
     from training_helpers import compose_row
 
     marker = tmp_path / "marker.txt"

@@ -20,10 +20,11 @@ from spade.models import (
     model_from_config,
     presets,
 )
+from spade.models.paper_sizes import PAPER_COND_EXPERT_PARAMETERS
 
 # Exact counts of the chosen presets (regression guard on the widths); the paper's figures are in PAPER_PARAMETER_COUNTS.
 STUDENT_COUNTS = {"small": 118_165, "medium": 1_926_209, "large": 31_114_785}
-COND_EXPERT_PAPER = 9_218_561
+COND_EXPERT_PAPER = PAPER_COND_EXPERT_PARAMETERS
 
 
 def _meta(builder, *args):

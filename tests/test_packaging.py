@@ -1,4 +1,4 @@
-"""The package as a user installs it (issue 33): a wheel built from the repository, installed into a folder of its
+"""The package as a user installs it: a wheel built from the repository, installed into a folder of its
 own and run from another folder, composes every entry point's config from the copy it carries (``spade/conf``,
 :data:`spade.paths.CONF_DIR`) and ships the files SPADE needs at run time."""
 

@@ -21,6 +21,7 @@ from spade.maps.frame import RobotFrame, heading_from_yaw, path_heading, yaw_fro
 from spade.models import build_model
 from spade.planner import Planner, PlannerConfigError, PlanResult
 from spade.utils.config import compose_config
+from factories import LineOracle
 
 SIZE, RES = 64, 0.1  # scale=tiny's window
 FRAME = RobotFrame.for_size(SIZE)  # robot at (32, 48), heading up
@@ -40,18 +41,6 @@ def fresh_checkpoint(path: Path, data: dict | None = None) -> Path:
 
 
 ROBOT_DATA = {"image_size": [SIZE, SIZE], "resolution_m": RES, "frame": FRAME.to_json()}
-
-
-class LineOracle:
-    """A stand-in network that 'predicts' the straight segment between the start and goal discs of its input."""
-
-    def logits(self, states: np.ndarray) -> np.ndarray:
-        out = np.full((len(states), 1, *states.shape[2:]), -10.0, dtype=np.float32)
-        for i, state in enumerate(states):
-            (r0, c0), (r1, c1) = (np.rint(ndimage.center_of_mass(state[k])).astype(int) for k in (1, 2))
-            rr, cc = line(r0, c0, r1, c1)
-            out[i, 0, rr, cc] = 10.0
-        return out
 
 
 class Silent:
@@ -362,7 +351,7 @@ def test_checkpoint_onnx_and_torchscript_plan_alike(ckpt: Path, warehouse: Occup
 
 
 def test_public_path() -> None:
-    import spade.deploy.planner as impl
+    import spade.deploy.student_planner as impl
     import spade.planner as public
 
     assert public.Planner is impl.Planner and public.PlanResult is impl.PlanResult and PlanResult is impl.PlanResult
@@ -471,7 +460,7 @@ def test_plan_command_prints_waypoints_and_writes_the_picture(trained_student: s
 
 
 def test_a_plan_picture_carries_its_legend() -> None:
-    """Issue 32: ``plan.png`` had no legend. Every colour of the picture is named in a strip below it."""
+    """Once, ``plan.png`` had no legend. Every colour of the picture is named in a strip below it."""
     import numpy as np
     from PIL import Image
 

@@ -1,4 +1,4 @@
-"""Prediction pictures a person reads at a glance in MLflow's Artifacts tab (issue 22, part 6): the legend at the
+"""Prediction pictures a person reads at a glance in MLflow's Artifacts tab: the legend at the
 top, at most 900 px tall, the extracted path in a colour the heat map never takes, the worst panels from distinct
 scenarios; run descriptions with centimetres to 0.1 cm."""
 
@@ -60,7 +60,7 @@ def test_the_worst_panels_come_from_distinct_scenarios() -> None:
 
 
 def test_run_description_figures_are_rounded_to_a_tenth_of_a_centimetre() -> None:
-    from spade.experiments.tracking import figures_table
+    from spade.tracking import figures_table
 
     text = figures_table({"test/ape_cm": 10.1234, "test/baseline/straight/ape_cm": 25.0149, "test/hd19": 3.0})
     import re
@@ -69,7 +69,7 @@ def test_run_description_figures_are_rounded_to_a_tenth_of_a_centimetre() -> Non
 
 
 def test_the_epoch_picture_shows_distinct_scenarios_in_wide_readable_panels() -> None:
-    """Issue 39: the per-epoch pictures were 180 x 900 px with about 64 px panels, the legend cut, and all eight
+    """Once, the per-epoch pictures were 180 x 900 px with about 64 px panels, the legend cut, and all eight
     rows from the same map window. Now: the first instance of each new scenario, in validation order (the same
     ones every epoch), one column each, panels of at least 128 px, the whole legend."""
     from types import SimpleNamespace

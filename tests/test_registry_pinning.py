@@ -12,7 +12,7 @@ from omegaconf import OmegaConf
 def _register(uri: str, tmp_path: Path, tag: str, promote: bool = False) -> tuple[int, str]:
     from lightning.pytorch.loggers import MLFlowLogger
 
-    from spade.experiments.registry import register_checkpoint
+    from spade.tracking.registry import register_checkpoint
 
     ml = MLFlowLogger(experiment_name="pinning", tracking_uri=uri, artifact_location=str(tmp_path / "artifacts"))
     ckpt = tmp_path / tag / "model.ckpt"
@@ -27,7 +27,7 @@ def _register(uri: str, tmp_path: Path, tag: str, promote: bool = False) -> tupl
 def test_the_champion_stays_pinned_until_promoted(tmp_path: Path) -> None:
     from mlflow import MlflowClient
 
-    from spade.experiments.registry import fetch_registered
+    from spade.tracking.registry import fetch_registered
 
     uri = f"sqlite:///{tmp_path}/mlflow.db"
     cache = tmp_path / "cache"
@@ -53,8 +53,8 @@ def test_the_champion_stays_pinned_until_promoted(tmp_path: Path) -> None:
 
 
 def test_a_resolved_prerequisite_is_recorded_in_the_runs_config(tmp_path: Path) -> None:
-    from spade.experiments.prerequisites import _fill
-    from spade.experiments.registry import RegisteredCheckpoint
+    from spade.experiments.prerequisites import fill_prerequisite as _fill
+    from spade.tracking.registry import RegisteredCheckpoint
 
     cfg = OmegaConf.create({"model": {"margin": {"expert_ckpt": None}},
                             "requires": {"expert": {"experiment": "cond_expert_L", "target": "model.margin.expert_ckpt",

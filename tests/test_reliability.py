@@ -1,4 +1,4 @@
-"""Reliability of training runs (issue 14): own run folders, data that matches its settings, same seed same
+"""Reliability of training runs: own run folders, data that matches its settings, same seed same
 numbers, early one-line config errors, honest MLflow run status, resume that reproduces the uninterrupted run."""
 
 from __future__ import annotations
@@ -17,17 +17,15 @@ import torch
 import yaml
 from omegaconf import open_dict
 
-from spade.experiments.config_checks import (
-    ConfigError,
-    exit_on_user_error,
-    validate_evaluate_config,
-    validate_train_config,
-)
+from spade.config.evaluate_checks import validate_evaluate_config
+from spade.config.preflight import validate_train_config
+from spade.config.refusals import exit_on_user_error
+from spade.utils.errors import ConfigError
 from spade.data import DatasetError
 from spade.utils.config import compose_config
 from fault_injection import env_with_tests, fail_at, kill_at
 from training_helpers import compose_row
-from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
+from spade.tracking.predictors import TOP_LEVEL_FILTER
 
 REPO = Path(__file__).resolve().parents[1]
 ROW = "t1_small_bc_L"
@@ -143,7 +141,7 @@ def _fake_checkpoint(path: Path, role: str, size: int = 64, resolution: float = 
 
 def test_changed_data_settings_are_refused_naming_the_keys(spade_home: Path, data_dir: Path) -> None:
     cfg = compose_row(ROW, spade_home, "scale.train_instances=48", "scale.annotate.window.size_px=32",
-                      "scale.image_size=32")  # the two must agree (issue 22)
+                      "scale.image_size=32")  # the two must agree
     with pytest.raises(ConfigError, match=r"data.train_dir=.*lshape was generated with other settings") as err:
         validate_train_config(cfg)
     assert "num_instances: dataset 192, config 48" in str(err.value)
@@ -405,7 +403,7 @@ def test_run_status_is_recorded_on_the_run_spade_opened_and_no_other(tmp_path: P
     from lightning.pytorch.loggers import MLFlowLogger
     from mlflow import MlflowClient
 
-    from spade.experiments.tracking.runs import bind_experiment, mark_run_ended, record_process
+    from spade.tracking.runs import bind_experiment, mark_run_ended, record_process
 
     uri = f"sqlite:///{tmp_path}/mlflow.db"
     ml = MLFlowLogger(experiment_name="status", run_name="row", tracking_uri=uri)

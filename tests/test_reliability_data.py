@@ -14,7 +14,7 @@ import pytest
 
 from spade.data import DatasetWriter, PathDataset, read_manifest
 from spade.data.verify import verify
-from spade.data.writer import _owner, remove_stale_partials
+from spade.data.writer import process_owner as _owner, remove_stale_partials
 
 from factories import synthetic_instance
 
@@ -39,7 +39,7 @@ def _leftovers(parent: Path) -> list[str]:
 def test_two_writers_racing_for_one_missing_dataset_the_second_fails_and_the_first_is_kept(tmp_path: Path,
                                                                                             monkeypatch) -> None:
     """Forced race: both writers start while the dataset is missing (two spade.annotate into one out_dir), the
-    first finishes, and the second, without overwrite, fails instead of replacing it (issue 22, case 4); then,
+    first finishes, and the second, without overwrite, fails instead of replacing it; then,
     with overwrite, one swaps while the other is mid-swap."""
     from spade.data.writer import DatasetExistsError
 
@@ -148,7 +148,7 @@ def test_stale_partial_rules(tmp_path: Path) -> None:
 
 
 def test_a_tampered_manifest_is_refused_by_verify_and_by_loading(tmp_path: Path) -> None:
-    """Issue 35: ``spade.data.verify`` answered "OK ... verified" for a manifest whose ``resolution`` was edited
+    """``spade.data.verify`` answered "OK ... verified" for a manifest whose ``resolution`` was edited
     (0.05 -> 0.1 m/px rescales every cm metric). The manifest's own checksum refuses the edit; a manifest whose
     checksum was recomputed after the edit is still refused where its geometry disagrees with its own records."""
     import json
@@ -179,7 +179,7 @@ def test_a_tampered_manifest_is_refused_by_verify_and_by_loading(tmp_path: Path)
 
 
 def test_a_leak_is_found_by_content_not_by_scenario_names(tmp_path: Path) -> None:
-    """Issue 32: two datasets made on one map always "shared scenarios" (ids are per-map counters such as
+    """Two datasets made on one map always "shared scenarios" (ids are per-map counters such as
     site/L000), whatever their seeds. Now a test set on the same map with other demonstrations is accepted and a
     test window identical to a training window is refused, naming its scenario."""
     import shutil

@@ -1,4 +1,4 @@
-"""Reliability and safety of every entry point (issue 22): nothing of the user's is ever overwritten, every entry
+"""Reliability and safety of every entry point: nothing of the user's is ever overwritten, every entry
 point checks its config and inputs first and fails with one ``error: ...; <fix>`` line and exit status 2, runs end
 in the state they are in, prerequisites fetched from the registry are checked like explicit paths.
 
@@ -21,7 +21,8 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import open_dict
 
 from spade.data import DatasetWriter, PathDataset
-from spade.experiments.config_checks import ConfigError, validate_train_config
+from spade.config.preflight import validate_train_config
+from spade.utils.errors import ConfigError
 
 from factories import site_map, synthetic_instance
 from training_helpers import compose_row
@@ -121,7 +122,7 @@ def test_annotate_overwrite_refuses_a_folder_or_file_that_is_not_a_dataset(tmp_p
 
 
 def test_annotate_overwrite_replaces_only_a_spade_dataset_and_nothing_added_to_it(tmp_path: Path, run_main) -> None:
-    """Issue 35: a web app's folder holding a ``manifest.json`` (and ``important.txt``) was deleted by ``annotate
+    """A web app's folder holding a ``manifest.json`` (and ``important.txt``) was deleted by ``annotate
     overwrite=true``, as was a user's ``NOTES.md`` inside a real dataset. Both are refused in one line naming what
     is kept; a dataset that holds only its own files is still replaced."""
     from factories import write_synthetic
@@ -181,7 +182,7 @@ def test_plan_never_writes_onto_its_map_or_model(tmp_path: Path, run_main) -> No
 
 
 def test_plan_and_export_replace_only_their_own_files_and_only_when_asked(tmp_path: Path, run_main) -> None:
-    """Issue 35: ``plan out=`` replaced an existing picture and ``export out_path=`` an existing file, with no flag
+    """``plan out=`` replaced an existing picture and ``export out_path=`` an existing file, with no flag
     and no warning. A file SPADE did not write is refused whatever ``overwrite`` says; one it wrote (a plan picture
     carries SPADE's PNG marker) is replaced only with ``overwrite=true``."""
     from PIL import Image
@@ -208,7 +209,7 @@ def test_plan_and_export_replace_only_their_own_files_and_only_when_asked(tmp_pa
         assert code == 2, err
         assert expected in one_error_line(err), err
     assert {p: digest(p) for p in before} == before
-    from spade.experiments.config_checks import validate_plan_config
+    from spade.config.plan_checks import validate_plan_config
     from spade.utils.config import compose_config
 
     validate_plan_config(compose_config("plan", [*query, f"out={ours}", "overwrite=true"]))  # its own: replaced
@@ -304,7 +305,7 @@ def test_report_refuses_a_store_that_does_not_exist(tmp_path: Path, run_main) ->
 @pytest.mark.parametrize("kind", ["foreign_sqlite", "garbage"])
 def test_report_reads_without_writing_into_a_file_that_is_not_an_mlflow_store(tmp_path: Path, run_main,
                                                                               kind: str) -> None:
-    """Issue 35: with SPADE_HOME holding someone else's SQLite file named ``mlflow.db``, ``spade.report`` created
+    """With SPADE_HOME holding someone else's SQLite file named ``mlflow.db``, ``spade.report`` created
     about 40 MLflow tables in it. A reader refuses it in one line, the file byte for byte unchanged."""
     import sqlite3
 
@@ -375,7 +376,7 @@ def test_an_expert_fetched_from_the_registry_is_checked_like_an_explicit_path(sp
     """Case 12: a prerequisite from the Model Registry skipped the role, kind and geometry checks (they ran before
     the registry filled the path in)."""
     from spade.experiments import prerequisites
-    from spade.experiments.registry import RegisteredCheckpoint
+    from spade.tracking.registry import RegisteredCheckpoint
     from spade.experiments.run import train
 
     wrong_role = student_checkpoint(tmp_path / "cache" / "student.ckpt")
@@ -393,7 +394,7 @@ def test_an_expert_fetched_from_the_registry_is_checked_like_an_explicit_path(sp
 
 def test_a_registry_expert_of_the_wrong_kind_is_refused_before_training(spade_home: Path, tmp_path: Path,
                                                                        monkeypatch) -> None:
-    """Issue 19: an expert fetched from the Model Registry passes the kind check of one given by path. A Cond-DBC
+    """An expert fetched from the Model Registry passes the kind check of one given by path. A Cond-DBC
     row whose registry lookup returns an unconditional expert (right role, right window geometry) stops with the
     kind error, naming the key and the fix, before any data module, model or run is built; the same expert by path
     stops the same way."""
@@ -402,7 +403,7 @@ def test_a_registry_expert_of_the_wrong_kind_is_refused_before_training(spade_ho
     from spade.maps.frame import RobotFrame
     from spade.experiments import prerequisites
     from spade.experiments import run as run_module
-    from spade.experiments.registry import RegisteredCheckpoint
+    from spade.tracking.registry import RegisteredCheckpoint
     from spade.models import build_model
 
     net = build_model("uncond_expert", "tiny")
@@ -530,7 +531,7 @@ def test_hydra_full_error_shows_the_traceback(inputs, run_main, monkeypatch) -> 
                                           ("spade.report", ["nosuch_key=1"]),
                                           ("spade.plan", ["planner=[unbalanced"])])
 def test_hydras_own_composition_errors_exit_2_like_every_user_error(run_main, module: str, args: list[str]) -> None:
-    """Issue 35: Hydra's own errors (an unknown experiment, a key without its +, a malformed override) exited 1,
+    """Hydra's own errors (an unknown experiment, a key without its +, a malformed override) exited 1,
     where every other user error exits 2. Hydra's message is kept; the status is SPADE's."""
     code, err = run_main(module, args)
     assert code == 2, err

@@ -1,4 +1,4 @@
-"""Reliability across processes (issue 22; slow: each test starts processes, most of them train): a run killed
+"""Reliability across processes (slow: each test starts processes, most of them train): a run killed
 with ``kill -9`` and resumed tests the same best checkpoint, with the same numbers, as the uninterrupted run;
 annotation workers end with their parent; the command lines fail in one line with exit status 2."""
 
@@ -16,7 +16,7 @@ import lightning as L
 import pytest
 
 from training_helpers import compose_row
-from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
+from spade.tracking.predictors import TOP_LEVEL_FILTER
 
 pytestmark = pytest.mark.slow
 

@@ -1,4 +1,4 @@
-"""Reliability, third round (issue 51): the wrong cases of the probe, reproduced, and the new behaviour.
+"""Reliability, third round: the wrong cases of the probe, reproduced, and the new behaviour.
 
 - default output paths are checked as explicit ones are (``spade.export``'s export beside the checkpoint,
   ``spade.report``'s pages, ``spade.bench``'s JSON), and an empty path is refused instead of the filesystem root;
@@ -35,7 +35,7 @@ def _strip_checksum(root: Path) -> Path:
 
 
 def test_a_manifest_without_its_checksum_is_refused_by_verify_and_loading(tmp_path: Path) -> None:
-    """Issue 51: a manifest whose resolution and generator record were edited and whose ``manifest_sha256`` was
+    """A manifest whose resolution and generator record were edited and whose ``manifest_sha256`` was
     deleted verified "OK" and loaded. Now both refuse it, naming the file and the fix (regenerate)."""
     from spade.data import DatasetError, PathDataset
     from spade.data.verify import verify
@@ -83,10 +83,10 @@ def spade_onnx(path: Path, metadata: dict | None = None, channels: int = 3) -> P
 
 
 def test_export_checks_its_default_output_beside_the_checkpoint(tmp_path: Path, run_main) -> None:
-    """Issue 51: ``spade.export ckpt_path=DIR/student.ckpt`` replaced a user's own ``DIR/student.onnx`` (and with
+    """``spade.export ckpt_path=DIR/student.ckpt`` replaced a user's own ``DIR/student.onnx`` (and with
     ``format=torchscript`` a text file ``student.pt``) and exited 0; a rerun replaced its own export without
     ``overwrite=true``. The default path is now checked as ``out_path=`` is, before any work."""
-    from spade.experiments.config_checks import validate_export_config
+    from spade.config.export_checks import validate_export_config
     from spade.utils.config import compose_config
 
     ckpt = student_checkpoint(tmp_path / "student.ckpt")
@@ -121,7 +121,7 @@ def empty_store(tmp_path_factory: pytest.TempPathFactory) -> str:
 
 
 def test_report_checks_the_pages_it_writes_into_output_dir(tmp_path: Path, run_main, empty_store: str) -> None:
-    """Issue 51: ``spade.report ... output_dir=DIR`` replaced a user's ``table1.md``. A page (or CSV or chart) in
+    """``spade.report ... output_dir=DIR`` replaced a user's ``table1.md``. A page (or CSV or chart) in
     ``output_dir`` that SPADE did not write is refused before any run is read; one an earlier report wrote is
     replaced only with ``overwrite=true``; an empty ``output_dir`` is refused."""
     out = tmp_path / "reports"
@@ -149,7 +149,7 @@ def test_report_checks_the_pages_it_writes_into_output_dir(tmp_path: Path, run_m
 
 
 def test_bench_checks_its_json_before_any_section(tmp_path: Path, run_main) -> None:
-    """Issue 51: ``spade.bench ... out_json=FILE`` replaced a user's JSON. Refused before any section runs; an
+    """``spade.bench ... out_json=FILE`` replaced a user's JSON. Refused before any section runs; an
     earlier benchmark's JSON is replaced only with ``overwrite=true``; ``out_json=''`` is refused."""
     mine = tmp_path / "results.json"
     mine.write_text('{"my": "numbers"}')
@@ -168,7 +168,7 @@ def test_bench_checks_its_json_before_any_section(tmp_path: Path, run_main) -> N
 
 @pytest.mark.parametrize("override", ["paths.data_dir=''", "paths.log_dir=''", "paths.root_dir=/"])
 def test_an_empty_or_root_path_is_refused_before_any_work(tmp_path: Path, run_main, override: str) -> None:
-    """Issue 51: ``spade.train paths.data_dir=''`` trained and exited 0 after generating its datasets under
+    """``spade.train paths.data_dir=''`` trained and exited 0 after generating its datasets under
     ``/tiny/``. An empty (or root) ``paths.*`` folder is refused in one line, before any data is made."""
     existed = Path("/tiny").exists()
     code, err = run_main("spade.train", ["+experiment=t1_small_bc_L", "logger=none", override])
@@ -234,13 +234,13 @@ def edited_copy(src: Path, dst: Path, *, metadata: dict | None = None, weight_de
 
 
 def test_a_forged_onnx_graph_is_refused_wherever_a_student_is_opened(real_export: Path, tmp_path: Path) -> None:
-    """Issue 51: an ONNX Identity graph carrying a copy of a real export's ``spade`` metadata was accepted by the
+    """An ONNX Identity graph carrying a copy of a real export's ``spade`` metadata was accepted by the
     Planner (and ``spade.plan``, the sketch server). Now the graph must match the metadata: shapes, the weight
     digest recorded at export, the parity probe; a mismatch names the file and says it was not written by
     spade.export."""
     import warnings
 
-    from spade.deploy.planner import Planner, PlannerConfigError
+    from spade.deploy.student_planner import Planner, PlannerConfigError
     from spade.models.modelfile import ModelFileError, open_model
     from spade.models.onnx_check import UncheckedExportWarning
 

@@ -1,4 +1,4 @@
-"""Reliability, fourth round (issue 51, items 4-6): the wrong and unclear cases of the probe, reproduced, and the new
+"""Reliability, fourth round: the wrong and unclear cases of the probe, reproduced, and the new
 behaviour.
 
 - every option typed and ranged before any work (strict booleans, positive sizes, known metrics), ``spade.critic``
@@ -72,7 +72,7 @@ def store_runs(uri_path: Path) -> int:
                                            ("optimized_metric=val/nonexistent",
                                             "optimized_metric=val/nonexistent is not a metric the student logs")])
 def test_train_refuses_untyped_values_before_any_work(tmp_path: Path, run_main, override: str, key: str) -> None:
-    """Issue 51: ``registry.promote=maybe`` was accepted and registered a champion; ``optimized_metric=val/...``
+    """``registry.promote=maybe`` was accepted and registered a champion; ``optimized_metric=val/...``
     misspelt failed after the first epoch. Both are one line before any data is made or any run opened."""
     code, err = run_main("spade.train", ["+experiment=t1_small_bc_L", override])
     assert code == 2, err
@@ -83,7 +83,7 @@ def test_train_refuses_untyped_values_before_any_work(tmp_path: Path, run_main, 
 
 
 def test_the_optimized_metric_is_one_the_role_logs() -> None:
-    from spade.experiments.checks.train import fit_metrics
+    from spade.config.preflight import fit_metrics
     from spade.utils.config import compose_config
 
     student = fit_metrics(compose_config("train", ["+experiment=t1_small_conddbc_L"]))
@@ -93,7 +93,7 @@ def test_the_optimized_metric_is_one_the_role_logs() -> None:
 
 
 def test_report_booleans_are_strict_and_it_reads_by_default(run_main, tmp_path: Path) -> None:
-    """Issue 51: ``log_to_runs=maybe`` was accepted (and wrote into every row's run); by default a report wrote its
+    """``log_to_runs=maybe`` was accepted (and wrote into every row's run); by default a report wrote its
     chart into the training runs although the guarantees page says readers only read. Now a report writes only
     into ``output_dir`` unless ``log_to_runs=true``."""
     from spade.utils.config import compose_config
@@ -108,7 +108,7 @@ def test_report_booleans_are_strict_and_it_reads_by_default(run_main, tmp_path: 
 
 
 def test_export_checks_latency_batches_and_register_before_writing(tmp_path: Path, run_main) -> None:
-    """Issue 51: ``latency_batches=[0]`` printed latencies for a batch of 0; bad ``register=`` values failed after
+    """``latency_batches=[0]`` printed latencies for a batch of 0; bad ``register=`` values failed after
     the export was written (one leaving a registered version without its alias). Each is refused first."""
     ckpt = student_checkpoint(tmp_path / "student.ckpt")
     cases = {"latency_batches=[0]": "latency_batches=[0] holds 0",
@@ -133,10 +133,10 @@ def test_bench_sizes_are_positive(run_main, tmp_path: Path) -> None:
 
 
 def test_annotation_settings_are_ranged_wherever_a_dataset_is_made(tmp_path: Path, run_main) -> None:
-    """Issue 51: ``robot.radius_m=-1`` and ``robot.inflation_radius_m=-3`` were written into datasets. Refused by
+    """``robot.radius_m=-1`` and ``robot.inflation_radius_m=-3`` were written into datasets. Refused by
     spade.annotate, by a run that generates its data and by the sketch server, before any map is loaded."""
-    from spade.experiments.checks import validate_sketch_config
-    from spade.experiments.checks.annotate import check_annotation_settings
+    from spade.config.sketch_checks import validate_sketch_config
+    from spade.config.annotate_checks import check_annotation_settings
     from spade.utils.config import compose_config
     from spade.utils.errors import ConfigError
 
@@ -159,7 +159,7 @@ def test_annotation_settings_are_ranged_wherever_a_dataset_is_made(tmp_path: Pat
 
 
 def test_critic_checks_every_input_in_one_line(tmp_path: Path, run_main) -> None:
-    """Issue 51: ``spade.critic`` had no config check: a garbage store failed after a minute of measuring, and
+    """``spade.critic`` had no config check: a garbage store failed after a minute of measuring, and
     every bad input was a traceback. Each is now one line, before the expert is loaded."""
     test = tmp_path / "test"
     write_synthetic(test, n=4)
@@ -190,7 +190,7 @@ def test_critic_checks_every_input_in_one_line(tmp_path: Path, run_main) -> None
 
 
 def test_evaluate_refuses_source_seed_before_the_evaluation(tmp_path: Path, run_main) -> None:
-    """Issue 51: ``source_seed=abc`` failed after a whole evaluation, leaving a FINISHED run. Refused first, with
+    """``source_seed=abc`` failed after a whole evaluation, leaving a FINISHED run. Refused first, with
     no run in the store."""
     test = tmp_path / "test"
     write_synthetic(test, n=4)
@@ -207,7 +207,7 @@ def test_evaluate_refuses_source_seed_before_the_evaluation(tmp_path: Path, run_
 
 # -- 4. data checked before the run is created ---------------------------------------------------------------------
 def test_a_truncated_dataset_is_refused_before_the_mlflow_run(tmp_path: Path, run_main) -> None:
-    """Issue 51: clear one-line refusals of truncated, empty or edited datasets still left a FAILED MLflow run (the
+    """Clear one-line refusals of truncated, empty or edited datasets still left a FAILED MLflow run (the
     loaders ran inside the run). The data is now opened by the config check, before any run exists."""
     train, test = tmp_path / "train", tmp_path / "test"
     write_synthetic(train, n=12)
@@ -231,7 +231,7 @@ def test_a_truncated_dataset_is_refused_before_the_mlflow_run(tmp_path: Path, ru
 
 
 def test_a_users_dataset_under_a_generated_data_config_is_pointed_at_data_own(tmp_path: Path) -> None:
-    """Issue 51: ``spade.evaluate ... data=lshape data.test_dir=<a test set the user annotated>`` was refused as
+    """``spade.evaluate ... data=lshape data.test_dir=<a test set the user annotated>`` was refused as
     "generated with other settings" with fixes that never named ``data=own``."""
     from spade.data.checks import DatasetSettingsError, check_dataset
     from spade.utils.config import compose_config
@@ -248,7 +248,7 @@ def test_a_users_dataset_under_a_generated_data_config_is_pointed_at_data_own(tm
 
 
 def test_testing_reads_the_test_set_alone(tmp_path: Path) -> None:
-    """Issue 51: ``spade.evaluate data=own data.test_dir=DIR`` on a machine without a training set failed with
+    """``spade.evaluate data=own data.test_dir=DIR`` on a machine without a training set failed with
     "<home>/data/quickstart/lshape: dataset missing ...". A test with a test set of its own neither builds nor
     reads the training set; a later training still checks the pair."""
     from types import SimpleNamespace
@@ -288,7 +288,7 @@ def test_evaluate_with_own_test_set_and_no_training_set(tmp_path: Path, run_main
 
 # -- 5. state: the store, the server, the sketch file --------------------------------------------------------------
 def test_an_unreachable_tracking_server_fails_fast_in_one_line(run_main) -> None:
-    """Issue 51: ``spade.report tracking_uri=http://127.0.0.1:9/`` retried silently for 253 s, then a traceback."""
+    """``spade.report tracking_uri=http://127.0.0.1:9/`` retried silently for 253 s, then a traceback."""
     start = time.monotonic()
     code, err = run_main("spade.report", ["table=table1", f"tracking_uri={UNREACHABLE}"])
     assert code == 2, err
@@ -300,7 +300,7 @@ _RACE = """
 import sys, time
 uri, mode, start = sys.argv[1], sys.argv[2], float(sys.argv[3])
 if mode == "spade":
-    from spade.experiments.tracking.runs import ensure_store as open_store
+    from spade.tracking.client import ensure_store as open_store
 else:
     from mlflow import MlflowClient
     open_store = lambda uri: MlflowClient(tracking_uri=uri).search_experiments()
@@ -313,7 +313,7 @@ print("ok")
 
 @pytest.mark.slow  # processes racing on a fresh store
 def test_two_processes_create_a_fresh_store_safely(tmp_path: Path) -> None:
-    """Issue 51: two ``spade.train`` on a fresh store crashed one of them (``duplicate column name: outputs`` while
+    """Two ``spade.train`` on a fresh store crashed one of them (``duplicate column name: outputs`` while
     MLflow created its tables). SPADE opens a fresh SQLite store under a file lock: both succeed, every time."""
     for attempt in range(3):
         uri = f"sqlite:///{tmp_path / f'store{attempt}' / 'mlflow.db'}"
@@ -339,7 +339,7 @@ def _sketch_client(yaml_path: Path, out: Path):
 
 
 def test_one_sketch_file_one_map(tmp_path: Path) -> None:
-    """Issue 51: two sketch servers on one ``out_dir`` with different maps both saved (``sketches.yaml`` named one
+    """Two sketch servers on one ``out_dir`` with different maps both saved (``sketches.yaml`` named one
     map and held the other's sketch), and an edit of the file's ``map:`` while a server ran was ignored. The file's
     map is checked on every request: a file of another map is refused (409), never written into."""
     from spade.maps import OccupancyMap, save_ros_map
@@ -371,7 +371,7 @@ def test_one_sketch_file_one_map(tmp_path: Path) -> None:
 
 
 def test_sketch_server_answers_4xx_for_a_nul_byte_and_a_corrupted_file(tmp_path: Path) -> None:
-    """Issue 51: a NUL byte in a model path and a corrupted ``sketches.yaml`` answered 500."""
+    """A NUL byte in a model path and a corrupted ``sketches.yaml`` answered 500."""
     yaml_path = site_map(tmp_path)
     out = tmp_path / "sk"
     client = _sketch_client(yaml_path, out)
@@ -391,7 +391,7 @@ def test_sketch_server_answers_4xx_for_a_nul_byte_and_a_corrupted_file(tmp_path:
 
 # -- read-only outputs, huge maps ----------------------------------------------------------------------------------
 def test_an_output_that_cannot_be_written_is_refused_in_one_line(tmp_path: Path, run_main) -> None:
-    """Issue 51: read-only outputs ended in a ``PermissionError`` traceback after the work. /proc takes no files,
+    """Read-only outputs ended in a ``PermissionError`` traceback after the work. /proc takes no files,
     whoever runs the test (root included)."""
     code, err = run_main("spade.bench", ["quick=true", "out_json=/proc/spade_bench.json", "sections=[decoder]"])
     assert code == 2, err
@@ -422,7 +422,7 @@ def _map_yaml(folder: Path, image: Path, resolution: float) -> Path:
 
 
 def test_huge_maps_are_refused_before_they_are_read(tmp_path: Path, run_main) -> None:
-    """Issue 51: a huge map image raised PIL's DecompressionBombError; a map at 5 m/cell asked for 37 GiB once
+    """A huge map image raised PIL's DecompressionBombError; a map at 5 m/cell asked for 37 GiB once
     resampled to the window's 0.05 m/px. Both are one line, from the image's header, before any work."""
     big = _map_yaml(tmp_path / "big", _png_header(tmp_path / "big" / "big.png", 20000, 20000), 0.05)
     coarse = _map_yaml(tmp_path / "coarse", _png_header(tmp_path / "coarse" / "big.png", 1000, 1000), 5.0)

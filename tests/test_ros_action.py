@@ -360,7 +360,7 @@ def test_the_docs_qos_override_composes_and_bad_options_are_refused_before_any_w
     from hydra import compose, initialize_config_dir
 
     from spade.paths import CONF_DIR
-    from spade.ros.app import checked_options
+    from spade.ros.launch import checked_options
     from spade.utils.errors import ConfigError
 
     docs = (Path(__file__).resolve().parents[1] / "docs" / "deployment.md").read_text()
@@ -378,6 +378,6 @@ def test_the_docs_qos_override_composes_and_bad_options_are_refused_before_any_w
             cfg = compose("ros", overrides=[override])
             with pytest.raises(ConfigError, match=re.escape(match)):
                 checked_options(cfg)
-                from spade.ros.app import _foxglove_options
+                from spade.ros.launch import foxglove_options
 
-                _foxglove_options(cfg)
+                foxglove_options(cfg)

@@ -12,7 +12,7 @@ from types import SimpleNamespace as NS
 import pytest
 import torch
 
-from spade.deploy.planner import Planner, PlannerConfigError, check_footprint, describe_footprint
+from spade.deploy.student_planner import Planner, PlannerConfigError, check_footprint, describe_footprint
 from spade.models.modelfile import DEFAULT_FOOTPRINT, checkpoint_entry, export_metadata
 
 

@@ -32,9 +32,9 @@ def test_the_quickstart_expert_is_the_pinned_scale_cpu_conditional_expert() -> N
 
 
 def test_the_teacher_is_pinned_and_judges_only_gaussian_markers() -> None:
-    """The teacher the quickstart's student learns from (issue 47): trained on Gaussian start and goal markers, it
+    """The teacher the quickstart's student learns from (docs/results/teacher.md): trained on Gaussian start and goal markers, it
     says so, and refuses a student whose data draw binary discs."""
-    from spade.training.errors import ExpertMismatchError
+    from spade.training.expert_mismatch import ExpertMismatchError
     from spade.training.expert_module import ExpertModule
 
     path = shipped_path("cond_expert_L_gaussian")
@@ -57,7 +57,7 @@ def test_the_shipped_expert_prefers_demonstrated_paths_to_straight_lines(tmp_pat
 
     from spade.annotation.run import annotate
     from spade.data.augment import widen_path
-    from spade.data.dataset import PathDataset
+    from spade.data.path_dataset import PathDataset
     from spade.metrics.baselines import draw_polylines
     from spade.training.expert_module import ExpertModule
     from spade.training.margin import DiffusionMargin, MarginConfig
@@ -107,18 +107,18 @@ def test_a_missing_or_changed_shipped_file_is_refused_with_the_fix(tmp_path: Pat
 def test_a_config_naming_a_changed_shipped_file_stops_before_the_run(tmp_path: Path,
                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     import spade.models.shipped as shipped
-    from spade.experiments.config_checks import _check_checkpoint
+    from spade.config.checkpoint_checks import check_checkpoint
     from spade.utils.errors import ConfigError
 
     target = tmp_path / SHIPPED["cond_expert_L"].file
     shutil.copy(shipped_path("cond_expert_L"), target)
     monkeypatch.setattr(shipped, "WEIGHTS_DIR", tmp_path)
-    assert _check_checkpoint("model.margin.expert_ckpt", target, "expert", "fix")["role"] == "expert"
+    assert check_checkpoint("model.margin.expert_ckpt", target, "expert", "fix")["role"] == "expert"
     data = bytearray(target.read_bytes())
     data[-30] ^= 1  # one bit of the file changed
     target.write_bytes(bytes(data))
     with pytest.raises(ConfigError, match=r"^model.margin.expert_ckpt=.*hashes to .* not its pin"):
-        _check_checkpoint("model.margin.expert_ckpt", target, "expert", "fix")
+        check_checkpoint("model.margin.expert_ckpt", target, "expert", "fix")
 
 
 def test_ship_command_keeps_the_weights_and_drops_the_resume_state(tiny_checkpoints: dict, tmp_path: Path) -> None:

@@ -19,9 +19,9 @@ pytest.importorskip("httpx")
 from fastapi.testclient import TestClient  # noqa: E402
 
 from spade.annotation.sketch_file import load_sketch_file  # noqa: E402
-from spade.maps import OccupancyMap, save_ros_map  # noqa: E402
 from spade.sketching import build_app  # noqa: E402
 from spade.sketching.app import STATIC_DIR  # noqa: E402
+from factories import LineOracle, site_map  # noqa: E402
 
 TINY = ["window.size_px=64", "window.resolution_m=0.1", "instances.spacing_m=0.15", "preview.count=4"]
 L_WAYPOINTS = [[0.0, 1.0], [1.5, 1.0], [2.5, 1.0], [3.1, 1.3], [3.4, 2.0], [3.4, 3.0]]
@@ -30,19 +30,10 @@ BLOCK = [4.0, 4.0]  # the middle of the site's obstacle
 LOCAL = "http://127.0.0.1:8765"  # the server answers only to its own host names (spade.sketching.app)
 
 
-def site(root: Path) -> Path:
-    """A 12 m x 10 m walled site at 0.1 m/px, origin (-2, -1), a 1 m block centred on (4, 4)."""
-    g = np.ones((100, 120), np.uint8)
-    g[[0, -1], :] = 2
-    g[:, [0, -1]] = 2
-    g[45:55, 55:65] = 2
-    return save_ros_map(OccupancyMap(g, 0.1, origin=(-2.0, -1.0, 0.0), name="site"), root / "site.yaml")
-
-
 @pytest.fixture
 def setup(tmp_path: Path) -> tuple[TestClient, Path, Path]:
     """(client, map yaml, out_dir) of an app on the site map."""
-    yaml_path = site(tmp_path)
+    yaml_path = site_map(tmp_path, block=True)
     out = tmp_path / "out"
     return TestClient(build_app(str(yaml_path), out, TINY), base_url=LOCAL), yaml_path, out
 
@@ -335,23 +326,6 @@ def test_build_dataset_from_the_saved_sketches(setup) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ the policy
-class LineOracle:
-    """A stand-in network that 'predicts' the straight segment between the start and goal discs of its input."""
-
-    info: dict = {}
-
-    def logits(self, states: np.ndarray) -> np.ndarray:
-        from scipy import ndimage
-        from skimage.draw import line
-
-        out = np.full((len(states), 1, *states.shape[2:]), -10.0, dtype=np.float32)
-        for i, state in enumerate(states):
-            (r0, c0), (r1, c1) = (np.rint(ndimage.center_of_mass(state[k])).astype(int) for k in (1, 2))
-            rr, cc = line(r0, c0, r1, c1)
-            out[i, 0, rr, cc] = 10.0
-        return out
-
-
 def test_plan_with_a_student(setup, tmp_path: Path) -> None:
     from spade.maps import load_ros_map
     from spade.planner import Planner

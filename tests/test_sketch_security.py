@@ -1,4 +1,4 @@
-"""The sketching server obeys only its user (issue 22): a foreign ``Host`` (DNS rebinding) and a cross-site
+"""The sketching server obeys only its user: a foreign ``Host`` (DNS rebinding) and a cross-site
 ``Origin`` on a state-changing request are refused, and ``POST /api/model`` opens only model files (.ckpt, .onnx,
 .pt) under the folders the server was started with, never echoing what a parser made of another file."""
 
@@ -98,7 +98,7 @@ def test_the_page_itself_and_scripts_may_change_state(served) -> None:
 
 
 def test_oversized_requests_are_refused_in_one_line_before_they_are_read(served) -> None:
-    """Issue 35: a 47 MB POST of 2.5 M waypoints ran 28 s and kept 0.7 GB. The body's length is checked before a
+    """Once, a 47 MB POST of 2.5 M waypoints ran 28 s and kept 0.7 GB. The body's length is checked before a
     byte of it is read (413), a body without a length is not read (411), a list past the waypoint cap is a 422 that
     does not echo the request; nothing is saved."""
     import json as jsonlib
@@ -131,7 +131,7 @@ def test_oversized_requests_are_refused_in_one_line_before_they_are_read(served)
 @pytest.fixture
 def no_planner(monkeypatch) -> list:
     """Records every file the planner would have opened."""
-    import spade.deploy.planner as planner_module
+    import spade.deploy.student_planner as planner_module
 
     opened: list = []
 

@@ -14,16 +14,13 @@ from __future__ import annotations
 import os
 import re
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-from browser_support import ARTIFACTS, browser_page, chromium_path, screenshot
-from test_mlflow_ui import FAST, _free_port, _mlflow_server, _printed, _wait_healthy
+from browser_support import ARTIFACTS, browser_page, screenshot
+from mlflow_server_support import FAST, REPO, printed, served_home  # noqa: F401
 
-REPO = Path(__file__).resolve().parents[1]
 DOCS_PICTURE = REPO / "docs" / "assets" / "mlflow-runs-view.png"
 CHILDREN = ("quickstart/baseline-straight", "quickstart/baseline-shortest", "quickstart/baseline-heading",
             "quickstart/untrained")
@@ -56,53 +53,37 @@ def _in_view(page, locator) -> bool:
 
 @pytest.mark.slow  # trains the quickstart at scale=tiny (about a minute on a quiet 2-core machine), a server, a browser
 @pytest.mark.timeout(1200)
-def test_the_quickstart_run_its_model_and_the_runs_view_read_at_a_glance(tmp_path: Path) -> None:
-    chromium_path()
-    pytest.importorskip("playwright.sync_api")
-    from mlflow import MlflowClient
-
+def test_the_quickstart_run_its_model_and_the_runs_view_read_at_a_glance(served_home) -> None:  # noqa: ANN001
     shots = ARTIFACTS / "mlflow_surfaces"
     shutil.rmtree(shots, ignore_errors=True)
     print(f"\nscreenshots: {shots.resolve()}")
-    port = _free_port()
-    base = f"http://127.0.0.1:{port}"
-    store = f"sqlite:///{tmp_path}/logs/mlflow.db"
-    (tmp_path / "logs").mkdir()
-    env = {**os.environ, "SPADE_HOME": str(tmp_path), "PYTHONUNBUFFERED": "1", "SPADE_MLFLOW_UI_URL": base}
-    env.pop("MLFLOW_TRACKING_URI", None)
-    client = MlflowClient(tracking_uri=store)
-    client.search_experiments()  # creates the store before the server and the run open it
-    with _mlflow_server(store, port, tmp_path) as server:  # boots while the run trains
-        train = subprocess.run([sys.executable, "-m", "spade.train", "+experiment=quickstart", "scale=tiny", *FAST],
-                               cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
-        out = train.stdout + train.stderr
-        assert train.returncode == 0, out[-3000:]
-        run_url, experiment_url = _printed(out, "this run"), _printed(out, "experiment's runs")
-        run_id = re.search(r"/runs/([0-9a-f]{32})\?", run_url).group(1)
-        model_id = re.search(r"logged the student as runs:/\w+/model \(models:/(m-[0-9a-f]+)\)", out)
-        assert model_id, f"the run logged no model:\n{out[-3000:]}"
-        model_id = model_id.group(1)
+    client, base = served_home.client, served_home.base
+    out = served_home.train("+experiment=quickstart", "scale=tiny", *FAST)  # the server boots while the run trains
+    run_url, experiment_url = printed(out, "this run"), printed(out, "experiment's runs")
+    run_id = re.search(r"/runs/([0-9a-f]{32})\?", run_url).group(1)
+    model_id = re.search(r"logged the student as runs:/\w+/model \(models:/(m-[0-9a-f]+)\)", out)
+    assert model_id, f"the run logged no model:\n{out[-3000:]}"
+    model_id = model_id.group(1)
 
-        # -- the store: what the pages below must show
-        run = client.get_run(run_id)
-        parent = sorted(run.data.metrics)
-        assert "test/ape_cm" in parent and "test/planner/ape_cm" in parent
-        assert not [k for k in parent if k.startswith(("untrained/", "test/baseline/"))], parent
-        model_metrics = sorted({m.key for m in client.get_logged_model(model_id).metrics})
-        assert "test/ape_cm" in model_metrics, model_metrics
-        assert all(k.startswith(("test/", "model/")) for k in model_metrics), model_metrics
-        assert not [k for k in model_metrics if k.startswith("untrained/") or "baseline" in k], model_metrics
-        note = run.data.tags["mlflow.note.content"].splitlines()
-        assert note[0].startswith("| test set ") and "APE cm" in note[0] and "this model" in note[2], note[:3]
-        children = {r.info.run_name for r in client.search_runs(
-            [run.info.experiment_id], f"tags.mlflow.parentRunId = '{run_id}'")}
-        assert children == set(CHILDREN), children
-        untrained = client.search_runs([run.info.experiment_id], "attributes.run_name = 'quickstart/untrained'")[0]
-        assert "test/ape_cm" in untrained.data.metrics  # the untrained figures: on its child run, by the model's names
+    # -- the store: what the pages below must show
+    run = client.get_run(run_id)
+    parent = sorted(run.data.metrics)
+    assert "test/ape_cm" in parent and "test/planner/ape_cm" in parent
+    assert not [k for k in parent if k.startswith(("untrained/", "test/baseline/"))], parent
+    model_metrics = sorted({m.key for m in client.get_logged_model(model_id).metrics})
+    assert "test/ape_cm" in model_metrics, model_metrics
+    assert all(k.startswith(("test/", "model/")) for k in model_metrics), model_metrics
+    assert not [k for k in model_metrics if k.startswith("untrained/") or "baseline" in k], model_metrics
+    note = run.data.tags["mlflow.note.content"].splitlines()
+    assert note[0].startswith("| test set ") and "APE cm" in note[0] and "this model" in note[2], note[:3]
+    children = {r.info.run_name for r in client.search_runs(
+        [run.info.experiment_id], f"tags.mlflow.parentRunId = '{run_id}'")}
+    assert children == set(CHILDREN), children
+    untrained = client.search_runs([run.info.experiment_id], "attributes.run_name = 'quickstart/untrained'")[0]
+    assert "test/ape_cm" in untrained.data.metrics  # the untrained figures: on its child run, by the model's names
 
-        _wait_healthy(base, server, tmp_path / "server.log", timeout=180)
-        picture = _check_pages(base, run_url, experiment_url, run.info.experiment_id, model_id,
-                               len(model_metrics))
+    served_home.wait_healthy()
+    picture = _check_pages(base, run_url, experiment_url, run.info.experiment_id, model_id, len(model_metrics))
     if os.environ.get("SPADE_UPDATE_DOCS_PICTURES") == "1":
         DOCS_PICTURE.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(picture, DOCS_PICTURE)

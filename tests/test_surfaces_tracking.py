@@ -11,7 +11,7 @@ import pytest
 
 
 def _logger(tmp_path: Path, experiment: str = "quickstart"):
-    from spade.experiments.tracking.logger import MLFlowLogger
+    from spade.tracking.logger import MLFlowLogger
 
     return MLFlowLogger(experiment_name=experiment, tracking_uri=f"sqlite:///{tmp_path}/mlflow.db",
                         artifact_location=str(tmp_path / "artifacts"))
@@ -24,7 +24,7 @@ def _steps(client, run_id: str, key: str) -> list[int]:
 def test_the_logger_holds_references_back_and_logs_test_figures_at_one_step(tmp_path: Path) -> None:
     from lightning.pytorch.loggers import MLFlowLogger as Lightning
 
-    from spade.experiments.tracking.predictors import TEST_STEP
+    from spade.tracking.predictors import TEST_STEP
 
     ml = _logger(tmp_path)
     assert isinstance(ml, Lightning) and type(ml).__name__ == "MLFlowLogger"  # the model file's check by name
@@ -42,15 +42,15 @@ def test_the_logger_holds_references_back_and_logs_test_figures_at_one_step(tmp_
     assert _steps(client, run_id, "test/ape_cm") == [TEST_STEP]
     assert sorted(_steps(client, run_id, "margin/active")) == [9, 19] == sorted(_steps(client, run_id, "val/ape_cm"))
     assert client.get_run(run_id).data.tags["spade.margin_step"] == "global"
-    from spade.experiments.tracking.runs import margin_history
-    from spade.training.progress_picture import epoch_series
+    from spade.tracking.runs import margin_history
+    from spade.tracking.progress_picture import epoch_series
 
     assert [e for e, _ in epoch_series(client, run_id)["margin/active"]] == [0, 1]
     assert margin_history(client, run_id) == [(0, 0.5, 0.1), (1, 0.5, 0.1)]
 
 
 def test_references_are_child_runs_in_their_colours_and_readers_fold_them_back(tmp_path: Path) -> None:
-    from spade.experiments.tracking.predictors import COLOUR_TAG, log_predictor_runs, with_predictor_figures
+    from spade.tracking.predictors import COLOUR_TAG, log_predictor_runs, with_predictor_figures
     from spade.utils import palette
 
     ml = _logger(tmp_path)
@@ -82,7 +82,7 @@ def test_the_description_opens_with_the_table_and_states_composition_and_wall_ti
     from omegaconf import OmegaConf
 
     from factories import write_synthetic
-    from spade.experiments.tracking import DatasetUse, run_description
+    from spade.tracking import DatasetUse, run_description
 
     root = tmp_path / "tiny" / "test"
     write_synthetic(root, n=12, seed=1)
@@ -107,7 +107,7 @@ def test_the_description_opens_with_the_table_and_states_composition_and_wall_ti
 def test_the_logged_model_description_has_the_students_figures_only() -> None:
     from omegaconf import OmegaConf
 
-    from spade.experiments.tracking.logged_model import logged_model_description
+    from spade.tracking.logged_model import logged_model_description
 
     cfg = OmegaConf.create({"tags": {"role": "student", "approach": "Cond-DBC", "shape": "L", "scale": "quickstart"}})
     text = logged_model_description(cfg, {"test/ape_cm": 12.3, "test/baseline/straight/ape_cm": 30.0,

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from spade.utils.config import compose_config
-from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
+from spade.tracking.predictors import TOP_LEVEL_FILTER
 
 REPO = Path(__file__).resolve().parents[1]
 SWEEPS = REPO / "sweeps"

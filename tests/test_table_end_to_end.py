@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from spade.experiments.tables import TABLES
-from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
+from spade.tracking.predictors import TOP_LEVEL_FILTER
 
 REPO = Path(__file__).resolve().parents[1]
 # One "epoch" of 2 training batches, one validation batch (so that optimized_metric is logged), one test batch.

@@ -86,7 +86,7 @@ def test_the_teacher_page_checks_each_expert_against_its_student_and_guidance_ag
 
 def test_the_teacher_page_is_a_report_table(tmp_path: Path) -> None:
     """spade.report table=teacher composes, checks its output files and names them."""
-    from spade.experiments.checks.report import report_files
+    from spade.config.report_checks import report_files
     from spade.utils.config import compose_config
 
     assert report_files("teacher") == ["teacher.md", "teacher.csv"]
@@ -100,7 +100,7 @@ def test_early_stopping_is_offered_as_a_callback(tmp_path: Path) -> None:
     """+callbacks/extra@callbacks.early_stopping=early_stopping adds Lightning's EarlyStopping on the optimized metric."""
     from lightning.pytorch.callbacks import EarlyStopping
 
-    from spade.experiments.checks import validate_train_config
+    from spade.config.preflight import validate_train_config
     from spade.training.instantiate import instantiate_callbacks
     from spade.utils.config import compose_config
 

@@ -53,7 +53,7 @@ def test_params_describe_the_method_without_bookkeeping_or_copies(tmp_path: Path
     (``cfg/model/margin/lambda_dm`` beside Lightning's ``margin/lambda_dm``, the recipe's and the scale's copies)."""
     from omegaconf import OmegaConf
 
-    from spade.experiments.tracking import run_params
+    from spade.tracking import run_params
     from training_helpers import compose_row
 
     cfg = compose_row("quickstart", tmp_path)
@@ -65,7 +65,7 @@ def test_params_describe_the_method_without_bookkeeping_or_copies(tmp_path: Path
                    "cfg/scale/image_size", "cfg/data/batch_size", "cfg/trainer/max_epochs", "cfg/seed",
                    "cfg/run_name", "cfg/metrics/hd_threshold_m"):
         assert wanted in keys, wanted
-    # the resume check reads these (spade.experiments.checks.train.RESUME_KEYS); spade.report reads cfg/seed
+    # the resume check reads these (spade.config.preflight.RESUME_KEYS); spade.report reads cfg/seed
     assert {"cfg/run_name", "cfg/seed", "cfg/model/size", "cfg/scale/name"} <= keys
     assert params["cfg/model/optimizer"] == "AdamW" and params["cfg/model/lr_scheduler"] == "warmup_cosine"
     assert params["cfg/model/margin/lambda_dm"] == cfg.model.margin.lambda_dm
@@ -84,9 +84,9 @@ def test_params_describe_the_method_without_bookkeeping_or_copies(tmp_path: Path
 
 # -- predictors as child runs ------------------------------------------------------------------------------------
 def test_baselines_and_the_untrained_model_are_child_runs_with_the_model_metric_names(tmp_path: Path) -> None:
-    from spade.experiments.tracking import PREDICTOR_TAG, TOP_LEVEL_FILTER, VIEW_TAG, log_predictor_runs
-    from spade.experiments.tracking.experiment_tags import ensure_experiment_tags
-    from spade.experiments.tracking.predictors import PARENT_TAG, is_predictor_run
+    from spade.tracking import PREDICTOR_TAG, TOP_LEVEL_FILTER, VIEW_TAG, log_predictor_runs
+    from spade.tracking.experiment_tags import ensure_experiment_tags
+    from spade.tracking.predictors import PARENT_TAG, is_predictor_run
 
     client = _client(tmp_path)
     experiment_id = client.create_experiment("table3", artifact_location=str(tmp_path / "artifacts"))
@@ -135,8 +135,8 @@ def test_report_and_run_summary_do_not_take_child_runs_for_seeds_of_a_row(tmp_pa
 
     from spade.experiments.reporting import fetch_results
     from spade.experiments.tables import TABLES
-    from spade.experiments.tracking import log_predictor_runs
-    from spade.experiments.tracking.summary import _find_run
+    from spade.tracking import log_predictor_runs
+    from spade.tracking.summary import _find_run
 
     client = _client(tmp_path)
     experiment_id = client.create_experiment("table3", artifact_location=str(tmp_path / "artifacts"))
@@ -162,7 +162,7 @@ def test_stale_running_runs_are_closed_but_a_childs_name_is_no_row(tmp_path: Pat
 
     from omegaconf import OmegaConf
 
-    from spade.experiments.tracking.runs import mark_stale_runs
+    from spade.tracking.runs import mark_stale_runs
 
     client = _client(tmp_path)
     experiment_id = client.create_experiment("table3")
@@ -188,7 +188,7 @@ def test_process_tags_are_kept_while_a_run_runs_or_after_it_failed_and_dropped_w
     identify a RUNNING run's process (mark_stale_runs) and a failed run's (diagnosis), so only those keep them."""
     from lightning.pytorch.loggers import MLFlowLogger
 
-    from spade.experiments.tracking.runs import (
+    from spade.tracking.runs import (
         PROCESS_TAGS, bind_experiment, drop_process_tags, mark_run_ended, record_process,
     )
 
@@ -211,7 +211,7 @@ def test_process_tags_are_kept_while_a_run_runs_or_after_it_failed_and_dropped_w
 
 # -- the run's report and its training-progress picture ----------------------------------------------------------
 def test_the_run_report_holds_the_description_and_every_predictors_figures(tmp_path: Path) -> None:
-    from spade.experiments.tracking.run_report import CSV_KEYS, write_run_report
+    from spade.tracking.run_report import CSV_KEYS, write_run_report
 
     files = write_run_report(tmp_path, "t3_bc_scratch_U", "**t3_bc_scratch_U**: BC student.\n\n| table |", METRICS,
                              "student")
@@ -241,7 +241,7 @@ class _History:
 
 
 def test_training_progress_is_read_by_epoch_and_drawn() -> None:
-    from spade.training.progress_picture import epoch_series, progress_picture
+    from spade.tracking.progress_picture import epoch_series, progress_picture
 
     history = _History({
         # Lightning: "epoch" beside every logged step; step 4 is both epoch 0's validation and epoch 1's first log
@@ -283,7 +283,7 @@ def tracked_run(spade_home: Path):
 def test_a_tested_run_has_its_predictors_report_picture_and_lean_params(tracked_run) -> None:
     from mlflow import MlflowClient
 
-    from spade.experiments.tracking import PREDICTOR_TAG
+    from spade.tracking import PREDICTOR_TAG
 
     cfg, _ = tracked_run
     client = MlflowClient(tracking_uri=str(cfg.paths.mlflow_tracking_uri))
@@ -313,7 +313,7 @@ def test_a_tested_run_has_its_predictors_report_picture_and_lean_params(tracked_
                                                                                  "report/test_figures.csv"}
     note = run.data.tags["mlflow.note.content"]
     assert "child runs of this run" in note and "report/run_report.md" in note and "training_progress.png" in note
-    assert "APE: mean distance in cm" in note
+    assert "APE cm: mean distance between" in note
     assert "test/floor_cm" in run.data.metrics and "**Verdict.** Deciding figure" in note
     history = client.get_metric_history(run.info.run_id, "margin/active")
     # issue 48: the margin at the global step of its epoch's validation, so that the UI's charts line them up
@@ -333,10 +333,9 @@ def test_a_student_run_logs_its_best_checkpoint_as_an_mlflow_model_on_its_run(tr
     from mlflow.entities import LoggedModelStatus
 
     from spade.deploy.export import example_states
-    from spade.deploy.registry import resolve_model, using_tracking_uri
+    from spade.deploy.mlflow_models import resolve_model, using_tracking_uri
     from spade.experiments.lifecycle import best_checkpoint_path
-    from spade.experiments.tracking.runs import last_run
-    from spade.experiments.tracking.summary import run_summary
+    from spade.tracking.summary import run_summary
     from spade.models.modelfile import load_network
     from test_export import PARITY_BOUND
 
@@ -368,14 +367,14 @@ def test_a_student_run_logs_its_best_checkpoint_as_an_mlflow_model_on_its_run(tr
     assert got.shape == (3, 1, 64, 64) and np.abs(got - expected).max() < PARITY_BOUND
     assert resolve_model(f"runs:/{run_id}/model", uri).suffix == ".onnx"  # what spade.plan model=runs:/... opens
 
-    assert last_run().model_uri == f"runs:/{run_id}/model"
+    assert objects["run"].model_uri == f"runs:/{run_id}/model"  # where train() says the run lives
     assert f"model=runs:/{run_id}/model" in run.data.tags["mlflow.note.content"]
     assert f"logged model     : runs:/{run_id}/model" in run_summary(cfg, {})
 
 
 def test_an_expert_run_logs_no_model_and_a_failed_export_is_one_warning(tracked_run, tmp_path: Path,
                                                                        caplog: pytest.LogCaptureFixture) -> None:
-    """finish_run's gate (:func:`~spade.experiments.tracking.logged_model.try_log_student_model`), without another
+    """The run record's gate (:func:`~spade.tracking.logged_model.try_log_student_model`), without another
     training run: an expert's config logs nothing even when handed an exportable checkpoint; a student checkpoint
     that cannot be exported (axis-aligned windows) is one warning line and no model, never an error."""
     import logging
@@ -383,8 +382,8 @@ def test_an_expert_run_logs_no_model_and_a_failed_export_is_one_warning(tracked_
     from mlflow import MlflowClient
 
     from spade.experiments.lifecycle import best_checkpoint_path
-    from spade.experiments.tracking.logged_model import is_student_run, try_log_student_model
-    from test_export import _hand_made_checkpoint
+    from spade.tracking.logged_model import is_student_run, try_log_student_model
+    from factories import hand_made_checkpoint as _hand_made_checkpoint
     from training_helpers import compose_row
 
     cfg, objects = tracked_run
@@ -398,9 +397,9 @@ def test_an_expert_run_logs_no_model_and_a_failed_export_is_one_warning(tracked_
     assert try_log_student_model(cfg, uri, run_id, None) is None  # no checkpoint (a run that did not train)
 
     axis_aligned = _hand_made_checkpoint(tmp_path / "old.ckpt", data={"image_size": [32, 32], "resolution_m": 0.2})
-    with caplog.at_level(logging.WARNING, logger="spade.experiments.tracking.logged_model"):
+    with caplog.at_level(logging.WARNING, logger="spade.tracking.logged_model"):
         assert try_log_student_model(cfg, uri, run_id, str(axis_aligned)) is None
-    (record,) = [r for r in caplog.records if r.name == "spade.experiments.tracking.logged_model"]
+    (record,) = [r for r in caplog.records if r.name == "spade.tracking.logged_model"]
     assert "not logged on run" in record.getMessage() and "\n" not in record.getMessage()
     assert not client.get_run(run_id).outputs.model_outputs
     assert not client.search_logged_models(experiment_ids=[experiment_id])
@@ -411,14 +410,14 @@ def test_an_interrupted_evaluation_is_killed_not_failed(tmp_path) -> None:  # no
     from lightning.pytorch.loggers import MLFlowLogger
     from mlflow import MlflowClient
 
-    from spade.experiments.tracking.runs import mark_evaluation_ended
+    from spade.tracking.runs import mark_opened_run_ended
 
     uri = f"sqlite:///{tmp_path}/mlflow.db"
     statuses = []
     for exc in (KeyboardInterrupt(), ValueError("boom")):
         ml = MLFlowLogger(experiment_name="evaluation", tracking_uri=uri)
         ml.log_metrics({"test/ape_cm": 1.0})  # Lightning opens the run as the test logs
-        mark_evaluation_ended([ml], exc)
+        mark_opened_run_ended([ml], exc)
         statuses.append(MlflowClient(uri).get_run(ml.run_id).info.status)
     assert statuses == ["KILLED", "FAILED"]
-    mark_evaluation_ended([], KeyboardInterrupt())  # no MLflow logger: nothing to mark
+    mark_opened_run_ended([], KeyboardInterrupt())  # no MLflow logger: nothing to mark

@@ -18,7 +18,7 @@ from spade.training.expert_module import ExpertModule
 from spade.training.student_module import ExpertMismatchError, StudentModule
 from fault_injection import env_with_tests, kill_at
 from training_helpers import compose_row
-from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
+from spade.tracking.predictors import TOP_LEVEL_FILTER
 
 REPO = Path(__file__).resolve().parents[1]
 

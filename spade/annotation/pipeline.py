@@ -90,7 +90,7 @@ def states_per_task(cfg: Mapping[str, Any]) -> int:
 
 def alternatives_count(cfg: Mapping[str, Any]) -> int:
     """``alternatives.count``: alternative demonstrations drawn per instance (0 when the config has none)."""
-    from spade.annotation.alternatives import AlternativesSettings
+    from spade.annotation.alternative_demonstrations import AlternativesSettings
 
     return AlternativesSettings.from_cfg(cfg.get("alternatives")).count
 
@@ -108,7 +108,7 @@ def shapes_of(cfg: Mapping[str, Any]) -> list[str]:
 _WORKER: dict[str, Any] = {}
 
 
-def _init_worker(contexts: list[MapContext], cfg: Mapping[str, Any], parent: int | None = None) -> None:
+def init_worker(contexts: list[MapContext], cfg: Mapping[str, Any], parent: int | None = None) -> None:
     _WORKER["contexts"] = contexts
     _WORKER["cfg"] = cfg
     if parent is not None:
@@ -187,10 +187,10 @@ class _InlineExecutor(Executor):
 
 def _executor(workers: int, start_method: str, contexts: list[MapContext], cfg: Mapping[str, Any]) -> Executor:
     if workers <= 1:
-        _init_worker(contexts, cfg)
+        init_worker(contexts, cfg)
         return _InlineExecutor()
     return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(start_method),
-                               initializer=_init_worker, initargs=(contexts, cfg, os.getpid()))
+                               initializer=init_worker, initargs=(contexts, cfg, os.getpid()))
 
 
 @dataclass
@@ -557,7 +557,7 @@ def write_dataset(out_dir: str | Path, items: Iterable[tuple[Instance, str, str,
 
 def _alternatives_info(cfg: Mapping[str, Any]) -> dict[str, Any]:
     """The manifest's record of how the alternatives were drawn."""
-    from spade.annotation.alternatives import ALTERNATIVES_VERSION, ESTIMATOR, AlternativesSettings
+    from spade.annotation.alternative_demonstrations import ALTERNATIVES_VERSION, ESTIMATOR, AlternativesSettings
 
     return {"version": ALTERNATIVES_VERSION, "estimator": ESTIMATOR,
             "settings": AlternativesSettings.from_cfg(cfg.get("alternatives")).to_json()}

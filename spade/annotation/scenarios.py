@@ -301,8 +301,9 @@ def alternatives_rng(seed: int, map_id: str, shape: str, index: int) -> np.rando
 def plan_alternatives(ctx: MapContext, result: ScenarioResult, cfg: Mapping[str, Any]
                       ) -> tuple[dict[int, np.ndarray], dict[str, int]]:
     """Alternative demonstrations of every robot state of a planned scenario (``cfg.alternatives``; see
-    :mod:`spade.annotation.alternatives`): {state index: (k, num_waypoints, 2)} and the sampler's counters."""
-    from spade.annotation.alternatives import AlternativesSettings, scenario_alternatives
+    :mod:`spade.annotation.alternative_demonstrations`): {state index: (k, num_waypoints, 2)} and the sampler's
+    counters."""
+    from spade.annotation.alternative_demonstrations import AlternativesSettings, scenario_alternatives
 
     settings = AlternativesSettings.from_cfg(cfg.get("alternatives"))
     if not settings.wanted(result.shape) or result.executed is None or result.sketch is None:

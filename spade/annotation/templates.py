@@ -12,6 +12,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from spade.metrics.shape_paths import template_curve
 from spade.utils.errors import UserError
 
 SHAPES: dict[str, float] = {"L": 90.0, "U": 180.0}
@@ -58,26 +59,19 @@ def _uniform(rng: np.random.Generator, bounds: Sequence[float], what: str) -> fl
 
 def _turn_curve(leg: float, radius: float, tail: float, turn_deg: float, left: bool, step: float,
                 turn_keypoints: int, keypoint_spacing: float) -> tuple[np.ndarray, np.ndarray]:
-    """Leg along +x from the origin, arc of ``turn_deg`` to the left (or right), tail; in the start frame."""
+    """Leg along +x from the origin, arc of ``turn_deg`` to the left (or right), tail; in the start frame: the
+    clicked keypoints and the dense ideal curve (:func:`~spade.metrics.shape_paths.template_curve`)."""
+    dense = template_curve(leg, radius, tail, turn_deg, left, step)
     sign = 1.0 if left else -1.0
     turn = np.deg2rad(turn_deg)
-    n_leg = max(2, int(np.ceil(leg / step)) + 1)
-    leg_pts = np.stack([np.linspace(0.0, leg, n_leg), np.zeros(n_leg)], axis=1)
     centre = np.array([leg, sign * radius])
-    n_arc = max(3, int(np.ceil(radius * turn / step)) + 1)
-    phi = np.linspace(0.0, turn, n_arc)
-    # Point at angle phi along the arc: start at (leg, 0), rotating about the centre.
-    arc_pts = centre + radius * np.stack([np.sin(phi), -sign * np.cos(phi)], axis=1)
     end_dir = np.array([np.cos(sign * turn), np.sin(sign * turn)])
-    n_tail = max(2, int(np.ceil(tail / step)) + 1)
-    tail_pts = arc_pts[-1] + np.linspace(0.0, tail, n_tail)[:, None] * end_dir
-    dense = np.concatenate([leg_pts, arc_pts[1:], tail_pts[1:]])
     kp_phi = np.linspace(0.0, turn, turn_keypoints + 2)
     kp_arc = centre + radius * np.stack([np.sin(kp_phi), -sign * np.cos(kp_phi)], axis=1)
     n_kp_leg = max(1, int(np.ceil(leg / keypoint_spacing)))
     kp_leg = np.stack([np.linspace(0.0, leg, n_kp_leg + 1)[:-1], np.zeros(n_kp_leg)], axis=1)
     n_kp_tail = max(1, int(np.ceil(tail / keypoint_spacing)))
-    kp_tail = arc_pts[-1] + np.linspace(0.0, tail, n_kp_tail + 1)[1:, None] * end_dir
+    kp_tail = kp_arc[-1] + np.linspace(0.0, tail, n_kp_tail + 1)[1:, None] * end_dir
     keypoints = np.concatenate([kp_leg, kp_arc, kp_tail])
     return keypoints, dense
 

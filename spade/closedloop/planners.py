@@ -2,8 +2,8 @@
 
 :class:`BaselinePlanner` plans with a classical predictor of :mod:`spade.metrics.baselines` (the Nav2-like
 shortest path on the window's inflated costmap, or the heading template) in exactly the window a student would
-see (:class:`spade.deploy.planner.WindowPlanner`), so that it is replanned by the same rule, from the same poses,
-under the same window limits. (The demonstration replayed, the reference, is :func:`spade.closedloop.simulate.replay`.)
+see (:class:`spade.deploy.student_planner.WindowPlanner`), so that it is replanned by the same rule, from the
+same poses, under the same window limits. (The demonstration replayed, the reference, is :func:`spade.closedloop.simulate.replay`.)
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import numpy as np
 from typing import Any
 
 from spade.data.polyline import resample_polyline
-from spade.deploy.planner import DEFAULT_MARGIN_M, PlanResult, PlanWindow, WindowPlanner
+from spade.deploy.student_planner import DEFAULT_MARGIN_M, PlanResult, PlanWindow, WindowPlanner
 from spade.maps.frame import RobotFrame
 
 __all__ = ["BASELINE_PLANNERS", "BaselinePlanner", "DemonstrationPlanner"]

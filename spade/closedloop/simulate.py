@@ -1,7 +1,7 @@
 """Closed loop: a planner drives a robot through whole scenarios, replanning as the deployed node would.
 
-For every scenario (:mod:`spade.closedloop.scenarios`) the robot starts at the demonstration's start pose (moved by
-``initial_offset`` when set) and drives toward its goal. It plans from its *believed* pose (the true pose plus
+For every scenario (:mod:`spade.closedloop.scenario_loading`) the robot starts at the demonstration's start pose
+(moved by ``initial_offset`` when set) and drives toward its goal. It plans from its *believed* pose (the true pose plus
 localisation noise, when set) with the planner, exactly as the ROS 2 node calls it; follows the plan with the
 pure-pursuit follower (:mod:`spade.deploy.follower`); and plans again by the node's rule
 (:func:`spade.ros.core.replan_trigger`: off the plan, near a sub-goal, or ``replan_every_m`` driven since the last
@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from spade.deploy.follower import FollowerSettings, follow_step
-from spade.closedloop.scenarios import Scenario
+from spade.closedloop.scenario_loading import Scenario
 from spade.ros.core import CoreSettings, replan_trigger
 
 __all__ = ["OUTCOMES", "ClosedLoopSettings", "Episode", "PlanRecord", "drive", "replay"]

@@ -6,7 +6,7 @@ are the rasterisation of an instance's images (:mod:`spade.data.rasterize`), a d
 (:mod:`spade.data.settings`) and the checks of its datasets against them (:mod:`spade.data.checks`).
 """
 
-from spade.data.dataset import PathDataset, check_files
+from spade.data.path_dataset import PathDataset, check_files
 from spade.data.format import DatasetError, Manifest, read_manifest
 from spade.data.polyline import polyline_length, resample_polyline
 from spade.data.writer import DatasetWriter

@@ -2,7 +2,7 @@
 
 :func:`check_dataset` refuses an existing dataset whose generation settings differ from the ones the config asks
 for (the keys that differ are named), so a dataset is never silently reused for other settings; it runs in the
-data module's ``prepare_data`` and in the entry points' config checks (:mod:`spade.experiments.config_checks`).
+data module's ``prepare_data`` and in the entry points' config checks (:mod:`spade.config`).
 :func:`data_geometry` is a dataset's window geometry, read from its manifest or from the settings that will make
 it. Both raise :class:`DatasetSettingsError`, a :class:`~spade.utils.errors.ConfigError` (one line, exit status 2
 at the entry points) and a :class:`~spade.data.format.DatasetError`.

@@ -3,7 +3,7 @@
 :func:`fingerprint` is the only hash behind a data fingerprint anywhere in SPADE: a dataset's digest
 (:func:`dataset_fingerprint`, the MLflow dataset input's digest), the hash of the settings that shape a dataset's
 bytes (:func:`settings_fingerprint`, what ``spade.train`` checks an existing dataset against) and the data part of
-a registered model's name (``spade.experiments.registry.data_fingerprint``).
+a registered model's name (``spade.tracking.registry.data_fingerprint``).
 """
 
 from __future__ import annotations

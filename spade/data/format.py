@@ -11,8 +11,9 @@ A dataset is one directory::
     waypoints.bin    float32 (N, K, 2): ground-truth polyline in pixel coordinates (x = column, y = row)
     pose.bin         float32 (N, 3): the robot's pose in its map, (x, y, yaw) in metres and radians
     alternatives.bin optional, float32 (N, A, K, 2): up to A alternative demonstrations of each instance in its
-                     window (x, y pixels), NaN rows where an instance has fewer (spade.annotation.alternatives);
-                     the manifest's ``alternatives`` section says how they were drawn
+                     window (x, y pixels), NaN rows where an instance has fewer
+                     (spade.annotation.alternative_demonstrations); the manifest's ``alternatives`` section says
+                     how they were drawn
 
 Version 2: every window is in the robot's frame (``frame`` in the manifest: the robot's pixel and "heading up",
 see spade.maps.frame), so a prediction maps back to map metres through the instance's pose. Version 1

@@ -31,7 +31,8 @@ class Instance:
     waypoints: np.ndarray  # (K, 2) float32, window pixel coords
     pose: tuple[float, float, float]  # the robot in the map: (x, y, yaw) in metres and radians (see robot_instance)
     state_index: int = -1  # the robot's index along its executed path (-1: not from a path)
-    alternatives: np.ndarray | None = None  # (k, K, 2) window pixel polylines (spade.annotation.alternatives)
+    # (k, K, 2) window pixel polylines (spade.annotation.alternative_demonstrations)
+    alternatives: np.ndarray | None = None
 
 
 def crop(grid: np.ndarray, col0: int, row0: int, size: int) -> np.ndarray:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spade.data.dataset import check_files
+from spade.data.path_dataset import check_files
 from spade.data.format import MANIFEST, DatasetError, Manifest, read_manifest
 from spade.data.packing import unpack_bits, unpack_two_bit
 from spade.utils.errors import exit_on_errors

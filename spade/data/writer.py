@@ -165,7 +165,7 @@ class DatasetWriter:
     def __enter__(self) -> "DatasetWriter":
         self.root.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_partials(self.root)
-        self._tmp = self.root.parent / f".{self.root.name}.partial-{_owner()}-{uuid.uuid4().hex[:8]}"
+        self._tmp = self.root.parent / f".{self.root.name}.partial-{process_owner()}-{uuid.uuid4().hex[:8]}"
         try:
             self._tmp.mkdir()
             for name, spec in self.specs.items():
@@ -385,7 +385,7 @@ class DatasetWriter:
 LEGACY_PARTIAL_AGE_S = 3600.0  # a partial folder without an owner in its name (older SPADE) counts as stale after this
 
 
-def _owner() -> str:
+def process_owner() -> str:
     """``<host>-<pid>`` of this process, as a partial folder's name carries it."""
     return f"{re.sub(r'[^A-Za-z0-9.]', '_', socket.gethostname())}-{os.getpid()}"
 
@@ -402,7 +402,7 @@ def remove_stale_partials(root: str | Path) -> list[Path]:
     removed = []
     if not root.parent.is_dir():
         return removed
-    host = _owner().rsplit("-", 1)[0]
+    host = process_owner().rsplit("-", 1)[0]
     for path in root.parent.glob(f".{root.name}.partial-*"):
         parts = path.name[len(f".{root.name}.partial-"):].rsplit("-", 2)
         if len(parts) == 3 and parts[1].isdigit():

@@ -26,6 +26,9 @@ from typing import Any
 
 import numpy as np
 
+from spade.metrics import catalog
+from spade.metrics.catalog import BASELINE_LABELS
+
 __all__ = ["CLOSED_LOOP_TABLE", "closed_loop_report", "launch"]
 
 log = logging.getLogger(__name__)
@@ -33,23 +36,17 @@ log = logging.getLogger(__name__)
 CLOSED_LOOP_TABLE = "closed_loop"
 """The MLflow experiment (``tags.table``) of the drives, and the ``spade.report`` table name."""
 
-# Figures of a drive: (label, metric suffix after closed_loop/[prefix], format, lower is better).
-FIGURES: tuple[tuple[str, str, str, bool | None], ...] = (
-    ("success", "success_rate", ".0%", False),
-    ("collision", "collision_rate", ".0%", True),
-    ("timeout", "timeout_rate", ".0%", True),
-    ("APE (cm)", "ape_cm", ".2f", True),
-    ("plausibility (cm)", "plausibility_cm", ".2f", True),
-    ("commits", "commit_rate", ".0%", False),
-    ("mode switches", "mode_switches", ".2f", True),
-    ("replan change (cm)", "replan_change_cm", ".2f", True),
-    ("smoothness (deg/m)", "smoothness_deg_per_m", ".1f", True),
-    ("plan (ms)", "plan_ms", ".1f", None),
-)
-REFERENCES = {"baseline/shortest/": "Nav2-like shortest path", "baseline/heading/": "heading template",
+FIGURES: tuple[tuple[str, str, str, bool | None], ...] = tuple(
+    (catalog.label(n, qualified=False), n.removeprefix("closed_loop/"), catalog.figure(n).fmt,
+     catalog.lower_is_better(n)) for n in catalog.CLOSED_LOOP)
+"""Figures of a drive (:data:`spade.metrics.catalog.CLOSED_LOOP`): (label, metric suffix after
+``closed_loop/[prefix]``, format, lower is better)."""
+REFERENCES = {"baseline/shortest/": BASELINE_LABELS["shortest"], "baseline/heading/": BASELINE_LABELS["heading"],
               "followed/": "demonstration followed", "demonstration/": "demonstration replayed"}
 MARGIN_ACTIVE = "margin/active"
 """A guided row's share of active margins in its last training epoch (its source run's; BC has none)."""
+OPEN_LOOP = "planner/ape_cm"
+"""The open-loop figure a drive's source run logged (its test), beside the closed-loop ones."""
 TESTED = ("ape_cm", "success_rate", "plausibility_cm", "mode_switches")
 """The figures the page tests: the deciding one (closed-loop APE) first."""
 
@@ -79,7 +76,7 @@ def source_runs(client: Any, table: str, row: str, scale: str | None) -> list[An
         if run.data.tags.get("mlflow.parentRunId"):
             continue  # a baseline's child run
         by_seed.setdefault(run.data.params.get("cfg/seed", run.info.run_id), run)
-    from spade.experiments.tracking.predictors import with_predictor_figures
+    from spade.tracking.predictors import with_predictor_figures
 
     return with_predictor_figures(client, list(by_seed.values()))  # its baselines' figures, from its child runs
 
@@ -94,13 +91,13 @@ def _finished_drives(client: Any) -> set[tuple[str, str]]:
 
 def launch(cfg: Any) -> list[dict[str, Any]]:
     """Drive every (source run, dataset, condition) not yet driven (module docstring); returns what ran."""
-    from mlflow import MlflowClient
+    from spade.tracking.client import mlflow_client
     from omegaconf import OmegaConf
 
     from spade.experiments.evaluation import evaluate
     from spade.utils.config import compose_config
 
-    client = MlflowClient(tracking_uri=str(cfg.tracking_uri))
+    client = mlflow_client(str(cfg.tracking_uri))
     done = _finished_drives(client)
     cache = Path(str(cfg.cache_dir))
     ran = []
@@ -159,9 +156,9 @@ class Cell:
 
 def fetch_drives(tracking_uri: str, scale: str | None = None) -> dict[tuple[str, str, str], Cell]:
     """The finished drives of the ``closed_loop`` experiment, the latest run per seed of each cell."""
-    from mlflow import MlflowClient
+    from spade.tracking.client import mlflow_client
 
-    client = MlflowClient(tracking_uri=tracking_uri)
+    client = mlflow_client(tracking_uri)
     experiment = client.get_experiment_by_name(CLOSED_LOOP_TABLE)
     cells: dict[tuple[str, str, str], Cell] = {}
     margins: dict[str, float | None] = {}
@@ -283,13 +280,13 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
             continue
         n_scen = int(max((m.get("closed_loop/episodes", 0) for c in here for m in c.seeds.values()), default=0))
         parts += [f"### {dataset}, {condition} ({n_scen} scenarios)", ""]
-        header = ["planner", "runs", *[f[0] for f in FIGURES], "open-loop planner APE (cm)",
-                  "margin active, last epoch"]
+        header = ["planner", "runs", *[f[0] for f in FIGURES], f"open-loop {catalog.label(OPEN_LOOP)}",
+                  catalog.label(MARGIN_ACTIVE)]
         parts += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
         for c in here:
             cols = [labels.get(c.row, c.row), str(len(c.seeds))]
             cols += [_mean_sd(c.values(f"closed_loop/{key}"), fmt) for _, key, fmt, _ in FIGURES]
-            cols.append(_mean_sd(c.values("test/planner/ape_cm"), ".2f"))
+            cols.append(_mean_sd(c.values(catalog.mlflow_key(OPEN_LOOP)), catalog.figure(OPEN_LOOP).fmt))
             cols.append(_mean_sd(c.values(MARGIN_ACTIVE), ".1%") if c.values(MARGIN_ACTIVE) else "no margin")
             parts.append("| " + " | ".join(cols) + " |")
             csv_rows.append([dataset, condition, c.row, len(c.seeds)]
@@ -324,7 +321,7 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
                         tests.append(Test(f"{dataset}, {condition}: {labels.get(a.row, a.row)} vs "
                                           f"{REFERENCES[prefix]}", key, float(np.mean(va)), float(np.mean(vb)),
                                           _paired(va, vb), "paired t"))
-        open_rank = _ranking(here, "test/planner/ape_cm")
+        open_rank = _ranking(here, catalog.mlflow_key(OPEN_LOOP))
         closed_rank = _ranking(here, "closed_loop/ape_cm")
         if len(open_rank) > 1 and condition == "clean":
             agree = open_rank == closed_rank

@@ -18,7 +18,7 @@ __all__ = ["evaluate"]
 
 def _recording(cfg: DictConfig) -> tuple[Path | None, int]:
     """``mcap=`` (a new path, or None) and ``mcap_instances``, checked before anything runs."""
-    from spade.experiments.test_recording import check_recording_instances
+    from spade.experiments.prediction_recording import check_recording_instances
     from spade.ros.recording import check_recording_path
 
     mcap = check_recording_path(cfg.get("mcap"))
@@ -28,12 +28,12 @@ def _recording(cfg: DictConfig) -> tuple[Path | None, int]:
 def evaluate(cfg: DictConfig) -> dict[str, Any]:
     """Test ``cfg.ckpt_path`` on ``cfg.data``'s test set; returns the test metrics. With ``cfg.mcap`` set, then
     writes the test set's first ``cfg.mcap_instances`` instances with the model's paths, the ground truth and the
-    classical baselines as a ROS 2 MCAP recording (:mod:`spade.experiments.test_recording`)."""
-    from spade.experiments.checks import validate_evaluate_config
+    classical baselines as a ROS 2 MCAP recording (:mod:`spade.experiments.prediction_recording`)."""
+    from spade.config.evaluate_checks import validate_evaluate_config
 
     validate_evaluate_config(cfg)  # role, and the checkpoint's window geometry against the test data's
     if cfg.get("closed_loop"):
-        from spade.experiments.closed_loop import closed_loop_settings
+        from spade.experiments.closed_loop_evaluation import closed_loop_settings
 
         closed_loop_settings(cfg.drive, int(cfg.seed))  # a bad drive setting is refused before the test
         from spade.ros.recording import check_recording_path
@@ -48,11 +48,10 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
         cfg.data.encoding = datamodule.encoding
         if cfg.get("tags") is not None:
             cfg.tags.encoding = datamodule.encoding
-    from spade.experiments.tracking.runs import ensure_logger_store
-
-    ensure_logger_store(cfg)  # a fresh store's tables, created by one process at a time
-    loggers = instantiate_loggers(cfg.get("logger"))
+    loggers = instantiate_loggers(cfg.get("logger"))  # SPADE's MLflow logger opens a fresh store under a lock
     trainer = hydra.utils.instantiate(cfg.trainer, logger=loggers or False, callbacks=[])
+    for lg in loggers:  # the run stays open after the test, until its record is written (spade.tracking.logger)
+        lg.hold_open = True
     try:
         results_from_test = bool(cfg.get("open_loop", True) or not cfg.get("closed_loop"))
         if results_from_test:
@@ -61,19 +60,19 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
             results = {}
         if cfg.get("closed_loop"):
             results.update(_closed_loop(cfg, datamodule, loggers, trainer))
-        from spade.experiments.tracking.runs import finish_evaluation
+        from spade.tracking.runs import finish_evaluation
 
         finish_evaluation(cfg, trainer, loggers)  # MLflow: experiment kind and description, test data input
-        if not results_from_test:  # no trainer.test ran the teardown that ends the MLflow run
-            for lg in loggers:
-                lg.finalize("success")
+        for lg in loggers:  # the record is complete: the run ends
+            lg.hold_open = False
+            lg.finalize("success")
     except BaseException as exc:  # Ctrl+C or a signal: KILLED, anything else FAILED (as spade.train's runs)
-        from spade.experiments.tracking.runs import mark_evaluation_ended
+        from spade.tracking.runs import mark_opened_run_ended
 
-        mark_evaluation_ended(loggers, exc)
+        mark_opened_run_ended(loggers, exc)
         raise
     if mcap is not None and trainer.is_global_zero:
-        from spade.experiments.test_recording import record_test_set
+        from spade.experiments.prediction_recording import record_test_set
 
         record_test_set(model, datamodule, mcap, mcap_instances)
     return {k: float(v) for k, v in results.items()}
@@ -94,7 +93,7 @@ def _use_models_encoding(datamodule: Any, ckpt_path: str) -> None:
 
 
 def _closed_loop(cfg: DictConfig, datamodule: Any, loggers: list[Any], trainer: Any) -> dict[str, float]:
-    """Drive the test scenarios (:mod:`spade.experiments.closed_loop`); log ``closed_loop/*`` and the worst
+    """Drive the test scenarios (:mod:`spade.experiments.closed_loop_evaluation`); log ``closed_loop/*`` and the worst
     episodes' picture to the run."""
     import json
     import tempfile
@@ -102,8 +101,8 @@ def _closed_loop(cfg: DictConfig, datamodule: Any, loggers: list[Any], trainer: 
     from omegaconf import OmegaConf
 
     from spade.closedloop.picture import episodes_picture
-    from spade.experiments.closed_loop import episode_summary, run_closed_loop, scenario_set, worst_episodes
-    from spade.experiments.tracking.runs import mlflow_logger
+    from spade.experiments.closed_loop_evaluation import episode_summary, run_closed_loop, scenario_set, worst_episodes
+    from spade.tracking.runs import mlflow_logger
 
     drive = OmegaConf.to_container(cfg.drive, resolve=True)
     scenarios = scenario_set(datamodule, drive.get("scenarios"))
@@ -111,7 +110,7 @@ def _closed_loop(cfg: DictConfig, datamodule: Any, loggers: list[Any], trainer: 
     for lg in loggers:
         lg.log_metrics(metrics, step=trainer.global_step)
     if drive.get("mcap") and trainer.is_global_zero:
-        from spade.closedloop.recording import write_episodes_bag
+        from spade.closedloop.episode_recording import write_episodes_bag
 
         written = write_episodes_bag(drive["mcap"], episodes["model"][: int(drive.get("mcap_episodes", 20))],
                                      float(drive["follower"]["dt_s"]))

@@ -10,12 +10,12 @@
 * :class:`CarryBestCheckpoint` (added by ``spade.train`` when it resumes from ``ckpt_path``) keeps the interrupted
   run's best checkpoint and score, which Lightning drops when the run folder changes, so a resumed run tests the
   checkpoint the uninterrupted run would have tested.
-* :func:`install_signal_handlers`: SIGTERM and SIGINT end the run through an exception, so that ``spade.train``
-  marks its MLflow run KILLED (:func:`spade.experiments.tracking.runs.mark_run_ended`, which reads
-  :func:`signal_received`; any other exception marks it FAILED).
+* :func:`install_signal_handlers`: SIGTERM and SIGINT end the run through an exception, so that the run's MLflow
+  record marks it KILLED (:func:`spade.tracking.runs.mark_run_ended`, which reads :func:`signal_received`; any
+  other exception marks it FAILED).
 
 The MLflow run's status (its process recorded, KILLED / FAILED when it does not finish, stale RUNNING runs marked
-KILLED) is kept by :mod:`spade.experiments.tracking.runs`, with the rest of the run's start and end.
+KILLED) is kept by the run's record, :class:`spade.tracking.callback.RunRecord`, with the rest of its start and end.
 """
 
 from __future__ import annotations

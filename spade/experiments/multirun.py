@@ -220,9 +220,9 @@ def _registered(uri: str, name: str) -> bool:
     if not _store_exists(uri):
         return False  # never create the store just to look (the first run does)
     try:
-        from mlflow import MlflowClient
+        from spade.tracking.client import mlflow_client
 
-        return bool(MlflowClient(tracking_uri=uri).search_model_versions(f"name='{name}'"))
+        return bool(mlflow_client(uri).search_model_versions(f"name='{name}'"))
     except Exception:  # noqa: BLE001 - an estimate must not stop a table
         return False
 
@@ -252,7 +252,7 @@ def plan_table(config: DictConfig, speed: float = 1.0) -> dict[str, Any]:
     """What a table's multirun will run: scale, rows, seeds, datasets, per-row and prerequisite costs and the
     total, each on :data:`STEP_SECONDS`' machine times ``speed`` (:func:`machine_speed`)."""
     from spade.utils.config import compose_config
-    from spade.experiments.registry import registry_name
+    from spade.tracking.registry import registry_name
 
     params = config.hydra.sweeper.params
     rows = [r.strip() for r in str(params.experiment).split(",") if r.strip()]

@@ -12,7 +12,7 @@ When ``target`` is already set (an explicit checkpoint path) nothing happens. Ot
 config is composed with the parent's scale, recipe, paths, trainer and logger overrides, its registry name is
 derived (role, shape, size and data fingerprint), and the version ``version`` names is used: by default the
 ``champion`` alias, which the first registered version receives and later ones do not take
-(:mod:`spade.experiments.registry`), so a row re-run after another expert was trained uses the same expert. The
+(:mod:`spade.tracking.registry`), so a row re-run after another expert was trained uses the same expert. The
 version used is written into the run's config as ``requires.<key>.resolved`` (name, version, run id: logged with
 the run's parameters). If none is registered, ``prerequisites=train`` (default) has it trained first, and
 ``prerequisites=error`` stops with the exact command.
@@ -32,7 +32,7 @@ from pathlib import Path
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from spade.experiments.registry import CHAMPION, RegisteredCheckpoint, fetch_registered, registry_name
+from spade.tracking.registry import CHAMPION_ALIAS as CHAMPION, RegisteredCheckpoint, fetch_registered, registry_name
 from spade.utils.config import compose_config
 from spade.utils.errors import UserError
 
@@ -74,7 +74,7 @@ def compose_experiment(name: str, overrides: list[str]) -> DictConfig:
     return compose_config("train", [f"+experiment={name}", *overrides])
 
 
-def _fill(cfg: DictConfig, key: str, target: str, found: RegisteredCheckpoint) -> None:
+def fill_prerequisite(cfg: DictConfig, key: str, target: str, found: RegisteredCheckpoint) -> None:
     """Fill ``target`` with the downloaded checkpoint and record which registered version it is."""
     with open_dict(cfg):
         OmegaConf.update(cfg, target, str(found.path), merge=False)
@@ -105,7 +105,7 @@ def pending_prerequisites(cfg: DictConfig, depth: int = 0) -> list[Prerequisite]
         tracking_uri = cfg.paths.mlflow_tracking_uri
         found = fetch_registered(tracking_uri, name, cfg.paths.registry_cache_dir, req.get("version") or CHAMPION)
         if found is not None:
-            _fill(cfg, str(key), target, found)
+            fill_prerequisite(cfg, str(key), target, found)
             continue
         command = " ".join(["python -m spade.train", f"+experiment={req.experiment}", *overrides])
         if cfg.get("prerequisites", "train") == "error":
@@ -125,5 +125,5 @@ def complete_prerequisite(cfg: DictConfig, prerequisite: Prerequisite) -> Path:
         raise PrerequisiteMissing(
             f"{prerequisite.key}: training {prerequisite.experiment} registered no model {prerequisite.name}"
         )
-    _fill(cfg, prerequisite.key, prerequisite.target, found)
+    fill_prerequisite(cfg, prerequisite.key, prerequisite.target, found)
     return found.path

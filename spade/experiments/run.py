@@ -10,7 +10,8 @@ with ``weights_only=True`` and SPADE's allow-list (:func:`spade.models.modelfile
 would run code is refused with :class:`~spade.models.modelfile.UnsafeModelFileError` before any of it runs.
 
 Nothing else in ``spade/`` imports this module; it sits above :mod:`spade.experiments.prerequisites`,
-``lifecycle``, ``tracking`` and ``config_checks`` and the training package, so no import circle runs through it.
+``lifecycle``, :mod:`spade.config.preflight` and the training package, so no import circle runs through it. The run's MLflow
+record is a callback of the run (:class:`spade.tracking.callback.RunRecord`), not code of this module.
 """
 
 from __future__ import annotations
@@ -28,19 +29,12 @@ from spade.experiments.lifecycle import (
     CarryBestCheckpoint, DeterministicTraining, best_checkpoint_path, last_checkpoint_path,
 )
 from spade.experiments.prerequisites import Prerequisite, complete_prerequisite, pending_prerequisites
-from spade.experiments.tracking.runs import (
-    finish_run,
-    mark_run_ended,
-    mark_stale_runs,
-    record_process,
-    start_run_logging,
-)
-from spade.experiments.config_checks import validate_checkpoints, validate_train_config
-from spade.experiments.tracking.summary import run_summary
+from spade.config.preflight import validate_checkpoints, validate_train_config
+from spade.metrics import catalog
 from spade.models.modelfile import safe_loading
 from spade.training.instantiate import instantiate_callbacks, instantiate_loggers, run_id_from_checkpoint
 
-__all__ = ["fit_and_test", "from_checkpoint", "optimized_value", "prerequisite_plan", "rename_prefix", "run",
+__all__ = ["ClosedLoopTest", "fit_and_test", "from_checkpoint", "optimized_value", "prerequisite_plan", "rename_prefix", "run",
            "test_elsewhere", "train", "untrained_test_metrics"]
 
 log = logging.getLogger(__name__)
@@ -48,17 +42,20 @@ log = logging.getLogger(__name__)
 
 def run(cfg: DictConfig) -> float | None:
     """Train (:func:`train`), print the closing lines (test metrics next to the baselines, the ``mlflow ui``
-    command and URLs to the run: :func:`spade.experiments.tracking.summary.run_summary`), and return
+    command and URLs to the run: :func:`spade.tracking.summary.run_summary`), and return
     ``optimized_metric``'s value (:func:`optimized_value`).
 
     A single run that never logged that metric (e.g. ``trainer.max_steps`` ended it before a validation) still
     succeeded: the missing metric is a warning and the result ``None``; under a Hydra multirun it is an error,
     since the sweeper needs the value.
     """
+    from spade.tracking.summary import run_summary
+
     metrics, objects = train(cfg)
     trainer = objects["trainer"]
     checkpoint = best_checkpoint_path(trainer) or last_checkpoint_path(trainer)
-    print(run_summary(cfg, metrics, getattr(objects["model"], "margin_history", None), checkpoint or None), flush=True)
+    print(run_summary(cfg, metrics, getattr(objects["model"], "margin_history", None), checkpoint or None,
+                      objects["run"]), flush=True)
     try:
         return optimized_value(cfg, metrics)
     except KeyError as exc:
@@ -112,18 +109,14 @@ def prerequisite_plan(cfg: DictConfig) -> list[tuple[DictConfig, Prerequisite]]:
 
 
 def fit_and_test(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
-    """One run whose prerequisites are filled in: checkpoints checked, everything re-seeded, stale RUNNING runs of
-    this row marked KILLED, then data, model, trainer, fit, test, logging. Its MLflow run ends KILLED (signal) or
-    FAILED (exception) when it does not finish."""
+    """One run whose prerequisites are filled in: checkpoints checked, everything re-seeded, then data, model,
+    trainer, fit, test. The run's MLflow record (its opening, status and end) is kept by a callback of the run,
+    built from the callbacks config with this config (:class:`spade.tracking.callback.RunRecord`); the objects
+    returned carry where the run lives (``run``: None without an MLflow logger)."""
     validate_checkpoints(cfg)  # a model fetched from the registry passes the checks of one given by path
     seed = cfg.get("seed")
     if seed is not None:
         L.seed_everything(seed, workers=True)  # after the prerequisites: their training moved every generator
-    try:
-        for message in mark_stale_runs(cfg):
-            print(message, flush=True)
-    except Exception as exc:  # the check must not stop a run; the logger reports an unreachable store itself
-        log.warning("could not check for stale RUNNING runs: %s", exc)
 
     log.info("Instantiating datamodule <%s>", cfg.data._target_)
     datamodule: L.LightningDataModule = hydra.utils.instantiate(cfg.data)
@@ -132,63 +125,62 @@ def fit_and_test(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
 
     ckpt_path = cfg.get("ckpt_path")
     loggers = instantiate_loggers(cfg.get("logger"), run_id=run_id_from_checkpoint(ckpt_path))
-    callbacks = instantiate_callbacks(cfg.get("callbacks"))
+    callbacks = instantiate_callbacks(cfg.get("callbacks"), run_cfg=cfg)
+    record = next((cb for cb in callbacks if hasattr(cb, "record_without_stages")), None)  # the run's MLflow record
     if seed is not None:
         callbacks.append(DeterministicTraining(seed))
     if ckpt_path and cfg.get("train", True):
         callbacks.append(CarryBestCheckpoint(str(ckpt_path)))  # the interrupted run's best stays the best
+    drive = ClosedLoopTest(cfg) if cfg.get("closed_loop") and type(model).__name__ == "StudentModule" else None
+    if drive is not None:
+        callbacks.append(drive)
     trainer: L.Trainer = hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
-    try:
-        start_run_logging(cfg, model, loggers)
-        record_process(loggers, resumed=bool(ckpt_path))
 
-        baseline: dict[str, float] = {}
-        if cfg.get("test_untrained", False):
-            baseline = untrained_test_metrics(cfg, model, datamodule)
-            for logger in loggers:
-                logger.log_metrics(baseline, step=0)
+    baseline: dict[str, float] = {}
+    if cfg.get("test_untrained", False):
+        baseline = untrained_test_metrics(cfg, model, datamodule)
+        for logger in loggers:
+            logger.log_metrics(baseline, step=0)
 
-        if cfg.get("train", True):
-            from_checkpoint(trainer.fit, ckpt_path, model=model, datamodule=datamodule)
-        metrics: dict[str, Any] = {k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1}
+    if cfg.get("train", True):
+        from_checkpoint(trainer.fit, ckpt_path, model=model, datamodule=datamodule)
+    metrics: dict[str, Any] = {k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1}
 
-        if cfg.get("test", True):
-            best = best_checkpoint_path(trainer) or None
-            if best is None and cfg.get("train", True):
-                log.warning("No best checkpoint found: testing the last weights")
-            from_checkpoint(trainer.test, best, model=model, datamodule=datamodule)
-            metrics.update({k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1})
-            if cfg.get("closed_loop") and type(model).__name__ == "StudentModule":
-                metrics.update(drive_test_scenarios(cfg, best or last_checkpoint_path(trainer), datamodule, loggers,
-                                                    trainer))
-        metrics.update(baseline)
-
-        finish_run(cfg, trainer, model, loggers)
-        if cfg.get("test", True):
-            for name, data in (cfg.get("also_test") or {}).items():
-                metrics.update(test_elsewhere(cfg, best or last_checkpoint_path(trainer), name, data))
-        if not cfg.get("train", True) and not cfg.get("test", True):
-            for logger in loggers:  # no fit or test ran the trainer's teardown, which ends the MLflow run
-                logger.finalize("success")
-    except BaseException as exc:
-        mark_run_ended(loggers, exc)
-        raise
-    return metrics, {"cfg": cfg, "datamodule": datamodule, "model": model, "trainer": trainer, "loggers": loggers}
+    if cfg.get("test", True):
+        best = best_checkpoint_path(trainer) or None
+        if best is None and cfg.get("train", True):
+            log.warning("No best checkpoint found: testing the last weights")
+        from_checkpoint(trainer.test, best, model=model, datamodule=datamodule)
+        metrics.update({k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1})
+        metrics.update(drive.metrics if drive is not None else {})
+        for name, data in (cfg.get("also_test") or {}).items():
+            metrics.update(test_elsewhere(cfg, best or last_checkpoint_path(trainer), name, data))
+    elif not cfg.get("train", True) and record is not None:
+        record.record_without_stages(trainer, model)  # no stage ran the hooks that record and close the run
+    metrics.update(baseline)
+    return metrics, {"cfg": cfg, "datamodule": datamodule, "model": model, "trainer": trainer, "loggers": loggers,
+                     "run": getattr(record, "run", None)}
 
 
-def drive_test_scenarios(cfg: DictConfig, ckpt_path: str, datamodule: Any, loggers: list[Any], trainer: Any
-                         ) -> dict[str, float]:
-    """The closed-loop section of the test (``closed_loop: true``, the quickstart's scale): the best checkpoint and
-    the baselines drive the test set's scenarios (:mod:`spade.experiments.closed_loop`), logged as
-    ``closed_loop/*`` at the test's step."""
-    from spade.experiments.closed_loop import run_closed_loop, scenario_set
+class ClosedLoopTest(L.Callback):
+    """The closed-loop section of the test (``closed_loop: true``, the quickstart's scale): at the test's end the
+    best checkpoint and the baselines drive the test set's scenarios (:mod:`spade.experiments.closed_loop`), logged
+    as ``closed_loop/*`` at the test's step, before the run's record is completed and the run closed; the figures
+    are :attr:`metrics` afterwards."""
 
-    drive = OmegaConf.to_container(cfg.drive, resolve=True)
-    metrics, _ = run_closed_loop(ckpt_path, scenario_set(datamodule, drive.get("scenarios")), drive,
-                                 int(cfg.get("seed") or 0))
-    for logger in loggers:
-        logger.log_metrics(metrics, step=trainer.global_step)
-    return metrics
+    def __init__(self, cfg: DictConfig) -> None:
+        self.cfg = cfg
+        self.metrics: dict[str, float] = {}
+
+    def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        from spade.experiments.closed_loop import run_closed_loop, scenario_set
+
+        ckpt_path = best_checkpoint_path(trainer) or last_checkpoint_path(trainer)
+        drive = OmegaConf.to_container(self.cfg.drive, resolve=True)
+        self.metrics, _ = run_closed_loop(ckpt_path, scenario_set(trainer.datamodule, drive.get("scenarios")), drive,
+                                          int(self.cfg.get("seed") or 0))
+        for logger in trainer.loggers:
+            logger.log_metrics(self.metrics, step=trainer.global_step)
 
 
 def test_elsewhere(cfg: DictConfig, ckpt_path: str, name: str, data: str) -> dict[str, float]:
@@ -206,9 +198,9 @@ def test_elsewhere(cfg: DictConfig, ckpt_path: str, name: str, data: str) -> dic
     if OmegaConf.select(cfg, "logger.mlflow") is None:
         overrides.append("logger=none")
     results = evaluate(compose_config("evaluate", overrides))
+    headline = {catalog.mlflow_key(n) for n in catalog.HEADLINE}
     print(f"  {name} ({data}): " + "  ".join(f"{k.split('/', 1)[1]}={v:.4g}" for k, v in sorted(results.items())
-                                            if k in ("test/ape_cm", "test/over_20cm_rate", "test/failure_rate",
-                                                     "test/planner/ape_cm")), flush=True)
+                                            if k in headline), flush=True)
     return {f"{name}/{k}": v for k, v in results.items()}
 
 

@@ -1,4 +1,4 @@
-"""The paper's tables (DESIGN.md section 6): which runs fill which cells, the paper's figures, its headlines.
+"""The paper's tables: which runs fill which cells, the paper's figures, its headlines.
 
 A table is laid out as in the paper: one line per (size, approach) or approach, one cell per shape holding
 ``FID / APE (cm) / Hd19``. Every cell is one experiment of ``conf/experiment/`` whose run (run name = row
@@ -11,7 +11,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from spade.metrics import catalog
+from spade.metrics.catalog import BASELINE_ROW_LABELS as BASELINE_LABELS
+from spade.metrics.catalog import Figure as Metric
+from spade.metrics.catalog import format_params
+from spade.models.paper_sizes import PAPER_COND_EXPERT_PARAMETERS, PAPER_PARAMETER_COUNTS as PAPER_PARAMS
+
 __all__ = [
+    "BASELINE_LABELS",
     "CELL_METRICS",
     "METRICS",
     "PREFERENCE_METRICS",
@@ -26,68 +33,13 @@ __all__ = [
     "relative_change",
 ]
 
-
-@dataclass(frozen=True)
-class Metric:
-    """A reported quantity: its short key, the MLflow metric it is read from, its label and number format."""
-
-    key: str
-    mlflow_key: str
-    label: str
-    fmt: str
-
-    def format(self, value: float | None) -> str:
-        if value is None or (isinstance(value, float) and math.isnan(value)):
-            return "n/a"
-        if self.fmt == "params":
-            return format_params(value)
-        return format(value, self.fmt)
-
-
-def format_params(value: float) -> str:
-    """117025 -> '117k', 1926209 -> '1.93M', 31114785 -> '31.1M' (three significant figures)."""
-    for scale, suffix in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
-        if abs(value) >= scale:
-            return f"{value / scale:.3g}{suffix}"
-    return f"{value:.0f}"
-
-
-METRICS: dict[str, Metric] = {
-    m.key: m
-    for m in (
-        Metric("fid", "test/fid", "FID", ".2f"),
-        Metric("ape_cm", "test/ape_cm", "APE (cm)", ".2f"),
-        Metric("hd19", "test/hd19", "Hd19", ".0f"),
-        Metric("failure_rate", "test/failure_rate", "failures", ".1%"),
-        Metric("over_20cm_rate", "test/over_20cm_rate", "> 20 cm", ".1%"),
-        Metric("planner_ape_cm", "test/planner/ape_cm", "planner APE (cm)", ".2f"),
-        Metric("planner_over_20cm_rate", "test/planner/over_20cm_rate", "planner > 20 cm", ".1%"),
-        Metric("planner_low_confidence_rate", "test/planner/low_confidence_rate", "planner low confidence", ".1%"),
-        # the figures that see a preference (spade.metrics.preference), where the test set has alternatives
-        Metric("floor_cm", "test/floor_cm", "floor (cm)", ".2f"),
-        Metric("planner_ape_over_floor", "test/planner/ape_over_floor", "planner APE / floor", ".2f"),
-        Metric("planner_plausibility_cm", "test/planner/plausibility_cm", "planner plausibility (cm)", ".2f"),
-        Metric("planner_commit_rate", "test/planner/commit_rate", "planner commits", ".0%"),
-        Metric("params", "model/params", "params", "params"),
-        # a guided row's share of active margins in its last training epoch (StudentModule.margin_history)
-        Metric("margin_active", "margin/active", "margin active in the last epoch", ".0%"),
-    )
-}
-CELL_METRICS = ("fid", "ape_cm", "hd19", "failure_rate", "over_20cm_rate", "planner_ape_cm", "planner_over_20cm_rate")
-"""A cell: the paper's FID / APE / Hd19 (APE and Hd19 of the paper's skeleton extraction; FID of the decoded path
-drawn like the ground truth), the failures, the tail (share of instances over 20 cm), and the planner's APE and tail
-(the search-decoded path a robot would drive, spade.metrics.decoding)."""
-
-PREFERENCE_METRICS = ("floor_cm", "planner_ape_over_floor", "planner_plausibility_cm", "planner_commit_rate")
-"""The preference figures a table shows beside its cells (spade.metrics.preference), where its runs logged them."""
-
-BASELINE_LABELS: dict[str, str] = {
-    "straight": "straight line",
-    "shortest": "shortest path (Nav2-like)",
-    "heading": "heading template",
-}
-"""The classical predictors (spade.metrics.baselines) every table shows as reference rows, on the same test sets:
-a learned row that does not beat them has learned nothing worth deploying."""
+METRICS: dict[str, Metric] = {m.key: m for m in map(catalog.figure, catalog.TABLE)}
+"""The figures a table reads from its runs (:data:`spade.metrics.catalog.TABLE`), by report key
+(``planner_ape_cm``: the CSV column; ``mlflow_key`` is what the run logged, ``test/planner/ape_cm``)."""
+CELL_METRICS = tuple(catalog.figure(n).key for n in catalog.CELL)
+"""A cell's figures (:data:`spade.metrics.catalog.CELL`), by report key."""
+PREFERENCE_METRICS = tuple(catalog.figure(n).key for n in catalog.PREFERENCE)
+"""The preference figures beside a table's cells (:data:`spade.metrics.catalog.PREFERENCE`), by report key."""
 
 
 TINY_NOTICE = ("scale=tiny: a pipeline check, not a result (64 px, a few hundred instances, 2 epochs, tiny "
@@ -98,7 +50,7 @@ TINY_NOTICE = ("scale=tiny: a pipeline check, not a result (64 px, a few hundred
 
 def baseline_metric(name: str, key: str) -> str:
     """The MLflow key of a baseline's metric, e.g. ``test/baseline/straight/ape_cm``."""
-    return f"test/baseline/{name}/{METRICS[key].mlflow_key.split('/', 1)[1]}"
+    return catalog.mlflow_key(f"baseline/{name}/{METRICS[key].name}")
 
 
 @dataclass(frozen=True)
@@ -195,10 +147,7 @@ def _paper(fid: float, ape: float, hd19: float) -> dict[str, float]:
     return {"fid": fid, "ape_cm": ape, "hd19": hd19}
 
 
-# Students' trainable parameters in the paper (DESIGN.md section 3).
-PAPER_PARAMS = {"small": 117_025, "medium": 1_926_209, "large": 31_114_785}
-
-_T1 = {  # (size, approach) -> {shape: (FID, APE cm, Hd19)}, DESIGN.md section 6
+_T1 = {  # (size, approach) -> {shape: (FID, APE cm, Hd19)}, the paper's Table 1
     ("small", "BC"): {"L": (42.27, 4.43, 28), "U": (35.51, 6.79, 52)},
     ("small", "DBC"): {"L": (24.69, 2.92, 62), "U": (29.86, 6.55, 124)},
     ("small", "Cond-DBC"): {"L": (23.87, 3.14, 43), "U": (27.65, 6.72, 52)},
@@ -218,9 +167,9 @@ def _table1() -> Table:
         cells = {s: f"t1_{size}_{_APPROACH_SLUG[approach]}_{s}" for s in ("L", "U")}
         paper = {s: {**_paper(*figures[s]), "params": PAPER_PARAMS[size]} for s in figures}
         lines.append(Line((size, approach), cells, paper))
-    # The standalone experts (the paper reports some of their figures in the text, DESIGN.md section 3).
+    # The standalone experts (the paper reports some of their figures in the text).
     lines.append(Line(("expert", "Cond-expert"), {s: f"cond_expert_{s}" for s in ("L", "U")},
-                      {"L": {"ape_cm": 1.42, "params": 9_218_561}, "U": {"ape_cm": 2.74, "params": 9_218_561}}))
+                      {"L": {"ape_cm": 1.42, "params": PAPER_COND_EXPERT_PARAMETERS}, "U": {"ape_cm": 2.74, "params": PAPER_COND_EXPERT_PARAMETERS}}))
     lines.append(Line(("expert", "Uncond-expert"), {s: f"uncond_expert_{s}" for s in ("L", "U")},
                       {"L": {"fid": 4.84}, "U": {"fid": 2.43}}))
     headline = {"ape_cm": -39.1, "fid": -33.5, "hd19": -60.0, "params": -93.8}
@@ -306,7 +255,7 @@ def _sizing() -> Table:
 
 
 def _encoding() -> Table:
-    """Not a table of the paper: which start and goal markers a student's input should draw (issue 45): the paper's
+    """Not a table of the paper: which start and goal markers a student's input should draw: the paper's
     binary discs, an anti-aliased disc and a Gaussian blob at the exact position (``data.encoding``), medium BC
     students on the held-out map (L) and unseen real maps (real, run ``<row>_real``)."""
     lines = tuple(Line((label,), {"L": f"enc_{name}_L", "real": f"enc_{name}_L_real"})

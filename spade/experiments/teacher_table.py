@@ -24,21 +24,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from spade.metrics import catalog
+from spade.metrics.catalog import BASELINE_ROW_LABELS
+
 __all__ = ["TEACHER_TABLE", "TEACHER_FILES", "teacher_report"]
 
 TEACHER_TABLE = "teacher"
 TEACHER_FILES = ("teacher.md", "teacher.csv")
 
-# (label, metric after test/ [and the prefix of the reading], format)
-COLUMNS: tuple[tuple[str, str, str], ...] = (
-    ("planner APE (cm)", "planner/ape_cm", ".2f"),
-    ("> 20 cm", "planner/over_20cm_rate", ".1%"),
-    ("failures", "planner/failure_rate", ".1%"),
-    ("APE / floor", "planner/ape_over_floor", ".2f"),
-    ("plausibility (cm)", "planner/plausibility_cm", ".2f"),
-    ("commits", "planner/commit_rate", ".0%"),
-)
-BASELINES = {"straight": "straight line", "shortest": "shortest path (Nav2-like)", "heading": "heading template"}
+COLUMNS: tuple[tuple[str, str, str], ...] = tuple((catalog.label(n), n, catalog.figure(n).fmt) for n in catalog.TEACHER)
+"""(label, metric after ``test/`` [and the prefix of the reading], format) of the page's columns."""
+BASELINES = BASELINE_ROW_LABELS
 TARGET_PLAUSIBILITY_CM = 1.0
 TARGET_APE_RATIO = 0.8
 TARGET_SPREAD = 0.2
@@ -121,8 +117,8 @@ def _holm(ps: list[float | None]) -> list[float | None]:
     return out
 
 
-GUIDED_TESTED = (("planner/ape_cm", ".2f"), ("planner/over_20cm_rate", ".1%"), ("planner/plausibility_cm", ".2f"),
-                 ("planner/commit_rate", ".0%"))
+GUIDED_TESTED = tuple((n, catalog.figure(n).fmt) for n in ("planner/ape_cm", "planner/over_20cm_rate",
+                                                             "planner/plausibility_cm", "planner/commit_rate"))
 
 
 def _welch(a: list[float], b: list[float]) -> float | None:
@@ -195,11 +191,11 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
                    scale: str | None = None) -> tuple[str, dict[str, Path]]:
     """Render the teacher page from MLflow (module docstring); with ``output_dir`` also write ``teacher.md`` and
     ``teacher.csv`` there. Returns the markdown and the files written."""
-    from mlflow import MlflowClient
+    from spade.tracking.client import mlflow_client
 
     from spade.utils.provenance import command_line, commit, machine, shown_path
 
-    client = MlflowClient(tracking_uri=str(tracking_uri))
+    client = mlflow_client(str(tracking_uri))
     experts = _rows(client, list(settings.get("experts") or []), "expert", scale)
     students = _rows(client, list(settings.get("students") or []), "student", scale)
     header = "| predictor | markers | seeds | " + " | ".join(c[0] for c in COLUMNS) + " | spread / generator's | ms per sample |"
@@ -306,7 +302,8 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
         "Each expert's test samples every test instance K times (DDIM) and decodes each sample with the planner a "
         "robot would run (`spade.metrics.decoding`): *one sample* is what a robot asking the expert once would "
         "drive, *mean of K samples' maps* what K samples buy. Students: mean ± sd over their seeds. The figure that "
-        "decides is the planner's APE and its tail (> 20 cm), then plausibility (the APE to the nearest plausible "
+        f"decides is the planner's APE and its tail ({catalog.label('over_20cm_rate')}), then plausibility (the APE "
+        "to the nearest plausible "
         "demonstration) and commitment; a teacher is worth its cost where it plans better than its student.",
         "",
         f"Test set (MLflow dataset input, name and digest): {', '.join(test_sets) or 'not recorded'}"
@@ -316,7 +313,7 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
         "",
         *lines,
         "",
-        "Targets (issue 47; each expert against the student on the same markers):",
+        "Targets (each expert against the student on the same markers):",
         "",
         *(target_lines or ["- no expert row has finished runs"]),
         "",

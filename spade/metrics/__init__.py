@@ -1,5 +1,7 @@
 """SPADE's evaluation metrics: APE (cm), Hd19 (artifact count) and FID, as DDP-safe torchmetrics.
 
+- :mod:`~spade.metrics.catalog` - every figure's name, label, unit, direction and format, in one place.
+
 - :class:`APE` - absolute pose error of the path extracted from a predicted image (:func:`extract_path`, the
   paper's) or decoded by search (:class:`PathDecoder`, the planner's), with the tail over 20 cm.
 - :class:`HausdorffCount` (alias :data:`Hd19`) - instances whose Hausdorff distance exceeds 19 pixels.
@@ -10,31 +12,39 @@
   images against a batch, as the Lightning modules log them (import it from :mod:`spade.metrics.path_metrics`).
 """
 
-from spade.metrics.ape import APE
-from spade.metrics.decoding import DecodedPath, PathDecoder, decode_path
-from spade.metrics.extraction import ExtractedPath, extract_path, marker_centre
-from spade.metrics.features import InceptionFeatures, RandomConvFeatures, build_feature_extractor
-from spade.metrics.shape_features import ShapeFeatures
-from spade.metrics.fid import FID, frechet_distance
-from spade.metrics.geometry import mask_hausdorff, polyline_ape
-from spade.metrics.hausdorff import HausdorffCount, Hd19
+from __future__ import annotations
 
-__all__ = [
-    "APE",
-    "DecodedPath",
-    "FID",
-    "ExtractedPath",
-    "HausdorffCount",
-    "Hd19",
-    "InceptionFeatures",
-    "PathDecoder",
-    "RandomConvFeatures",
-    "ShapeFeatures",
-    "build_feature_extractor",
-    "decode_path",
-    "extract_path",
-    "frechet_distance",
-    "mask_hausdorff",
-    "marker_centre",
-    "polyline_ape",
-]
+import importlib
+from typing import Any
+
+_HOMES = {
+    "APE": "ape",
+    "DecodedPath": "decoding",
+    "FID": "fid",
+    "ExtractedPath": "extraction",
+    "HausdorffCount": "hausdorff",
+    "Hd19": "hausdorff",
+    "InceptionFeatures": "features",
+    "PathDecoder": "decoding",
+    "RandomConvFeatures": "features",
+    "ShapeFeatures": "shape_features",
+    "build_feature_extractor": "features",
+    "decode_path": "decoding",
+    "extract_path": "extraction",
+    "frechet_distance": "fid",
+    "mask_hausdorff": "geometry",
+    "marker_centre": "extraction",
+    "polyline_ape": "geometry",
+}
+"""Where each name lives: imported on first use, so that ``spade.metrics.catalog`` or ``shape_paths`` (numpy only)
+can be imported without torch."""
+
+__all__ = sorted(_HOMES)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOMES:
+        raise AttributeError(f"module 'spade.metrics' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"spade.metrics.{_HOMES[name]}"), name)
+    globals()[name] = value
+    return value

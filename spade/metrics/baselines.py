@@ -1,6 +1,6 @@
 """Classical predictors that learn nothing, scored with the same metrics as the models on the same instances.
 
-A learned planner is worth deploying only where it beats these on the operator's preference (DESIGN.md section 5):
+A learned planner is worth deploying only where it beats these on the operator's preference:
 
 - ``straight``: the straight line from the start to the goal;
 - ``shortest``: the minimum-cost path on the window's inflated costmap, what a Nav2-style global planner would
@@ -34,7 +34,6 @@ from spade.metrics.extraction import marker_centre
 
 BASELINES: tuple[str, ...] = ("straight", "shortest", "heading")
 """Names of the baselines, as used in metric keys (``test/baseline/<name>/ape_cm``)."""
-
 NAV2_ROBOT: dict[str, float] = {"radius_m": 0.105, "inflation_radius_m": 0.55, "cost_scaling_factor": 3.0}
 """The annotation tool's defaults (conf/annotate.yaml): TurtleBot3 Burger with Nav2's inflation layer."""
 NAV2_COST_WEIGHT = 4.0

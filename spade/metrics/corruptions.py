@@ -2,7 +2,7 @@
 
 A diffusion expert teaches a student through the margin only where it scores the demonstration better than what the
 student predicts. Before a guided result is read, the expert (with the margin's formulation) must rank the
-demonstration above paths known to be worse (DESIGN.md section 4; :mod:`spade.training.critic` scores them). Each
+demonstration above paths known to be worse (docs/method.md, "Is the expert a critic?"; :mod:`spade.training.critic` scores them). Each
 corruption turns a batch's path target (B, 1, H, W) in [0, 1], drawn at ``target_width_px`` like the training
 target, into a worse candidate:
 

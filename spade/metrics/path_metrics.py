@@ -8,7 +8,7 @@ from __future__ import annotations
 import logging
 
 import torch
-from torch import nn
+from torchmetrics import Metric, MetricCollection
 from torchmetrics.aggregation import MeanMetric
 
 from spade.metrics._inputs import per_instance_resolution, to_numpy
@@ -29,8 +29,13 @@ planner's figures are the ones a reader compares, not every statistic (``planner
 BASELINE_PLANNER_KEYS: tuple[str, ...] = ("ape_cm", "failure_rate", "over_20cm_rate", *PREFERENCE_KEYS)
 
 
-class PathMetrics(nn.Module):
+class PathMetrics(MetricCollection):
     """The paper's figures and the planner's, for predicted path probabilities against a batch's ground truth.
+
+    A :class:`~torchmetrics.MetricCollection` of DDP-safe torchmetrics (``ape``, ``hd``, ``preference`` and, with the
+    planner, ``planner_ape``, ``planner_hd``, ``low_confidence``, ``low_share``, ``planner_preference``; ``fid``):
+    the collection moves, resets and syncs them; :meth:`update` extracts and decodes each batch once for all of
+    them, and :meth:`compute` names their figures as a test logs them (each name in :mod:`spade.metrics.catalog`).
 
     - The paper's (keys ``ape_cm``, ``hd19``, ``failure_rate``, ``over_20cm_rate``, ...): the path extracted by
       threshold and skeleton (:func:`~spade.metrics.extraction.extract_path`), Hd19 of the thresholded image.
@@ -56,28 +61,31 @@ class PathMetrics(nn.Module):
                  planner: bool = True, tail_cm: float = 20.0, low_confidence_share: float = 0.1,
                  decoder: dict | None = None, planner_keys: tuple[str, ...] | None = PLANNER_KEYS,
                  commit_tol_cm: float = 1.5) -> None:
-        super().__init__()
-        self.planner_keys = None if planner_keys is None else tuple(planner_keys)
-        self.ape = APE(threshold=pred_threshold, tail_cm=tail_cm)
+        if not 0 <= low_confidence_share <= 1:
+            raise ValueError(f"low_confidence_share must lie in [0, 1], got {low_confidence_share}")
         # Hd19 in metres (0.95 m = 19 px of the paper's 0.05 m/px) so that coarser windows count the same
         # artifacts; the key stays "hd19". hd_threshold_m=null counts hd_threshold pixels instead.
         hd = dict(threshold=hd_threshold, pred_threshold=pred_threshold, threshold_m=hd_threshold_m,
                   name="hd19" if hd_threshold_m is not None else None)
-        self.hd = HausdorffCount(**hd)
+        members: dict[str, Metric] = {"ape": APE(threshold=pred_threshold, tail_cm=tail_cm),
+                                      "hd": HausdorffCount(**hd),
+                                      "preference": PreferenceMetrics(commit_tol_cm=commit_tol_cm)}
+        if planner:
+            members.update(planner_ape=APE(threshold=pred_threshold, tail_cm=tail_cm),
+                           planner_hd=HausdorffCount(**hd), low_confidence=MeanMetric(), low_share=MeanMetric(),
+                           planner_preference=PreferenceMetrics(commit_tol_cm=commit_tol_cm))
+        if fid:
+            fid_args = () if fid_extractor is None else (fid_extractor,)
+            members["fid"] = FID(*fid_args, extractor_kwargs=fid_extractor_kwargs)
+        # compute_groups=False: two members with equal states after a batch (the paper's and the planner's APE on
+        # one instance) must never be merged into one
+        super().__init__(members, compute_groups=False)
+        self.planner_keys = None if planner_keys is None else tuple(planner_keys)
         self.planner = planner
-        self.preference = PreferenceMetrics(commit_tol_cm=commit_tol_cm)
-        if not 0 <= low_confidence_share <= 1:
-            raise ValueError(f"low_confidence_share must lie in [0, 1], got {low_confidence_share}")
         self.low_confidence_share = float(low_confidence_share)
         self.decoder = PathDecoder(threshold=pred_threshold, force_endpoints=True, **dict(decoder or {}))
-        if planner:
-            self.planner_ape = APE(threshold=pred_threshold, tail_cm=tail_cm)
-            self.planner_hd = HausdorffCount(**hd)
-            self.low_confidence = MeanMetric()
-            self.low_share = MeanMetric()
-            self.planner_preference = PreferenceMetrics(commit_tol_cm=commit_tol_cm)
-        fid_args = () if fid_extractor is None else (fid_extractor,)
-        self.fid = FID(*fid_args, extractor_kwargs=fid_extractor_kwargs) if fid else None
+        if not fid:
+            self.fid = None  # the member, when there is one
         self._warned = False
 
     @property
@@ -154,14 +162,3 @@ class PathMetrics(nn.Module):
                 log.warning("FID left out: %d images, its extractor needs at least %d", have, need)
                 self._warned = True
         return out
-
-    def reset(self) -> None:
-        self.ape.reset()
-        self.hd.reset()
-        self.preference.reset()
-        if self.planner:
-            for metric in (self.planner_ape, self.planner_hd, self.low_confidence, self.low_share,
-                           self.planner_preference):
-                metric.reset()
-        if self.fid is not None:
-            self.fid.reset()

@@ -1,7 +1,7 @@
 """Metrics that see a preference: the ambiguity floor, plausibility and commitment.
 
 APE against the one demonstration of an instance cannot tell a good plan from the blend of two ways of turning:
-the demonstration is one draw among the alternatives the same state allows (:mod:`spade.annotation.alternatives`
+the demonstration is one draw among the alternatives the same state allows (:mod:`spade.annotation.alternative_demonstrations`
 draws them with the dataset). With the demonstration and its alternatives, the *plausible set* of an instance:
 
 - ``floor_cm``: the APE (to the demonstration) of the best single path a predictor could give without knowing

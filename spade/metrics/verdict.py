@@ -22,12 +22,13 @@ import math
 from dataclasses import dataclass
 from typing import Mapping
 
+from spade.metrics import catalog
 from spade.metrics.baselines import BASELINES
+from spade.metrics.catalog import BASELINE_LABELS
 
 DECIDING_FIGURE = "planner/ape_cm"
 TAIL_FIGURE = "planner/over_20cm_rate"
 PREFERENCE_FIGURES = ("planner/plausibility_cm", "planner/commit_rate")
-BASELINE_LABELS = {"straight": "straight line", "shortest": "Nav2-like shortest path", "heading": "heading template"}
 
 __all__ = ["DECIDING_FIGURE", "Verdict", "verdicts", "verdict_lines"]
 
@@ -58,7 +59,8 @@ class Verdict:
         text = (f"{model} {self.outcome} the {label} by the planner's APE and tail "
                 f"({self.ape[0]:.2f} vs {self.ape[1]:.2f} cm")
         if self.tail is not None:
-            text += f"; >20 cm {100 * self.tail[0]:.0f} % vs {100 * self.tail[1]:.0f} %"
+            tail = catalog.label(TAIL_FIGURE, qualified=False)
+            text += f"; {tail} {100 * self.tail[0]:.0f} % vs {100 * self.tail[1]:.0f} %"
         text += ")"
         if self.plausibility is not None:
             text += (f"; plausibility {self.plausibility[0]:.2f} vs {self.plausibility[1]:.2f} cm")

@@ -1,44 +1,39 @@
-"""SPADE's networks: the SKIPP-style student U-Nets, the two diffusion experts and their noise schedule."""
+"""SPADE's networks: the SKIPP-style student U-Nets, the two diffusion experts and their noise schedule.
 
-from spade.models.builders import ROLES, build_model, model_from_config, presets
-from spade.models.cond_expert import COND_EXPERT_PRESETS, CondExpertUNet, ConditionalResidualBlock2D, build_cond_expert
-from spade.models.diffusion import (
-    BETA_SCHEDULES,
-    SAMPLERS,
-    NoiseSchedule,
-    from_model_range,
-    to_model_range,
-)
-from spade.models.student import PAPER_PARAMETER_COUNTS, STUDENT_PRESETS, StudentUNet, build_student
-from spade.models.uncond_expert import UNCOND_EXPERT_PRESETS, ConvNeXtBlock, UncondExpertUNet, build_uncond_expert
+The names below are imported on first use (PEP 562), so that a torch-free module of this package
+(:mod:`~spade.models.paper_sizes`, :mod:`~spade.models.onnx_session`) can be imported without torch.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_HOMES = {
+    "ROLES": "builders", "build_model": "builders", "model_from_config": "builders", "presets": "builders",
+    "COND_EXPERT_PRESETS": "cond_expert", "CondExpertUNet": "cond_expert",
+    "ConditionalResidualBlock2D": "cond_expert", "build_cond_expert": "cond_expert",
+    "BETA_SCHEDULES": "diffusion", "SAMPLERS": "diffusion", "NoiseSchedule": "diffusion",
+    "from_model_range": "diffusion", "to_model_range": "diffusion",
+    "PAPER_PARAMETER_COUNTS": "paper_sizes",
+    "STUDENT_PRESETS": "student", "StudentUNet": "student", "build_student": "student",
+    "UNCOND_EXPERT_PRESETS": "uncond_expert", "ConvNeXtBlock": "uncond_expert", "UncondExpertUNet": "uncond_expert",
+    "build_uncond_expert": "uncond_expert",
+}
+"""Where each name lives."""
 
 
-def count_parameters(model, trainable_only: bool = True) -> int:
+def count_parameters(model: Any, trainable_only: bool = True) -> int:
     """Number of (trainable) parameters; works for models built on the ``meta`` device."""
     return sum(p.numel() for p in model.parameters() if p.requires_grad or not trainable_only)
 
 
-__all__ = [
-    "BETA_SCHEDULES",
-    "COND_EXPERT_PRESETS",
-    "PAPER_PARAMETER_COUNTS",
-    "ROLES",
-    "SAMPLERS",
-    "STUDENT_PRESETS",
-    "UNCOND_EXPERT_PRESETS",
-    "CondExpertUNet",
-    "ConditionalResidualBlock2D",
-    "ConvNeXtBlock",
-    "NoiseSchedule",
-    "StudentUNet",
-    "UncondExpertUNet",
-    "build_cond_expert",
-    "build_model",
-    "build_student",
-    "build_uncond_expert",
-    "count_parameters",
-    "from_model_range",
-    "model_from_config",
-    "presets",
-    "to_model_range",
-]
+def __getattr__(name: str) -> Any:
+    if name not in _HOMES:
+        raise AttributeError(f"module 'spade.models' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"spade.models.{_HOMES[name]}"), name)
+    globals()[name] = value
+    return value
+
+
+__all__ = sorted([*_HOMES, "count_parameters"])

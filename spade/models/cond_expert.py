@@ -27,7 +27,7 @@ COND_EXPERT_PRESETS: dict[str, dict[str, Any]] = {
     # CPU-friendly models for smoke runs and tests.
     "small": {"widths": (16, 32, 64, 96), "cond_widths": (16, 16, 32, 32), "time_dim": 64},
     "tiny": {"widths": (8, 16), "cond_widths": (8, 8), "time_dim": 16},
-    # Planners on a CPU (issue 23): four levels at 64 px (8 px at the bottleneck: the receptive field covers the
+    # Planners on a CPU: four levels at 64 px (8 px at the bottleneck: the receptive field covers the
     # window, where "tiny" sees about 20 px) and SiLU, which runs about 3x faster than Mish on a CPU (Mish and its
     # backward were 29 % of a training step). "cpu": scale=cpu; "cpu_lite": the quickstart's.
     "cpu": {"widths": (16, 32, 64, 96), "cond_widths": (16, 16, 32, 32), "time_dim": 64, "act": "silu"},

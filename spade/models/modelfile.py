@@ -25,8 +25,9 @@ runs. :func:`load_lightning` applies the same rule to Lightning's ``load_from_ch
 ``ModelRunner(states) -> logits``, with one device policy (:func:`resolve_device`). An ONNX file must be the export
 its metadata describes (shapes, weight digest, parity probe: :mod:`spade.models.onnx_check`).
 
-This module sits on the models floor: it imports torch, numpy and :mod:`spade.models.builders` only (onnx,
-onnxruntime and Lightning lazily, where a function needs them), so that training, evaluation, export, the
+This module sits on the models floor: it imports torch, numpy, :mod:`spade.models.builders` and
+:mod:`spade.models.onnx_session` (the ONNX Runtime set-up both ONNX runners share) only (onnx, onnxruntime and
+Lightning lazily, where a function needs them), so that training, evaluation, export, the
 planner and the benchmarks can all import it.
 """
 
@@ -49,6 +50,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from spade.models.onnx_session import OUTPUT_NAME, OnnxSession
 from spade.utils.devices import device_name
 from spade.utils.errors import UserError
 
@@ -67,7 +69,7 @@ DEFAULT_FOOTPRINT = {"radius_m": 0.105, "inflation_radius_m": 0.55}
 predates footprint records was trained for, unless its user changed the annotation config."""
 ENTRY_KEY = "spade"  # the checkpoint entry, and the ONNX metadata_props key
 TORCHSCRIPT_METADATA_FILE = "spade.json"
-INPUT_NAME, OUTPUT_NAME = "state", "logits"
+INPUT_NAME = "state"
 FORMATS = ("checkpoint", "onnx", "torchscript")
 RUNTIMES = {"checkpoint": "pytorch", "onnx": "onnxruntime", "torchscript": "torchscript"}
 RETRAIN = ("retrain it on robot-frame windows (python -m spade.train +experiment=<row>, which rebuilds old "
@@ -440,19 +442,8 @@ class ModelRunner:
         if role is not None:
             require_role(self.info, role, self.path)
         if self.format == "onnx":
-            ort = _import("onnxruntime")
-            self.device = resolve_device(device, "CUDAExecutionProvider" in ort.get_available_providers())
-            options = ort.SessionOptions()
-            if threads:
-                options.intra_op_num_threads = int(threads)
-            providers: list[Any] = ["CPUExecutionProvider"]
-            if self.device.startswith("cuda"):
-                index = int(self.device.split(":")[1]) if ":" in self.device else 0
-                providers.insert(0, ("CUDAExecutionProvider", {"device_id": index}))
-            self._session = ort.InferenceSession(str(self.path), options, providers=providers)
-            self._input = self._session.get_inputs()[0].name
-            outputs = [o.name for o in self._session.get_outputs()]
-            self._output = OUTPUT_NAME if OUTPUT_NAME in outputs else outputs[0]
+            self._session = OnnxSession(self.path, device, threads, ModelFileError)
+            self.device = self._session.device
             self._check_export()
         else:
             self.device = resolve_device(device)
@@ -465,15 +456,12 @@ class ModelRunner:
         digest, parity probe; else :class:`ModelFileError`. Exports from before the records: a warning."""
         from spade.models.onnx_check import check_onnx_student
 
-        output = next(o for o in self._session.get_outputs() if o.name == self._output)
-        check_onnx_student(self.path, self.info, self.path.read_bytes, self._session.get_inputs()[0].shape,
-                           output.shape, self, ModelFileError)
+        check_onnx_student(self.path, self.info, self.path.read_bytes, self._session.input.shape,
+                           self._session.output.shape, self, ModelFileError)
 
     def __call__(self, states: np.ndarray | torch.Tensor) -> np.ndarray:
         if self.format == "onnx":
-            x = states.detach().cpu().numpy() if isinstance(states, torch.Tensor) else states
-            x = np.ascontiguousarray(x, dtype=np.float32)
-            return np.asarray(self._session.run([self._output], {self._input: x})[0], dtype=np.float32)
+            return self._session(states.detach().cpu().numpy() if isinstance(states, torch.Tensor) else states)
         x = states if isinstance(states, torch.Tensor) else torch.from_numpy(np.ascontiguousarray(states, np.float32))
         model = self.net if self.net is not None else self._module
         with torch.inference_mode():

@@ -5,7 +5,7 @@
 Why ship a model: the quickstart (``make quickstart``, 10 minutes on 2 CPU cores, install included) cannot also
 train an expert worth learning from. The conditional expert that beats the heading template (``cpu_lite``, x0
 prediction, 594 optimisation steps) takes 9-19 minutes on one core; the tiny one that fits the budget plans
-worse than a straight line (README, issue 23). So the package carries that expert, trained by the project's own
+worse than a straight line. So the package carries that expert, trained by the project's own
 command (:data:`SHIPPED`'s ``rebuild``) on data the project generates, and the quickstart's Cond-DBC student
 learns from it. Nothing is downloaded: the file is in the repository, like FID's feature weights.
 
@@ -62,8 +62,8 @@ SHIPPED: dict[str, ShippedModel] = {
                 "spade.models.shipped ckpt=<its registered checkpoint> name=cond_expert_L",
         role="expert",
     ),
-    # The teacher (issue 47): the same network on the quickstart's data with Gaussian start and goal markers (the
-    # students' encoding since issue 45), 48 epochs of 54 steps, EMA 0.999, seed 42, its best epoch by validation
+    # The teacher (docs/results/teacher.md): the same network on the quickstart's data with Gaussian start and goal
+    # markers (the students' encoding, docs/results/encoding.md), 48 epochs of 54 steps, EMA 0.999, seed 42, its best epoch by validation
     # loss. The quickstart's student learns from it. Its figures: docs/results/teacher.md.
     "cond_expert_L_gaussian": ShippedModel(
         file="cond_expert_L_gaussian_cpu_lite_x0.ckpt",

@@ -34,6 +34,7 @@ import torch
 from torch import nn
 
 from spade.models.layers import check_input
+from spade.models.paper_sizes import PAPER_PARAMETER_COUNTS  # noqa: F401  (re-exported)
 
 STUDENT_PRESETS: dict[str, tuple[int, ...]] = {
     "small": (12, 24, 44),
@@ -42,8 +43,6 @@ STUDENT_PRESETS: dict[str, tuple[int, ...]] = {
 }
 """Channel widths per level, shallow to deep; depth (number of 2x downsamplings) is ``len(widths) - 1``."""
 
-PAPER_PARAMETER_COUNTS: dict[str, int] = {"small": 117_025, "medium": 1_926_209, "large": 31_114_785}
-"""Trainable parameter counts of the SPADE paper's students (3 input channels, 1 output)."""
 
 
 class _ConvBlock(nn.Module):

@@ -8,7 +8,7 @@
 - :mod:`spade.perf.throughput` - dataset-read and generation (annotation) throughput;
 - :mod:`spade.perf.dataset` - a large dataset read in a fresh process, with its resident memory;
 - :mod:`spade.perf.maps` - loading, resampling and generating maps;
-- :mod:`spade.perf.report` - the printed table and the JSON file.
+- :mod:`spade.perf.bench_report` - the printed table and the JSON file.
 - :mod:`spade.perf.bench` - the sections run together (``bench(cfg)``), what ``python -m spade.bench`` calls.
 
 Every function returns plain dicts of numbers (JSON-ready) and prints nothing. Timing itself

@@ -1,6 +1,6 @@
 """The alternatives sampler measured: its cost, and what its prefilter loses against a looser one.
 
-:mod:`spade.annotation.alternatives` draws by rejection on the executed path; to execute few templates it first
+:mod:`spade.annotation.alternative_demonstrations` draws by rejection on the executed path; to execute few templates it first
 keeps those whose *ideal* curve passes near the robot (``prefilter_px``, ``prefilter_deg``). ``compare`` draws the
 same robot states of a test set's scenarios with the shipped prefilter and with one ``looser`` times wider in both
 (the reference: nearer to rejection without any prefilter) and reports, under each, the floor, the distance of the
@@ -20,19 +20,20 @@ from typing import Any
 
 import numpy as np
 
-from spade.annotation.alternatives import (
+from spade.annotation.alternative_demonstrations import (
     AlternativesSettings,
     TemplateDraws,
-    _execute,
-    _heading_window,
-    _in_prior,
-    _remaining,
+    execute_template as _execute,
+    heading_window as _heading_window,
+    in_heading_prior as _in_prior,
+    remaining_path as _remaining,
     keypoints_pass,
     sample_templates,
     scenario_alternatives,
 )
 from spade.annotation.templates import SHAPES
 from spade.maps.frame import RobotFrame
+from spade.metrics import catalog
 from spade.metrics.preference import floor_path
 
 
@@ -219,7 +220,7 @@ def write_page(out_dir: str, comparison: dict[str, Any], floors: list[dict[str, 
     summ = comparison["summary"]
     rows = ["| figure (mean over states) | shipped prefilter | looser prefilter | ratio | paired t-test |",
             "|---|---:|---:|---:|---|"]
-    for key, label in (("floor_cm", "floor (cm)"), ("nearest_cm", "demonstration to its nearest alternative (cm)"),
+    for key, label in (("floor_cm", catalog.label("floor_cm")), ("nearest_cm", "demonstration to its nearest alternative (cm)"),
                        ("spread_cm", "median distance demonstration to alternatives (cm)"),
                        ("count", "alternatives drawn")):
         p = summ[key]["p"]
@@ -238,7 +239,7 @@ def write_page(out_dir: str, comparison: dict[str, Any], floors: list[dict[str, 
     text = "\n".join([
         "# Alternative demonstrations: the sampler checked",
         "",
-        f"The sampler (`spade/annotation/alternatives.py`) on {comparison['states']} robot states of "
+        f"The sampler (`spade/annotation/alternative_demonstrations.py`) on {comparison['states']} robot states of "
         f"{comparison['shape']}-shape scenarios of `{shown_path(comparison['dataset'])}`, with the shipped prefilter "
         f"({comparison['settings']['prefilter_px']} px, {comparison['settings']['prefilter_deg']} deg) and with one "
         f"twice as loose ({comparison['reference']['prefilter_px']} px, {comparison['reference']['prefilter_deg']} "

@@ -1,7 +1,7 @@
 """The sections of ``python -m spade.bench`` and the run that composes them (:func:`bench`).
 
 ``bench(cfg)`` takes the composed ``conf/bench.yaml`` and returns the results dict that
-:func:`spade.perf.report.format_report` prints and :func:`spade.perf.report.write_json` writes. Importing this
+:func:`spade.perf.bench_report.format_report` prints and :func:`spade.perf.bench_report.write_json` writes. Importing this
 module registers the ``${quick_or:QUICK,FULL}`` resolver the config uses.
 """
 
@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from spade.perf.report import check_targets
+from spade.perf.bench_report import check_targets
 from spade.utils.timing import machine_info
 
 log = logging.getLogger(__name__)

@@ -20,10 +20,10 @@ def closed_loop_costs(ckpt: str | Path, dataset: str | Path, scenarios: int | No
     """Drive ``scenarios`` (None: all) of the scenario set ``dataset`` with the student ``ckpt`` and the
     baselines; returns seconds per part, scenarios per second and plans per second."""
     from spade.closedloop.planners import BaselinePlanner
-    from spade.closedloop.scenarios import load_scenarios
+    from spade.closedloop.scenario_loading import load_scenarios
     from spade.closedloop.simulate import ClosedLoopSettings, drive
     from spade.data import PathDataset
-    from spade.deploy.planner import Planner
+    from spade.deploy.student_planner import Planner
 
     t0 = time.perf_counter()
     ds = PathDataset(dataset)

@@ -1,4 +1,4 @@
-"""GPU readiness: the paper's scale, briefly, on one NVIDIA GPU (``python -m spade.gpu_check``, issue 24).
+"""GPU readiness: the paper's scale, briefly, on one NVIDIA GPU (``python -m spade.gpu_check``).
 
 Development machines here have no GPU, so what the paper scale costs on one is measured by this one script when a
 GPU is at hand. It measures, at the paper's geometry (128 px windows, batch 64, bf16 autocast):
@@ -32,9 +32,10 @@ from typing import Any
 
 import torch
 
-from spade.perf.report import write_json  # noqa: F401  (the JSON writer of spade.bench, used by the entry point)
+from spade.metrics import catalog
+from spade.perf.bench_report import write_json  # noqa: F401  (the JSON writer of spade.bench, used by the entry point)
 from spade.utils.timing import machine_info, measure
-from spade.experiments.tracking.predictors import TOP_LEVEL_FILTER
+from spade.tracking.predictors import TOP_LEVEL_FILTER
 
 log = logging.getLogger(__name__)
 
@@ -246,11 +247,10 @@ def sampling_cost(preset: str, image_size: int, batch_size: int, ddim_steps: int
 
 def _run_figures(store: Path) -> list[dict[str, Any]]:
     """The runs of an MLflow SQLite store: name, wall seconds, and the test figures a reader compares."""
-    import mlflow
+    from spade.tracking.client import mlflow_client
 
-    client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{store}")
-    keys = ("test/ape_cm", "test/planner/ape_cm", "test/hd19", "test/failure_rate", "test/over_20cm_rate", "test/fid",
-            "test/seconds_per_sample")
+    client = mlflow_client(f"sqlite:///{store}")
+    keys = [catalog.mlflow_key(n) for n in (*catalog.GPU_CHECK, "seconds_per_sample")]
     rows = []
     for experiment in client.search_experiments():
         for run in client.search_runs([experiment.experiment_id], filter_string=TOP_LEVEL_FILTER):
@@ -362,12 +362,11 @@ def format_gpu_report(results: dict[str, Any]) -> str:
         p = results["pipeline"]
         state = "timed out" if p["timed_out"] else f"exit {p['exit_code']}"
         lines += [f"Pipeline ({state}, {p['wall_s']} s): `{p['command']}`", "",
-                  "| run | status | wall s | APE cm | planner APE cm | Hd19 | failures | > 20 cm | FID |",
-                  "|---|---|---|---|---|---|---|---|---|"]
+                  "| run | status | wall s | " + " | ".join(map(catalog.label, catalog.GPU_CHECK)) + " |",
+                  "|---|---|---|" + "---|" * len(catalog.GPU_CHECK)]
         for r in p["runs"]:
-            lines.append(f"| {r['run']} | {r['status']} | {r['wall_s']} | {r.get('ape_cm', '-')} | "
-                         f"{r.get('planner/ape_cm', '-')} | {r.get('hd19', '-')} | {r.get('failure_rate', '-')} | "
-                         f"{r.get('over_20cm_rate', '-')} | {r.get('fid', '-')} |")
+            lines.append(f"| {r['run']} | {r['status']} | {r['wall_s']} | "
+                         + " | ".join(str(r.get(n, "-")) for n in catalog.GPU_CHECK) + " |")
         if p.get("output_tail"):
             lines += ["", "```", p["output_tail"], "```"]
     return "\n".join(lines)

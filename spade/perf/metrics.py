@@ -205,15 +205,12 @@ def fid_sensitivity(images: int, image_size: int, seed: int = 0) -> dict[str, An
     rows = []
     for ext in (ShapeFeatures(), RandomConvFeatures(seed=0), RandomConvFeatures(seed=1), RandomConvFeatures(seed=2),
                 _Pixels()):
-        fid = FID(ext)
+        fid = FID(ext, reset_real_features=False)
         fid.update(real, real=True)
-        saved = {k: getattr(fid, k).clone() for k in ("real_n", "real_sum", "real_outer")}
         for kind, levels in SENSITIVITY_LEVELS.items():
             values = []
             for lv in levels:
                 fid.reset()
-                for k, v in saved.items():
-                    setattr(fid, k, v.clone())
                 fid.update(degraded[(kind, lv)], real=False)
                 values.append(float(fid.compute()["fid"]))
             rows.append({"extractor": ext.identity, "feature_dim": ext.feature_dim, "kind": kind, "levels": levels,
@@ -230,15 +227,12 @@ arc length, turn radius multiplier: 0 is a sharp corner)."""
 
 def _fid_against(extractor: Any, real: torch.Tensor, sets: dict[str, np.ndarray], batch: int = 256) -> dict[str, float]:
     """FID of every set against ``real`` with one extractor (the real statistics accumulated once)."""
-    fid = FID(extractor)
+    fid = FID(extractor, reset_real_features=False)
     for i in range(0, len(real), batch):
         fid.update(real[i : i + batch], real=True)
-    saved = {k: getattr(fid, k).clone() for k in ("real_n", "real_sum", "real_outer")}
     out = {}
     for name, images in sets.items():
         fid.reset()
-        for k, v in saved.items():
-            setattr(fid, k, v.clone())
         t = torch.from_numpy(np.asarray(images, dtype=np.float32))
         for i in range(0, len(t), batch):
             fid.update(t[i : i + batch], real=False)
@@ -301,7 +295,7 @@ def _load_paths(root: str | Path, shape: str | None) -> dict[str, Any]:
 
 def fid_test_table(test_dir: str | Path, resample_dir: str | Path | None = None, shape: str | None = "L",
                    extractors: tuple[str, ...] = ("shape", "randconv")) -> dict[str, Any]:
-    """Issue 21's table: FID against a real test set's ``shape`` ground-truth path images of the ground truth
+    """The FID sensitivity table: FID against a real test set's ``shape`` ground-truth path images of the ground truth
     resampled, the classical baselines (straight line, Nav2-like shortest path, heading template; their
     polylines drawn with :func:`~spade.metrics.baselines.draw_polyline`, like the ground truth's path channel)
     and the ground truth rotated by 180 degrees, per extractor.

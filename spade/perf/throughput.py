@@ -81,7 +81,7 @@ def pool_startup_s(workers: int, start_method: str = "spawn") -> float:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    from spade.annotation.pipeline import _init_worker
+    from spade.annotation.pipeline import init_worker as _init_worker
 
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(start_method),

@@ -7,7 +7,7 @@ DDS types, their conversions to SPADE's maps and paths, and ROS 2 MCAP recording
 - :mod:`spade.ros.core`: what the node does with each message (plan on a new goal, re-plan off the plan);
 - :mod:`spade.ros.node`: the node on DDS (topics ``rt/map``, ``rt/amcl_pose``, ``rt/goal_pose``, ``rt/plan``);
 - :mod:`spade.ros.recording`: plans and node sessions as ROS 2 MCAP bags (``rosbags``), and replays of bags;
-- :mod:`spade.ros.app`: what ``python -m spade.ros`` runs (``conf/ros.yaml``).
+- :mod:`spade.ros.launch`: what ``python -m spade.ros`` runs (``conf/ros.yaml``).
 
 Nothing is imported here: the DDS modules need the ``cyclonedds`` package (``pip install "spade[deploy]"``).
 """

@@ -24,10 +24,10 @@ from spade.utils.errors import ConfigError, exit_on_errors, run_entry_point, tas
 
 def user_errors() -> tuple[type[BaseException], ...]:
     """What the node reports as one line: config errors, missing files, model files it cannot use, bad bags.
-    (Not :func:`spade.experiments.config_checks.user_errors`, which imports the training stack.)"""
+    (Not :func:`spade.config.refusals.user_errors`, which counts every package's user errors.)"""
     errors: list[type[BaseException]] = [ConfigError, FileNotFoundError]
     for module, name in (("spade.models.modelfile", "ModelFileError"), ("spade.deploy.onnx_runtime", "ModelFileError"),
-                         ("spade.ros.recording", "BagError"), ("spade.deploy.registry", "RegistryError")):
+                         ("spade.ros.recording", "BagError"), ("spade.deploy.mlflow_models", "RegistryError")):
         mod = sys.modules.get(module)
         if mod is not None and hasattr(mod, name):
             errors.append(getattr(mod, name))
@@ -37,7 +37,7 @@ def user_errors() -> tuple[type[BaseException], ...]:
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="ros")
 @task
 def main(cfg: DictConfig) -> None:
-    from spade.ros.app import run
+    from spade.ros.launch import run
 
     exit_on_errors(user_errors)(run)(cfg)
 

@@ -37,8 +37,8 @@ import numpy as np
 from spade.ros.convert import grid_fields, path_yaws, split_stamp, yaw_to_quaternion
 from spade.utils.errors import ConfigError
 
-__all__ = ["BagError", "BagWriter", "NodeRecorder", "PLAN_TOPICS", "TEST_TOPICS", "check_recording_path", "replay_bag",
-           "window_to_base_link", "write_plan_bag", "write_test_bag"]
+__all__ = ["BagError", "BagMessages", "BagWriter", "NodeRecorder", "PLAN_TOPICS", "TEST_TOPICS", "check_recording_path",
+           "replay_bag", "window_to_base_link", "write_plan_bag", "write_test_bag"]
 
 log = logging.getLogger("spade.ros")
 
@@ -140,7 +140,7 @@ class BagWriter:
 
 
 # -- messages as rosbags builds them ----------------------------------------------------------------------------------
-class _Msgs:
+class BagMessages:
     """ROS 2 messages as ``rosbags`` instances (the same fields as :mod:`spade.ros.messages`, without DDS)."""
 
     def __init__(self, typestore: Any) -> None:
@@ -191,7 +191,7 @@ def write_plan_bag(path: str | Path, m: Any, results: Sequence[Any], *, frame_id
     names = {**PLAN_TOPICS, **dict(topics or {})}
     t0 = time.time_ns() if start_ns is None else int(start_ns)
     with BagWriter(path, latched=[names["map"]]) as bag:
-        msgs = _Msgs(bag.typestore)
+        msgs = BagMessages(bag.typestore)
         bag.write(names["map"], "nav_msgs/msg/OccupancyGrid", msgs.grid(m, frame_id, t0), t0)
         for i, result in enumerate(results):
             ns = t0 + i * int(period_ns)
@@ -310,7 +310,7 @@ def replay_bag(core: Any, path: str | Path, topics: Mapping[str, str] | None = N
                 have = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})) or "none"
                 raise BagError(f"replay={path} has no {' and no '.join(missing)} topic (topics: {have}); set "
                                "topics.map / topics.pose / topics.goal to the recording's names")
-            msgs = _Msgs(writer.typestore) if writer else None
+            msgs = BagMessages(writer.typestore) if writer else None
             log.info("replaying %s: %s", path, ", ".join(found))
             for conn, ns, raw in reader.messages(connections=wanted):
                 now[0] = int(ns)
@@ -406,7 +406,7 @@ def write_test_bag(path: str | Path, occupancy: np.ndarray, ground_truth: np.nda
     paths = [(names["prediction"], predictions), (names["planner"], planner),
              *((f"{names['baseline'].rstrip('/')}/{k}", v) for k, v in dict(baselines or {}).items())]
     with BagWriter(path, latched=()) as bag:
-        msgs = _Msgs(bag.typestore)
+        msgs = BagMessages(bag.typestore)
         for i in range(n):
             ns = t0 + i * int(period_ns)
             r = float(res[i])

@@ -123,7 +123,7 @@ def run_sim(cfg: Any) -> int:
     from omegaconf import OmegaConf
 
     from spade.maps import load_ros_map
-    from spade.ros.app import _domain_id, _foxglove_options
+    from spade.ros.launch import domain_id, foxglove_options
     from spade.ros.core import check_option
     from spade.utils.errors import ConfigError
 
@@ -154,8 +154,8 @@ def run_sim(cfg: Any) -> int:
     map_path = c.get("map")
     if not map_path:
         raise ConfigError("map: no map; pass map=MAP.yaml (a ROS map: yaml + image)")
-    domain = _domain_id(cfg)
-    foxglove = _foxglove_options(cfg)
+    domain = domain_id(cfg)
+    foxglove = foxglove_options(cfg)
     topics = {"map": "/map", "pose": "/amcl_pose", "goal": "/goal_pose", "plan": "/plan", **(c.get("topics") or {})}
     m = load_ros_map(Path(str(map_path)).expanduser())
     rng = np.random.default_rng(seed)

@@ -6,7 +6,7 @@ loads a sketch file's map (``load_map_sources`` at ``window.resolution_m``), its
 tool's (``costmap_context`` -> ``build_costmap``), a sketch is executed and checked by
 :func:`spade.annotation.pipeline.execute_operator_sketch` (the function ``sketch_instances`` applies to every
 sketch of a file), the dataset is built by :func:`spade.annotate.annotate` with ``sketches=`` and the policy is
-:class:`spade.deploy.planner.Planner`.
+:class:`spade.deploy.student_planner.Planner`.
 """
 
 from __future__ import annotations
@@ -443,7 +443,7 @@ class SketchWorkspace:
 
     def load_model(self, path: str | Path) -> dict[str, Any]:
         """Load a student (checkpoint or ONNX) as the planner; a wrong file is a :class:`RequestError`."""
-        from spade.deploy.planner import Planner, PlannerConfigError
+        from spade.deploy.student_planner import Planner, PlannerConfigError
 
         if "\x00" in str(path):  # the OS refuses such a path (ValueError: embedded null byte): a 400, not a 500
             raise RequestError("model path holds a NUL byte, which no file name can; give the path of a student "

@@ -127,7 +127,7 @@ class ExpertModule(PathPlanningModule):
         """Raise a clear error when this expert cannot judge a student's paths on the given data: other channels,
         another window size, or start and goal markers drawn another way (``encoding``, the data's
         ``data.encoding``; an expert saved before the encoding was recorded was trained on ``binary`` discs)."""
-        from spade.training.errors import ExpertMismatchError
+        from spade.training.expert_mismatch import ExpertMismatchError
 
         expected = in_channels if self.conditional else in_channels + 1
         have = self.net.condition_channels if self.conditional else self.net.in_channels

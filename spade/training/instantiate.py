@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 from pathlib import Path
 
@@ -15,13 +16,16 @@ from spade.models.modelfile import read_info
 log = logging.getLogger(__name__)
 
 
-def instantiate_callbacks(cfg: DictConfig | None) -> list[Callback]:
-    """Every ``_target_`` entry of the callbacks group, in order."""
+def instantiate_callbacks(cfg: DictConfig | None, run_cfg: DictConfig | None = None) -> list[Callback]:
+    """Every ``_target_`` entry of the callbacks group, in order. An entry marked ``_partial_: true`` is a
+    callback that needs the run's whole config: it is built with ``cfg=run_cfg`` (the run's MLflow record,
+    ``spade.tracking.callback.RunRecord``)."""
     callbacks: list[Callback] = []
     for name, conf in (cfg or {}).items():
         if isinstance(conf, DictConfig) and "_target_" in conf:
             log.info("Instantiating callback %s <%s>", name, conf._target_)
-            callbacks.append(hydra.utils.instantiate(conf))
+            built = hydra.utils.instantiate(conf)
+            callbacks.append(built(cfg=run_cfg) if isinstance(built, functools.partial) else built)
     return callbacks
 
 

@@ -1,4 +1,4 @@
-"""The diffusion margin of DBC / Cond-DBC (DESIGN.md section 4): how much less expert-like the student's path is.
+"""The diffusion margin of DBC / Cond-DBC (docs/method.md, "The training objective"): how much less expert-like the student's path is.
 
 L_agent  = || eps_phi(x_t(a_hat), t [, s]) - eps ||^2,  L_expert = || eps_phi(x_t(a), t [, s]) - eps ||^2,
 for an epsilon-predicting expert; in general each term is the expert's denoising error in its own
@@ -38,7 +38,7 @@ import torch
 from torch import nn
 
 from spade.models.diffusion import sample_timesteps
-from spade.training.errors import ExpertMismatchError
+from spade.training.expert_mismatch import ExpertMismatchError
 from spade.training.expert_module import ExpertModule, denoise, expert_input
 
 __all__ = ["AGENT_INPUTS", "EXPERT_KINDS", "SCORES", "DiffusionMargin", "MarginConfig", "MarginOptionError", "legacy_margin_options",
@@ -61,7 +61,7 @@ AGENT_INPUTS: tuple[str, ...] = ("probability", "straight_through")
 #: Floor (in the expert's own error units) under the demonstration's error in the scale-free scores.
 ERROR_FLOOR = 1e-6
 
-#: Keys of the options as checkpoints written before issue 19 store them (hyper-parameter ``guidance``) -> now.
+#: Keys of the options as older checkpoints store them (hyper-parameter ``guidance``) -> now.
 LEGACY_KEYS: dict[str, str] = {"weight": "lambda_dm"}
 
 

@@ -13,7 +13,7 @@ import torch.nn.functional as F
 from spade.models import build_model
 from spade.models.modelfile import load_checkpoint, load_lightning, read_info
 from spade.training.base import PathPlanningModule
-from spade.training.errors import ExpertMismatchError  # noqa: F401  (raised by ExpertModule.check_compatible)
+from spade.training.expert_mismatch import ExpertMismatchError  # noqa: F401  (raised by ExpertModule.check_compatible)
 from spade.training.margin import DiffusionMargin, MarginConfig, legacy_margin_options
 
 if TYPE_CHECKING:
@@ -35,7 +35,7 @@ class StudentModule(PathPlanningModule):
             :func:`torch.nn.functional.binary_cross_entropy_with_logits`). None or 1 is the paper's plain BCE. A path
             covers about 1-2% of a window, so a briefly trained student keeps every pixel below 0.5 and no path can
             be extracted; a weight of a few (the quickstart uses 4) makes it commit to a path early.
-        guidance: the name student checkpoints written before issue 19 keep ``margin`` under (``weight`` for
+        guidance: the name older student checkpoints keep ``margin`` under (``weight`` for
             ``lambda_dm``): read as ``margin`` (:func:`~spade.training.margin.legacy_margin_options`), so that
             such checkpoints load with their margin; never saved.
     """
@@ -62,7 +62,7 @@ class StudentModule(PathPlanningModule):
         super().__init__(optimizer, metrics, val_metric_batches, grid_size)
         self.lr_scheduler_factory = lr_scheduler  # see PathPlanningModule.configure_optimizers
         # logger=False: the checkpoint keeps them; SPADE logs the run's method as params itself
-        # (spade.experiments.tracking.params), so Lightning logs no second, unprefixed copy of them
+        # (spade.tracking.params), so Lightning logs no second, unprefixed copy of them
         self.save_hyperparameters(ignore=["optimizer", "lr_scheduler", "guidance"], logger=False)  # margin as mapped
         if bc_pos_weight is not None and not bc_pos_weight > 0:
             raise ValueError(f"bc_pos_weight must be > 0 (or null for plain BCE), got {bc_pos_weight}")

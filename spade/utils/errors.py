@@ -2,7 +2,7 @@
 
 A user error means the user must change something (a key, a file, a folder); the entry points report it as one
 line on stderr with exit status 2 instead of a traceback (``HYDRA_FULL_ERROR=1`` shows the traceback instead).
-Which exceptions count is the caller's: :func:`spade.experiments.config_checks.user_errors` lists every
+Which exceptions count is the caller's: :func:`spade.config.refusals.user_errors` lists every
 package's, ``python -m spade.data.verify`` only the dataset's.
 """
 

@@ -1,9 +1,9 @@
 """SPADE's one palette: the colour of each thing a picture shows, the same in every picture and page.
 
 Dataset previews (:mod:`spade.annotation.preview`), the MLflow prediction and progress pictures
-(:mod:`spade.training.visualize`, :mod:`spade.training.progress_picture`), plan pictures
+(:mod:`spade.training.visualize`, :mod:`spade.tracking.progress_picture`), plan pictures
 (:mod:`spade.deploy.plan_picture`), the run colours of the MLflow runs table
-(:mod:`spade.experiments.tracking.predictors`) and the docs (``docs/reference/tracking.md``, "Colours") take their
+(:mod:`spade.tracking.predictors`) and the docs (``docs/reference/tracking.md``, "Colours") take their
 colours from here. Defined once: a picture that needs a colour names the thing, not the colour.
 
 * the robot (its start disc, its heading, the student's window around it): blue;

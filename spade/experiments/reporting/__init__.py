@@ -5,7 +5,7 @@ comparisons with Welch's t-test, :func:`compare`, and the pairwise tests, :func:
 markdown), ``files`` (the CSV files), ``chart`` (the PNG) and
 ``build`` (:func:`build_report` puts one table's report together, :func:`report` those a config asks for). The
 tables themselves are :mod:`spade.experiments.tables`; publishing into MLflow is
-:func:`spade.experiments.tracking.report.publish_report`.
+:func:`spade.tracking.report.publish_report`.
 """
 
 from spade.experiments.reporting.build import Report, build_report, report

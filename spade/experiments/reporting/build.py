@@ -1,5 +1,5 @@
 """One table's report put together: fetch the results, render the markdown, write the CSV, chart and markdown
-files, publish into MLflow (:func:`spade.experiments.tracking.report.publish_report`); and the reports a
+files, publish into MLflow (:func:`spade.tracking.report.publish_report`); and the reports a
 ``conf/report.yaml`` config asks for (:func:`report`, what ``python -m spade.report`` runs)."""
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
         files["markdown"] = out / f"{table.key}.md"
         parts += ["", "Written: " + ", ".join(shown_path(p) for p in files.values())]
         files["markdown"].write_text("\n".join(parts) + "\n")
-    from spade.experiments.tracking.report import publish_report  # imports Lightning: only once a report is built
+    from spade.tracking.report import publish_report  # imports Lightning: only once a report is built
 
     links = publish_report(table, results, tracking_uri, files, log_to_runs)  # UI links; chart into the runs
     parts += ["", *links] if links else []
@@ -103,8 +103,8 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
 
 def report(cfg: DictConfig) -> list[Report]:
     """The reports of ``cfg.table`` (one table, or every table with ``table=all``); a store that does not exist is
-    refused (:class:`~spade.experiments.config_checks.ConfigError`), never created empty and reported all missing."""
-    from spade.experiments.checks import validate_report_config
+    refused (:class:`~spade.utils.errors.ConfigError`), never created empty and reported all missing."""
+    from spade.config.report_checks import validate_report_config
 
     validate_report_config(cfg)
     if str(cfg.table) == "closed_loop":  # not a paper table: drives of trained rows (spade/experiments/closed_loop_table)

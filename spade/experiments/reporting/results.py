@@ -1,7 +1,7 @@
 """A table's results from MLflow: each row's runs over seeds, and the headline comparisons between rows.
 
 Runs are matched to rows by run name (see :mod:`spade.experiments.tables`); a row's baselines and untrained model,
-logged as child runs of its run (:mod:`spade.experiments.tracking.predictors`), never count as its runs. A row is
+logged as child runs of its run (:mod:`spade.tracking.predictors`), never count as its runs. A row is
 the aggregate of its finished runs **at one scale, one run per distinct seed** (the seed is the run's ``cfg/seed``
 param): the scale is the one asked for (``scale=``) or else that of the row's latest finished run; of several
 finished runs with the same seed the one that ended last counts. Each cell is the mean over those seeds with the
@@ -140,9 +140,9 @@ def welch(a: list[float], b: list[float]) -> tuple[float | None, str]:
 
 def _search_all_runs(client: Any, experiment_id: str, filter_string: str) -> list[Any]:
     """The runs that match, each with its baselines' and untrained model's figures (its child runs) folded back
-    under the run's names (``test/baseline/<name>/...``: :func:`spade.experiments.tracking.predictors.
+    under the run's names (``test/baseline/<name>/...``: :func:`spade.tracking.predictors.
     with_predictor_figures`)."""
-    from spade.experiments.tracking.predictors import with_predictor_figures
+    from spade.tracking.predictors import with_predictor_figures
 
     runs, token = [], None
     while True:
@@ -163,14 +163,14 @@ def _seed(run: Any) -> int | None:
 
 def _is_predictor_run(run: Any) -> bool:
     """A child run holding a row's baseline or untrained model (tag ``mlflow.parentRunId``:
-    :func:`spade.experiments.tracking.predictors.is_predictor_run`, not imported here: the tracking package imports
+    :func:`spade.tracking.predictors.is_predictor_run`, not imported here: the tracking package imports
     Lightning), which carries the row's metric names but is none of its seeds."""
     return bool(run.data.tags.get("mlflow.parentRunId"))
 
 
 def _data_key(run: Any) -> tuple[str, ...] | None:
     """The datasets a run trained, validated and tested on: the digests of its MLflow dataset inputs (the datasets'
-    fingerprints, :mod:`spade.experiments.tracking.dataset_inputs`); None for a run that logged none."""
+    fingerprints, :mod:`spade.tracking.dataset_inputs`); None for a run that logged none."""
     inputs = getattr(getattr(run, "inputs", None), "dataset_inputs", None) or []
     digests = sorted({str(d.dataset.digest) for d in inputs if getattr(d, "dataset", None) is not None})
     return tuple(digests) or None
@@ -196,9 +196,9 @@ def fetch_results(table: Table, tracking_uri: str, scale: str | None = None) -> 
     Runs are matched by run name; ``scale`` keeps only runs tagged with that scale (otherwise the scale of the row's
     latest finished run). The finished runs at that scale count once per distinct seed (the latest of each seed).
     """
-    from mlflow import MlflowClient
+    from spade.tracking.client import mlflow_client
 
-    client = MlflowClient(tracking_uri=tracking_uri)
+    client = mlflow_client(tracking_uri)
     results = {row: RowResult(row) for row in table.rows}
     experiment = client.get_experiment_by_name(table.experiment)
     if experiment is None:

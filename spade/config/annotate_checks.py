@@ -1,0 +1,150 @@
+"""``spade.annotate``'s checks, before any map is loaded: the output folder, the sources, numbers, the split and the
+window."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from spade.annotation.sketch_file import SketchFileError, load_sketch_file
+from spade.annotation.sources import expand_map_specs
+from spade.annotation.split import parse_split
+from spade.annotation.templates import SHAPES
+from spade.data.writer import check_output_dir
+from spade.annotation.sources import parse_procedural
+from spade.config.file_checks import input_file, same_file, check_map_size, check_writable
+from spade.config.values import (
+    MISSING,
+    check_bool,
+    check_choice,
+    check_int,
+    check_int_value,
+    check_number_value,
+    get,
+    unset,
+)
+from spade.config.window_checks import check_window_holds_manoeuvre
+from spade.utils.errors import ConfigError
+
+
+def validate_annotate_config(cfg: Mapping[str, Any] | DictConfig) -> None:
+    """``spade.annotate``'s checks before any map is loaded: the output (never a file or a folder that is not a
+    SPADE dataset, an existing dataset only with ``overwrite=true``), the sources, numbers, the split of one map
+    into a training and a test part (``split``, ``split_fraction``, ``split_axis``) and the window."""
+    cfg = cfg if isinstance(cfg, DictConfig) else OmegaConf.create(dict(cfg))
+    if unset(get(cfg, "out_dir")):
+        raise ConfigError("out_dir is not set; pass out_dir=FOLDER (a new folder, or a dataset with overwrite=true)")
+    check_bool(cfg, "overwrite")
+    overwrite = get(cfg, "overwrite")
+    out_dir = Path(str(get(cfg, "out_dir"))).expanduser()
+    check_output_dir(out_dir, bool(overwrite))
+    check_writable("out_dir", out_dir, "choose an out_dir in a folder you can write")
+    check_int(cfg, "seed", 0, 2**32 - 1, fix=", e.g. seed=0")
+    check_int(cfg, "workers", 0, fix=" (0 or 1: in this process)")
+    check_choice(cfg, "start_method", ["spawn", "forkserver", "fork"])
+    check_int(cfg, "num_waypoints", 2, fix=", e.g. num_waypoints=64")
+    sketches = get(cfg, "sketches")
+    rosbag = get(cfg, "rosbag.paths")
+    skipp = get(cfg, "skipp.root")
+    if not unset(sketches):
+        path = input_file("sketches", sketches, "give a sketch file written by python -m spade.sketch (sketches.yaml)")
+        if same_file(path.parent, out_dir) or out_dir in path.parents:
+            raise ConfigError(f"out_dir={out_dir} holds the input sketches={sketches}; choose another out_dir")
+        try:
+            load_sketch_file(path)  # parsed and validated before any map is loaded or any instance made
+        except SketchFileError as exc:
+            raise ConfigError(f"sketches={sketches}: {exc}") from None
+    elif not unset(rosbag):
+        for item in rosbag if isinstance(rosbag, list) else [rosbag]:
+            if not Path(str(item)).expanduser().exists():
+                raise ConfigError(f"rosbag.paths entry {item} does not exist; give rosbag2 folders (or .mcap / .db3)")
+    elif not unset(skipp):
+        if not Path(str(skipp)).expanduser().is_dir():
+            raise ConfigError(f"skipp.root={skipp} is not a folder; give the folder of SKIPP's published dataset")
+    else:
+        check_int(cfg, "num_instances", 1, fix=", e.g. num_instances=200")
+        shapes = get(cfg, "shape")
+        for shape in shapes if isinstance(shapes, list) else [shapes]:
+            if shape not in SHAPES:
+                raise ConfigError(f"shape={shape!r} is not one of {list(SHAPES)}; use shape=L, shape=U or shape=[L,U]")
+        try:
+            specs = expand_map_specs(get(cfg, "maps"))
+        except (ValueError, FileNotFoundError) as exc:
+            raise ConfigError(f"maps={get(cfg, 'maps')}: {exc}; give a folder of ROS map yamls, yaml paths or specs "
+                              "such as warehouse:1") from None
+        for spec in specs:
+            if parse_procedural(spec) is None:
+                check_map_size("maps", spec, get(cfg, "window.resolution_m"))
+    settings = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)
+    parse_split(settings)  # SplitError, a ConfigError: the key, its value and the fix in one line
+    check_annotation_settings(settings, "")
+    check_window_holds_manoeuvre(settings, "")
+
+
+#: The annotation settings' numbers (conf/annotate.yaml): key, (low, low_open, high, high_open, none_ok, integer).
+#: A negative robot radius or inflation, a zero spacing, a probability above 1 would be written into a dataset's
+#: generator record (or loop for ever); each is refused in one line before any map is loaded.
+_ANNOTATION_NUMBERS: dict[str, tuple[float | None, bool, float | None, bool, bool, bool]] = {
+    "robot.radius_m": (0, True, None, False, False, False),
+    "robot.inflation_radius_m": (0, False, None, False, False, False),
+    "robot.cost_scaling_factor": (0, True, None, False, False, False),
+    "window.margin_m": (0, False, None, False, True, False),
+    "template.p_mirror": (0, False, 1, False, True, False),
+    "template.step_m": (0, True, None, False, True, False),
+    "template.keypoint_spacing_m": (0, True, None, False, True, False),
+    "scenario.goal_clearance_m": (0, False, None, False, True, False),
+    "scenario.sketch_clearance_m": (0, False, None, False, True, False),
+    "scenario.areas_per_map": (1, False, None, False, True, True),
+    "scenario.first_index": (0, False, None, False, True, True),
+    "scenario.headings_per_goal": (1, False, None, False, True, True),
+    "scenario.max_attempts": (1, False, None, False, True, True),
+    "scenario.max_per_map": (1, False, None, False, True, True),
+    "scenario.max_failures": (1, False, None, False, True, True),
+    "execution.cost_weight": (0, False, None, False, True, False),
+    "execution.crop_pad_m": (0, False, None, False, True, False),
+    "execution.simplify_px": (0, False, None, False, True, False),
+    "execution.smoothing_px": (0, False, None, False, True, False),
+    "execution.step_px": (0, True, None, False, True, False),
+    "execution.max_deviation_m": (0, True, None, False, True, False),
+    "execution.shape_tolerance_deg": (0, True, 180, False, True, False),
+    "execution.heading_window_m": (0, True, None, False, True, False),
+    "instances.spacing_m": (0, True, None, False, True, False),
+    "instances.min_remaining_m": (0, False, None, False, True, False),
+    "instances.disc_radius_m": (0, True, None, False, True, False),
+    "alternatives.count": (0, False, 255, False, True, True),
+    "alternatives.batch": (1, False, None, False, True, True),
+    "alternatives.max_draws": (1, False, None, False, True, True),
+    "preview.count": (0, False, None, False, True, True),
+    "preview.scale": (1, False, None, False, True, True),
+}
+
+
+def _setting(settings: Mapping[str, Any], dotted: str) -> Any:
+    node: Any = settings
+    for part in dotted.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return MISSING
+        node = node[part]
+    return node
+
+
+def check_annotation_settings(settings: Mapping[str, Any], where: str) -> None:
+    """The annotation settings' numbers typed and ranged (:data:`_ANNOTATION_NUMBERS`): a robot radius > 0, an
+    inflation >= 0, spacings > 0, probabilities in [0, 1], counts >= 1. ``where`` prefixes the key in the message
+    (``""`` for spade.annotate, ``"annotate."`` for the sketch server, ``"data.train_generate: "`` for a dataset a
+    run generates)."""
+    for key, (low, low_open, high, high_open, none_ok, integer) in _ANNOTATION_NUMBERS.items():
+        value = _setting(settings, key)
+        if value is MISSING:
+            continue
+        name = f"{where}{key}"
+        fix = f" (conf/annotate.yaml: {key})"
+        if integer:
+            check_int_value(name, value, None if low is None else int(low), None if high is None else int(high),
+                             none_ok=none_ok, fix=fix)
+        else:
+            check_number_value(name, value, low, high, low_open=low_open, high_open=high_open, none_ok=none_ok,
+                                fix=fix)

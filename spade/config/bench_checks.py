@@ -1,0 +1,59 @@
+"""``spade.bench``'s checks before any section runs."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from omegaconf import DictConfig
+
+from spade.config.file_checks import output_file, check_paths
+from spade.config.values import (
+    MISSING,
+    check_bool,
+    check_int,
+    check_int_list,
+    check_number,
+    get,
+)
+from spade.utils.errors import ConfigError
+
+
+def validate_bench_config(cfg: DictConfig, known_sections: Sequence[str]) -> None:
+    """``spade.bench``'s checks before any section runs: ``quick`` a boolean, ``sections`` among ``known_sections``
+    (:data:`spade.perf.bench.SECTIONS`, passed in: the benchmark sits on a higher floor), a thread count, and an
+    ``out_json`` (given or the default) that replaces only an earlier benchmark's JSON, with ``overwrite=true``."""
+    check_bool(cfg, "quick")
+    check_paths(cfg)
+    check_bool(cfg, "overwrite")
+    out = get(cfg, "out_json")
+    if out is not MISSING:
+        if out is None:
+            raise ConfigError("out_json is not set; set out_json to a new .json file (the results are written there)")
+        output_file("out_json", out, {}, "set out_json to a new .json file", (".json",), get(cfg, "overwrite"))
+    sections = get(cfg, "sections")
+    if sections is not MISSING and sections is not None:
+        if isinstance(sections, str) or not isinstance(sections, list):
+            raise ConfigError(f"sections={sections!r} is not a list; use sections=[{','.join(list(known_sections)[:2])}]")
+        unknown = sorted({str(x) for x in sections} - set(known_sections))
+        if unknown:
+            raise ConfigError(f"sections: unknown {', '.join(unknown)}; use sections=[...] with some of "
+                              f"{', '.join(known_sections)}")
+    check_int(cfg, "threads", 1, none_ok=True, fix=" (null: all cores)")
+    check_int(cfg, "seed", 0, 2**32 - 1)
+    # sizes and counts of the sections: a batch of 0 would print a latency for nothing
+    for key in ("student.image_sizes", "student.batches", "experts.ddim_steps", "training.image_sizes",
+                "decoder.image_sizes", "quality.ddim_steps", "annotation_scaling.image_sizes",
+                "annotation_scaling.workers"):
+        check_int_list(cfg, key, 1, none_ok=True)
+    for key in ("student.runs", "experts.image_size", "experts.num_train_timesteps", "experts.max_timed_steps",
+                "training.batch_size", "training.runs", "decoder.instances", "metrics.image_size",
+                "metrics.instances", "metrics.fid_images", "metrics.batch", "data.window_px", "data.train_instances",
+                "data.test_instances", "data.workers", "quality.samples", "quality.train_steps",
+                "quality.num_train_timesteps", "annotation_scaling.num_instances", "dataset.image_size",
+                "dataset.waypoints"):
+        check_int(cfg, key, 1, none_ok=True)
+    check_int(cfg, "training.warmup", 0, none_ok=True)
+    check_number(cfg, "data.resolution_m", 0, low_open=True, none_ok=True)
+    check_number(cfg, "data.spacing_m", 0, low_open=True, none_ok=True)
+    for key in ("student.onnx", "training.batched_terms", "metrics.sensitivity"):
+        check_bool(cfg, key)

@@ -1,0 +1,95 @@
+"""``spade.critic``'s checks, before any model or test set is loaded and before any MLflow run: the expert and
+the optional student (role, kind, geometry), the margin's options, the test set it scores, the numbers of its
+measurement, the store and the results folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from spade.config.checkpoint_checks import check_checkpoint, check_geometry
+from spade.config.dataset_checks import check_folder_path
+from spade.config.options import DataOptions, read_options
+from spade.config.file_checks import check_path_value, check_paths, check_writable
+from spade.config.store_checks import check_logger_store
+from spade.config.values import MISSING, check_bool, check_int, get, unset
+from spade.utils.errors import ConfigError
+
+
+def validate_critic_config(cfg: DictConfig) -> None:
+    """``spade.critic``'s checks: every bad input is one line naming the key, its value and the fix, before the
+    expert is loaded (a garbage store failed after a minute of measuring; a student given as the expert, a missing
+    test set or ``critic.bands=0`` with a traceback)."""
+    from spade.config.preflight import check_expert_kind, margin_config
+
+    check_paths(cfg)
+    check_int(cfg, "seed", 0, 2**32 - 1, fix=", e.g. seed=0")
+    fix = ("pass a diffusion expert checkpoint (python -m spade.train +experiment=cond_expert_L, or "
+           "spade/models/weights/)")
+    ckpt = get(cfg, "ckpt_path")
+    if unset(ckpt):
+        raise ConfigError(f"ckpt_path is not set; {fix} (ckpt_path=PATH)")
+    margin = margin_config(cfg)  # model.margin's options, by MarginConfig's own checks
+    info = check_checkpoint("ckpt_path", ckpt, "expert", fix)
+    _check_test_set(cfg)
+    check_expert_kind(cfg, ckpt, info)  # Cond-DBC needs a conditional expert, DBC an unconditional one
+    check_geometry("ckpt_path", ckpt, info, cfg, ("test_dir",))
+    student = get(cfg, "student_ckpt")
+    if not unset(student):
+        info = check_checkpoint("student_ckpt", student, "student",
+                                 "pass a student checkpoint written by python -m spade.train, or student_ckpt=null")
+        check_geometry("student_ckpt", student, info, cfg, ("test_dir",))
+    check_int(cfg, "critic.max_instances", 1, none_ok=True, fix=" (null: the whole test set)")
+    check_int(cfg, "critic.draws_per_band", 1, fix=", e.g. critic.draws_per_band=2")
+    check_int(cfg, "critic.bands", 1, fix=", e.g. critic.bands=5")
+    check_int(cfg, "critic.batch_size", 1, fix=", e.g. critic.batch_size=32")
+    check_int(cfg, "critic.expert_samples", 0, fix=" (0: no planner figures; 2 or more: K samples per instance)")
+    if get(cfg, "critic.expert_samples") == 1:
+        raise ConfigError("critic.expert_samples=1: two samples at least measure the spread; set it to 0 (no planner "
+                          "figures) or 2 or more (e.g. 4)")
+    check_bool(cfg, "overwrite")
+    read_options(cfg, DataOptions)  # data.target_width_px, the markers' encoding, the loader's numbers
+    check_logger_store(cfg)
+    out = get(cfg, "output_dir")
+    if out is not MISSING and out is not None:
+        check_path_value("output_dir", out, "set output_dir to a folder for the results page (null: no page)")
+        if Path(str(out)).expanduser().is_file():
+            raise ConfigError(f"output_dir={out} is a file; give a folder for the results page (null: no page)")
+        check_writable("output_dir", Path(str(out)).expanduser() / "page.md",
+                       "give a folder you can write for the results page (null: no page)")
+        if margin is not None:
+            from spade.training.critic import page_stem
+            from spade.deploy.outputs import replace_refusal
+
+            for suffix in (".md", ".png"):
+                stem = page_stem(str(ckpt), margin, not unset(student))
+                path = Path(str(out)).expanduser() / (stem + suffix)
+                refusal = replace_refusal("output_dir", path, get(cfg, "overwrite") is True,
+                                          label=f"output_dir={out}: {path}")
+                if refusal is not None:
+                    raise ConfigError(refusal)
+
+
+def _check_test_set(cfg: DictConfig) -> None:
+    """The critic scores the test set alone (``data.test_dir``): it must hold a dataset, opened with the loaders'
+    checks (files, checksums, finite values), and instances of ``data.test_shape``. No training set is needed."""
+    from spade.config.dataset_checks import check_existing_dataset
+
+    test_dir = get(cfg, "data.test_dir")
+    check_folder_path("data.test_dir", test_dir)
+    fix = ("pass the test set the expert is judged on (data.test_dir=DIR), or build it first (any `python -m "
+           "spade.train +experiment=...` of this scale and data generates it, or `python -m spade.annotate "
+           "preset=test out_dir=DIR`)")
+    if unset(test_dir):
+        raise ConfigError(f"data.test_dir is not set; {fix}")
+    root = Path(str(test_dir)).expanduser()
+    if not (root / "manifest.json").is_file():
+        raise ConfigError(f"data.test_dir={test_dir} holds no dataset; {fix}")
+    dataset = check_existing_dataset("data.test_dir", root)
+    shape = get(cfg, "data.test_shape")
+    if shape not in (MISSING, None) and dataset is not None:
+        shapes = sorted(set(dataset.labels("shape")))
+        if shape not in shapes:
+            raise ConfigError(f"data.test_shape={shape!r}: {test_dir} holds no instances of that shape (it holds "
+                              f"{shapes}); set data.test_shape to one of them, or data.test_shape=null for all")

@@ -1,0 +1,49 @@
+"""``spade.evaluate``'s checks: the checkpoint's role, and its geometry against the data it is tested on."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from spade.config.checkpoint_checks import check_geometry, read_checkpoint
+from spade.config.dataset_checks import check_data, check_datasets
+from spade.config.file_checks import check_paths
+from spade.config.store_checks import check_logger_store
+from spade.config.values import MISSING, check_bool, check_int, get, unset
+from spade.utils.errors import ConfigError
+
+
+def validate_evaluate_config(cfg: DictConfig) -> None:
+    """``spade.evaluate``'s checks: the checkpoint's role, and its geometry against the data it is tested on."""
+    check_paths(cfg)
+    check_int(cfg, "seed", 0, 2**32 - 1, fix=", e.g. seed=42")
+    # source_seed is logged as the run's cfg/seed only when the test has finished: a bad one failed after a whole
+    # evaluation and left a FINISHED run
+    check_int(cfg, "source_seed", 0, 2**32 - 1, none_ok=True,
+               fix=": the seed of the training run the checkpoint comes from (null: none)")
+    for key in ("open_loop", "closed_loop"):
+        check_bool(cfg, key)
+    check_int(cfg, "mcap_instances", 1, fix=", e.g. mcap_instances=64")
+    ckpt = get(cfg, "ckpt_path")
+    fix = "pass a student or expert checkpoint written by python -m spade.train"
+    if ckpt in (MISSING, None, "", "???"):
+        raise ConfigError(f"ckpt_path is not set; {fix} (ckpt_path=PATH)")
+    path = Path(str(ckpt))
+    if not path.exists():
+        raise ConfigError(f"ckpt_path={ckpt} does not exist; {fix}")
+    if path.is_dir():
+        raise ConfigError(f"ckpt_path={ckpt} is a directory, not a checkpoint file; {fix}")
+    info = read_checkpoint("ckpt_path", ckpt, path, fix)
+    if info.get("role") not in ("student", "expert"):
+        raise ConfigError(f"ckpt_path={ckpt} is not a SPADE student or expert checkpoint (role "
+                          f"{info.get('role')!r}); {fix}")
+    if get(cfg, "closed_loop") not in (MISSING, None, False) and info.get("role") != "student":
+        raise ConfigError(f"closed_loop=true drives a planner, and ckpt_path={ckpt} is an {info.get('role')}: pass a "
+                          "student checkpoint, or leave closed_loop=false (an expert's test has no closed loop)")
+    check_logger_store(cfg)
+    check_data(cfg)
+    # the test set alone is read (the validation split of data.train_dir stands in only without a test_dir)
+    scored = ("test",) if not unset(get(cfg, "data.test_dir")) else ("train",)
+    check_datasets(cfg, scored)
+    check_geometry("ckpt_path", ckpt, info, cfg, tuple(f"{name}_dir" for name in scored))

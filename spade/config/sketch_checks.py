@@ -1,0 +1,70 @@
+"""``spade.sketch``'s checks before the server starts: map, port, model file, output folder and window."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from spade.config.checkpoint_checks import check_checkpoint
+from spade.config.file_checks import (
+    MODEL_SUFFIXES,
+    input_file,
+    map_files,
+    check_map_size,
+    check_path_value,
+    check_paths,
+    check_writable,
+)
+from spade.config.values import MISSING, check_int, get, unset
+from spade.config.window_checks import check_window_holds_manoeuvre
+from spade.utils.errors import ConfigError
+
+
+def validate_sketch_config(cfg: DictConfig) -> None:
+    """``spade.sketch``'s checks before the server starts: map, port, model file, output folder and window."""
+    check_paths(cfg)
+    map_files("map", get(cfg, "map"))
+    check_int(cfg, "port", 1, 65535, fix=", e.g. port=8765")
+    host = get(cfg, "host")
+    if not isinstance(host, str) or not host:
+        raise ConfigError(f"host={host!r} is not an address; use host=127.0.0.1")
+    model = get(cfg, "model_path")
+    if not unset(model):
+        path = input_file("model_path", model, "pass model=PATH: a student .ckpt or its .onnx / .pt export",
+                           MODEL_SUFFIXES)
+        if path.suffix.lower() == ".ckpt":
+            check_checkpoint("model_path", str(path), "student",
+                              "pass a student checkpoint (an expert does not plan)")
+    out = get(cfg, "out_dir")
+    check_path_value("out_dir", out, "give a folder for sketches.yaml and dataset/ (or leave out_dir unset)")
+    if not unset(out) and Path(str(out)).expanduser().is_file():
+        raise ConfigError(f"out_dir={out} is a file; give a folder for sketches.yaml and dataset/")
+    if not unset(out):
+        check_writable("out_dir", Path(str(out)).expanduser() / "sketches.yaml",
+                       "give a folder you can write for sketches.yaml and dataset/")
+    for key in ("models", "allowed_hosts"):
+        value = get(cfg, key)
+        if value not in (MISSING, None) and not isinstance(value, list):
+            raise ConfigError(f"{key}={value!r} must be a list, e.g. {key}=[a,b]")
+    for folder in get(cfg, "models") if isinstance(get(cfg, "models"), list) else []:
+        if not Path(str(folder)).expanduser().is_dir():
+            raise ConfigError(f"models entry {folder} is not a folder; give folders that hold model files")
+    # heavy: the sketching app imports its web server (FastAPI) and the annotation pipeline
+    from spade.sketching.app import flatten_overrides
+    from spade.sketching.workspace import annotation_config
+
+    overrides = get(cfg, "annotate")
+
+    try:
+        settings = annotation_config(flatten_overrides(overrides) if isinstance(overrides, Mapping) else [])
+    except Exception as exc:  # noqa: BLE001 - an override Hydra cannot apply
+        raise ConfigError(f"annotate: {exc}".replace("\n", " ")) from None
+    from spade.config.annotate_checks import check_annotation_settings
+
+    check_annotation_settings(settings, "annotate.")
+    files = map_files("map", get(cfg, "map"))
+    if files:
+        check_map_size("map", files[0], (settings.get("window") or {}).get("resolution_m"))
+    check_window_holds_manoeuvre(settings, "annotate")

@@ -1,0 +1,87 @@
+"""Checks of an MLflow store URI: an existing SQLite file is an MLflow store before MLflow opens (and would
+write into) it."""
+
+from __future__ import annotations
+
+import sqlite3
+from pathlib import Path
+from urllib.parse import urlparse
+
+from omegaconf import DictConfig
+
+from spade.config.values import get, unset
+from spade.utils.errors import ConfigError
+
+
+def store_path(uri: str) -> Path | None:
+    """The local path of an MLflow store URI (sqlite:///..., file:..., a plain path); None for a server."""
+    if uri.startswith("sqlite:"):
+        rest = uri[len("sqlite:"):]
+        return Path(rest[3:] if rest.startswith("///") else rest.lstrip("/"))
+    if uri.startswith("file:"):
+        return Path(urlparse(uri).path)
+    if "://" in uri:
+        return None  # http(s), databricks, ...: the server answers for itself
+    return Path(uri)
+
+
+def check_store_file(key: str, uri: str) -> None:
+    """An existing SQLite store at ``uri`` must be an MLflow store: read-only, before MLflow opens it (MLflow
+    creates its tables in any SQLite file it is given, so a reader would write into someone else's database)."""
+    path = store_path(uri)
+    if path is None or not uri.startswith("sqlite:") or not path.is_file():
+        return
+    try:
+        db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=30)
+        try:
+            tables = {row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        finally:
+            db.close()
+    except sqlite3.DatabaseError as exc:
+        raise ConfigError(f"{key}={uri}: {path} is not an SQLite database ({exc}); point {key} (or SPADE_HOME / "
+                          "MLFLOW_TRACKING_URI) at the MLflow store the runs were logged to") from None
+    missing = {"experiments", "runs", "metrics", "alembic_version"} - tables
+    if missing:
+        raise ConfigError(f"{key}={uri}: {path} is an SQLite database but not an MLflow store (no "
+                          f"{', '.join(sorted(missing))} table); it is left untouched. Point {key} (or SPADE_HOME / "
+                          "MLFLOW_TRACKING_URI) at the MLflow store the runs were logged to")
+
+
+#: Seconds a tracking server has to answer the check's one request (MLflow's own client would retry for minutes).
+SERVER_TIMEOUT_S = 5.0
+
+
+def check_server(key: str, uri: str, timeout: float = SERVER_TIMEOUT_S) -> None:
+    """An ``http(s)://`` tracking URI must answer, checked with one request of ``timeout`` seconds before any work:
+    MLflow's client retries an unreachable server with back-off (``MLFLOW_HTTP_REQUEST_MAX_RETRIES``, 7 by default,
+    ``MLFLOW_HTTP_REQUEST_TIMEOUT`` 120 s each), so a wrong port failed after minutes, with a traceback. Any HTTP
+    answer (even 401 or 404: a proxy, a server with authentication) counts as reachable; MLflow's own errors then
+    speak for it."""
+    import urllib.error
+    import urllib.request
+
+    if not uri.startswith(("http://", "https://")):
+        return
+    url = uri.rstrip("/") + "/health"
+    try:
+        with urllib.request.urlopen(urllib.request.Request(url, method="GET"), timeout=timeout):  # noqa: S310
+            return
+    except urllib.error.HTTPError:
+        return  # it answered
+    except (urllib.error.URLError, OSError, ValueError) as exc:
+        reason = getattr(exc, "reason", exc)
+        raise ConfigError(f"{key}={uri}: no tracking server answers there within {timeout:g} s ({reason}); start it "
+                          f"(mlflow server --port PORT) or point {key} (or SPADE_HOME / MLFLOW_TRACKING_URI) at a "
+                          "reachable server or a sqlite:/// store") from None
+
+
+def check_logger_store(cfg: DictConfig) -> None:
+    """The store a run logs to, when it is an existing SQLite file, must be an MLflow store
+    (:func:`check_store_file`): someone else's database is never written; a tracking server must answer
+    (:func:`check_server`)."""
+    if get(cfg, "logger.mlflow") in (None, {}):
+        return  # logger=none: nothing is logged
+    uri = get(cfg, "logger.mlflow.tracking_uri")
+    if not unset(uri):
+        check_store_file("logger.mlflow.tracking_uri", str(uri))
+        check_server("logger.mlflow.tracking_uri", str(uri))

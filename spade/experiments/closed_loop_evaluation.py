@@ -1,0 +1,175 @@
+"""The closed-loop section of a test: a checkpoint and the classical planners driven through the test set's
+scenarios (``python -m spade.evaluate closed_loop=true``; the ``drive`` config group, conf/drive/default.yaml).
+
+Predictors, each logged as ``closed_loop/<prefix><key>`` (:data:`spade.metrics.closed_loop.CLOSED_LOOP_KEYS`):
+the model (no prefix), ``baseline/shortest/`` and ``baseline/heading/`` (:class:`spade.closedloop.planners.
+BaselinePlanner`, on the student's windows, replanned by the same rule), ``demonstration/`` (replayed exactly: the
+reference, success 1 and APE 0 when the scenarios are rebuilt right) and ``followed/`` (the demonstration given to
+the follower as its plan: what the follower itself costs).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from spade.deploy.follower import FollowerSettings
+from spade.closedloop.scenario_loading import Scenario, load_scenarios
+from spade.closedloop.simulate import ClosedLoopSettings, Episode, drive, replay
+from spade.ros.core import CoreSettings
+from spade.utils.errors import UserError
+
+__all__ = ["PREDICTOR_PREFIXES", "closed_loop_settings", "run_closed_loop", "scenario_set"]
+
+log = logging.getLogger(__name__)
+
+PREDICTOR_PREFIXES = {"model": "", "shortest": "baseline/shortest/", "heading": "baseline/heading/",
+                      "demonstration": "demonstration/", "followed": "followed/"}
+
+
+class ClosedLoopConfigError(UserError, ValueError):
+    """A ``drive`` setting the closed loop cannot use."""
+
+
+def closed_loop_settings(drive_cfg: Mapping[str, Any], seed: int) -> ClosedLoopSettings:
+    """The loop's settings from the ``drive`` config section (conf/drive/default.yaml)."""
+    d = dict(drive_cfg)
+    try:
+        follower = FollowerSettings(**dict(d.get("follower") or {}))
+        replan = CoreSettings(replan_distance_m=float(d["replan_distance_m"]),
+                              replan_every_m=None if d.get("replan_every_m") is None else float(d["replan_every_m"]),
+                              min_replan_interval_s=float(d["min_replan_interval_s"]),
+                              subgoal_replan_m=float(d["subgoal_replan_m"]))
+        return ClosedLoopSettings(follower=follower, replan=replan, goal_tolerance_m=float(d["goal_tolerance_m"]),
+                                  budget_factor=float(d["budget_factor"]), budget_extra_s=float(d["budget_extra_s"]),
+                                  noise_xy_m=float(d["noise_xy_m"]), noise_yaw_rad=float(d["noise_yaw_rad"]),
+                                  initial_offset_m=float(d["initial_offset_m"]),
+                                  initial_offset_rad=float(d["initial_offset_rad"]), seed=int(seed))
+    except (TypeError, ValueError, KeyError) as err:
+        raise ClosedLoopConfigError(f"drive: {err}. See conf/drive/default.yaml for every setting and its meaning"
+                                    ) from None
+
+
+def _shape_indices(dataset: Any, shape: str | None) -> list[int]:
+    return [i for i, s in enumerate(dataset.labels("shape")) if shape in (None, s)]
+
+
+def scenario_set(datamodule: Any, count: int | None) -> list[Scenario]:
+    """The scenarios to drive: with ``count`` None, those of the data module's test set (its shape); else a
+    scenario set of ``count`` scenarios made with the test set's own generator config, one state per scenario
+    (``instances.spacing_m`` beyond any path), in a folder beside the test set (generated once, then reused).
+    The same seed and maps give the test set's scenarios first, then more."""
+    datamodule.prepare_data()
+    datamodule.setup("test")
+    test = datamodule.test_set
+    dataset = getattr(test, "dataset", test)
+    shape = getattr(datamodule, "test_shape", None)
+    if count is None:
+        indices = list(getattr(test, "indices", range(len(dataset))))
+        return load_scenarios(dataset, indices)
+    count = int(count)
+    if count < 1:
+        raise ClosedLoopConfigError(f"drive.scenarios must be null (the test set's) or >= 1, got {count}")
+    if datamodule.test_dir is None or datamodule.test_generate is None or datamodule.generator is None:
+        raise ClosedLoopConfigError("drive.scenarios=N needs a data config with a test_dir and its test_generate "
+                                    "(conf/data/lshape.yaml); use drive.scenarios=null for the test set's own")
+    from spade.data import PathDataset
+    from spade.data.checks import check_dataset
+
+    root = Path(datamodule.test_dir).with_name(f"{Path(datamodule.test_dir).name}_scenarios{count}")
+    config = _scenario_config(datamodule.test_generate, count, shape)
+    check_dataset(root, config, "drive.scenarios")
+    if not (root / "manifest.json").is_file():
+        log.info("making a closed-loop scenario set of %d scenarios at %s", count, root)
+        datamodule.generator(root, config)
+    scenarios = PathDataset(root)
+    return load_scenarios(scenarios, _shape_indices(scenarios, shape), limit=count)
+
+
+def _scenario_config(test_generate: Any, count: int, shape: str | None) -> dict[str, Any]:
+    from omegaconf import OmegaConf
+
+    config = OmegaConf.to_container(OmegaConf.create(test_generate), resolve=True)
+    layers = config.get("set") or []
+    layers = list(layers) if isinstance(layers, list) else [layers]
+    layer: dict[str, Any] = {"num_instances": count, "instances": {"spacing_m": 1.0e6}}
+    if shape is not None:
+        layer["shape"] = shape
+    config["set"] = [*layers, layer]
+    return config
+
+
+def _figures(episodes: list[Episode], commit_tol_cm: float) -> dict[str, float]:
+    from spade.metrics.closed_loop import ClosedLoopMetrics
+
+    metric = ClosedLoopMetrics(commit_tol_cm=commit_tol_cm)
+    metric.update(episodes)
+    return {k: float(v) for k, v in metric.compute().items()}
+
+
+def predictors(ckpt_path: str | Path | None, scenarios: list[Scenario], baselines: list[str],
+               planner_options: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The planners to drive, by name: the model (when ``ckpt_path``), the baselines on its windows (or on the
+    test set's window when there is no model), the followed demonstration."""
+    from spade.closedloop.planners import BASELINE_PLANNERS, BaselinePlanner, DemonstrationPlanner
+
+    out: dict[str, Any] = {}
+    frame = resolution = margin = None
+    if ckpt_path is not None:
+        from spade.deploy.student_planner import Planner
+
+        model = Planner(ckpt_path, **{"far_goal": "clip", **dict(planner_options or {})})
+        out["model"] = model
+        frame, resolution, margin = model.frame, model.resolution, model.margin_m
+    for kind in baselines:
+        if kind not in BASELINE_PLANNERS:
+            raise ClosedLoopConfigError(f"drive.baselines: unknown planner {kind!r}; choose from "
+                                        f"{list(BASELINE_PLANNERS)}")
+        if frame is None:
+            raise ClosedLoopConfigError("closed-loop baselines need the model's window: give a ckpt_path")
+        out[kind] = BaselinePlanner(kind, frame, resolution, margin_m=margin, far_goal="clip")
+    out["followed"] = DemonstrationPlanner(scenarios)
+    return out
+
+
+def run_closed_loop(ckpt_path: str | Path | None, scenarios: list[Scenario], drive_cfg: Mapping[str, Any],
+                    seed: int) -> tuple[dict[str, float], dict[str, list[Episode]]]:
+    """Drive ``scenarios`` with the model and the baselines; returns the ``closed_loop/*`` metrics and each
+    predictor's episodes."""
+    if not scenarios:
+        raise ClosedLoopConfigError("no scenarios to drive: the test set holds none of the test shape")
+    settings = closed_loop_settings(drive_cfg, seed)
+    commit_tol = float(drive_cfg.get("commit_tol_cm", 5.0))
+    metrics: dict[str, float] = {}
+    episodes: dict[str, list[Episode]] = {}
+    t0 = time.perf_counter()
+    episodes["demonstration"] = replay(scenarios, settings)
+    for name, planner in predictors(ckpt_path, scenarios, list(drive_cfg.get("baselines") or []),
+                                    drive_cfg.get("planner")).items():
+        started = time.perf_counter()
+        episodes[name] = drive(planner, scenarios, settings)
+        log.info("closed loop: %s drove %d scenarios in %.1f s", name, len(scenarios), time.perf_counter() - started)
+    for name, eps in episodes.items():
+        for key, value in _figures(eps, commit_tol).items():
+            metrics[f"closed_loop/{PREDICTOR_PREFIXES[name]}{key}"] = value
+    metrics["closed_loop/seconds"] = time.perf_counter() - t0
+    return metrics, episodes
+
+
+def worst_episodes(episodes: list[Episode], count: int) -> list[Episode]:
+    """The ``count`` worst episodes: failures first, then by APE."""
+    from spade.metrics.closed_loop import episode_figures
+
+    scored = [(0 if e.success else 1, episode_figures(e)["ape_cm"], i) for i, e in enumerate(episodes)]
+    return [episodes[i] for _, _, i in sorted(scored, reverse=True)[:count]]
+
+
+def episode_summary(episodes: Mapping[str, list[Episode]]) -> dict[str, Any]:
+    """Per predictor, the outcome of every scenario (for the run's JSON artifact)."""
+    return {name: [{"scenario": e.scenario.scenario_id, "outcome": e.outcome, "steps": e.steps,
+                    "replans": len(e.plans), "end": [float(v) for v in np.asarray(e.path)[-1]]} for e in eps]
+            for name, eps in episodes.items()}

@@ -1,0 +1,91 @@
+"""A run's MLflow record, in one place, and how a person opens it in the MLflow UI.
+
+The one entry from training is the callback :class:`~spade.tracking.callback.RunRecord` (``run_record`` in
+``conf/callbacks/default.yaml``) with SPADE's MLflow logger (:mod:`~spade.tracking.logger`,
+``conf/logger/mlflow.yaml``). One module per job:
+
+- :mod:`~spade.tracking.client`: the one way an MLflow store is opened (:func:`mlflow_client`, a fresh SQLite
+  store under a lock) and the registry alias ``champion`` (:data:`CHAMPION_ALIAS`);
+- :mod:`~spade.tracking.callback`: the run's record from its first stage to its last (opened, described, closed);
+- :mod:`~spade.tracking.logger`: SPADE's MLflow logger (references held back for the child runs, test figures at
+  one step, the margin on the validation's axis, the run opened safely and closed once);
+- :mod:`~spade.tracking.runs`: the record's steps (bind, config and process, status, description, stale runs);
+- :mod:`~spade.tracking.links`: the MLflow UI's address, the URLs of runs, runs tables and artifacts, and the
+  ``mlflow ui`` command (:func:`ui_lines`, printed at the end of training and by ``spade.report``);
+- :mod:`~spade.tracking.experiment_tags`: an experiment's metadata: tagged as model training, its description
+  (the paper table it reproduces and how to regenerate it) and SPADE's runs view;
+- :mod:`~spade.tracking.dataset_inputs`: a run's datasets as MLflow dataset inputs;
+- :mod:`~spade.tracking.descriptions`: a run's description and the descriptions of the models it registers;
+- :mod:`~spade.tracking.logged_model`: a student run's best checkpoint as the run's own MLflow Model ``model``;
+- :mod:`~spade.tracking.params`: a run's parameters, the settings that describe the method;
+- :mod:`~spade.tracking.predictors`: the classical baselines and the untrained model as child runs;
+- :mod:`~spade.tracking.progress_picture`: the run's training, epoch by epoch, as a picture;
+- :mod:`~spade.tracking.registry`: models in the MLflow Model Registry, pinned by alias;
+- :mod:`~spade.tracking.run_report`: the run's report, ``report/run_report.md`` and ``report/test_figures.csv``;
+- :mod:`~spade.tracking.summary`: the closing lines of ``spade.train`` and ``spade.evaluate``;
+- :mod:`~spade.tracking.report`: ``spade.report``'s table published in MLflow.
+
+The names below are re-exported for the callers that import them from the package (imported on first use).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+# name -> module: imported on first use (PEP 562), so that a torch- and Lightning-free module of this package
+# (predictors, links, run_report, client) can be imported without the ones that need Lightning (runs, logger)
+_EXPORTS = {
+    "DatasetUse": "dataset_inputs", "dataset_fingerprint": "dataset_inputs", "dataset_uses": "dataset_inputs",
+    "log_dataset_inputs": "dataset_inputs",
+    "figures_table": "descriptions", "prerequisite_uses": "descriptions", "run_description": "descriptions",
+    "KIND_TAG": "experiment_tags", "NOTE_TAG": "experiment_tags", "VIEW_TAG": "experiment_tags",
+    "ui_lines": "links",
+    "run_params": "params",
+    "PREDICTOR_TAG": "predictors", "TOP_LEVEL_FILTER": "predictors", "is_predictor_run": "predictors",
+    "log_predictor_runs": "predictors", "with_predictor_figures": "predictors",
+    "publish_report": "report",
+    "log_run_report": "run_report",
+    "bind_experiment": "runs", "finish_evaluation": "runs", "log_run_config": "runs",
+    "CHAMPION_ALIAS": "client", "mlflow_client": "client",
+    "RunRecord": "callback",
+    "run_summary": "summary",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+__all__ = [
+    "CHAMPION_ALIAS",
+    "KIND_TAG",
+    "NOTE_TAG",
+    "PREDICTOR_TAG",
+    "TOP_LEVEL_FILTER",
+    "VIEW_TAG",
+    "DatasetUse",
+    "RunRecord",
+    "bind_experiment",
+    "dataset_fingerprint",
+    "dataset_uses",
+    "figures_table",
+    "finish_evaluation",
+    "is_predictor_run",
+    "log_dataset_inputs",
+    "log_predictor_runs",
+    "log_run_config",
+    "log_run_report",
+    "mlflow_client",
+    "prerequisite_uses",
+    "publish_report",
+    "run_description",
+    "run_params",
+    "run_summary",
+    "ui_lines",
+]
