@@ -67,3 +67,24 @@ def test_importing_the_train_command_loads_no_other_commands_checks() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split("\n")
     assert int(out[0]) <= 45, out[1]
     assert not any(m.endswith(("sketch_checks", "plan_checks", "export_checks")) for m in out[1].split())
+
+
+def test_the_constructors_refuse_with_their_options_checks() -> None:
+    """The data module and the LightningModules build their options dataclass: the preflight's one-line message,
+    before anything is built."""
+    from spade.data.datamodule import PathDataModule
+    from spade.training.expert_module import ExpertModule
+    from spade.training.student_module import StudentModule
+
+    cases = [
+        (lambda: StudentModule(size="small", bc_pos_weight=0), "model.bc_pos_weight=0 is out of range"),
+        (lambda: ExpertModule(preset="tiny", sampler="euler"), "model.sampler='euler' is not one of"),
+        (lambda: ExpertModule(preset="tiny", test_samples=1), "model.test_samples=1 is out of range"),
+        (lambda: PathDataModule(None, batch_size=0), "data.batch_size=0 is out of range"),
+        (lambda: PathDataModule(None, target_width_px=2), "data.target_width_px=2 is not an odd number"),
+        (lambda: PathDataModule(None, encoding="square"), "data.encoding='square' is not a marker encoding"),
+    ]
+    for build, message in cases:
+        with pytest.raises(ConfigError) as err:
+            build()
+        assert message in str(err.value) and "\n" not in str(err.value)

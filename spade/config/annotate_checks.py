@@ -16,18 +16,10 @@ from spade.annotation.templates import SHAPES
 from spade.data.writer import check_output_dir
 from spade.annotation.sources import parse_procedural
 from spade.config.file_checks import input_file, same_file, check_map_size, check_writable
-from spade.config.values import (
-    MISSING,
-    check_bool,
-    check_choice,
-    check_int,
-    check_int_value,
-    check_number_value,
-    get,
-    unset,
-)
+from spade.config.values import check_bool, check_choice, check_int, get
 from spade.config.window_checks import check_window_holds_manoeuvre
 from spade.utils.errors import ConfigError
+from spade.utils.option_checks import MISSING, check_int_value, check_number_value, unset
 
 
 def validate_annotate_config(cfg: Mapping[str, Any] | DictConfig) -> None:

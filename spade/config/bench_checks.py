@@ -7,15 +7,9 @@ from collections.abc import Sequence
 from omegaconf import DictConfig
 
 from spade.config.file_checks import output_file, check_paths
-from spade.config.values import (
-    MISSING,
-    check_bool,
-    check_int,
-    check_int_list,
-    check_number,
-    get,
-)
+from spade.config.values import check_bool, check_int, check_int_list, check_number, get
 from spade.utils.errors import ConfigError
+from spade.utils.option_checks import MISSING
 
 
 def validate_bench_config(cfg: DictConfig, known_sections: Sequence[str]) -> None:

@@ -16,8 +16,9 @@ from typing import Any
 from omegaconf import DictConfig
 
 from spade.data.checks import data_geometry
-from spade.config.values import MISSING, get
+from spade.config.values import get
 from spade.utils.errors import ConfigError
+from spade.utils.option_checks import MISSING
 
 
 def checkpoint_info(path: str | Path) -> dict[str, Any]:

@@ -13,8 +13,9 @@ from spade.config.dataset_checks import check_folder_path
 from spade.config.options import DataOptions, read_options
 from spade.config.file_checks import check_path_value, check_paths, check_writable
 from spade.config.store_checks import check_logger_store
-from spade.config.values import MISSING, check_bool, check_int, get, unset
+from spade.config.values import check_bool, check_int, get
 from spade.utils.errors import ConfigError
+from spade.utils.option_checks import MISSING, unset
 
 
 def validate_critic_config(cfg: DictConfig) -> None:

@@ -12,24 +12,16 @@ from omegaconf import DictConfig
 from spade.annotation.sources import expand_map_specs
 from spade.data.checks import check_dataset
 from spade.data.settings import dataset_settings
-from spade.config.values import (
-    MISSING,
-    check_int,
-    check_number,
-    folder_value,
-    get,
-    is_int,
-    opt,
-    unset,
-)
+from spade.config.values import check_int, check_number, folder_value, get, opt
 from spade.config.file_checks import check_path_value
 from spade.config.window_checks import check_window_size, check_window_holds_manoeuvre
 from spade.utils.errors import ConfigError
+from spade.utils.option_checks import MISSING, is_int, unset
 
 
 def check_data(cfg: DictConfig) -> None:
-    """The data module's options (:class:`~spade.config.options.DataOptions`), the ``scale`` group's numbers, and
-    each dataset's folder and generation settings (window, maps, instance counts) against the model."""
+    """The data module's options (:class:`~spade.data.datamodule_options.DataOptions`), the ``scale`` group's
+    numbers, and each dataset's folder and generation settings (window, maps, instance counts) against the model."""
     from spade.config.options import DataOptions, read_options
 
     read_options(cfg, DataOptions)

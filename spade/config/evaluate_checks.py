@@ -10,8 +10,9 @@ from spade.config.checkpoint_checks import check_geometry, read_checkpoint
 from spade.config.dataset_checks import check_data, check_datasets
 from spade.config.file_checks import check_paths
 from spade.config.store_checks import check_logger_store
-from spade.config.values import MISSING, check_bool, check_int, get, unset
+from spade.config.values import check_bool, check_int, get
 from spade.utils.errors import ConfigError
+from spade.utils.option_checks import MISSING, unset
 
 
 def validate_evaluate_config(cfg: DictConfig) -> None:

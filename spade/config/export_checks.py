@@ -7,17 +7,9 @@ from omegaconf import DictConfig
 
 from spade.config.checkpoint_checks import check_checkpoint
 from spade.config.file_checks import input_file, output_file, same_file, check_paths
-from spade.config.values import (
-    MISSING,
-    check_bool,
-    check_choice,
-    check_int,
-    check_int_list,
-    check_number,
-    get,
-    unset,
-)
+from spade.config.values import check_bool, check_choice, check_int, check_int_list, check_number, get
 from spade.utils.errors import ConfigError
+from spade.utils.option_checks import MISSING, unset
 
 
 def validate_export_config(cfg: DictConfig) -> None:

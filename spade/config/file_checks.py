@@ -14,9 +14,10 @@ from omegaconf import DictConfig
 
 from spade.annotation.sources import parse_procedural
 from spade.deploy.outputs import replace_refusal
-from spade.config.values import MISSING, get, is_number, unset
+from spade.config.values import get
 from spade.maps.ros_io import MapFormatError, read_map_yaml
 from spade.utils.errors import ConfigError
+from spade.utils.option_checks import MISSING, is_number, unset
 
 
 MODEL_SUFFIXES = (".ckpt", ".onnx", ".pt")

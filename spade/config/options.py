@@ -4,8 +4,11 @@ One dataclass per configurable, in the shape of :class:`spade.training.margin.Ma
 options of that config node (``data``, ``model`` of a student or of an expert, the budget keys of ``trainer``),
 and ``__post_init__`` refuses a value of the wrong type or out of range in one line naming the full key, its
 value and the fix (:class:`~spade.utils.errors.ConfigError`). :func:`read_options` builds one from the composed
-config, as the preflight does before any work; the LightningModules and the data module no longer repeat these
-checks.
+config, as the preflight does before any work. The options of a configurable live next to it, on its floor
+(:class:`~spade.data.datamodule_options.DataOptions`, :class:`~spade.training.module_options.StudentOptions`,
+:class:`~spade.training.module_options.ExpertOptions`; imported here for the preflight), and the data module and
+the LightningModules build them from their own arguments: each check exists once. Only the trainer's budget,
+which no SPADE class consumes, is defined here.
 
 Which model options apply is found from the model's class, never from the spelling of its path:
 :func:`model_options_type` maps the ``_target_`` of SPADE's two modules to their options, and asks any other
@@ -20,22 +23,16 @@ groups), and its messages are several lines that name neither the fix nor the ac
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
-from typing import Any, ClassVar, TypeVar
+from dataclasses import dataclass, fields
+from typing import ClassVar, TypeVar
 
 from omegaconf import DictConfig, OmegaConf
 
-from spade.config.values import (
-    MISSING,
-    check_choice_value,
-    check_int_value,
-    check_number_value,
-    get,
-    is_int,
-    is_number,
-)
+from spade.config.values import get
+from spade.data.datamodule_options import DataOptions
+from spade.training.module_options import ExpertOptions, StudentOptions
 from spade.utils.errors import ConfigError
+from spade.utils.option_checks import MISSING, check_int_value, check_number_value, is_int, is_number
 
 __all__ = ["DataOptions", "ExpertOptions", "StudentOptions", "TrainerBudget", "model_options_type", "model_role",
            "read_options"]
@@ -93,108 +90,6 @@ class TrainerBudget:
             if not ((is_int(value) and value >= 0) or (is_number(value) and 0 <= value <= 1)):
                 raise ConfigError(f"trainer.{key}={value!r} must be a fraction in [0, 1] or a whole number of "
                                   "batches >= 0")
-
-
-@dataclass(frozen=True)
-class DataOptions:
-    """The loader options of :class:`~spade.data.datamodule.PathDataModule` (``data.*``; its folders and
-    generation settings are checked against the disk by :mod:`spade.config.dataset_checks`). Defaults are the
-    data module's."""
-
-    node: ClassVar[str] = "data"
-
-    batch_size: int = 32
-    eval_batch_size: int | None = None
-    num_workers: int = 0  # 0: load in the main process
-    val_fraction: float = 0.1
-    split_seed: int | None = 0
-    max_train_instances: int | None = None
-    max_test_instances: int | None = None
-    target_width_px: int = 1  # the path target's width in pixels, odd
-    encoding: str = "binary"  # the start and goal markers (spade.data.encoding.MARKER_ENCODINGS)
-
-    def __post_init__(self) -> None:
-        from spade.data.encoding import MARKER_ENCODINGS
-
-        check_int_value("data.batch_size", self.batch_size, 1, fix=", e.g. data.batch_size=32")
-        check_int_value("data.eval_batch_size", self.eval_batch_size, 1, none_ok=True)
-        check_int_value("data.num_workers", self.num_workers, 0, fix=" (0 loads in the main process)")
-        check_number_value("data.val_fraction", self.val_fraction, 0, 1, high_open=True,
-                           fix=", e.g. data.val_fraction=0.15")
-        check_int_value("data.split_seed", self.split_seed, none_ok=True)
-        check_int_value("data.max_train_instances", self.max_train_instances, 1, none_ok=True)
-        check_int_value("data.max_test_instances", self.max_test_instances, 1, none_ok=True)
-        width = self.target_width_px
-        if not is_int(width) or width < 1 or width % 2 == 0:
-            raise ConfigError(f"data.target_width_px={width!r} is not an odd number of pixels >= 1; set it to 1 (or "
-                              "3, 5, ...)")
-        if self.encoding not in MARKER_ENCODINGS:
-            raise ConfigError(f"data.encoding={self.encoding!r} is not a marker encoding; use one of "
-                              f"{list(MARKER_ENCODINGS)} (binary: the paper's discs)")
-
-
-def _check_optimizer(optimizer: Any) -> None:
-    """``model.optimizer``: a learning rate > 0 and a weight decay >= 0 (its other keys are the optimiser's)."""
-    if not isinstance(optimizer, Mapping):
-        return
-    check_number_value("model.optimizer.lr", optimizer.get("lr", MISSING), 0, low_open=True, fix=", e.g. 1e-3")
-    check_number_value("model.optimizer.weight_decay", optimizer.get("weight_decay", MISSING), 0, none_ok=True)
-
-
-def _preset_names(kind: str) -> list[str]:
-    from spade.models import presets  # heavy: spade.models imports diffusers
-
-    return presets(kind)
-
-
-@dataclass(frozen=True)
-class StudentOptions:
-    """The options of :class:`~spade.training.student_module.StudentModule` (``model.*``) that it does not check
-    itself; the margin's are :class:`~spade.training.margin.MarginConfig`'s, the checkpoints the preflight's."""
-
-    node: ClassVar[str] = "model"
-    role: ClassVar[str] = "student"
-    target: ClassVar[str] = "spade.training.student_module.StudentModule"
-
-    size: str = "medium"  # a student preset (spade.models.presets("student"))
-    bc_pos_weight: float | None = None  # weight of the path pixels in the BCE; None: plain BCE
-    init_ckpt: str | None = None
-    margin: Mapping[str, Any] | None = None
-    optimizer: Mapping[str, Any] | None = field(default=None)
-
-    def __post_init__(self) -> None:
-        check_choice_value("model.size", self.size, _preset_names("student"))
-        check_number_value("model.bc_pos_weight", self.bc_pos_weight, 0, low_open=True, none_ok=True,
-                           fix=" (null: plain BCE)")
-        _check_optimizer(self.optimizer)
-
-
-@dataclass(frozen=True)
-class ExpertOptions:
-    """The options of :class:`~spade.training.expert_module.ExpertModule` (``model.*``)."""
-
-    node: ClassVar[str] = "model"
-    role: ClassVar[str] = "expert"
-    target: ClassVar[str] = "spade.training.expert_module.ExpertModule"
-
-    conditional: bool = True  # FiLM-conditioned on the state (Cond-DBC); False: the 4-channel DBC expert
-    preset: str = "paper"
-    ema_decay: float = 0.999
-    sampler: str = "ddim"
-    num_inference_steps: int = 50
-    test_samples: int = 4  # two samples at least measure the spread
-    num_train_timesteps: int = 1000
-    optimizer: Mapping[str, Any] | None = field(default=None)
-
-    def __post_init__(self) -> None:
-        kind = "cond_expert" if self.conditional is not False else "uncond_expert"
-        check_choice_value("model.preset", self.preset, _preset_names(kind))
-        check_number_value("model.ema_decay", self.ema_decay, 0, 1, high_open=True)
-        check_choice_value("model.sampler", self.sampler, ["ddim", "ddpm"])
-        check_int_value("model.num_inference_steps", self.num_inference_steps, 1)
-        check_int_value("model.test_samples", self.test_samples, 2)
-        check_int_value("model.num_train_timesteps", self.num_train_timesteps, 2)
-        _check_optimizer(self.optimizer)
 
 
 MODEL_OPTIONS: dict[str, type[StudentOptions] | type[ExpertOptions]] = {

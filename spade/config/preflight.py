@@ -1,13 +1,13 @@
 """``spade.train``'s preflight: everything in a run's config that needs no training, before any MLflow run opens.
 
 The options of each configurable, built as their typed dataclasses, which check themselves
-(:class:`~spade.config.options.TrainerBudget`, :class:`~spade.config.options.DataOptions`, the model's
-:class:`~spade.config.options.StudentOptions` or :class:`~spade.config.options.ExpertOptions`, the margin's
-:class:`~spade.training.margin.MarginConfig`); then what crosses components: the run's own keys (seed, registry,
-the metric it optimises, which depends on the model's role), the store it logs to, the data's folders and windows
-against the model, and every checkpoint the run names (``ckpt_path``, ``model.init_ckpt``,
-``model.margin.expert_ckpt``): its role, its geometry against the data, the expert's kind against the margin, and
-the run a resume would continue.
+(:class:`~spade.config.options.TrainerBudget`, :class:`~spade.data.datamodule_options.DataOptions`, the model's
+:class:`~spade.training.module_options.StudentOptions` or :class:`~spade.training.module_options.ExpertOptions`,
+the margin's :class:`~spade.training.margin.MarginConfig`: the classes the modules themselves build); then what
+crosses components: the run's own keys (seed, registry, the metric it optimises, which depends on the model's
+role), the store it logs to, the data's folders and windows against the model, and every checkpoint the run
+names (``ckpt_path``, ``model.init_ckpt``, ``model.margin.expert_ckpt``): its role, its geometry against the data,
+the expert's kind against the margin, and the run a resume would continue.
 """
 
 from __future__ import annotations
@@ -22,9 +22,10 @@ from spade.config.dataset_checks import check_data, check_datasets
 from spade.config.file_checks import check_paths
 from spade.config.store_checks import check_logger_store, store_path
 from spade.config.options import TrainerBudget, model_options_type, model_role, read_options
-from spade.config.values import MISSING, check_bool, check_choice, check_int, get, unset
+from spade.config.values import check_bool, check_choice, check_int, get
 from spade.training.expert_mismatch import ExpertMismatchError
 from spade.utils.errors import ConfigError
+from spade.utils.option_checks import MISSING, unset
 
 
 def validate_train_config(cfg: DictConfig) -> None:

@@ -11,8 +11,9 @@ from omegaconf import DictConfig
 from spade.deploy.outputs import replace_refusal
 from spade.config.file_checks import check_path_value, check_paths, check_writable
 from spade.config.store_checks import store_path, check_server, check_store_file
-from spade.config.values import MISSING, check_bool, get, unset
+from spade.config.values import check_bool, get
 from spade.utils.errors import ConfigError
+from spade.utils.option_checks import MISSING, unset
 
 
 def report_files(table: Any, chart: bool = True) -> list[str]:

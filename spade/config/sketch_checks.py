@@ -17,9 +17,10 @@ from spade.config.file_checks import (
     check_paths,
     check_writable,
 )
-from spade.config.values import MISSING, check_int, get, unset
+from spade.config.values import check_int, get
 from spade.config.window_checks import check_window_holds_manoeuvre
 from spade.utils.errors import ConfigError
+from spade.utils.option_checks import MISSING, unset
 
 
 def validate_sketch_config(cfg: DictConfig) -> None:

@@ -9,8 +9,9 @@ from urllib.parse import urlparse
 
 from omegaconf import DictConfig
 
-from spade.config.values import get, unset
+from spade.config.values import get
 from spade.utils.errors import ConfigError
+from spade.utils.option_checks import unset
 
 
 def store_path(uri: str) -> Path | None:

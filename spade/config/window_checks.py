@@ -10,8 +10,9 @@ from typing import Any
 from omegaconf import DictConfig
 
 from spade.config.options import model_role
-from spade.config.values import get, is_int, is_number
+from spade.config.values import get
 from spade.utils.errors import ConfigError
+from spade.utils.option_checks import is_int, is_number
 
 
 def range_low(value: Any) -> float:

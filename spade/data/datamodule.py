@@ -16,6 +16,7 @@ from torch.utils.data import DataLoader, Subset
 from spade.data import DatasetError, PathDataset, read_manifest
 from spade.data.augment import augment_batch, check_augmentation, widen_path
 from spade.data.checks import check_dataset, split_pair_problems
+from spade.data.datamodule_options import DataOptions
 from spade.data.settings import Generator
 
 log = logging.getLogger(__name__)
@@ -59,6 +60,8 @@ class PathDataModule(L.LightningDataModule):
     annotation tool's (``conf/data/generator/annotate.yaml``: :func:`spade.annotation.run.generate_dataset`).
     ``experiment`` is not the data module's: ``conf/data/own.yaml`` names there the MLflow experiment of runs on a
     user's own datasets (read by ``conf/logger/mlflow.yaml``), so it is accepted and kept, never used here.
+    The loader options are checked by :class:`~spade.data.datamodule_options.DataOptions`, the same checks as
+    ``spade.train``'s preflight.
     """
 
     def __init__(
@@ -83,28 +86,24 @@ class PathDataModule(L.LightningDataModule):
         experiment: str | None = None,
         encoding: str = "binary",
     ) -> None:
+        options = DataOptions(batch_size=batch_size, eval_batch_size=eval_batch_size, num_workers=num_workers,
+                              val_fraction=val_fraction, split_seed=split_seed,
+                              max_train_instances=max_train_instances, max_test_instances=max_test_instances,
+                              target_width_px=target_width_px, encoding=encoding)
         super().__init__()
-        from spade.data.encoding import check_encoding
-
         self.experiment = experiment
-        self.encoding = check_encoding(str(encoding))
-        if batch_size < 1:
-            raise ValueError(f"data.batch_size must be >= 1, got {batch_size}")
-        if num_workers < 0:
-            raise ValueError(f"data.num_workers must be >= 0, got {num_workers}")
+        self.encoding = options.encoding
         self.train_dir = Path(train_dir) if train_dir not in (None, "") else None
         self.test_dir = Path(test_dir) if test_dir else None
         self.train_generate, self.test_generate = train_generate, test_generate
-        self.val_fraction, self.split_seed = val_fraction, split_seed
-        self.batch_size = batch_size
-        self.eval_batch_size = eval_batch_size or batch_size
-        self.num_workers, self.pin_memory = num_workers, pin_memory
-        self.persistent_workers = persistent_workers and num_workers > 0
+        self.val_fraction, self.split_seed = options.val_fraction, options.split_seed
+        self.batch_size = options.batch_size
+        self.eval_batch_size = options.eval_batch_size or options.batch_size
+        self.num_workers, self.pin_memory = options.num_workers, pin_memory
+        self.persistent_workers = persistent_workers and options.num_workers > 0
         self.augment = check_augmentation(augment)
-        if int(target_width_px) < 1 or int(target_width_px) % 2 == 0:
-            raise ValueError(f"data.target_width_px must be an odd number of pixels >= 1, got {target_width_px}")
-        self.target_width_px = int(target_width_px)
-        self.max_train_instances, self.max_test_instances = max_train_instances, max_test_instances
+        self.target_width_px = options.target_width_px
+        self.max_train_instances, self.max_test_instances = options.max_train_instances, options.max_test_instances
         self.test_shape = test_shape
         self.generator = generator
         self.train_set = self.val_set = self.test_set = None

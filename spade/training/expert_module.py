@@ -13,6 +13,7 @@ from torch.optim.swa_utils import AveragedModel
 from spade.models import build_model
 from spade.models.diffusion import NoiseSchedule, to_model_range
 from spade.training.base import PathPlanningModule
+from spade.training.module_options import ExpertOptions
 
 
 def ema_decay_at(step: int | torch.Tensor, max_decay: float) -> float:
@@ -69,7 +70,8 @@ class ExpertModule(PathPlanningModule):
     Conditional (Cond-DBC): denoises the path channel, FiLM-conditioned on the 3-channel state.
     Unconditional (DBC): denoises the 4-channel stack (state, path); to predict a path for a given state it
     samples with the state channels inpainted (replaced at each step by the noised true state).
-    Data live in [-1, 1]: x = 2 p - 1 for every [0, 1] channel.
+    Data live in [-1, 1]: x = 2 p - 1 for every [0, 1] channel. The options are checked by
+    :class:`~spade.training.module_options.ExpertOptions`, the same checks as ``spade.train``'s preflight.
     """
 
     role = "expert"
@@ -95,24 +97,20 @@ class ExpertModule(PathPlanningModule):
         image_size: int | None = None,
         marker_encoding: str | None = None,
     ) -> None:
+        options = ExpertOptions(conditional=conditional, preset=preset, ema_decay=ema_decay, sampler=sampler,
+                                num_inference_steps=num_inference_steps, test_samples=test_samples,
+                                num_train_timesteps=num_train_timesteps)
         super().__init__(optimizer, metrics, val_metric_batches, grid_size)
         self.lr_scheduler_factory = lr_scheduler
-        if sampler not in ("ddim", "ddpm"):
-            raise ValueError(f"sampler must be 'ddim' or 'ddpm', got {sampler!r}")
-        if not 0.0 <= ema_decay < 1.0:
-            raise ValueError(f"ema_decay must be in [0, 1), got {ema_decay}")
-        if isinstance(test_samples, bool) or not isinstance(test_samples, int) or test_samples < 2:
-            raise ValueError(f"test_samples must be an integer >= 2 (two samples measure the spread), got "
-                             f"{test_samples!r}")
         self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"], logger=False)  # as StudentModule's
-        self.conditional = conditional
-        self.net = build_model("cond_expert" if conditional else "uncond_expert", preset)
-        self.ema = AveragedModel(self.net, multi_avg_fn=WarmupEMA(ema_decay), use_buffers=True)
+        self.conditional = options.conditional
+        self.net = build_model("cond_expert" if options.conditional else "uncond_expert", options.preset)
+        self.ema = AveragedModel(self.net, multi_avg_fn=WarmupEMA(options.ema_decay), use_buffers=True)
         self.ema.requires_grad_(False)
         # prediction_type: what the denoiser outputs (epsilon, sample = x0, v_prediction); training, sampling and
         # the diffusion margin all use it (NoiseSchedule.prediction_target). clip_sample: the samplers clip their
         # x0 estimate to [-1, 1] (paths are binary images in [0, 1]).
-        self.schedule = NoiseSchedule(num_train_timesteps=num_train_timesteps, beta_schedule=beta_schedule,
+        self.schedule = NoiseSchedule(num_train_timesteps=options.num_train_timesteps, beta_schedule=beta_schedule,
                                       prediction_type=prediction_type, clip_sample=clip_sample)
         self.sample_seconds = 0.0
         self.sample_count = 0

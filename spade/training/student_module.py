@@ -15,6 +15,7 @@ from spade.models.modelfile import load_checkpoint, load_lightning, read_info
 from spade.training.base import PathPlanningModule
 from spade.training.expert_mismatch import ExpertMismatchError  # noqa: F401  (raised by ExpertModule.check_compatible)
 from spade.training.margin import DiffusionMargin, MarginConfig, legacy_margin_options
+from spade.training.module_options import StudentOptions
 
 if TYPE_CHECKING:
     from spade.training.expert_module import ExpertModule
@@ -22,6 +23,9 @@ if TYPE_CHECKING:
 
 class StudentModule(PathPlanningModule):
     """BC (binary cross-entropy on logits) plus ``lambda_dm`` x the diffusion margin of a frozen expert.
+
+    The options are checked by :class:`~spade.training.module_options.StudentOptions` (the margin's by
+    :class:`~spade.training.margin.MarginConfig`), the same checks as ``spade.train``'s preflight.
 
     Args:
         size: student preset (``small``, ``medium``, ``large``, or a smaller test preset).
@@ -59,15 +63,14 @@ class StudentModule(PathPlanningModule):
             if margin is not None:
                 raise ValueError("give the margin's options as margin only, not also under their old name guidance")
             margin = legacy_margin_options(guidance)
+        options = StudentOptions(size=size, bc_pos_weight=bc_pos_weight, init_ckpt=init_ckpt, margin=margin)
         super().__init__(optimizer, metrics, val_metric_batches, grid_size)
         self.lr_scheduler_factory = lr_scheduler  # see PathPlanningModule.configure_optimizers
         # logger=False: the checkpoint keeps them; SPADE logs the run's method as params itself
         # (spade.tracking.params), so Lightning logs no second, unprefixed copy of them
         self.save_hyperparameters(ignore=["optimizer", "lr_scheduler", "guidance"], logger=False)  # margin as mapped
-        if bc_pos_weight is not None and not bc_pos_weight > 0:
-            raise ValueError(f"bc_pos_weight must be > 0 (or null for plain BCE), got {bc_pos_weight}")
-        self.bc_pos_weight = None if bc_pos_weight in (None, 1, 1.0) else float(bc_pos_weight)
-        self.net = build_model("student", size)
+        self.bc_pos_weight = None if options.bc_pos_weight in (None, 1, 1.0) else float(options.bc_pos_weight)
+        self.net = build_model("student", options.size)
         if init_ckpt:
             self.load_pretrained(init_ckpt)
         self.margin_cfg: MarginConfig | None = None
