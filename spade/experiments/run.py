@@ -164,7 +164,7 @@ def fit_and_test(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
 
 class ClosedLoopTest(L.Callback):
     """The closed-loop section of the test (``closed_loop: true``, the quickstart's scale): at the test's end the
-    best checkpoint and the baselines drive the test set's scenarios (:mod:`spade.experiments.closed_loop`), logged
+    best checkpoint and the baselines drive the test set's scenarios (:mod:`spade.experiments.closed_loop_evaluation`), logged
     as ``closed_loop/*`` at the test's step, before the run's record is completed and the run closed; the figures
     are :attr:`metrics` afterwards."""
 
@@ -173,7 +173,7 @@ class ClosedLoopTest(L.Callback):
         self.metrics: dict[str, float] = {}
 
     def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        from spade.experiments.closed_loop import run_closed_loop, scenario_set
+        from spade.experiments.closed_loop_evaluation import run_closed_loop, scenario_set
 
         ckpt_path = best_checkpoint_path(trainer) or last_checkpoint_path(trainer)
         drive = OmegaConf.to_container(self.cfg.drive, resolve=True)
