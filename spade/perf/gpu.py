@@ -316,7 +316,7 @@ def gpu_check(cfg: dict[str, Any]) -> dict[str, Any]:
                              peak_tflops=peak)]
         bc = rows[2]["step_ms"]
         for row in rows[3:]:
-            row["ratio_to_bc"] = round(row["step_ms"] / bc, 2)
+            row["ratio_to_bc"] = float(f"{row['step_ms'] / bc:.3g}")  # 3 significant digits at any ratio
         results["steps"] = rows
     if "sampling" in sections:
         results["sampling"] = sampling_cost(cfg["cond_preset"], size, batch, int(cfg["ddim_steps"]), device, precision)
