@@ -18,6 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
 from spade.utils.errors import run_entry_point, task
+from spade.metrics import catalog
 from spade.metrics.corruptions import CORRUPTION_SET_VERSION
 
 __all__ = ["critic", "format_report"]
@@ -164,9 +165,8 @@ def _write_page(cfg: DictConfig, config, metrics: dict[str, float], picture, sec
     return page
 
 
-PLANNER_COLUMNS = (("planner APE (cm)", "ape_cm", ".2f"), ("> 20 cm", "over_20cm_rate", ".1%"),
-                   ("failures", "failure_rate", ".1%"), ("APE / floor", "ape_over_floor", ".2f"),
-                   ("plausibility (cm)", "plausibility_cm", ".2f"), ("commits", "commit_rate", ".0%"))
+PLANNER_COLUMNS = ("ape_cm", "over_20cm_rate", "failure_rate", "ape_over_floor", "plausibility_cm", "commit_rate")
+"""The planner's figures the critic page shows per predictor (labels and formats: :mod:`spade.metrics.catalog`)."""
 
 
 def _planner_section(metrics: dict[str, float]) -> list[str]:
@@ -178,12 +178,13 @@ def _planner_section(metrics: dict[str, float]) -> list[str]:
             ("student", "student/planner/")]
     lines = ["The expert as a planner (each path decoded by the planner), on the same "
              f"{int(metrics['expert/instances'])} instances:", "",
-             "| predictor | " + " | ".join(label for label, _, _ in PLANNER_COLUMNS) + " |",
+             "| predictor | " + " | ".join(catalog.label(f"planner/{key}", qualified=key == "ape_cm")
+                                             for key in PLANNER_COLUMNS) + " |",
              "|---|" + "---:|" * len(PLANNER_COLUMNS)]
     for label, prefix in rows:
         if f"{prefix}ape_cm" in metrics:
-            cells = [format(metrics[f"{prefix}{key}"], fmt) if f"{prefix}{key}" in metrics else "n/a"
-                     for _, key, fmt in PLANNER_COLUMNS]
+            cells = [catalog.fmt(f"planner/{key}", metrics[f"{prefix}{key}"]) if f"{prefix}{key}" in metrics
+                     else "n/a" for key in PLANNER_COLUMNS]
             lines.append(f"| {label} | " + " | ".join(cells) + " |")
     lines += ["", f"Spread of two samples' planner paths: {metrics['expert/spread_cm']:.2f} cm, against the "
               f"generator's {metrics['expert/generator_spread_cm']:.2f} cm (ratio {metrics['expert/spread_ratio']:.2f}; "

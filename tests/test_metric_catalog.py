@@ -26,6 +26,7 @@ RENDERERS = [
     "tracking/summary.py",
     "tracking/predictors.py",
     "experiments/run.py",
+    "critic.py",
 ]
 # A label's spelling: the tail in any spacing, a unit in brackets, or a column header as a whole string (a word in
 # a sentence, "plausibility 0.80 cm", is prose, not a label).
