@@ -19,7 +19,7 @@ import sys
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from spade.annotation.run import alias_preset as _alias_preset
+from spade.annotation.run import alias_preset
 from spade.annotation.run import annotate
 from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
 from spade.utils.errors import run_entry_point, task
@@ -45,5 +45,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    sys.argv = [sys.argv[0], *_alias_preset(sys.argv[1:])]
+    sys.argv = [sys.argv[0], *alias_preset(sys.argv[1:])]
     run_entry_point(main)

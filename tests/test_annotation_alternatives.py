@@ -22,7 +22,7 @@ from spade.annotation.alternative_demonstrations import (
 from spade.annotation.pipeline import build_contexts
 from spade.annotation.scenarios import plan_scenario, state_indices_along
 from spade.annotation.sources import load_map_sources
-from spade.annotation.templates import SHAPES, _turn_curve, place_template, sample_template
+from spade.annotation.templates import SHAPES, turn_curve, place_template, sample_template
 from spade.data import PathDataset
 from spade.maps.frame import RobotFrame, path_heading
 
@@ -48,7 +48,7 @@ def test_keypoint_polylines_are_the_generators_clicked_waypoints(shape: str) -> 
     t = sample_templates(shape, TEMPLATE, np.random.default_rng(2), 40)
     kp, counts = keypoint_polylines(t, TEMPLATE, shape)
     for b in range(len(t)):
-        ref, _ = _turn_curve(t.leg[b], t.radius[b], t.tail[b], SHAPES[shape], t.sign[b] > 0, 0.05,
+        ref, _ = turn_curve(t.leg[b], t.radius[b], t.tail[b], SHAPES[shape], t.sign[b] > 0, 0.05,
                              TEMPLATE[shape]["turn_keypoints"], TEMPLATE["keypoint_spacing_m"])
         assert counts[b] == len(ref)
         np.testing.assert_allclose(kp[b, :counts[b]], ref, atol=1e-9)

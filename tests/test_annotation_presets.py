@@ -9,7 +9,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from spade.annotate import _alias_preset, annotate
+from spade.annotate import annotate
+from spade.annotation.run import alias_preset
 from spade.annotation.sources import expand_map_specs
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
@@ -17,7 +18,7 @@ CONF = Path(__file__).resolve().parents[1] / "conf"
 
 def preset(name: str, *overrides: str) -> dict:
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose("annotate", overrides=[*_alias_preset([f"preset={name}"]), *overrides])
+        cfg = compose("annotate", overrides=[*alias_preset([f"preset={name}"]), *overrides])
     out = OmegaConf.to_container(cfg, resolve=True)
     out.pop("hydra", None)
     return out

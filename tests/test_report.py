@@ -343,17 +343,17 @@ def test_a_cell_with_a_nan_seed_says_how_many_seeds_it_is_over() -> None:
     it were the row's, with no spread and no count."""
     import math
 
-    from spade.experiments.reporting.render import _mean_sd
+    from spade.experiments.reporting.render import mean_sd
     from spade.experiments.reporting.results import RowResult, SeedRun
     from spade.experiments.tables import METRICS
 
     row = RowResult("r", runs=[SeedRun(1, "a", 1, {"ape_cm": 294.14}), SeedRun(2, "b", 2, {"ape_cm": math.nan})],
                     run_id="b")
     row.metrics = {"ape_cm": 294.14}
-    assert _mean_sd(METRICS["ape_cm"], row, "ape_cm").endswith("(1 of 2 seeds; NaN counted as failure)")
+    assert mean_sd(METRICS["ape_cm"], row, "ape_cm").endswith("(1 of 2 seeds; NaN counted as failure)")
     whole = RowResult("r", runs=[SeedRun(1, "a", 1, {"ape_cm": 4.0}), SeedRun(2, "b", 2, {"ape_cm": 6.0})],
                       run_id="b", metrics={"ape_cm": 5.0})
-    assert "of 2 seeds" not in _mean_sd(METRICS["ape_cm"], whole, "ape_cm")
+    assert "of 2 seeds" not in mean_sd(METRICS["ape_cm"], whole, "ape_cm")
 
 
 def test_a_rows_seeds_share_their_data_and_runs_on_other_data_are_left_out_and_said(tmp_path: Path) -> None:

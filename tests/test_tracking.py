@@ -136,7 +136,7 @@ def test_report_and_run_summary_do_not_take_child_runs_for_seeds_of_a_row(tmp_pa
     from spade.experiments.reporting import fetch_results
     from spade.experiments.tables import TABLES
     from spade.tracking import log_predictor_runs
-    from spade.tracking.summary import _find_run
+    from spade.tracking.summary import find_run
 
     client = _client(tmp_path)
     experiment_id = client.create_experiment("table3", artifact_location=str(tmp_path / "artifacts"))
@@ -153,7 +153,7 @@ def test_report_and_run_summary_do_not_take_child_runs_for_seeds_of_a_row(tmp_pa
     cfg = OmegaConf.create({"run_name": "t3_bc_scratch_U", "paths": {"mlflow_tracking_uri":
                                                                    f"sqlite:///{tmp_path}/mlflow.db"},
                             "logger": {"mlflow": {"experiment_name": "table3"}}})
-    assert _find_run(cfg).run_id == second  # the row's latest own run, not its child renamed after it
+    assert find_run(cfg).run_id == second  # the row's latest own run, not its child renamed after it
 
 
 def test_stale_running_runs_are_closed_but_a_childs_name_is_no_row(tmp_path: Path) -> None:

@@ -39,7 +39,7 @@ import numpy as np
 
 from spade.annotation.execution import Rejection, execute_sketch
 from spade.annotation.scenarios import sketch_fits
-from spade.annotation.templates import SHAPES, _turn_curve, place_curves
+from spade.annotation.templates import SHAPES, turn_curve, place_curves
 from spade.data.polyline import resample_polyline
 from spade.data.rasterize import fits_robot_frame
 from spade.maps.frame import RobotFrame, path_heading
@@ -183,7 +183,7 @@ def _place(t: TemplateDraws, b: int, goal_px: np.ndarray, resolution: float, cfg
            shape: str) -> tuple[np.ndarray, np.ndarray]:
     """(keypoints, dense) of template ``b`` in map pixels, as :func:`~spade.annotation.templates.place_template`."""
     left = bool(t.sign[b] > 0)
-    keypoints, dense = _turn_curve(float(t.leg[b]), float(t.radius[b]), float(t.tail[b]), SHAPES[shape], left,
+    keypoints, dense = turn_curve(float(t.leg[b]), float(t.radius[b]), float(t.tail[b]), SHAPES[shape], left,
                                    float(cfg["step_m"]), int(cfg[shape]["turn_keypoints"]),
                                    float(cfg["keypoint_spacing_m"]))
     return place_curves(keypoints, dense, float(t.theta[b]), goal_px, resolution)
@@ -281,7 +281,7 @@ def scenario_alternatives(costmap: Any, shape: str, goal_px: np.ndarray, points:
 
 
 def keypoint_polylines(t: TemplateDraws, cfg: Mapping[str, Any], shape: str) -> tuple[np.ndarray, np.ndarray]:
-    """(B, N, 2) the waypoints an operator clicks for each template (:func:`~spade.annotation.templates._turn_curve`'s
+    """(B, N, 2) the waypoints an operator clicks for each template (:func:`~spade.annotation.templates.turn_curve`'s
     keypoints, in the template frame, metres), padded by repeating the last, and (B,) how many each has."""
     spacing = float(cfg["keypoint_spacing_m"])
     turn_kp = int(cfg[shape]["turn_keypoints"])

@@ -57,7 +57,7 @@ def _uniform(rng: np.random.Generator, bounds: Sequence[float], what: str) -> fl
     return float(rng.uniform(lo, hi))
 
 
-def _turn_curve(leg: float, radius: float, tail: float, turn_deg: float, left: bool, step: float,
+def turn_curve(leg: float, radius: float, tail: float, turn_deg: float, left: bool, step: float,
                 turn_keypoints: int, keypoint_spacing: float) -> tuple[np.ndarray, np.ndarray]:
     """Leg along +x from the origin, arc of ``turn_deg`` to the left (or right), tail; in the start frame: the
     clicked keypoints and the dense ideal curve (:func:`~spade.metrics.shape_paths.template_curve`)."""
@@ -95,7 +95,7 @@ def sample_template(shape: str, cfg: Mapping[str, Any], rng: np.random.Generator
     tail = _uniform(rng, s["tail_m"]["large" if large else "small"], f"template.{shape}.tail_m")
     mirror = bool(rng.random() < float(cfg["p_mirror"]))
     heading = np.deg2rad(_uniform(rng, cfg["heading_deg"], "template.heading_deg"))
-    keypoints, dense = _turn_curve(leg, radius, tail, SHAPES[shape], left=not mirror, step=float(cfg["step_m"]),
+    keypoints, dense = turn_curve(leg, radius, tail, SHAPES[shape], left=not mirror, step=float(cfg["step_m"]),
                                    turn_keypoints=int(s["turn_keypoints"]),
                                    keypoint_spacing=float(cfg["keypoint_spacing_m"]))
     return SketchTemplate(shape, leg, radius, tail, mirror, float(heading), keypoints, dense)

@@ -66,10 +66,10 @@ def annotation_config(overrides: Sequence[str] = ()) -> dict[str, Any]:
     ``preset=NAME`` included), as a plain dict."""
     from omegaconf import OmegaConf
 
-    from spade.annotation.run import alias_preset as _alias_preset
+    from spade.annotation.run import alias_preset
     from spade.utils.config import compose_config
 
-    cfg = compose_config("annotate", _alias_preset(list(overrides)))  # inside spade.sketch's Hydra app too
+    cfg = compose_config("annotate", alias_preset(list(overrides)))  # inside spade.sketch's Hydra app too
     out: dict[str, Any] = OmegaConf.to_container(cfg, resolve=True)  # type: ignore[assignment]
     out.pop("hydra", None)
     return out

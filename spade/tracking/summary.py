@@ -22,7 +22,7 @@ from spade.tracking.runs import RunRef
 log = logging.getLogger(__name__)
 
 
-def _find_run(cfg: DictConfig) -> RunRef | None:
+def find_run(cfg: DictConfig) -> RunRef | None:
     """The newest run of ``cfg``'s name in its store (the row's own, never a predictor's), with the MLflow Model
     logged on it when there is one."""
     if OmegaConf.select(cfg, "logger.mlflow", default=None) is None:
@@ -154,7 +154,7 @@ def run_summary(cfg: DictConfig, metrics: dict[str, Any],
     lines += next_commands(cfg, checkpoint)
     uri = str(cfg.paths.mlflow_tracking_uri)
     try:
-        ref = run if run is not None and run.run_name == str(cfg.get("run_name")) else _find_run(cfg)
+        ref = run if run is not None and run.run_name == str(cfg.get("run_name")) else find_run(cfg)
     except Exception as exc:  # noqa: BLE001 - the closing lines must not fail a finished run
         log.warning("could not look the run up in %s: %s", uri, exc)
         ref = None

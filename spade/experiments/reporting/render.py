@@ -16,7 +16,7 @@ from spade.experiments.tables import (
 )
 
 
-def _mean_sd(metric: Metric, result: RowResult, key: str) -> str:
+def mean_sd(metric: Metric, result: RowResult, key: str) -> str:
     """``12.34 ± 1.20`` over two or more seeds, the value alone over one (or for a baseline, which has no spread);
     ``(1 of 2 seeds; ...)`` when some seeds logged NaN (an APE without any extracted path), never a silent mean."""
     mean, sd = result.value(key), result.sd(key)
@@ -37,7 +37,7 @@ def _cell(result: RowResult, prefix: str = "") -> str:
         return MISSING
     if prefix:  # a classical baseline: the same test set for every seed, so one figure
         return " / ".join(METRICS[k].format(result.value(prefix + k)) for k in CELL_METRICS)
-    return " / ".join(_mean_sd(METRICS[k], result, k) for k in CELL_METRICS)
+    return " / ".join(mean_sd(METRICS[k], result, k) for k in CELL_METRICS)
 
 
 def _baseline_source(table: Table, results: dict[str, RowResult], shape: str) -> RowResult | None:
@@ -78,7 +78,7 @@ def render_preference(table: Table, results: dict[str, RowResult]) -> str | None
             r = results.get(line.cells.get(shape, ""), None)
             if r is None or not r.found:
                 continue
-            body.append([*line.labels, shape, *(_mean_sd(METRICS[k], r, k) for k in keys)])
+            body.append([*line.labels, shape, *(mean_sd(METRICS[k], r, k) for k in keys)])
     for name, label in BASELINE_LABELS.items():
         for shape in table.shapes:
             src = _baseline_source(table, results, shape)
