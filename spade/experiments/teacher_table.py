@@ -130,14 +130,16 @@ def _welch(a: list[float], b: list[float]) -> float | None:
 def _guided(client: Any, guided: Sequence[Mapping[str, Any]], scale: str | None
             ) -> tuple[list[str], list[tuple[str, str, str, float, float, float | None]]]:
     """The guided students against their BC twins, on the held-out map and (runs ``<row>_real``) the unseen real
-    maps: a table of the deciding figures and the margin's activity, and Welch tests (what, figure, format, guided
-    mean, twin mean, p)."""
+    maps (unless the item says ``real: false``): a table of the deciding figures and the margin's activity, and Welch
+    tests (what, figure, format, guided mean, twin mean, p)."""
     lines = ["| student | test set | seeds | " + " | ".join(c[0] for c in COLUMNS) + " | margin active (last epoch) |",
              "|---|---|---:|" + "---:|" * (len(COLUMNS) + 1)]
     tests = []
     for item in guided:
         against = dict(item.get("against") or {})
         for where, suffix in (("held-out map", ""), ("unseen real maps", "_real")):
+            if suffix and item.get("real", True) is False:  # a row that is never tested on the real maps
+                continue
             row = _rows(client, [{"table": item["table"], "row": f"{item['row']}{suffix}",
                                   "label": item.get("label", item["row"])}], "student", scale)[0]
             twin = _rows(client, [{"table": against.get("table", ""), "row": f"{against.get('row', '')}{suffix}",
