@@ -142,12 +142,7 @@ def run_summary(cfg: DictConfig, metrics: dict[str, Any],
         lines.append(f"  {TINY_NOTICE}")
     prefixes = ["test", *sorted({"/".join(k.split("/")[:3]) for k in metrics if k.startswith("test/baseline/")}),
                 "untrained"]
-    lines += summary_figures(metrics, prefixes)
-    floor = floor_line(metrics)
-    if floor:
-        lines.append(floor)
-    lines += learning_verdict(metrics)
-    lines += closed_loop_lines(metrics)
+    lines += figure_lines(metrics, prefixes)
     guidance = guidance_line(margin_history)
     if guidance:
         lines.append(guidance)
@@ -165,16 +160,21 @@ def run_summary(cfg: DictConfig, metrics: dict[str, Any],
     return "\n".join(lines)
 
 
+def figure_lines(metrics: dict[str, Any], prefixes: list[str]) -> list[str]:
+    """The figures of every predictor, the floor, the verdict and the closed loop: what a run's and an
+    evaluation's closing lines share."""
+    lines = summary_figures(metrics, prefixes)
+    floor = floor_line(metrics)
+    if floor:
+        lines.append(floor)
+    return lines + learning_verdict(metrics) + closed_loop_lines(metrics)
+
+
 def evaluation_summary(cfg: DictConfig, metrics: dict[str, Any]) -> str:
     """``spade.evaluate``'s closing lines: the same figures, floor and verdict as :func:`run_summary`'s."""
     lines = [f"evaluation of {cfg.get('ckpt_path')} finished"]
     prefixes = ["test", *sorted({"/".join(k.split("/")[:3]) for k in metrics if k.startswith("test/baseline/")})]
-    lines += summary_figures(metrics, prefixes)
-    floor = floor_line(metrics)
-    if floor:
-        lines.append(floor)
-    lines += learning_verdict(metrics)
-    lines += closed_loop_lines(metrics)
+    lines += figure_lines(metrics, prefixes)
     return "\n".join(lines)
 
 
