@@ -1,9 +1,10 @@
 """``python -m spade.train [+experiment=NAME] [key=value ...]``: train, validate and test one model.
 
 A thin Hydra entry point in the style of lightning-hydra-template: the config (``conf/train.yaml``) composes
-data, model, margin, trainer, logger, callbacks and paths; :func:`spade.experiments.run.run` resolves the run's
-prerequisites (the margin's expert, a pretrained student), trains, prints the closing summary and returns
-``optimized_metric``'s value, which this entry point hands to Hydra so that sweepers can optimise it. A user
+data, model, margin, trainer, logger, callbacks and paths; :func:`spade.experiments.run.train` resolves the run's
+prerequisites (the margin's expert, a pretrained student) and trains; this entry point prints the closing summary
+from what it returns (:func:`spade.tracking.summary.run_summary`) and hands ``optimized_metric``'s value to Hydra so
+that sweepers can optimise it. A user
 error (a bad config, a missing dataset or prerequisite) ends the process with one line and exit status 2.
 """
 
@@ -32,7 +33,8 @@ def main(cfg: DictConfig) -> float | None:
     # here, not at the top: the training stack loads once the config has composed (``--help`` and Hydra's own
     # errors need none of it), and its preflight (spade.config.preflight) is the only command's checks it loads
     from spade.experiments.lifecycle import install_signal_handlers
-    from spade.experiments.run import run
+    from spade.experiments.run import sweep_result, train
+    from spade.tracking.summary import run_summary
 
     log.debug("Config:\n%s", OmegaConf.to_yaml(cfg))
     install_signal_handlers()
@@ -42,7 +44,10 @@ def main(cfg: DictConfig) -> float | None:
                     renamed.old, renamed.new)
     threads = exit_on_user_error(configure_threads)(cfg.get("threads"))
     log.info("torch intra-op threads: %d (threads=%s)", threads, cfg.get("threads"))
-    return exit_on_user_error(run)(cfg)
+    metrics, objects = exit_on_user_error(train)(cfg)
+    print(run_summary(cfg, metrics, getattr(objects["model"], "margin_history", None), objects["checkpoint"] or None,
+                      objects["run"]), flush=True)
+    return sweep_result(cfg, metrics)
 
 
 if __name__ == "__main__":

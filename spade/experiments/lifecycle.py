@@ -10,6 +10,8 @@
 * :class:`CarryBestCheckpoint` (added by ``spade.train`` when it resumes from ``ckpt_path``) keeps the interrupted
   run's best checkpoint and score, which Lightning drops when the run folder changes, so a resumed run tests the
   checkpoint the uninterrupted run would have tested.
+* :func:`run_without_stages`: a run that trains and tests nothing (``train=false test=false``) still gives its
+  callbacks their ``setup`` and ``teardown`` hooks (stage :data:`NO_STAGE`) and closes its loggers, as a stage would.
 * :func:`install_signal_handlers`: SIGTERM and SIGINT end the run through an exception, so that the run's MLflow
   record marks it KILLED (:func:`spade.tracking.runs.mark_run_ended`, which reads :func:`signal_received`; any
   other exception marks it FAILED).
@@ -125,6 +127,22 @@ class DeterministicTraining(Callback):
 
 
 # -- resume ---------------------------------------------------------------------------------------------------------
+NO_STAGE = "none"  # the stage a run that trains and tests nothing gives its callbacks' setup and teardown
+
+
+def run_without_stages(trainer: L.Trainer, model: L.LightningModule) -> None:
+    """The hooks Lightning calls around a stage, for a run in which no stage runs (``train=false test=false``):
+    every callback's ``setup`` and ``teardown`` with stage :data:`NO_STAGE`, then every logger closed with
+    ``success``. So a callback that records the run (:class:`spade.tracking.callback.RunRecord`) opens, completes
+    and closes it as after a test, and the caller needs to know none of them."""
+    for callback in trainer.callbacks:
+        callback.setup(trainer, model, stage=NO_STAGE)
+    for callback in trainer.callbacks:
+        callback.teardown(trainer, model, stage=NO_STAGE)
+    for logger in trainer.loggers:
+        logger.finalize("success")
+
+
 def last_checkpoint_path(trainer: L.Trainer) -> str:
     """The run's newest epoch-end checkpoint (``checkpoints/last.ckpt``), ``""`` when none was written.
 

@@ -1,9 +1,9 @@
 """One training run of an experiment: what ``python -m spade.train`` does between its config and its result.
 
-:func:`run` trains, validates and tests the configured model (:func:`train`), prints the closing lines and
-returns the metric a sweeper optimises (:func:`optimized_value`). :func:`train` resolves the run's prerequisites
-(the margin's expert, a pretrained student: :mod:`spade.experiments.prerequisites` returns what is missing, this
-module trains it) and returns the metrics with the objects it built.
+:func:`train` resolves the run's prerequisites (the margin's expert, a pretrained student:
+:mod:`spade.experiments.prerequisites` returns what is missing, this module trains it), trains, validates and tests
+the configured model, and returns the metrics with the objects it built; :func:`sweep_result` is the metric a
+sweeper optimises. ``spade.train`` prints the closing lines from what :func:`train` returns.
 
 Checkpoints that Lightning itself opens (``ckpt_path`` to resume a fit, the best checkpoint to test) are loaded
 with ``weights_only=True`` and SPADE's allow-list (:func:`spade.models.modelfile.safe_loading`): one whose pickle
@@ -26,7 +26,7 @@ import lightning as L
 from omegaconf import DictConfig, OmegaConf
 
 from spade.experiments.lifecycle import (
-    CarryBestCheckpoint, DeterministicTraining, best_checkpoint_path, last_checkpoint_path,
+    CarryBestCheckpoint, DeterministicTraining, best_checkpoint_path, last_checkpoint_path, run_without_stages,
 )
 from spade.experiments.prerequisites import Prerequisite, complete_prerequisite, pending_prerequisites
 from spade.config.preflight import validate_checkpoints, validate_train_config
@@ -34,38 +34,10 @@ from spade.metrics import catalog
 from spade.models.modelfile import safe_loading
 from spade.training.instantiate import instantiate_callbacks, instantiate_loggers, run_id_from_checkpoint
 
-__all__ = ["ClosedLoopTest", "fit_and_test", "from_checkpoint", "optimized_value", "prerequisite_plan", "rename_prefix", "run",
-           "test_elsewhere", "train", "untrained_test_metrics"]
+__all__ = ["ClosedLoopTest", "fit_and_test", "from_checkpoint", "optimized_value", "prerequisite_plan", "rename_prefix",
+           "sweep_result", "test_elsewhere", "train", "untrained_test_metrics"]
 
 log = logging.getLogger(__name__)
-
-
-def run(cfg: DictConfig) -> float | None:
-    """Train (:func:`train`), print the closing lines (test metrics next to the baselines, the ``mlflow ui``
-    command and URLs to the run: :func:`spade.tracking.summary.run_summary`), and return
-    ``optimized_metric``'s value (:func:`optimized_value`).
-
-    A single run that never logged that metric (e.g. ``trainer.max_steps`` ended it before a validation) still
-    succeeded: the missing metric is a warning and the result ``None``; under a Hydra multirun it is an error,
-    since the sweeper needs the value.
-    """
-    from spade.tracking.summary import run_summary
-
-    metrics, objects = train(cfg)
-    trainer = objects["trainer"]
-    checkpoint = best_checkpoint_path(trainer) or last_checkpoint_path(trainer)
-    print(run_summary(cfg, metrics, getattr(objects["model"], "margin_history", None), checkpoint or None,
-                      objects["run"]), flush=True)
-    try:
-        return optimized_value(cfg, metrics)
-    except KeyError as exc:
-        from hydra.core.hydra_config import HydraConfig
-        from hydra.types import RunMode
-
-        if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
-            raise  # a sweeper needs the value
-        log.warning("%s", exc.args[0])
-        return None
 
 
 def train(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -112,7 +84,8 @@ def fit_and_test(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
     """One run whose prerequisites are filled in: checkpoints checked, everything re-seeded, then data, model,
     trainer, fit, test. The run's MLflow record (its opening, status and end) is kept by a callback of the run,
     built from the callbacks config with this config (:class:`spade.tracking.callback.RunRecord`); the objects
-    returned carry where the run lives (``run``: None without an MLflow logger)."""
+    returned carry the checkpoint the run ends with (``checkpoint``: its best, else its last; "" without one) and
+    where the run lives (``run``: None without an MLflow logger)."""
     validate_checkpoints(cfg)  # a model fetched from the registry passes the checks of one given by path
     seed = cfg.get("seed")
     if seed is not None:
@@ -126,7 +99,6 @@ def fit_and_test(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
     ckpt_path = cfg.get("ckpt_path")
     loggers = instantiate_loggers(cfg.get("logger"), run_id=run_id_from_checkpoint(ckpt_path))
     callbacks = instantiate_callbacks(cfg.get("callbacks"), run_cfg=cfg)
-    record = next((cb for cb in callbacks if hasattr(cb, "record_without_stages")), None)  # the run's MLflow record
     if seed is not None:
         callbacks.append(DeterministicTraining(seed))
     if ckpt_path and cfg.get("train", True):
@@ -155,11 +127,12 @@ def fit_and_test(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
         metrics.update(drive.metrics if drive is not None else {})
         for name, data in (cfg.get("also_test") or {}).items():
             metrics.update(test_elsewhere(cfg, best or last_checkpoint_path(trainer), name, data))
-    elif not cfg.get("train", True) and record is not None:
-        record.record_without_stages(trainer, model)  # no stage ran the hooks that record and close the run
+    elif not cfg.get("train", True):
+        run_without_stages(trainer, model)  # no stage: the callbacks' setup and teardown, the loggers closed
     metrics.update(baseline)
     return metrics, {"cfg": cfg, "datamodule": datamodule, "model": model, "trainer": trainer, "loggers": loggers,
-                     "run": getattr(record, "run", None)}
+                     "checkpoint": best_checkpoint_path(trainer) or last_checkpoint_path(trainer),
+                     "run": next((cb.run for cb in callbacks if hasattr(cb, "run")), None)}
 
 
 class ClosedLoopTest(L.Callback):
@@ -223,6 +196,25 @@ def rename_prefix(metrics: dict[str, float], old: str, new: str) -> dict[str, fl
     """``metrics`` with the leading ``old`` of each key replaced by ``new`` (only there: ``test/baseline/shortest/``
     stays ``shortest``)."""
     return {new + k[len(old):] if k.startswith(old) else k: v for k, v in metrics.items()}
+
+
+def sweep_result(cfg: DictConfig, metrics: dict[str, Any]) -> float | None:
+    """``optimized_metric``'s value (:func:`optimized_value`), what ``spade.train`` hands to Hydra's sweeper.
+
+    A single run that never logged that metric (e.g. ``trainer.max_steps`` ended it before a validation) still
+    succeeded: the missing metric is a warning and the result ``None``; under a Hydra multirun it is an error,
+    since the sweeper needs the value.
+    """
+    try:
+        return optimized_value(cfg, metrics)
+    except KeyError as exc:
+        from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
+
+        if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
+            raise  # a sweeper needs the value
+        log.warning("%s", exc.args[0])
+        return None
 
 
 def optimized_value(cfg: DictConfig, metrics: dict[str, Any]) -> float | None:

@@ -14,8 +14,7 @@
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from spade.utils.lazy_exports import lazy_exports
 
 _HOMES = {
     "APE": "ape",
@@ -42,9 +41,4 @@ can be imported without torch."""
 __all__ = sorted(_HOMES)
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _HOMES:
-        raise AttributeError(f"module 'spade.metrics' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"spade.metrics.{_HOMES[name]}"), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_exports(__name__, _HOMES, globals())

@@ -6,8 +6,9 @@ The names below are imported on first use (PEP 562), so that a torch-free module
 
 from __future__ import annotations
 
-import importlib
 from typing import Any
+
+from spade.utils.lazy_exports import lazy_exports
 
 _HOMES = {
     "ROLES": "builders", "build_model": "builders", "model_from_config": "builders", "presets": "builders",
@@ -28,12 +29,7 @@ def count_parameters(model: Any, trainable_only: bool = True) -> int:
     return sum(p.numel() for p in model.parameters() if p.requires_grad or not trainable_only)
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _HOMES:
-        raise AttributeError(f"module 'spade.models' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"spade.models.{_HOMES[name]}"), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_exports(__name__, _HOMES, globals())
 
 
 __all__ = sorted([*_HOMES, "count_parameters"])

@@ -30,8 +30,7 @@ The names below are re-exported for the callers that import them from the packag
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from spade.utils.lazy_exports import lazy_exports
 
 # name -> module: imported on first use (PEP 562), so that a torch- and Lightning-free module of this package
 # (predictors, links, run_report, client) can be imported without the ones that need Lightning (runs, logger)
@@ -53,13 +52,7 @@ _EXPORTS = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_exports(__name__, _EXPORTS, globals())
 
 
 __all__ = [

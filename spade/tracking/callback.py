@@ -15,6 +15,10 @@ it builds the callbacks. Without an MLflow logger it does nothing. Its hooks, in
   :mod:`~spade.tracking.logger`), so nothing is written into a closed run.
 * ``on_exception``: the run marked KILLED (a signal, Ctrl+C) or FAILED, with the reason.
 
+A run that trains and tests nothing (``train=false test=false``) gets the same ``setup`` and ``teardown`` from
+:func:`spade.experiments.lifecycle.run_without_stages`, with stage ``"none"``: it is opened, completed and closed
+FINISHED like any other.
+
 Where the finished run lives (:class:`~spade.tracking.runs.RunRef`) is :attr:`RunRecord.run` afterwards.
 """
 
@@ -45,6 +49,8 @@ from spade.tracking.runs import (
 
 log = logging.getLogger(__name__)
 
+NO_STAGE = "none"  # spade.experiments.lifecycle.NO_STAGE: the stage of a run that trains and tests nothing
+
 
 class RunRecord(Callback):
     """The run's MLflow record from its first stage to its last (see the module)."""
@@ -62,7 +68,10 @@ class RunRecord(Callback):
         return mlflow_logger(trainer.loggers)
 
     def _last_stage(self) -> str:
-        return "test" if self.cfg.get("test", True) else "fit"
+        """The stage whose teardown completes the record: the test, else the fit, else none (see the module)."""
+        if self.cfg.get("test", True):
+            return "test"
+        return "fit" if self.cfg.get("train", True) else NO_STAGE
 
     # -- the run's start ---------------------------------------------------------------------------------------------
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
@@ -158,13 +167,3 @@ class RunRecord(Callback):
         if status is not None and hasattr(ml, "end_status"):
             ml.end_status = status  # Lightning's finalize("failed"), next, keeps it
             ml.hold_open = False
-
-    # -- a run with no stage (train=false test=false) ------------------------------------------------------------------
-    def record_without_stages(self, trainer: L.Trainer, model: L.LightningModule) -> None:
-        """Open, record and close a run in which Lightning ran no stage (no hook was called)."""
-        ml = self._logger(trainer)
-        if ml is None:
-            return
-        self.open(ml, model)
-        self.finish(trainer, ml)
-        ml.finalize("success")
