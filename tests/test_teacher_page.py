@@ -44,6 +44,16 @@ def test_the_teacher_page_checks_each_expert_against_its_student_and_guidance_ag
         _run(client, teacher, "guided", seed, "gaussian", {
             "test/planner/ape_cm": gauss - 0.05, "test/planner/plausibility_cm": 1.9, "margin/active": 0.3,
             "test/planner/commit_rate": 0.2, "test/planner/over_20cm_rate": 0.01})
+    # the closed loop: the guided row and its twin driven on the held-out map, clean (spade.closed_loop's runs)
+    loop = client.create_experiment("closed_loop")
+    for seed in range(3):
+        for source, ape in (("guided", 12.0 + seed), ("bc_gauss", 14.0 + seed)):
+            drive = client.create_run(loop, run_name=f"{source}__heldout__clean", tags={
+                "scale": "quickstart", "source_row": source, "dataset": "heldout", "condition": "clean"}).info.run_id
+            client.log_param(drive, "cfg/seed", seed)
+            client.log_metric(drive, "closed_loop/success_rate", 1.0)
+            client.log_metric(drive, "closed_loop/ape_cm", ape)
+            client.set_terminated(drive, "FINISHED")
     trained = client.create_run(teacher, run_name="good_training").info.run_id
     client.log_param(trained, "cfg/trainer/max_epochs", 48)
     client.set_terminated(trained, "FAILED")
@@ -62,7 +72,8 @@ def test_the_teacher_page_checks_each_expert_against_its_student_and_guidance_ag
     assert "| good teacher, one sample | gaussian | 1 | 2.00 |" in text
     assert "| BC gaussian | gaussian | 3 | 4.00 ± 0.10 |" in text
     assert "| unrun | ? | 0 | missing" in text
-    assert "| shortest path (Nav2-like) (on binary states) |" not in text  # the first student row had no baselines
+    # the baselines (which read no marker) once, from the first student row that has them (bc_gauss)
+    assert sum(line.startswith("| shortest path (Nav2-like) | - | - | 40.00 |") for line in text.splitlines()) == 1
     good = next(line for line in text.splitlines() if line.startswith("- good teacher against BC gaussian"))
     assert "plausibility 0.80 cm (target ≤ 1.0: met)" in good
     assert "planner APE 2.00 cm = 0.50x the student's 4.00 (target ≤ 0.8x = 3.20 cm: met)" in good
@@ -76,6 +87,11 @@ def test_the_teacher_page_checks_each_expert_against_its_student_and_guidance_ag
     # guidance against the BC twin: Welch, the margin's activity; the real-map rows are missing and untested
     assert "| Cond-DBC | held-out map | 3 | 3.95 ± 0.10 |" in text and "| 30% |" in text  # constant: no sd
     assert "| Cond-DBC | unseen real maps | 0 | missing |" in text
+    # the closed loop beside them where the rows were driven, tested like the rest; "not driven" elsewhere
+    held = next(line for line in text.splitlines() if line.startswith("| Cond-DBC | held-out map |"))
+    assert "| 100% | 13.00 ± 1.00 | 30% |" in held
+    assert "| not driven | not driven | missing |" in text
+    assert "| Cond-DBC vs BC twin (bc_gauss), held-out map | closed_loop/ape_cm | 13.00 | 15.00 |" in text
     assert "| Cond-DBC vs BC twin (bc_gauss), held-out map | planner/ape_cm | 3.95 | 4.00 |" in text
     assert "the first plans better by planner APE (3.95 vs 4.00 cm), not significant" in text
     assert "- commit: " in text and "- machine: " in text

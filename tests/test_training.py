@@ -243,3 +243,34 @@ def test_evaluate_entry_point_tests_a_checkpoint(spade_home: Path, tiny_checkpoi
     assert {"test/ape_cm", "test/hd19", "test/failure_rate"} <= set(metrics)
     with pytest.raises(FileNotFoundError, match="does not exist"):
         load_module(spade_home / "nope.ckpt")
+
+
+def test_evaluate_samples_an_expert_as_expert_sampling_says_and_refuses_it_for_a_student(
+        spade_home: Path, tiny_checkpoints: dict) -> None:
+    """expert_sampling replaces an expert checkpoint's sampler, steps and K at test (a lever measured without
+    retraining); on a student, or with a bad value, it is a one-line refusal before any work."""
+    from spade.config.evaluate_checks import validate_evaluate_config
+    from spade.evaluate import load_module
+    from spade.experiments.evaluation import evaluate
+    from spade.utils.config import compose_config
+    from spade.utils.errors import ConfigError
+
+    expert = tiny_checkpoints["cond"]
+    own = load_module(expert)
+    loaded = load_module(expert, sampler="ddpm", num_inference_steps=3, test_samples=2)
+    assert (loaded.hparams.sampler, loaded.hparams.num_inference_steps, loaded.hparams.test_samples) == ("ddpm", 3, 2)
+    assert own.hparams.sampler == "ddim" and own.hparams.num_inference_steps != 3
+
+    base = ["logger=none", "trainer.enable_progress_bar=false", f"paths.output_dir={spade_home}/eval_sampling"]
+    with pytest.raises(ConfigError, match="pass an expert checkpoint"):
+        validate_evaluate_config(compose_config("evaluate", [f"ckpt_path={tiny_checkpoints['student']}",
+                                                             "expert_sampling.sampler=ddpm", *base]))
+    for bad, match in (("expert_sampling.sampler=euler", "is not a sampler; valid: ddim, ddpm"),
+                       ("expert_sampling.test_samples=1", "expert_sampling.test_samples=1"),
+                       ("+expert_sampling.eta=0.5", "expert_sampling.eta is not a sampling setting")):
+        with pytest.raises(ConfigError, match=match):
+            validate_evaluate_config(compose_config("evaluate", [f"ckpt_path={expert}", bad, *base]))
+    metrics = evaluate(compose_config("evaluate", [f"ckpt_path={expert}", "expert_sampling.sampler=ddpm",
+                                                   "expert_sampling.num_inference_steps=3",
+                                                   "expert_sampling.test_samples=2", *base]))
+    assert "test/planner/ape_cm" in metrics and metrics["test/seconds_per_sample"] > 0

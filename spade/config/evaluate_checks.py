@@ -15,6 +15,35 @@ from spade.utils.errors import ConfigError
 from spade.utils.option_checks import MISSING, unset
 
 
+def expert_sampling(cfg: DictConfig) -> dict[str, object]:
+    """``expert_sampling``'s settings that are set (not null): the hyperparameters an expert checkpoint is loaded
+    with instead of its own."""
+    settings = get(cfg, "expert_sampling")
+    if settings in (MISSING, None):
+        return {}
+    return {k: v for k, v in dict(settings).items() if v is not None}
+
+
+def check_expert_sampling(cfg: DictConfig, ckpt: object, info: dict) -> None:
+    """``expert_sampling.*``: only for an expert, a known sampler, steps within the expert's timesteps, K >= 2."""
+    settings = expert_sampling(cfg)
+    unknown = sorted(set(settings) - {"sampler", "num_inference_steps", "test_samples"})
+    if unknown:
+        raise ConfigError(f"expert_sampling.{unknown[0]} is not a sampling setting; valid: sampler, "
+                          "num_inference_steps, test_samples")
+    if not settings:
+        return
+    if info.get("role") != "expert":
+        raise ConfigError(f"expert_sampling sets how an expert samples, and ckpt_path={ckpt} is a "
+                          f"{info.get('role')}: pass an expert checkpoint, or leave expert_sampling null")
+    if "sampler" in settings and settings["sampler"] not in ("ddim", "ddpm"):
+        raise ConfigError(f"expert_sampling.sampler={settings['sampler']!r} is not a sampler; valid: ddim, ddpm")
+    check_int(cfg, "expert_sampling.num_inference_steps", 1, 1000, none_ok=True,
+              fix=": denoising steps, e.g. expert_sampling.num_inference_steps=100 (null: the expert's own)")
+    check_int(cfg, "expert_sampling.test_samples", 2, 64, none_ok=True,
+              fix=": samples per test instance, e.g. expert_sampling.test_samples=4 (null: the expert's own)")
+
+
 def validate_evaluate_config(cfg: DictConfig) -> None:
     """``spade.evaluate``'s checks: the checkpoint's role, and its geometry against the data it is tested on."""
     check_paths(cfg)
@@ -42,6 +71,7 @@ def validate_evaluate_config(cfg: DictConfig) -> None:
     if get(cfg, "closed_loop") not in (MISSING, None, False) and info.get("role") != "student":
         raise ConfigError(f"closed_loop=true drives a planner, and ckpt_path={ckpt} is an {info.get('role')}: pass a "
                           "student checkpoint, or leave closed_loop=false (an expert's test has no closed loop)")
+    check_expert_sampling(cfg, ckpt, info)
     check_logger_store(cfg)
     check_data(cfg)
     # the test set alone is read (the validation split of data.train_dir stands in only without a test_dir)

@@ -29,7 +29,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     """Test ``cfg.ckpt_path`` on ``cfg.data``'s test set; returns the test metrics. With ``cfg.mcap`` set, then
     writes the test set's first ``cfg.mcap_instances`` instances with the model's paths, the ground truth and the
     classical baselines as a ROS 2 MCAP recording (:mod:`spade.experiments.prediction_recording`)."""
-    from spade.config.evaluate_checks import validate_evaluate_config
+    from spade.config.evaluate_checks import expert_sampling, validate_evaluate_config
 
     validate_evaluate_config(cfg)  # role, and the checkpoint's window geometry against the test data's
     if cfg.get("closed_loop"):
@@ -41,7 +41,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
         check_recording_path(cfg.drive.get("mcap"), "drive.mcap")  # an existing recording is refused now
     mcap, mcap_instances = _recording(cfg)  # refused now, not after the test
     L.seed_everything(cfg.seed, workers=True)
-    model = load_module(cfg.ckpt_path)
+    model = load_module(cfg.ckpt_path, **expert_sampling(cfg))  # an expert's sampling, where expert_sampling sets it
     datamodule = hydra.utils.instantiate(cfg.data)
     _use_models_encoding(datamodule, cfg.ckpt_path)
     with open_dict(cfg):  # the run records the markers the test drew (tag encoding), not the config's default

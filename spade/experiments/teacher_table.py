@@ -117,6 +117,9 @@ def _holm(ps: list[float | None]) -> list[float | None]:
     return out
 
 
+CLOSED_LOOP_COLUMNS: tuple[tuple[str, str, str], ...] = tuple(
+    (catalog.label(n), n, catalog.figure(n).fmt) for n in ("closed_loop/success_rate", "closed_loop/ape_cm"))
+"""(label, metric, format) of a guided row's closed loop: its drives of the same scenario set, clean condition."""
 GUIDED_TESTED = tuple((n, catalog.figure(n).fmt) for n in ("planner/ape_cm", "planner/over_20cm_rate",
                                                              "planner/plausibility_cm", "planner/commit_rate"))
 
@@ -127,17 +130,20 @@ def _welch(a: list[float], b: list[float]) -> float | None:
     return welch(a, b)[0]
 
 
-def _guided(client: Any, guided: Sequence[Mapping[str, Any]], scale: str | None
+def _guided(client: Any, guided: Sequence[Mapping[str, Any]], scale: str | None,
+            drives: Mapping[tuple[str, str, str], Any] | None = None
             ) -> tuple[list[str], list[tuple[str, str, str, float, float, float | None]]]:
     """The guided students against their BC twins, on the held-out map and (runs ``<row>_real``) the unseen real
-    maps (unless the item says ``real: false``): a table of the deciding figures and the margin's activity, and Welch
-    tests (what, figure, format, guided mean, twin mean, p)."""
-    lines = ["| student | test set | seeds | " + " | ".join(c[0] for c in COLUMNS) + " | margin active (last epoch) |",
-             "|---|---|---:|" + "---:|" * (len(COLUMNS) + 1)]
+    maps (unless the item says ``real: false``): a table of the deciding figures, the closed loop where the rows were
+    driven (``drives``: :func:`spade.experiments.closed_loop_table.fetch_drives`, the clean condition of the same
+    scenario set) and the margin's activity, and Welch tests (what, figure, format, guided mean, twin mean, p)."""
+    lines = ["| student | test set | seeds | " + " | ".join(c[0] for c in COLUMNS) + " | "
+             + " | ".join(c[0] for c in CLOSED_LOOP_COLUMNS) + " | margin active (last epoch) |",
+             "|---|---|---:|" + "---:|" * (len(COLUMNS) + len(CLOSED_LOOP_COLUMNS) + 1)]
     tests = []
     for item in guided:
         against = dict(item.get("against") or {})
-        for where, suffix in (("held-out map", ""), ("unseen real maps", "_real")):
+        for where, suffix, dataset in (("held-out map", "", "heldout"), ("unseen real maps", "_real", "real")):
             if suffix and item.get("real", True) is False:  # a row that is never tested on the real maps
                 continue
             row = _rows(client, [{"table": item["table"], "row": f"{item['row']}{suffix}",
@@ -145,16 +151,29 @@ def _guided(client: Any, guided: Sequence[Mapping[str, Any]], scale: str | None
             twin = _rows(client, [{"table": against.get("table", ""), "row": f"{against.get('row', '')}{suffix}",
                                    "label": against.get("label") or f"BC twin ({against.get('row', '?')})"}],
                          "student", scale)[0]
-            for r in (row, twin):
+            driven = {}
+            for r, source in ((row, item["row"]), (twin, against.get("row", ""))):
+                cell = (drives or {}).get((str(source), dataset, "clean"))
+                driven[id(r)] = [m for _, m in sorted(cell.seeds.items())] if cell is not None else []
+                loop = Row(r.label, r.kind, r.encoding, runs=driven[id(r)])
+                loop_cells = " | ".join(_cell(loop, key, fmt) if loop.runs else "not driven"
+                                        for _, key, fmt in CLOSED_LOOP_COLUMNS)
                 if not r.runs:
-                    lines.append(f"| {r.label} | {where} | 0 | " + " | ".join("missing" for _ in range(len(COLUMNS) + 1))
-                                 + " |")
+                    lines.append(f"| {r.label} | {where} | 0 | " + " | ".join("missing" for _ in range(len(COLUMNS)))
+                                 + f" | {loop_cells} | missing |")
                     continue
                 active = _cell(r, "margin/active", ".0%") if r is row else "-"
                 lines.append(f"| {r.label} | {where} | {len(r.runs)} | "
-                             + " | ".join(_cell(r, "test/" + key, fmt) for _, key, fmt in COLUMNS) + f" | {active} |")
+                             + " | ".join(_cell(r, "test/" + key, fmt) for _, key, fmt in COLUMNS)
+                             + f" | {loop_cells} | {active} |")
             for key, fmt in GUIDED_TESTED:
                 a, b = row.values("test/" + key), twin.values("test/" + key)
+                if a and b:
+                    tests.append((f"{row.label} vs {twin.label}, {where}", key, fmt, statistics.fmean(a),
+                                  statistics.fmean(b), _welch(a, b)))
+            for _, key, fmt in CLOSED_LOOP_COLUMNS:
+                a = [m[key] for m in driven[id(row)] if key in m and math.isfinite(m[key])]
+                b = [m[key] for m in driven[id(twin)] if key in m and math.isfinite(m[key])]
                 if a and b:
                     tests.append((f"{row.label} vs {twin.label}, {where}", key, fmt, statistics.fmean(a),
                                   statistics.fmean(b), _welch(a, b)))
@@ -224,10 +243,11 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
                      + " | ".join(_cell(row, "test/" + key, fmt) for _, key, fmt in COLUMNS) + " | | |")
         csv_rows.append([row.label, "student", row.encoding, len(row.runs),
                          *[row.mean("test/" + key) for _, key, _ in COLUMNS]])
-    for row in students[:1]:
+    # the baselines read the map, start and goal, never the markers: one row each, from the first student that has them
+    for row in [s for s in students if any(s.values(f"test/baseline/{n}/planner/ape_cm") for n in BASELINES)][:1]:
         for name, label in BASELINES.items():
             if row.values(f"test/baseline/{name}/planner/ape_cm"):
-                lines.append(f"| {label} (on {row.encoding} states) | - | - | "
+                lines.append(f"| {label} | - | - | "
                              + " | ".join(_cell(row, f"test/baseline/{name}/{key}", fmt) for _, key, fmt in COLUMNS)
                              + " | | |")
 
@@ -268,7 +288,10 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
             value = expert.mean("test/" + key)
             if value is not None:
                 tests.append((f"{expert.label} vs {student.label}", key, value, student.values("test/" + key)))
-    guided_lines, guided_tests = _guided(client, list(settings.get("guided") or []), scale)
+    from spade.experiments.closed_loop_table import fetch_drives
+
+    guided_lines, guided_tests = _guided(client, list(settings.get("guided") or []), scale,
+                                         fetch_drives(str(tracking_uri), scale))
     ps = [_one_sample_p(values, value) for _, _, value, values in tests]
     holm = _holm(ps + [t[5] for t in guided_tests])
     guided_holm = holm[len(ps):]
@@ -328,7 +351,9 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
         "Guidance from the teacher: each guided student against its BC twin (the same student, data and test without "
         "the margin), mean ± sd over seeds; Welch's two-sided t-test over the per-seed values, Holm's correction "
         "over the page together with the tests above. A guided row whose margin was not active in its last epoch "
-        "trained as BC.",
+        "trained as BC. The closed-loop columns are each row's drives of the same scenario set, clean condition "
+        "(`python -m spade.closed_loop`, one drive per seed; the closed-loop page has the rest): *not driven* where "
+        "none was.",
         "",
         *(guided_lines if settings.get("guided") else ["No guided row is named (teacher.guided)."]),
         "",
