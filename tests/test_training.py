@@ -270,7 +270,16 @@ def test_evaluate_samples_an_expert_as_expert_sampling_says_and_refuses_it_for_a
                        ("+expert_sampling.eta=0.5", "expert_sampling.eta is not a sampling setting")):
         with pytest.raises(ConfigError, match=match):
             validate_evaluate_config(compose_config("evaluate", [f"ckpt_path={expert}", bad, *base]))
+    from mlflow import MlflowClient
+
+    uri = f"sqlite:///{spade_home}/sampling.db"
     metrics = evaluate(compose_config("evaluate", [f"ckpt_path={expert}", "expert_sampling.sampler=ddpm",
                                                    "expert_sampling.num_inference_steps=3",
-                                                   "expert_sampling.test_samples=2", *base]))
+                                                   "expert_sampling.test_samples=2", "run_name=ddpm3",
+                                                   *base[1:], f"paths.mlflow_tracking_uri={uri}"]))
     assert "test/planner/ape_cm" in metrics and metrics["test/seconds_per_sample"] > 0
+    client = MlflowClient(tracking_uri=uri)  # the run records the sampling it was tested with
+    (run,) = client.search_runs([e.experiment_id for e in client.search_experiments()],
+                                "attributes.run_name = 'ddpm3'")
+    assert {k: run.data.params[f"cfg/model/{k}"] for k in ("sampler", "num_inference_steps", "test_samples")} == {
+        "sampler": "ddpm", "num_inference_steps": "3", "test_samples": "2"}

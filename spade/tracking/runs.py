@@ -365,6 +365,10 @@ def finish_evaluation(cfg: DictConfig, trainer: Any, loggers: list[Logger]) -> N
     bind_experiment(ml, cfg)
     if cfg.get("source_seed") is not None:  # a training run's checkpoint tested elsewhere: counted under its seed
         ml.experiment.log_param(ml.run_id, "cfg/seed", int(cfg.source_seed))
+    hparams = getattr(getattr(trainer, "lightning_module", None), "hparams", None) or {}
+    for key in ("sampler", "num_inference_steps", "test_samples"):  # an expert's sampling (expert_sampling or its own)
+        if key in hparams:
+            ml.experiment.log_param(ml.run_id, f"cfg/model/{key}", hparams[key])
     uses, metrics, description, _ = describe_run(cfg, ml, getattr(trainer, "datamodule", None), contexts=("test",))
     log_predictors(cfg, ml.experiment, ml.run_id, [u for u in uses if u.context == "test"], metrics)
     log_report(cfg, ml.experiment, ml.run_id, description, metrics)
