@@ -95,6 +95,7 @@ def test_the_teacher_page_checks_each_expert_against_its_student_and_guidance_ag
     assert "| Cond-DBC vs BC twin (bc_gauss), held-out map | planner/ape_cm | 3.95 | 4.00 |" in text
     assert "the first plans better by planner APE (3.95 vs 4.00 cm), not significant" in text
     assert "- commit: " in text and "- machine: " in text
+    assert "- wall time of the guided rows, their BC twins and their drives counted: " in text
     assert "- good teacher: run `teacher/good_training`" in text and "status FAILED (after its test)" in text
     assert "trainer/max_epochs=48" in text
     assert "Test set (MLflow dataset input, name and digest): not recorded, scale quickstart." in text

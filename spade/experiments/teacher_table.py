@@ -131,12 +131,13 @@ def _welch(a: list[float], b: list[float]) -> float | None:
 
 
 def _guided(client: Any, guided: Sequence[Mapping[str, Any]], scale: str | None,
-            drives: Mapping[tuple[str, str, str], Any] | None = None
+            drives: Mapping[tuple[str, str, str], Any] | None = None, seconds: dict[str, float] | None = None
             ) -> tuple[list[str], list[tuple[str, str, str, float, float, float | None]]]:
     """The guided students against their BC twins, on the held-out map and (runs ``<row>_real``) the unseen real
     maps (unless the item says ``real: false``): a table of the deciding figures, the closed loop where the rows were
     driven (``drives``: :func:`spade.experiments.closed_loop_table.fetch_drives`, the clean condition of the same
-    scenario set) and the margin's activity, and Welch tests (what, figure, format, guided mean, twin mean, p)."""
+    scenario set) and the margin's activity, and Welch tests (what, figure, format, guided mean, twin mean, p).
+    ``seconds`` receives each counted row's and drive's wall time (by name, so a twin shared by rows counts once)."""
     lines = ["| student | test set | seeds | " + " | ".join(c[0] for c in COLUMNS) + " | "
              + " | ".join(c[0] for c in CLOSED_LOOP_COLUMNS) + " | margin active (last epoch) |",
              "|---|---|---:|" + "---:|" * (len(COLUMNS) + len(CLOSED_LOOP_COLUMNS) + 1)]
@@ -154,6 +155,10 @@ def _guided(client: Any, guided: Sequence[Mapping[str, Any]], scale: str | None,
             driven = {}
             for r, source in ((row, item["row"]), (twin, against.get("row", ""))):
                 cell = (drives or {}).get((str(source), dataset, "clean"))
+                if seconds is not None:
+                    seconds[f"{source}{suffix}"] = r.seconds
+                    if cell is not None:
+                        seconds[f"{source}__{dataset}__clean"] = cell.seconds
                 driven[id(r)] = [m for _, m in sorted(cell.seeds.items())] if cell is not None else []
                 loop = Row(r.label, r.kind, r.encoding, runs=driven[id(r)])
                 loop_cells = " | ".join(_cell(loop, key, fmt) if loop.runs else "not driven"
@@ -290,8 +295,9 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
                 tests.append((f"{expert.label} vs {student.label}", key, value, student.values("test/" + key)))
     from spade.experiments.closed_loop_table import fetch_drives
 
+    guided_seconds: dict[str, float] = {}
     guided_lines, guided_tests = _guided(client, list(settings.get("guided") or []), scale,
-                                         fetch_drives(str(tracking_uri), scale))
+                                         fetch_drives(str(tracking_uri), scale), guided_seconds)
     ps = [_one_sample_p(values, value) for _, _, value, values in tests]
     holm = _holm(ps + [t[5] for t in guided_tests])
     guided_holm = holm[len(ps):]
@@ -371,6 +377,8 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
         f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
         f"- machine: {machine()}",
         f"- wall time of the expert test runs counted: {seconds / 60:.0f} min",
+        f"- wall time of the guided rows, their BC twins and their drives counted: "
+        f"{sum(guided_seconds.values()) / 3600:.1f} h (their training, tests and re-tests, one process each)",
         f"- MLflow store {shown_path(str(tracking_uri))}; rows: "
         + ", ".join(f"`{s['table']}/{s['row']}`" for s in [*(settings.get('experts') or []),
                                                           *(settings.get('students') or []),
