@@ -267,7 +267,8 @@ def test_evaluate_samples_an_expert_as_expert_sampling_says_and_refuses_it_for_a
                                                              "expert_sampling.sampler=ddpm", *base]))
     for bad, match in (("expert_sampling.sampler=euler", "is not a sampler; valid: ddim, ddpm"),
                        ("expert_sampling.test_samples=1", "expert_sampling.test_samples=1"),
-                       ("+expert_sampling.eta=0.5", "expert_sampling.eta is not a sampling setting")):
+                       ("+expert_sampling.eta=0.5", "expert_sampling.eta is not a sampling setting"),
+                       ("expert_sampling.guidance_scale=2", "needs an expert trained with model.cond_dropout > 0")):
         with pytest.raises(ConfigError, match=match):
             validate_evaluate_config(compose_config("evaluate", [f"ckpt_path={expert}", bad, *base]))
     from mlflow import MlflowClient

@@ -27,10 +27,10 @@ def expert_sampling(cfg: DictConfig) -> dict[str, object]:
 def check_expert_sampling(cfg: DictConfig, ckpt: object, info: dict) -> None:
     """``expert_sampling.*``: only for an expert, a known sampler, steps within the expert's timesteps, K >= 2."""
     settings = expert_sampling(cfg)
-    unknown = sorted(set(settings) - {"sampler", "num_inference_steps", "test_samples"})
+    unknown = sorted(set(settings) - {"sampler", "num_inference_steps", "test_samples", "guidance_scale"})
     if unknown:
         raise ConfigError(f"expert_sampling.{unknown[0]} is not a sampling setting; valid: sampler, "
-                          "num_inference_steps, test_samples")
+                          "num_inference_steps, test_samples, guidance_scale")
     if not settings:
         return
     if info.get("role") != "expert":
@@ -42,6 +42,18 @@ def check_expert_sampling(cfg: DictConfig, ckpt: object, info: dict) -> None:
               fix=": denoising steps, e.g. expert_sampling.num_inference_steps=100 (null: the expert's own)")
     check_int(cfg, "expert_sampling.test_samples", 2, 64, none_ok=True,
               fix=": samples per test instance, e.g. expert_sampling.test_samples=4 (null: the expert's own)")
+    scale = settings.get("guidance_scale")
+    if scale is not None:
+        from spade.models.modelfile import load_checkpoint  # heavy: only with guidance asked for
+
+        hparams = load_checkpoint(Path(str(ckpt)), mmap=True).get("hyper_parameters") or {}
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 <= scale <= 20:
+            raise ConfigError(f"expert_sampling.guidance_scale={scale!r} is not a number in [0, 20]; e.g. "
+                              "expert_sampling.guidance_scale=2 (null: the expert's own)")
+        if scale != 1 and not hparams.get("cond_dropout"):
+            raise ConfigError(f"expert_sampling.guidance_scale={scale} needs an expert trained with "
+                              f"model.cond_dropout > 0, and ckpt_path={ckpt} was not: train one (e.g. "
+                              "+experiment=teacher_cfg_L), or leave expert_sampling.guidance_scale null")
 
 
 def validate_evaluate_config(cfg: DictConfig) -> None:

@@ -154,8 +154,9 @@ def check_checkpoints(cfg: DictConfig) -> None:
         _check_resume(cfg, ckpt, info)
     init = get(cfg, "model.init_ckpt")
     if init is not MISSING:
-        info = check_checkpoint("model.init_ckpt", init, "student",
-                                 "pass a student checkpoint (the pretrained student of the fine-tuning row)")
+        wanted = role or "student"  # a student starts from a student, an expert from an expert
+        info = check_checkpoint("model.init_ckpt", init, wanted,
+                                 f"pass a {wanted} checkpoint (the pretrained {wanted} the run fine-tunes)")
         check_geometry("model.init_ckpt", init, info, cfg, train_data)
     expert = get(cfg, "model.margin.expert_ckpt")
     if expert is not MISSING:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from collections.abc import Callable
 from typing import Any
 
@@ -40,6 +41,24 @@ def expert_input(state: torch.Tensor, path: torch.Tensor, conditional: bool
     if conditional:
         return to_model_range(path), to_model_range(state)
     return to_model_range(torch.cat([state, path], dim=1)), None
+
+
+def null_condition(cond: torch.Tensor) -> torch.Tensor:
+    """The condition of classifier-free guidance's unconditional branch: a state of zeros in the model's [-1, 1]
+    range (mid-grey everywhere), which no real state (occupancy and markers near -1 or 1) resembles."""
+    return torch.zeros_like(cond)
+
+
+def guided(net: torch.nn.Module, x_t: torch.Tensor, t: torch.Tensor, cond: torch.Tensor, scale: float) -> torch.Tensor:
+    """Classifier-free guidance (Ho and Salimans, 2022): ``u + scale (c - u)`` of the conditional output ``c`` and
+    the unconditional one ``u`` (:func:`null_condition`), both in one batched call; ``scale`` 1 is the conditional
+    output alone (one call), 0 the unconditional. Linear in the output, so it holds for epsilon, x0 and v
+    prediction alike."""
+    if scale == 1.0:
+        return net(x_t, t, cond)
+    both = net(torch.cat([x_t, x_t]), torch.cat([t, t]) if t.dim() else t, torch.cat([cond, null_condition(cond)]))
+    c, u = both.chunk(2)
+    return u + scale * (c - u)
 
 
 def denoise(net: torch.nn.Module, x_t: torch.Tensor, t: torch.Tensor, cond: torch.Tensor | None) -> torch.Tensor:
@@ -96,10 +115,14 @@ class ExpertModule(PathPlanningModule):
         grid_size: int = 8,
         image_size: int | None = None,
         marker_encoding: str | None = None,
+        cond_dropout: float = 0.0,
+        guidance_scale: float = 1.0,
+        init_ckpt: str | None = None,
     ) -> None:
         options = ExpertOptions(conditional=conditional, preset=preset, ema_decay=ema_decay, sampler=sampler,
                                 num_inference_steps=num_inference_steps, test_samples=test_samples,
-                                num_train_timesteps=num_train_timesteps)
+                                num_train_timesteps=num_train_timesteps, cond_dropout=cond_dropout,
+                                guidance_scale=guidance_scale, init_ckpt=init_ckpt)
         super().__init__(optimizer, metrics, val_metric_batches, grid_size)
         self.lr_scheduler_factory = lr_scheduler
         self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"], logger=False)  # as StudentModule's
@@ -114,6 +137,28 @@ class ExpertModule(PathPlanningModule):
                                       prediction_type=prediction_type, clip_sample=clip_sample)
         self.sample_seconds = 0.0
         self.sample_count = 0
+        if options.init_ckpt:
+            self.load_pretrained(options.init_ckpt)
+
+    def load_pretrained(self, ckpt: str | Path) -> None:
+        """Start from another expert's weights (its EMA copy, what it samples and judges with), for fine-tuning:
+        e.g. a trained teacher taught classifier-free guidance (``model.cond_dropout``). The same network only."""
+        from spade.models.modelfile import load_checkpoint, read_info
+
+        path = Path(ckpt)
+        if not path.is_file():
+            raise FileNotFoundError(f"init_ckpt={path} does not exist; pass an expert checkpoint (.ckpt)")
+        info = read_info(path, checkpoint=True, required=False)
+        if info.get("role") != "expert":
+            raise ValueError(f"init_ckpt={path} is a {info.get('role', 'non-SPADE')} checkpoint, not an expert's")
+        if dict(info.get("config") or {}) != dict(self.net.config):
+            raise ValueError(f"init_ckpt={path} holds an expert {info.get('config')}, this run builds "
+                             f"{dict(self.net.config)}: set model.preset and model.conditional to the pretrained "
+                             "expert's")
+        state = load_checkpoint(path)["state_dict"]
+        weights = {k[len("ema.module."):]: v for k, v in state.items() if k.startswith("ema.module.")}
+        self.net.load_state_dict(weights)
+        self.ema.module.load_state_dict(weights)
 
     # -- networks ------------------------------------------------------------------------------------------
     def ema_net(self) -> torch.nn.Module:
@@ -167,15 +212,22 @@ class ExpertModule(PathPlanningModule):
         student learns."""
         return expert_input(batch["state"], batch.get("target", batch["path"]), self.conditional)
 
-    def denoising_loss(self, net: torch.nn.Module, batch: dict, generator: torch.Generator | None = None) -> torch.Tensor:
+    def denoising_loss(self, net: torch.nn.Module, batch: dict, generator: torch.Generator | None = None,
+                       cond_dropout: float = 0.0) -> torch.Tensor:
+        """The denoising loss of a batch; ``cond_dropout``: the share of instances trained with the null condition
+        (:func:`null_condition`), so that the same network learns the unconditional score for classifier-free
+        guidance."""
         x0, cond = self.model_input(batch)
+        if cond is not None and cond_dropout > 0:
+            drop = torch.rand(cond.shape[0], device=cond.device, generator=generator) < cond_dropout
+            cond = torch.where(drop[:, None, None, None], null_condition(cond), cond)
         noise = torch.randn(x0.shape, generator=generator, device=x0.device, dtype=x0.dtype)
         t = torch.randint(0, self.schedule.num_train_timesteps, (x0.shape[0],), device=x0.device, generator=generator)
         prediction = denoise(net, self.schedule.add_noise(x0, noise, t), t, cond)
         return self.schedule.denoising_error(prediction, x0, noise, t).mean()
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
-        loss = self.denoising_loss(self.net, batch)
+        loss = self.denoising_loss(self.net, batch, cond_dropout=float(self.hparams.get("cond_dropout") or 0.0))
         self.check_finite(loss, {"loss_denoise": loss})
         self.log("train/loss", loss, prog_bar=True, batch_size=batch["state"].shape[0])
         return loss
@@ -198,7 +250,8 @@ class ExpertModule(PathPlanningModule):
         net = self.ema_net()
         b, _, h, w = state.shape
         if self.conditional:
-            x0 = self.schedule.sample(lambda x, t: net(x, t, to_model_range(state)), (b, 1, h, w), generator=gen,
+            cond, scale = to_model_range(state), float(self.hparams.get("guidance_scale", 1.0) or 1.0)
+            x0 = self.schedule.sample(lambda x, t: guided(net, x, t, cond, scale), (b, 1, h, w), generator=gen,
                                       sampler=sampler, num_inference_steps=steps, device=state.device)
             path = x0
         else:

@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
+from spade.utils.errors import ConfigError
 from spade.utils.option_checks import MISSING, check_choice_value, check_int_value, check_number_value
 
 __all__ = ["ExpertOptions", "StudentOptions"]
@@ -70,6 +71,9 @@ class ExpertOptions:
     test_samples: int = 4  # two samples at least measure the spread
     num_train_timesteps: int = 1000
     optimizer: Mapping[str, Any] | None = field(default=None)
+    cond_dropout: float = 0.0  # classifier-free guidance: share of training instances whose condition is dropped
+    guidance_scale: float = 1.0  # classifier-free guidance at sampling: 1 the conditional score alone
+    init_ckpt: str | None = None  # start from a trained expert of the same preset (fine-tuning)
 
     def __post_init__(self) -> None:
         kind = "cond_expert" if self.conditional is not False else "uncond_expert"
@@ -80,3 +84,12 @@ class ExpertOptions:
         check_int_value("model.test_samples", self.test_samples, 2)
         check_int_value("model.num_train_timesteps", self.num_train_timesteps, 2)
         _check_optimizer(self.optimizer)
+        check_number_value("model.cond_dropout", self.cond_dropout, 0, 1, high_open=True)
+        check_number_value("model.guidance_scale", self.guidance_scale, 0, 20)
+        if (self.cond_dropout or self.guidance_scale != 1) and self.conditional is False:
+            raise ConfigError("model.cond_dropout and model.guidance_scale (classifier-free guidance) need a "
+                              "conditional expert (model.conditional=true); leave them at 0 and 1")
+        if self.guidance_scale != 1 and not self.cond_dropout:
+            raise ConfigError(f"model.guidance_scale={self.guidance_scale} mixes in the unconditional score, which "
+                              "an expert trained with model.cond_dropout=0 never learned: train it with "
+                              "model.cond_dropout=0.1, or leave model.guidance_scale=1")
