@@ -366,7 +366,7 @@ def finish_evaluation(cfg: DictConfig, trainer: Any, loggers: list[Logger]) -> N
     if cfg.get("source_seed") is not None:  # a training run's checkpoint tested elsewhere: counted under its seed
         ml.experiment.log_param(ml.run_id, "cfg/seed", int(cfg.source_seed))
     hparams = getattr(getattr(trainer, "lightning_module", None), "hparams", None) or {}
-    for key in ("sampler", "num_inference_steps", "test_samples"):  # an expert's sampling (expert_sampling or its own)
+    for key in ("sampler", "num_inference_steps", "test_samples", "guidance_scale"):  # an expert's sampling
         if key in hparams:
             ml.experiment.log_param(ml.run_id, f"cfg/model/{key}", hparams[key])
     uses, metrics, description, _ = describe_run(cfg, ml, getattr(trainer, "datamodule", None), contexts=("test",))
