@@ -183,3 +183,23 @@ class PathPlanningModule(L.LightningModule):
         if records is not None and records.count and not self.trainer.sanity_checking:
             for label, picture in records.pictures().items():
                 log_image(self.logger, picture, f"predictions/test_{label}.png", self.trainer.log_dir)
+
+
+def pretrained_weights(ckpt: "str | Path", role: str, config: dict, prefix: str, fix: str) -> dict:
+    """The weights under ``prefix`` of the ``role`` checkpoint ``ckpt`` (``model.init_ckpt``: fine-tuning), after
+    checking that it exists, holds that role and the same network ``config``; ``fix`` ends the mismatch message."""
+    from pathlib import Path
+
+    from spade.models.modelfile import load_checkpoint, read_info
+
+    a = "an" if role[0] in "aeiou" else "a"
+    path = Path(ckpt)
+    if not path.is_file():
+        raise FileNotFoundError(f"init_ckpt={path} does not exist; pass {a} {role} checkpoint (.ckpt)")
+    info = read_info(path, checkpoint=True, required=False)
+    if info.get("role") != role:
+        raise ValueError(f"init_ckpt={path} is a {info.get('role', 'non-SPADE')} checkpoint, not {a} {role}'s")
+    if dict(info.get("config") or {}) != dict(config):
+        raise ValueError(f"init_ckpt={path} holds {a} {role} {info.get('config')}, this run builds {dict(config)}: "
+                         f"{fix}")
+    return {k[len(prefix):]: v for k, v in load_checkpoint(path)["state_dict"].items() if k.startswith(prefix)}

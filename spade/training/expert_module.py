@@ -143,20 +143,10 @@ class ExpertModule(PathPlanningModule):
     def load_pretrained(self, ckpt: str | Path) -> None:
         """Start from another expert's weights (its EMA copy, what it samples and judges with), for fine-tuning:
         e.g. a trained teacher taught classifier-free guidance (``model.cond_dropout``). The same network only."""
-        from spade.models.modelfile import load_checkpoint, read_info
+        from spade.training.base import pretrained_weights
 
-        path = Path(ckpt)
-        if not path.is_file():
-            raise FileNotFoundError(f"init_ckpt={path} does not exist; pass an expert checkpoint (.ckpt)")
-        info = read_info(path, checkpoint=True, required=False)
-        if info.get("role") != "expert":
-            raise ValueError(f"init_ckpt={path} is a {info.get('role', 'non-SPADE')} checkpoint, not an expert's")
-        if dict(info.get("config") or {}) != dict(self.net.config):
-            raise ValueError(f"init_ckpt={path} holds an expert {info.get('config')}, this run builds "
-                             f"{dict(self.net.config)}: set model.preset and model.conditional to the pretrained "
-                             "expert's")
-        state = load_checkpoint(path)["state_dict"]
-        weights = {k[len("ema.module."):]: v for k, v in state.items() if k.startswith("ema.module.")}
+        weights = pretrained_weights(ckpt, "expert", self.net.config, "ema.module.",
+                                     "set model.preset and model.conditional to the pretrained expert's")
         self.net.load_state_dict(weights)
         self.ema.module.load_state_dict(weights)
 

@@ -11,7 +11,7 @@ import torch
 import torch.nn.functional as F
 
 from spade.models import build_model
-from spade.models.modelfile import load_checkpoint, load_lightning, read_info
+from spade.models.modelfile import load_lightning
 from spade.training.base import PathPlanningModule
 from spade.training.expert_mismatch import ExpertMismatchError  # noqa: F401  (raised by ExpertModule.check_compatible)
 from spade.training.margin import DiffusionMargin, MarginConfig, legacy_margin_options
@@ -92,18 +92,10 @@ class StudentModule(PathPlanningModule):
 
     def load_pretrained(self, ckpt: str | Path) -> None:
         """Initialise the network from another student's checkpoint (fine-tuning), checking it is the same net."""
-        path = Path(ckpt)
-        if not path.is_file():
-            raise FileNotFoundError(f"init_ckpt={path} does not exist; pass a student checkpoint (.ckpt)")
-        info = read_info(path, checkpoint=True, required=False)
-        if info.get("role") != "student":
-            raise ValueError(f"init_ckpt={path} is a {info.get('role', 'non-SPADE')} checkpoint, not a student's")
-        if dict(info.get("config") or {}) != dict(self.net.config):
-            raise ValueError(
-                f"init_ckpt={path} holds a student {info.get('config')}, this run builds {dict(self.net.config)}: "
-                "set model.size to the pretrained student's size"
-            )
-        weights = {k[len("net."):]: v for k, v in load_checkpoint(path)["state_dict"].items() if k.startswith("net.")}
+        from spade.training.base import pretrained_weights
+
+        weights = pretrained_weights(ckpt, "student", self.net.config, "net.",
+                                     "set model.size to the pretrained student's size")
         self.net.load_state_dict(weights)
 
     # -- the diffusion margin ------------------------------------------------------------------------------
