@@ -30,7 +30,7 @@ def test_the_teacher_page_checks_each_expert_against_its_student_and_guidance_ag
     _run(client, teacher, "good", 42, "gaussian", {
         "test/planner/ape_cm": 2.0, "test/planner/plausibility_cm": 0.8, "test/planner/spread_ratio": 0.5,
         "test/generator_spread_cm": 4.0, "test/seconds_per_sample": 0.01, "test/mean_map/planner/ape_cm": 1.9,
-        "test/planner/over_20cm_rate": 0.0})
+        "test/planner/over_20cm_rate": 0.0, "model/params": 741769.0})
     # a binary expert no better than its student
     _run(client, teacher, "old", 42, "binary", {"test/planner/ape_cm": 4.3, "test/planner/plausibility_cm": 2.2,
                                                 "test/planner/spread_ratio": 0.67, "test/generator_spread_cm": 4.1})
@@ -70,6 +70,9 @@ def test_the_teacher_page_checks_each_expert_against_its_student_and_guidance_ag
     text, files = teacher_report(uri, tmp_path / "out", settings, "quickstart")
     assert files["markdown"].read_text() == text and files["csv"].is_file()
     assert "| good teacher, one sample | gaussian | 1 | 2.00 |" in text
+    good_row = next(line for line in text.splitlines() if line.startswith("| good teacher, one sample |"))
+    assert good_row.endswith("| 0.50 | 10 | 0.74 M |")  # spread ratio, ms per sample, network size
+    assert text.startswith("# The teacher: each expert as a planner beside its student\n")
     assert "| BC gaussian | gaussian | 3 | 4.00 ± 0.10 |" in text
     assert "| unrun | ? | 0 | missing" in text
     # the baselines (which read no marker) once, from the first student row that has them (bc_gauss)
@@ -110,6 +113,16 @@ def test_the_teacher_page_is_a_report_table(tmp_path: Path) -> None:
     cfg = compose_config("report", ["table=teacher", f"paths.root_dir={tmp_path}"])
     assert [e["row"] for e in cfg.teacher.experts][0] == "teacher_shipped_binary"
     assert cfg.teacher.guided[0].against.row == "enc_gaussian_L"
+    # another page of the group: its own rows and files, so it never replaces the main page
+    width = compose_config("report", ["table=teacher", "teacher=width", f"paths.root_dir={tmp_path}"])
+    assert [e["row"] for e in width.teacher.experts] == ["teacher_L", "teacher_wide_L"]
+    assert report_files("teacher", teacher_page=width.teacher.page) == ["teacher_width.md", "teacher_width.csv"]
+    from spade.config.report_checks import validate_report_config
+    from spade.utils.errors import ConfigError
+
+    bad = compose_config("report", ["table=teacher", "teacher.page=../teacher", f"paths.root_dir={tmp_path}"])
+    with pytest.raises(ConfigError, match=r"teacher.page='../teacher' is not a file name; set teacher.page=NAME"):
+        validate_report_config(bad)
     pytest.importorskip("scipy")
 
 

@@ -16,7 +16,7 @@ from spade.utils.errors import ConfigError
 from spade.utils.option_checks import MISSING, unset
 
 
-def report_files(table: Any, chart: bool = True) -> list[str]:
+def report_files(table: Any, chart: bool = True, teacher_page: Any = None) -> list[str]:
     """The names of the files ``spade.report`` writes into ``output_dir`` for ``table`` (one table, ``all`` or
     ``closed_loop``), as :func:`spade.experiments.reporting.build.build_report` and
     :func:`spade.experiments.closed_loop_table.closed_loop_report` name them (a table without comparisons writes
@@ -24,9 +24,9 @@ def report_files(table: Any, chart: bool = True) -> list[str]:
     if str(table) == "closed_loop":
         return ["closed_loop.md", "closed_loop.csv"]
     if str(table) == "teacher":
-        from spade.experiments.teacher_table import TEACHER_FILES
+        from spade.experiments.teacher_table import teacher_files
 
-        return list(TEACHER_FILES)
+        return list(teacher_files(teacher_page))
     from spade.experiments.tables import TABLES, get_table  # the report's own tables, for spade.report alone
 
     tables = list(TABLES.values()) if str(table) == "all" else [get_table(table)]
@@ -47,7 +47,8 @@ def _check_output_dir(cfg: DictConfig) -> None:
     check_writable("output_dir", folder / "report.md", "give a folder you can write (null: print only)")
     check_bool(cfg, "overwrite")
     overwrite = get(cfg, "overwrite") is True
-    for name in report_files(get(cfg, "table"), get(cfg, "chart") is not False):
+    page = get(cfg, "teacher.page")
+    for name in report_files(get(cfg, "table"), get(cfg, "chart") is not False, None if unset(page) else page):
         path = folder / name
         refusal = replace_refusal("output_dir", path, overwrite, label=f"output_dir={out}: {path}")
         if refusal is not None:
@@ -71,6 +72,11 @@ def validate_report_config(cfg: DictConfig) -> None:
             get_table(table)
         except (KeyError, ValueError) as exc:
             raise ConfigError(f"table={table}: {exc.args[0] if exc.args else exc}") from None
+    page = get(cfg, "teacher.page")
+    if str(table) == "teacher" and not unset(page) and (not isinstance(page, str) or Path(page).name != page
+                                                        or page.startswith(".")):
+        raise ConfigError(f"teacher.page={page!r} is not a file name; set teacher.page=NAME (the page writes "
+                          "NAME.md and NAME.csv into output_dir)")
     uri = get(cfg, "tracking_uri")
     if unset(uri):
         raise ConfigError("tracking_uri is not set; pass tracking_uri=sqlite:///PATH/logs/mlflow.db")

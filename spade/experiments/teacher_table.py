@@ -11,7 +11,9 @@ student by a one-sample t-test of the student's per-seed values against the expe
 has no spread of its own: the test asks whether the expert lies outside the student's seed-to-seed variation), with
 Holm's correction over the page.
 
-Rows are named in ``conf/report.yaml`` (``teacher.experts`` and ``teacher.students``: MLflow experiment and run name).
+Rows are named in a page of the ``conf/teacher/`` group (``experts``, ``students``, ``guided``: MLflow experiment and
+run name): ``teacher=main`` (the default) writes ``teacher.md``, ``teacher=width`` the width lever's
+``teacher_width.md``; each page's ``page`` setting names its files.
 """
 
 from __future__ import annotations
@@ -27,10 +29,17 @@ from typing import Any
 from spade.metrics import catalog
 from spade.metrics.catalog import BASELINE_ROW_LABELS
 
-__all__ = ["TEACHER_TABLE", "TEACHER_FILES", "teacher_report"]
+__all__ = ["TEACHER_TABLE", "teacher_files", "teacher_report"]
 
 TEACHER_TABLE = "teacher"
-TEACHER_FILES = ("teacher.md", "teacher.csv")
+DEFAULT_TITLE = "The teacher: each expert as a planner beside its student"
+
+
+def teacher_files(page: str | None = None) -> tuple[str, str]:
+    """The files a teacher page writes into ``output_dir``: ``<page>.md`` and ``<page>.csv`` (``teacher`` unless the
+    page's ``page`` setting names it otherwise)."""
+    stem = str(page or TEACHER_TABLE)
+    return f"{stem}.md", f"{stem}.csv"
 
 COLUMNS: tuple[tuple[str, str, str], ...] = tuple((catalog.label(n), n, catalog.figure(n).fmt) for n in catalog.TEACHER)
 """(label, metric after ``test/`` [and the prefix of the reading], format) of the page's columns."""
@@ -96,6 +105,12 @@ def _rows(client: Any, sources: Sequence[Mapping[str, str]], kind: str, scale: s
             seconds=sum(((r.info.end_time or 0) - (r.info.start_time or 0)) / 1000.0 for r in runs),
             test_sets=set().union(*(_test_sets(r) for r in runs))))
     return rows
+
+
+def _parameters(row: Row) -> str:
+    """The row's network size (``model/params``, logged by every training and evaluation run), in millions."""
+    value = row.mean("model/params")
+    return "n/a" if value is None else f"{value / 1e6:.2f} M"
 
 
 def _one_sample_p(values: list[float], value: float) -> float | None:
@@ -224,18 +239,20 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
     client = mlflow_client(str(tracking_uri))
     experts = _rows(client, list(settings.get("experts") or []), "expert", scale)
     students = _rows(client, list(settings.get("students") or []), "student", scale)
-    header = "| predictor | markers | seeds | " + " | ".join(c[0] for c in COLUMNS) + " | spread / generator's | ms per sample |"
-    lines = [header, "|---|---|---:|" + "---:|" * (len(COLUMNS) + 2)]
+    header = ("| predictor | markers | seeds | " + " | ".join(c[0] for c in COLUMNS)
+              + " | spread / generator's | ms per sample | parameters |")
+    lines = [header, "|---|---|---:|" + "---:|" * (len(COLUMNS) + 3)]
     csv_rows: list[list[Any]] = []
     for row in experts:
         if not row.runs:
-            lines.append(f"| {row.label} | ? | 0 | " + " | ".join("missing" for _ in range(len(COLUMNS) + 2)) + " |")
+            lines.append(f"| {row.label} | ? | 0 | " + " | ".join("missing" for _ in range(len(COLUMNS) + 3)) + " |")
             continue
         k = row.params.get("cfg/model/test_samples")
         for reading, prefix in (("one sample", "test/"), (f"mean of {k or 'K'} samples' maps", "test/mean_map/")):
-            extra = [_cell(row, "test/planner/spread_ratio", ".2f"), _cell(row, "test/seconds_per_sample", ".3f")]
+            extra = [_cell(row, "test/planner/spread_ratio", ".2f"), _cell(row, "test/seconds_per_sample", ".3f"),
+                     _parameters(row)]
             if prefix != "test/":
-                extra = ["", ""]
+                extra = ["", "", ""]
             elif extra[1] != "n/a":
                 extra[1] = f"{row.mean('test/seconds_per_sample') * 1000:.0f}"
             lines.append(f"| {row.label}, {reading} | {row.encoding} | {len(row.runs)} | "
@@ -245,7 +262,7 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
                              *[row.mean(prefix + key) for _, key, _ in COLUMNS]])
     for row in students:
         lines.append(f"| {row.label} | {row.encoding} | {len(row.runs)} | "
-                     + " | ".join(_cell(row, "test/" + key, fmt) for _, key, fmt in COLUMNS) + " | | |")
+                     + " | ".join(_cell(row, "test/" + key, fmt) for _, key, fmt in COLUMNS) + f" | | | {_parameters(row)} |")
         csv_rows.append([row.label, "student", row.encoding, len(row.runs),
                          *[row.mean("test/" + key) for _, key, _ in COLUMNS]])
     # the baselines read the map, start and goal, never the markers: one row each, from the first student that has them
@@ -254,7 +271,7 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
             if row.values(f"test/baseline/{name}/planner/ape_cm"):
                 lines.append(f"| {label} | - | - | "
                              + " | ".join(_cell(row, f"test/baseline/{name}/{key}", fmt) for _, key, fmt in COLUMNS)
-                             + " | | |")
+                             + " | | | |")
 
     # targets and tests: each expert against the student of its encoding
     tests: list[tuple[str, str, float, list[float]]] = []
@@ -328,7 +345,7 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
     training = _training_lines(client, list(settings.get("experts") or []))
     seconds = sum(r.seconds for r in experts)
     parts = [
-        "# The teacher: each expert as a planner beside its student",
+        f"# {settings.get('title') or DEFAULT_TITLE}",
         "",
         "Each expert's test samples every test instance K times (DDIM) and decodes each sample with the planner a "
         "robot would run (`spade.metrics.decoding`): *one sample* is what a robot asking the expert once would "
@@ -391,7 +408,8 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
 
         out = Path(output_dir)
         out.mkdir(parents=True, exist_ok=True)
-        files["markdown"], files["csv"] = out / TEACHER_FILES[0], out / TEACHER_FILES[1]
+        md_name, csv_name = teacher_files(settings.get("page"))
+        files["markdown"], files["csv"] = out / md_name, out / csv_name
         files["markdown"].write_text(text)
         with files["csv"].open("w", newline="") as fh:
             writer = csv.writer(fh)
