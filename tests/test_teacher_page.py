@@ -102,6 +102,13 @@ def test_the_teacher_page_checks_each_expert_against_its_student_and_guidance_ag
     assert "- good teacher: run `teacher/good_training`" in text and "status FAILED (after its test)" in text
     assert "trainer/max_epochs=48" in text
     assert "Test set (MLflow dataset input, name and digest): not recorded, scale quickstart." in text
+    # a lever page of experts alone (conf/teacher/width.yaml): its own title and files, no guidance section
+    lever = {"page": "teacher_lever", "title": "A lever", "experts": settings["experts"][:1],
+             "students": settings["students"], "guided": []}
+    text, files = teacher_report(uri, tmp_path / "out", lever, "quickstart")
+    assert text.startswith("# A lever\n") and files["markdown"].name == "teacher_lever.md"
+    assert "Guidance from the teacher" not in text and "guided rows" not in text
+    assert "the expert plans better than its student by planner APE (2.00 vs 4.00 cm)" in text
 
 
 def test_the_teacher_page_is_a_report_table(tmp_path: Path) -> None:

@@ -284,3 +284,5 @@ def test_evaluate_samples_an_expert_as_expert_sampling_says_and_refuses_it_for_a
                                 "attributes.run_name = 'ddpm3'")
     assert {k: run.data.params[f"cfg/model/{k}"] for k in ("sampler", "num_inference_steps", "test_samples")} == {
         "sampler": "ddpm", "num_inference_steps": "3", "test_samples": "2"}
+    # and the size of the network it tested, as a training run records it (the teacher pages' parameters column)
+    assert run.data.metrics["model/params"] == sum(p.numel() for p in own.net.parameters() if p.requires_grad)

@@ -49,7 +49,10 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
         if cfg.get("tags") is not None:
             cfg.tags.encoding = datamodule.encoding
     loggers = instantiate_loggers(cfg.get("logger"))  # SPADE's MLflow logger opens a fresh store under a lock
-    trainer = hydra.utils.instantiate(cfg.trainer, logger=loggers or False, callbacks=[])
+    from spade.training.callbacks import ModelInfo
+
+    # the run records the tested network's size (model/params) as a training run does; no latency timing here
+    trainer = hydra.utils.instantiate(cfg.trainer, logger=loggers or False, callbacks=[ModelInfo(latency_runs=0)])
     for lg in loggers:  # the run stays open after the test, until its record is written (spade.tracking.logger)
         lg.hold_open = True
     try:

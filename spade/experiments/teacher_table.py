@@ -344,6 +344,20 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
     test_sets = sorted(set().union(*(r.test_sets for r in experts + students)))
     training = _training_lines(client, list(settings.get("experts") or []))
     seconds = sum(r.seconds for r in experts)
+    # the guided students, where the page names any (a lever page of experts alone has none)
+    guidance_part = [
+        "Guidance from the teacher: each guided student against its BC twin (the same student, data and test without "
+        "the margin), mean ± sd over seeds; Welch's two-sided t-test over the per-seed values, Holm's correction "
+        "over the page together with the tests above. A guided row whose margin was not active in its last epoch "
+        "trained as BC. The closed-loop columns are each row's drives of the same scenario set, clean condition "
+        "(`python -m spade.closed_loop`, one drive per seed; the closed-loop page has the rest): *not driven* where "
+        "none was.",
+        "",
+        *guided_lines,
+        "",
+        *(guided_test_lines if guided_tests else []),
+        "",
+    ] if settings.get("guided") else []
     parts = [
         f"# {settings.get('title') or DEFAULT_TITLE}",
         "",
@@ -371,17 +385,7 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
         "",
         *(test_lines if tests else ["No comparison can be tested yet."]),
         "",
-        "Guidance from the teacher: each guided student against its BC twin (the same student, data and test without "
-        "the margin), mean ± sd over seeds; Welch's two-sided t-test over the per-seed values, Holm's correction "
-        "over the page together with the tests above. A guided row whose margin was not active in its last epoch "
-        "trained as BC. The closed-loop columns are each row's drives of the same scenario set, clean condition "
-        "(`python -m spade.closed_loop`, one drive per seed; the closed-loop page has the rest): *not driven* where "
-        "none was.",
-        "",
-        *(guided_lines if settings.get("guided") else ["No guided row is named (teacher.guided)."]),
-        "",
-        *(guided_test_lines if guided_tests else []),
-        "",
+        *guidance_part,
         "Verdict:",
         "",
         *(verdicts or ["- no comparison yet"]),
@@ -394,8 +398,9 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
         f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
         f"- machine: {machine()}",
         f"- wall time of the expert test runs counted: {seconds / 60:.0f} min",
-        f"- wall time of the guided rows, their BC twins and their drives counted: "
-        f"{sum(guided_seconds.values()) / 3600:.1f} h (their training, tests and re-tests, one process each)",
+        *([f"- wall time of the guided rows, their BC twins and their drives counted: "
+           f"{sum(guided_seconds.values()) / 3600:.1f} h (their training, tests and re-tests, one process each)"]
+          if settings.get("guided") else []),
         f"- MLflow store {shown_path(str(tracking_uri))}; rows: "
         + ", ".join(f"`{s['table']}/{s['row']}`" for s in [*(settings.get('experts') or []),
                                                           *(settings.get('students') or []),

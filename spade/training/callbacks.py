@@ -36,12 +36,22 @@ def batch1_latency_ms(net: torch.nn.Module, input_shape: tuple[int, ...], runs: 
 
 
 class ModelInfo(Callback):
-    """Logs the network's trainable parameter count and batch-1 inference latency once, when fitting starts."""
+    """Logs the network's trainable parameter count and batch-1 inference latency once: when fitting starts, or when
+    a test starts without a fit (``spade.evaluate``), so that every run that tests a network records its size."""
 
     def __init__(self, latency_runs: int = 20) -> None:
         self.latency_runs = latency_runs
+        self._logged = False
 
     def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._log(trainer, pl_module)
+
+    def on_test_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if not self._logged:
+            self._log(trainer, pl_module)
+
+    def _log(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._logged = True
         net = pl_module.net
         dm = trainer.datamodule
         h, w = dm.image_size if dm is not None else (128, 128)
