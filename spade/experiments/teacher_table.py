@@ -239,6 +239,7 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
     client = mlflow_client(str(tracking_uri))
     experts = _rows(client, list(settings.get("experts") or []), "expert", scale)
     students = _rows(client, list(settings.get("students") or []), "student", scale)
+    guided = list(settings.get("guided") or [])  # a lever page of experts alone names none
     header = ("| predictor | markers | seeds | " + " | ".join(c[0] for c in COLUMNS)
               + " | spread / generator's | ms per sample | parameters |")
     lines = [header, "|---|---|---:|" + "---:|" * (len(COLUMNS) + 3)]
@@ -313,7 +314,7 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
     from spade.experiments.closed_loop_table import fetch_drives
 
     guided_seconds: dict[str, float] = {}
-    guided_lines, guided_tests = _guided(client, list(settings.get("guided") or []), scale,
+    guided_lines, guided_tests = _guided(client, guided, scale,
                                          fetch_drives(str(tracking_uri), scale), guided_seconds)
     ps = [_one_sample_p(values, value) for _, _, value, values in tests]
     holm = _holm(ps + [t[5] for t in guided_tests])
@@ -344,7 +345,6 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
     test_sets = sorted(set().union(*(r.test_sets for r in experts + students)))
     training = _training_lines(client, list(settings.get("experts") or []))
     seconds = sum(r.seconds for r in experts)
-    # the guided students, where the page names any (a lever page of experts alone has none)
     guidance_part = [
         "Guidance from the teacher: each guided student against its BC twin (the same student, data and test without "
         "the margin), mean ± sd over seeds; Welch's two-sided t-test over the per-seed values, Holm's correction "
@@ -357,7 +357,7 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
         "",
         *(guided_test_lines if guided_tests else []),
         "",
-    ] if settings.get("guided") else []
+    ] if guided else []
     parts = [
         f"# {settings.get('title') or DEFAULT_TITLE}",
         "",
@@ -400,11 +400,11 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
         f"- wall time of the expert test runs counted: {seconds / 60:.0f} min",
         *([f"- wall time of the guided rows, their BC twins and their drives counted: "
            f"{sum(guided_seconds.values()) / 3600:.1f} h (their training, tests and re-tests, one process each)"]
-          if settings.get("guided") else []),
+          if guided else []),
         f"- MLflow store {shown_path(str(tracking_uri))}; rows: "
         + ", ".join(f"`{s['table']}/{s['row']}`" for s in [*(settings.get('experts') or []),
                                                           *(settings.get('students') or []),
-                                                          *(settings.get('guided') or [])]),
+                                                          *guided]),
     ]
     text = "\n".join(parts) + "\n"
     files: dict[str, Path] = {}
