@@ -44,7 +44,8 @@ def validate_train_config(cfg: DictConfig) -> None:
     _check_model(cfg)
     _check_optimized_metric(cfg)
     check_checkpoints(cfg)
-    check_datasets(cfg)
+    unlabelled = get(cfg, "data.unlabelled_dir")
+    check_datasets(cfg, ("train", "test") if unlabelled in (MISSING, None, "") else ("train", "test", "unlabelled"))
 
 
 def validate_checkpoints(cfg: DictConfig) -> None:

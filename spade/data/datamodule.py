@@ -85,11 +85,17 @@ class PathDataModule(L.LightningDataModule):
         generator: Generator | None = None,
         experiment: str | None = None,
         encoding: str = "binary",
+        target_source: str = "demonstration",
+        unlabelled_dir: str | Path | None = None,
+        unlabelled_generate: Any = None,
+        max_unlabelled_instances: int | None = None,
+        unlabelled_labels: bool = False,
     ) -> None:
         options = DataOptions(batch_size=batch_size, eval_batch_size=eval_batch_size, num_workers=num_workers,
                               val_fraction=val_fraction, split_seed=split_seed,
                               max_train_instances=max_train_instances, max_test_instances=max_test_instances,
-                              target_width_px=target_width_px, encoding=encoding)
+                              target_width_px=target_width_px, encoding=encoding, target_source=target_source,
+                              max_unlabelled_instances=max_unlabelled_instances)
         super().__init__()
         self.experiment = experiment
         self.encoding = options.encoding
@@ -105,6 +111,13 @@ class PathDataModule(L.LightningDataModule):
         self.target_width_px = options.target_width_px
         self.max_train_instances, self.max_test_instances = options.max_train_instances, options.max_test_instances
         self.test_shape = test_shape
+        self.target_source = options.target_source
+        self.unlabelled_dir = Path(unlabelled_dir) if unlabelled_dir not in (None, "") else None
+        self.unlabelled_generate = unlabelled_generate
+        self.max_unlabelled_instances = options.max_unlabelled_instances
+        # True: the unlabelled states keep their generator draw as a BC label (the oracle teacher's own samples as
+        # labels: diffusion-based augmentation read literally, with a perfect teacher)
+        self.unlabelled_labels = bool(unlabelled_labels)
         self.generator = generator
         self.train_set = self.val_set = self.test_set = None
 
@@ -121,8 +134,10 @@ class PathDataModule(L.LightningDataModule):
     def prepare_data(self) -> None:
         sets = [("data.train_dir", self.train_dir, self.train_generate),
                 ("data.test_dir", self.test_dir, self.test_generate)]
+        if self.unlabelled_dir is not None:
+            sets.append(("data.unlabelled_dir", self.unlabelled_dir, self.unlabelled_generate))
         if self._testing_only():
-            sets = sets[1:]
+            sets = sets[1:2]
         for key, root, config in sets:
             check_dataset(root, config, key)  # an existing dataset made with other settings, or not a dataset
             if root is None or (root / "manifest.json").is_file():
@@ -164,6 +179,8 @@ class PathDataModule(L.LightningDataModule):
                 train = train[: self.max_train_instances]
                 val = val[: max(1, self.max_train_instances // 4)] if val else val
             self.train_set, self.val_set = Subset(full, train), Subset(full, val)
+            if self.unlabelled_dir is not None:
+                self.train_set = self._with_unlabelled(self.train_set)
             if self.test_set is not None and self.test_dir is not None:  # tested alone first (test_untrained)
                 self._check_compatible(self.test_set.dataset)
         if self.test_set is None:
@@ -187,8 +204,37 @@ class PathDataModule(L.LightningDataModule):
             else:
                 self.test_set = self.val_set
 
+    def _with_unlabelled(self, labelled: Subset) -> Any:
+        """The training set with the states of ``unlabelled_dir`` (their demonstrations never a label: only the
+        diffusion margin sees them, :class:`~spade.data.labelled.StateView`), after checking their windows and that
+        they share no scenario with the test set."""
+        from torch.utils.data import ConcatDataset
+
+        from spade.data.labelled import StateView
+
+        full = labelled.dataset
+        unlabelled = PathDataset(self.unlabelled_dir, encoding=self.encoding)
+        if unlabelled.image_size != full.image_size or unlabelled.resolution != full.resolution:
+            raise DatasetError(f"data.unlabelled_dir={self.unlabelled_dir}: windows of {unlabelled.image_size} at "
+                               f"{unlabelled.resolution} m/px, the training set's are {full.image_size} at "
+                               f"{full.resolution} m/px; generate it with the training set's window")
+        if self.test_dir is not None:
+            test = PathDataset(self.test_dir, encoding=self.encoding)
+            leaked = leaked_scenarios(unlabelled, test)
+            if leaked:
+                raise DatasetError(f"data.unlabelled_dir={self.unlabelled_dir}: {len(leaked)} test scenarios "
+                                   f"({', '.join(leaked[:5])}) are among its states: the test would grade states "
+                                   "the margin trained on; draw the unlabelled states with another seed")
+        n = len(unlabelled) if not self.max_unlabelled_instances else min(len(unlabelled),
+                                                                          self.max_unlabelled_instances)
+        slots = max(full.manifest.alternatives, unlabelled.manifest.alternatives)
+        k = full.manifest.num_waypoints
+        self.unlabelled_count = n
+        return ConcatDataset([StateView(labelled, True, slots, k),
+                              StateView(Subset(unlabelled, list(range(n))), self.unlabelled_labels, slots, k)])
+
     def _check_compatible(self, test: PathDataset) -> None:
-        train = self.train_set.dataset
+        train = self.val_set.dataset  # the training set's dataset (the split's other part)
         if test.image_size != train.image_size or test.resolution != train.resolution:
             raise DatasetError(
                 f"{self.test_dir}: test instances are {test.image_size} at {test.resolution} m/px, training ones "
@@ -224,7 +270,7 @@ class PathDataModule(L.LightningDataModule):
     @property
     def image_size(self) -> tuple[int, int]:
         if self.train_set is not None:
-            return self.train_set.dataset.image_size
+            return self.val_set.dataset.image_size
         manifest = read_manifest(self._windows_root())
         return manifest.height, manifest.width
 
@@ -232,7 +278,7 @@ class PathDataModule(L.LightningDataModule):
     def frame(self) -> dict[str, Any]:
         """The training windows' frame (the manifest's ``frame``: robot pixel, heading up)."""
         if self.train_set is not None:
-            return self.train_set.dataset.frame
+            return self.val_set.dataset.frame
         return dict(read_manifest(self._windows_root()).frame)
 
     @property
@@ -246,7 +292,7 @@ class PathDataModule(L.LightningDataModule):
     def resolution(self) -> float:
         """Metres per pixel of the training windows."""
         if self.train_set is not None:
-            return float(self.train_set.dataset.resolution)
+            return float(self.val_set.dataset.resolution)
         return float(read_manifest(self._windows_root()).resolution)
 
     def _loader(self, dataset: Subset, shuffle: bool, batch_size: int, evaluation: bool = False) -> DataLoader:
@@ -284,10 +330,26 @@ class PathDataModule(L.LightningDataModule):
     def test_dataloader(self) -> DataLoader:
         return self._loader(self.test_set, False, self.eval_batch_size, evaluation=True)
 
+    def _plausible_mean(self, batch: dict) -> Any:
+        """BC on the plausible set (``target_source=plausible_mean``): the target is the pixelwise mean of the
+        demonstration and its alternatives drawn as targets (:func:`spade.data.plausible.ceiling_map`)."""
+        from spade.data.plausible import ceiling_map, plausible_images
+
+        if batch.get("alternatives") is None:
+            raise DatasetError(f"data.target_source=plausible_mean needs a training set with alternative "
+                               f"demonstrations; {self.train_dir} has none: generate it with them "
+                               "(data.train_generate.set: [{alternatives: {count: 16}}]) or set "
+                               "data.target_source=demonstration")
+        h, w = batch["path"].shape[-2:]
+        images, mask = plausible_images(batch["waypoints"], batch["alternatives"], h, w, self.target_width_px)
+        return ceiling_map(images, mask).to(batch["path"].dtype)
+
     def on_after_batch_transfer(self, batch: dict, dataloader_idx: int) -> dict:
         """Add ``target`` (the path widened to ``target_width_px``, what the models learn) and, in training,
         mirror half the batch when ``augment=mirror``."""
         batch = {**batch, "target": widen_path(batch["path"], self.target_width_px)}
+        if self.target_source == "plausible_mean" and self.trainer is not None and self.trainer.training:
+            batch["target"] = self._plausible_mean(batch)
         if self.augment == "mirror" and self.trainer is not None and self.trainer.training:
             return augment_batch(batch, float(self.frame["robot_px"][0]))
         return batch

@@ -17,7 +17,12 @@ from spade.data.encoding import MARKER_ENCODINGS
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import check_int_value, check_number_value, is_int
 
-__all__ = ["DataOptions"]
+__all__ = ["DataOptions", "TARGET_SOURCES"]
+
+TARGET_SOURCES: tuple[str, ...] = ("demonstration", "plausible_mean")
+"""``data.target_source``: what BC learns, the demonstration drawn as the target, or the pixelwise mean of the
+demonstration and its alternatives (:func:`spade.data.plausible.ceiling_map`, which needs a training set drawn with
+alternatives)."""
 
 
 @dataclass(frozen=True)
@@ -36,6 +41,8 @@ class DataOptions:
     max_test_instances: int | None = None
     target_width_px: int = 1  # the path target's width in pixels, odd
     encoding: str = "binary"  # the start and goal markers (spade.data.encoding.MARKER_ENCODINGS)
+    target_source: str = "demonstration"  # BC's label: the demonstration, or plausible_mean (spade.data.plausible)
+    max_unlabelled_instances: int | None = None
 
     def __post_init__(self) -> None:
         check_int_value("data.batch_size", self.batch_size, 1, fix=", e.g. data.batch_size=32")
@@ -50,6 +57,11 @@ class DataOptions:
         if not is_int(width) or width < 1 or width % 2 == 0:
             raise ConfigError(f"data.target_width_px={width!r} is not an odd number of pixels >= 1; set it to 1 (or "
                               "3, 5, ...)")
+        check_int_value("data.max_unlabelled_instances", self.max_unlabelled_instances, 1, none_ok=True)
+        if self.target_source not in TARGET_SOURCES:
+            raise ConfigError(f"data.target_source={self.target_source!r} is not one of {list(TARGET_SOURCES)}; set "
+                              "data.target_source=demonstration (the paper's BC) or plausible_mean (BC on the mean of "
+                              "the demonstration and its alternatives)")
         if self.encoding not in MARKER_ENCODINGS:
             raise ConfigError(f"data.encoding={self.encoding!r} is not a marker encoding; use one of "
                               f"{list(MARKER_ENCODINGS)} (binary: the paper's discs)")

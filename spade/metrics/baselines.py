@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from skimage.graph import MCP_Geometric
 
+from spade.data.rasterize import draw_polyline  # noqa: F401  (drawn here, imported from here by others)
 from spade.metrics.extraction import marker_centre
 
 BASELINES: tuple[str, ...] = ("straight", "shortest", "heading")
@@ -141,34 +142,6 @@ def baseline_polylines(state: np.ndarray, resolution: float, shape: str | None =
         "shortest": shortest_path(codes, start, goal, resolution),
         "heading": shape_template(start, goal, resolution, shape, window=codes.shape),
     }
-
-
-def draw_polyline(points: np.ndarray | None, height: int, width: int) -> np.ndarray:
-    """A (H, W) float32 image with 1 on the polyline's one-pixel curve (empty for None)."""
-    from spade.data.rasterize import draw_curve
-
-    image = np.zeros((height, width), dtype=np.float32)
-    if points is None or len(points) == 0:
-        return image
-    side = max(height, width)
-    pts = np.clip(np.asarray(points, np.float64), 0, [width - 1, height - 1])
-    image[:] = draw_curve(pts, side)[:height, :width]
-    return image
-
-
-def batch_baseline_polylines(state: torch.Tensor, resolution: torch.Tensor | float,
-                             shapes: list[str] | None = None) -> dict[str, list[np.ndarray | None]]:
-    """Each baseline's polylines (one per instance, None where it has none) for a batch of states (B, 3, H, W)."""
-    s = state.detach().float().cpu().numpy()
-    b = s.shape[0]
-    res = np.broadcast_to(np.asarray(resolution.cpu() if isinstance(resolution, torch.Tensor) else resolution,
-                                     dtype=np.float64).reshape(-1), (b,))
-    out: dict[str, list[np.ndarray | None]] = {name: [] for name in BASELINES}
-    for i in range(b):
-        shape = shapes[i] if shapes is not None else None
-        for name, poly in baseline_polylines(s[i], float(res[i]), shape).items():
-            out[name].append(poly)
-    return out
 
 
 def draw_polylines(polylines: list[np.ndarray | None], height: int, width: int,

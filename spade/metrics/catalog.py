@@ -8,7 +8,9 @@ once here however many predictors and readings log it:
 - ``mean_map/planner/<figure>``: an expert's planner on the mean of its K samples' maps (``mean-map planner ...``);
 - ``closed_loop/<figure>`` (and ``closed_loop/<reference>/<figure>``): the figure of a scenario driven from start to
   goal (``closed-loop ...``; the closed-loop-only figures, such as ``closed_loop/success_rate``, are entries);
-- ``baseline/<name>/<figure>``: a classical baseline's figure on the same test set (the figure's own label).
+- ``baseline/<name>/<figure>``: a classical baseline's figure on the same test set (the figure's own label);
+- ``ceiling/<figure>``, ``demo_target/<figure>``: the references every test logs beside its predictors
+  (:mod:`spade.metrics.plausible`): the BC ceiling and the decoder's floor on the demonstration's own target.
 
 Tables, reports, run descriptions, closing summaries and ``gpu_check`` read labels, formats and the ordered figure
 lists at the bottom from here; :func:`label`, :func:`fmt`, :func:`lower_is_better` and :func:`figure` take any
@@ -225,7 +227,7 @@ _FAMILIES: tuple[tuple[str, str, str], ...] = (
 # a family member whose compact header is not the qualified one (a run description's columns)
 _FAMILY_HEADERS = {"planner/plausibility_cm": "plaus. cm", "planner/commit_rate": "commit %"}
 # readings that stand for a predictor: their figures are the figure's own (the predictor is named elsewhere)
-_PREDICTOR_PREFIXES = ("baseline/", "followed/", "demonstration/")
+_PREDICTOR_PREFIXES = ("baseline/", "followed/", "demonstration/", "ceiling/", "demo_target/")
 
 
 def _unstaged(name: str) -> str:

@@ -60,7 +60,7 @@ class PathMetrics(MetricCollection):
                  fid_extractor_kwargs: dict | None = None, fid: bool = True, hd_threshold_m: float | None = 0.95,
                  planner: bool = True, tail_cm: float = 20.0, low_confidence_share: float = 0.1,
                  decoder: dict | None = None, planner_keys: tuple[str, ...] | None = PLANNER_KEYS,
-                 commit_tol_cm: float = 1.5) -> None:
+                 commit_tol_cm: float = 1.5, record_instances: bool = False) -> None:
         if not 0 <= low_confidence_share <= 1:
             raise ValueError(f"low_confidence_share must lie in [0, 1], got {low_confidence_share}")
         # Hd19 in metres (0.95 m = 19 px of the paper's 0.05 m/px) so that coarser windows count the same
@@ -87,6 +87,9 @@ class PathMetrics(MetricCollection):
         if not fid:
             self.fid = None  # the member, when there is one
         self._warned = False
+        # per-instance planner figures (scenario, APE, plausibility, commitment), for intervals over scenarios
+        self.record_instances = bool(record_instances)
+        self.instance_rows: list[dict] = []
 
     @property
     def fid_identity(self) -> str | None:
@@ -131,9 +134,41 @@ class PathMetrics(MetricCollection):
                 self.planner_preference.update(polylines, batch["state"], batch["waypoints"], alternatives,
                                                batch["resolution"])
             self.planner_hd.update(drawn, batch["path"], batch["resolution"])
+            if self.record_instances:
+                self._record(polylines, batch)
         if self.fid is not None:
             self.fid.update(batch["path"].float(), real=True)
             self.fid.update(drawn, real=False)
+
+    def _record(self, polylines: list, batch: dict) -> None:
+        """One row per instance of the planner's figures (:func:`spade.metrics.preference.instance_errors`)."""
+        from spade.metrics.preference import instance_errors
+
+        truth = to_numpy(batch["waypoints"]).astype("float64")
+        alternatives = batch.get("alternatives")
+        alts = to_numpy(alternatives).astype("float64") if alternatives is not None else None
+        res = per_instance_resolution(batch["resolution"], len(polylines))
+        scenarios, maps = batch.get("scenario_id"), batch.get("map_id")
+        tol = self.planner_preference.commit_tol_cm
+        for i, poly in enumerate(polylines):
+            ape, plaus = instance_errors(poly, truth[i], None if alts is None else alts[i], float(res[i]) * 100.0)
+            self.instance_rows.append({
+                "scenario": str(scenarios[i]) if scenarios is not None else "",
+                "map": str(maps[i]) if maps is not None else "",
+                "planner_ape_cm": ape, "planner_plausibility_cm": plaus,
+                "planner_commit": (float(plaus <= tol) if plaus == plaus
+                                   else 0.0 if self._has_alternatives(alts, i) else float("nan")),
+                "planner_failed": float(ape != ape)})
+
+    @staticmethod
+    def _has_alternatives(alts, i: int) -> bool:
+        import numpy as np
+
+        return alts is not None and bool(np.isfinite(alts[i]).all(axis=(1, 2)).any())
+
+    def reset(self) -> None:
+        super().reset()
+        self.instance_rows = []
 
     def compute(self) -> dict[str, float]:
         out = {k: float(v) for k, v in self.ape.compute().items()}

@@ -112,5 +112,10 @@ def verdict_lines(metrics: Mapping[str, float], prefix: str = "test", model: str
     if floor is not None and ratio is not None:
         lines.append(f"floor: {floor:.2f} cm (the best a single path can do against one demonstration); "
                      f"{model}'s planner APE is {ratio:.2f}x it")
+    ceiling = _value(metrics, f"{prefix}/ceiling/planner/ape_cm")
+    ceiling_ratio = _value(metrics, f"{prefix}/ceiling/planner/ape_over_floor")
+    if ceiling is not None and ceiling_ratio is not None:
+        lines.append(f"BC ceiling: {ceiling:.2f} cm, {ceiling_ratio:.2f}x the floor (the plausible set's mean image, "
+                     "what a perfect BC student converges to, decoded by the planner)")
     lines += [v.sentence(model) for v in found]
     return lines

@@ -93,8 +93,18 @@ def floor_line(metrics: dict[str, Any], prefix: str = "test") -> str | None:
     floor = metrics.get(f"{prefix}/floor_cm")
     if floor is None or floor != floor:
         return None
-    return (f"  floor            : {float(floor):.4g} cm (APE of the best single path under the test set's alternative "
+    line = (f"  floor            : {float(floor):.4g} cm (APE of the best single path under the test set's alternative "
             "demonstrations: no predictor can score much below it)")
+    figures = [(k, metrics.get(f"{prefix}/ceiling/planner/{k}")) for k in ("ape_cm", "ape_over_floor",
+                                                                           "plausibility_cm", "commit_rate")]
+    if figures[0][1] is not None and figures[0][1] == figures[0][1]:
+        line += "\n  BC ceiling       : " + "  ".join(f"planner/{k}={float(v):.4g}" for k, v in figures if v is not None)
+        line += " (the plausible set's mean image decoded by the planner: the best a BC student can plan)"
+    target = metrics.get(f"{prefix}/demo_target/planner/ape_cm")
+    if target is not None and target == target:
+        line += (f"\n  decoder floor    : planner/ape_cm={float(target):.4g} (the demonstration's own training target "
+                 "decoded by the planner)")
+    return line
 
 
 def _data_choice() -> str:

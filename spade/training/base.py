@@ -9,6 +9,7 @@ import lightning as L
 import torch
 
 from spade.metrics.path_metrics import BASELINE_PLANNER_KEYS, PathMetrics
+from spade.metrics.plausible import REFERENCES, reference_maps
 from spade.models.modelfile import write_checkpoint_entry
 from spade.training.logging_utils import log_image
 from spade.training.visualize import TestRecords, prediction_grid
@@ -29,7 +30,7 @@ class PathPlanningModule(L.LightningModule):
         metrics = dict(metrics or {})
         # validation selects checkpoints on the paper's figures (val/score_cm): the planner's decoding is for tests
         self.val_metrics = PathMetrics(**{**metrics, "planner": False})
-        self.test_metrics = PathMetrics(**metrics)
+        self.test_metrics = PathMetrics(**metrics, record_instances=True)
         self.val_metric_batches = val_metric_batches
         self.grid_size = grid_size
 
@@ -152,8 +153,11 @@ class PathPlanningModule(L.LightningModule):
         from spade.metrics.baselines import BASELINES
 
         metrics = dict(self.hparams.get("metrics") or {})
-        self._baseline_metrics = {name: PathMetrics(**{**metrics, "planner_keys": BASELINE_PLANNER_KEYS}
-                                                    ).to(self.device) for name in BASELINES}
+        self._baseline_metrics = {name: PathMetrics(**{**metrics, "planner_keys": BASELINE_PLANNER_KEYS},
+                                                    record_instances=True).to(self.device) for name in BASELINES}
+        # the references a learned planner sits between: the BC ceiling and the decoder's floor (REFERENCES)
+        self._reference_metrics = {name: PathMetrics(**{**metrics, "fid": False, "planner_keys": BASELINE_PLANNER_KEYS},
+                                                     record_instances=True).to(self.device) for name in REFERENCES}
         self._test_records = TestRecords()
 
     def test_step(self, batch: dict, batch_idx: int) -> None:
@@ -172,13 +176,45 @@ class PathPlanningModule(L.LightningModule):
         for name, polys in batch_baseline_polylines(batch["state"], batch["resolution"], shapes).items():
             # the paper's figures from the baseline drawn as an image, the planner's from its own polyline
             self._baseline_metrics[name].update(draw_polylines(polys, h, w, prob.device), batch, polylines=polys)
+        references = getattr(self, "_reference_metrics", None)
+        if references:
+            for name, image in reference_maps(batch, self._target_width()).items():
+                references[name].update(image, batch)
+
+    #: The artifact of a test's per-instance planner figures (every predictor): intervals over scenarios come from it.
+    INSTANCES_ARTIFACT = "test_instances.csv"
+
+    def _log_instance_rows(self) -> None:
+        """Write the per-instance planner figures of the model, the baselines and the references as one CSV
+        (:data:`INSTANCES_ARTIFACT`, column ``predictor``) into the run (MLflow artifact) or the log folder."""
+        if self._trainer is None or self.trainer.sanity_checking:
+            return
+        predictors = {"model": self.test_metrics,
+                      **{f"baseline/{k}": v for k, v in getattr(self, "_baseline_metrics", {}).items()},
+                      **dict(getattr(self, "_reference_metrics", {}).items())}
+        rows = [{"predictor": name, **row} for name, m in predictors.items() for row in m.instance_rows]
+        if rows:
+            from spade.training.logging_utils import log_table_csv
+
+            log_table_csv(self.logger, rows, self.INSTANCES_ARTIFACT, self.trainer.log_dir)
+
+    def _target_width(self) -> int:
+        """The training target's width in pixels (the datamodule's ``target_width_px``; 1 without one)."""
+        datamodule = getattr(self._trainer, "datamodule", None) if self._trainer is not None else None
+        return int(getattr(datamodule, "target_width_px", 1) or 1)
 
     def on_test_epoch_end(self) -> None:
         self.log_dict({f"test/{k}": v for k, v in self.test_metrics.compute().items()}, sync_dist=False)
+        self._log_instance_rows()
         self.test_metrics.reset()
         for name, metrics in getattr(self, "_baseline_metrics", {}).items():
             self.log_dict({f"test/baseline/{name}/{k}": v for k, v in metrics.compute().items()}, sync_dist=False)
         self._baseline_metrics = {}
+        for name, metrics in getattr(self, "_reference_metrics", {}).items():
+            if metrics.planner_ape.total > 0:
+                self.log_dict({f"test/{name}/{k}": v for k, v in metrics.compute().items()
+                               if k.startswith("planner/")}, sync_dist=False)
+        self._reference_metrics = {}
         records = getattr(self, "_test_records", None)
         if records is not None and records.count and not self.trainer.sanity_checking:
             for label, picture in records.pictures().items():

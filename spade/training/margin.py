@@ -41,7 +41,7 @@ from spade.models.diffusion import sample_timesteps
 from spade.training.expert_mismatch import ExpertMismatchError
 from spade.training.expert_module import ExpertModule, denoise, expert_input
 
-__all__ = ["AGENT_INPUTS", "EXPERT_KINDS", "SCORES", "DiffusionMargin", "MarginConfig", "MarginOptionError", "legacy_margin_options",
+__all__ = ["AGENT_INPUTS", "EXPERT_KINDS", "SCORES", "UNLABELLED", "DiffusionMargin", "MarginConfig", "MarginOptionError", "legacy_margin_options",
            "sample_timesteps"]
 
 #: ``MarginConfig.expert`` -> whether that method's expert is conditional (None: either).
@@ -58,6 +58,11 @@ SCORES: tuple[str, ...] = ("difference", "log_ratio", "relative")
 #: forward pass with the probabilities' gradient (straight-through), so that the expert judges the path the
 #: student would commit to rather than its soft map.
 AGENT_INPUTS: tuple[str, ...] = ("probability", "straight_through")
+#: ``MarginConfig.unlabelled``: a state without a demonstration (``labelled`` False in the batch, from
+#: ``data.unlabelled_dir``) gets no BC term; its margin is the agent's error alone (``agent``: e_a, the reference's
+#: error taken as 0), or the difference against a sample of the teacher drawn as the reference (``sample``; the
+#: oracle's sample is a member of the instance's plausible set drawn at random, a neural teacher's is not built).
+UNLABELLED: tuple[str, ...] = ("agent", "sample")
 #: Floor (in the expert's own error units) under the demonstration's error in the scale-free scores.
 ERROR_FLOOR = 1e-6
 
@@ -106,6 +111,12 @@ class MarginConfig:
     score: str = "difference"
     # How the student's probability map reaches the expert (AGENT_INPUTS).
     agent_input: str = "probability"
+    # The oracle teacher (spade.training.oracle): the exact denoiser of each training instance's plausible set in
+    # place of the expert's network, under the expert's schedule (expert_ckpt); needs training data with alternatives.
+    oracle: bool = False
+    # How the margin treats a state without a demonstration (data.unlabelled_dir, UNLABELLED): the agent term alone,
+    # or against a sample of the teacher as the reference (the oracle's: a member of the plausible set at random).
+    unlabelled: str = "agent"
 
     def __post_init__(self) -> None:
         lam = self.lambda_dm
@@ -118,7 +129,11 @@ class MarginConfig:
         self._choice("expert", [k for k in EXPERT_KINDS if k], none_ok=True)
         self._choice("score", list(SCORES))
         self._choice("agent_input", list(AGENT_INPUTS))
-        for key in ("antithetic", "batch_terms"):
+        self._choice("unlabelled", list(UNLABELLED))
+        if self.unlabelled == "sample" and not self.oracle:
+            raise MarginOptionError("unlabelled", "{key}=sample needs the oracle teacher (oracle=true): a neural "
+                                    "teacher's own samples are not drawn during training; use {key}=agent")
+        for key in ("antithetic", "batch_terms", "oracle"):
             if not isinstance(getattr(self, key), bool):
                 raise MarginOptionError(key, "{key}=" + f"{getattr(self, key)!r} is not a boolean; set "
                                         "{key}=true or {key}=false")
@@ -195,6 +210,12 @@ class DiffusionMargin(nn.Module):
             raise ValueError(f"margin t_max={t_max} exceeds the expert's {self.T} training timesteps")
         self.t_max = t_max
 
+    @property
+    def oracle(self) -> bool:
+        """Whether the denoiser is the oracle (:class:`~spade.training.oracle.OracleDenoiser`): it needs each
+        instance's plausible set (``plausible``) with every call."""
+        return bool(self.config.oracle)
+
     @classmethod
     def from_expert(cls, expert: ExpertModule, config: MarginConfig) -> DiffusionMargin:
         """The margin of a trained :class:`~spade.training.expert_module.ExpertModule` (e.g. from
@@ -204,6 +225,11 @@ class DiffusionMargin(nn.Module):
         not need)."""
         expert.eval().requires_grad_(False)
         schedule = expert.schedule
+        if config.oracle:  # the expert lends its schedule; the oracle predicts x0 of the path channel (conditional)
+            from spade.training.oracle import OracleDenoiser
+
+            return cls(OracleDenoiser(schedule.alphas_cumprod), schedule.add_noise, schedule.num_train_timesteps,
+                       True, config, prediction_target=lambda x0, noise, t: x0)
         return cls(expert.ema_net(), schedule.add_noise, schedule.num_train_timesteps, expert.conditional, config,
                    prediction_target=schedule.prediction_target)
 
@@ -222,13 +248,27 @@ class DiffusionMargin(nn.Module):
         return student_prob
 
     def draw_errors(self, agent_path: torch.Tensor, target: torch.Tensor, state: torch.Tensor, t: torch.Tensor,
-                    noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+                    noise: torch.Tensor, plausible: tuple[torch.Tensor, torch.Tensor] | None = None
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Per-sample denoising errors (agent with autograd, demonstration without) for one shared noise and
         timestep draw; ``agent_path`` is already what the expert sees (:meth:`agent_path`), ``noise`` has the
         expert input's shape (:func:`~spade.training.expert_module.expert_input`)."""
         agent_x0, cond = expert_input(state, agent_path, self.conditional)
         expert_x0, _ = expert_input(state, target, self.conditional)
+        if self.oracle:
+            cond = self._oracle_condition(plausible)
         return self._errors(agent_x0, expert_x0, noise, t, cond)
+
+    def _oracle_condition(self, plausible: tuple[torch.Tensor, torch.Tensor] | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The oracle's "condition": each instance's plausible set (B, n, 1, H, W) in the model's range and its mask."""
+        if plausible is None:
+            raise ValueError("the oracle teacher (model.margin.oracle=true) needs each training instance's plausible "
+                             "set: train on data generated with alternatives (data.train_generate.set: "
+                             "[{alternatives: {count: 16}}])")
+        from spade.training.oracle import oracle_candidates
+
+        images, mask = plausible
+        return oracle_candidates(images), mask
 
     def score(self, agent_err: torch.Tensor, expert_err: torch.Tensor, score: str | None = None) -> torch.Tensor:
         """One draw's margin per sample (``score``, default the config's): > 0 where the expert rates the agent
@@ -256,7 +296,8 @@ class DiffusionMargin(nn.Module):
         """The expert's per-sample denoising error of ``x0`` (mean squared error of its prediction against its
         target, epsilon or x0) under ``noise`` at timesteps ``t``: the one formula the margin and the critic
         (:mod:`spade.training.critic`) score with."""
-        out = denoise(self.expert, self.add_noise(x0, noise, t), t, cond)
+        x_t = self.add_noise(x0, noise, t)
+        out = self.expert(x_t, t, *cond) if self.oracle else denoise(self.expert, x_t, t, cond)
         return (out - self.prediction_target(x0, noise, t)).pow(2).flatten(1).mean(1)
 
     def _errors(self, agent_x0: torch.Tensor, expert_x0: torch.Tensor, noise: torch.Tensor, t: torch.Tensor,
@@ -265,28 +306,59 @@ class DiffusionMargin(nn.Module):
         if self.config.batch_terms:
             b = agent_x0.shape[0]
             x0, noise2, t2 = torch.cat([agent_x0, expert_x0.detach()]), torch.cat([noise, noise]), torch.cat([t, t])
-            err = self.denoising_error(x0, noise2, t2, None if cond is None else torch.cat([cond, cond]))
+            if cond is None:
+                cond2 = None
+            elif isinstance(cond, tuple):  # the oracle's plausible set and mask
+                cond2 = tuple(torch.cat([c, c]) for c in cond)
+            else:
+                cond2 = torch.cat([cond, cond])
+            err = self.denoising_error(x0, noise2, t2, cond2)
             return err[:b], err[b:].detach()
         with torch.no_grad():
             expert_err = self.denoising_error(expert_x0, noise, t, cond)
         return self.denoising_error(agent_x0, noise, t, cond), expert_err
 
     def margins(self, student_prob: torch.Tensor, target: torch.Tensor, state: torch.Tensor,
-                generator: torch.Generator | None = None) -> torch.Tensor:
-        """Per-sample margins (B,), averaged over ``num_noise`` draws, before clipping; with autograd."""
+                generator: torch.Generator | None = None, plausible: tuple[torch.Tensor, torch.Tensor] | None = None,
+                labelled: torch.Tensor | None = None) -> torch.Tensor:
+        """Per-sample margins (B,), averaged over ``num_noise`` draws, before clipping; with autograd.
+        ``plausible``: each instance's plausible set drawn as targets, (B, n, 1, H, W) in [0, 1] and its mask (B, n)
+        (:func:`spade.data.plausible.plausible_images`): the oracle's knowledge, and the reference samples of
+        ``unlabelled=sample``. ``labelled`` (B,) bool: False for a state without a demonstration (its ``target`` is
+        not used; :data:`UNLABELLED`)."""
         cfg = self.config
         agent = self.agent_path(student_prob)
         channels = 1 if self.conditional else state.shape[1] + 1
+        unlabelled = None if labelled is None or bool(labelled.all()) else ~labelled.bool()
+        if unlabelled is not None and cfg.unlabelled == "sample":
+            target = torch.where(unlabelled.view(-1, 1, 1, 1), self._reference_sample(plausible, generator), target)
         draws = []
         for _ in range(cfg.num_noise):
             t, noise = self.draw(agent.shape[0], (channels, *agent.shape[-2:]), agent.device, agent.dtype, generator)
-            draws.append(self.score(*self.draw_errors(agent, target, state, t, noise)))
+            agent_err, expert_err = self.draw_errors(agent, target, state, t, noise, plausible)
+            if unlabelled is not None and cfg.unlabelled == "agent":
+                expert_err = expert_err.masked_fill(unlabelled, 0.0)
+            draws.append(self.score(agent_err, expert_err))
         return torch.stack(draws).mean(0)
 
+    @staticmethod
+    def _reference_sample(plausible: tuple[torch.Tensor, torch.Tensor] | None,
+                          generator: torch.Generator | None) -> torch.Tensor:
+        """One member of each instance's plausible set drawn uniformly (the oracle teacher's committed sample)."""
+        if plausible is None:
+            raise ValueError("unlabelled=sample needs each instance's plausible set (training data with alternatives)")
+        images, mask = plausible
+        weights = mask.float().cpu()
+        pick = torch.multinomial(weights, 1, generator=generator if generator is None or
+                                 generator.device.type == "cpu" else None).squeeze(1).to(images.device)
+        return images[torch.arange(images.shape[0], device=images.device), pick]
+
     def forward(self, student_prob: torch.Tensor, target: torch.Tensor, state: torch.Tensor,
-                generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """Return (L_DM, fraction of active margins). ``student_prob`` and ``target`` are (B, 1, H, W) in [0, 1]."""
-        margin = self.margins(student_prob, target, state, generator)
+                generator: torch.Generator | None = None, plausible: tuple[torch.Tensor, torch.Tensor] | None = None,
+                labelled: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Return (L_DM, fraction of active margins). ``student_prob`` and ``target`` are (B, 1, H, W) in [0, 1];
+        ``plausible`` and ``labelled`` as in :meth:`margins`."""
+        margin = self.margins(student_prob, target, state, generator, plausible, labelled)
         if self.config.clip == "sample":
             loss = margin.clamp_min(0).mean()
         else:

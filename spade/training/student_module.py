@@ -158,16 +158,42 @@ class StudentModule(PathPlanningModule):
         return F.binary_cross_entropy_with_logits(logits, target, pos_weight=pos_weight)
 
     def losses(self, batch: dict) -> dict[str, torch.Tensor]:
+        """BC on the labelled instances (all, unless the batch says ``labelled``: states without a demonstration,
+        ``data.unlabelled_dir``, get no BC term) plus ``lambda_dm`` x the margin on every instance."""
         logits = self(batch["state"])
         target = batch.get("target", batch["path"]).to(logits.dtype)
-        out = {"loss_bc": self.bc_loss(logits, target)}
+        labelled = batch.get("labelled")
+        if labelled is None or bool(labelled.all()):
+            labelled = None
+            out = {"loss_bc": self.bc_loss(logits, target)}
+        elif bool(labelled.any()):
+            out = {"loss_bc": self.bc_loss(logits[labelled], target[labelled])}
+        else:
+            out = {"loss_bc": logits.sum() * 0.0}
         total = out["loss_bc"]
         if self.margin is not None:
-            loss_dm, active = self.margin(torch.sigmoid(logits), target, batch["state"].to(logits.dtype))
+            plausible = self._plausible(batch, logits) if self.margin.oracle or labelled is not None else None
+            loss_dm, active = self.margin(torch.sigmoid(logits), target, batch["state"].to(logits.dtype),
+                                          plausible=plausible, labelled=labelled)
             out.update(loss_dm=loss_dm, margin_active=active)
             total = total + self.margin_cfg.lambda_dm * loss_dm
+        elif labelled is not None:
+            raise ValueError("this training set has states without demonstrations (data.unlabelled_dir), which only "
+                             "a diffusion margin can use: set a margin (margin=cond_dbc or margin=oracle) or drop "
+                             "data.unlabelled_dir")
         out["loss"] = total
         return out
+
+    def _plausible(self, batch: dict, logits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """Each instance's plausible set drawn as training targets, for the oracle teacher and the reference samples
+        of unlabelled states (None where the batch has no alternatives)."""
+        if batch.get("alternatives") is None:
+            return None
+        from spade.data.plausible import plausible_images
+
+        width = self._target_width()
+        images, mask = plausible_images(batch["waypoints"], batch["alternatives"], *logits.shape[-2:], width)
+        return images.to(logits.dtype), mask
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         parts = self.losses(batch)

@@ -1,0 +1,228 @@
+"""The oracle teacher, the plausible set's images, the BC ceiling and the states without demonstrations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from spade.data.labelled import StateView
+from spade.data.plausible import ceiling_map, plausible_images
+from spade.metrics.plausible import reference_maps
+from spade.training.margin import DiffusionMargin, MarginConfig
+from spade.training.oracle import OracleDenoiser, oracle_candidates
+
+
+def _schedule(T: int = 1000) -> torch.Tensor:
+    betas = torch.linspace(1e-4, 0.02, T, dtype=torch.float64)
+    return torch.cumprod(1 - betas, 0)
+
+
+def _add_noise(abar):
+    def add(x0, noise, t):
+        a = abar.to(x0.dtype)[t].view(-1, 1, 1, 1)
+        return a.sqrt() * x0 + (1 - a).sqrt() * noise
+    return add
+
+
+def _lines(b: int = 2, n: int = 3, size: int = 16) -> tuple[torch.Tensor, torch.Tensor]:
+    """Waypoints (b, K, 2) going up from the robot and alternatives (b, n, K, 2) bending left or right; the last
+    alternative slot of the first instance empty (NaN)."""
+    k = 8
+    ys = torch.linspace(12, 3, k)
+    demo = torch.stack([torch.full((k,), 8.0), ys], 1)
+    waypoints = demo.expand(b, k, 2).clone()
+    alts = torch.empty(b, n, k, 2)
+    for j in range(n):
+        bend = torch.linspace(0, (j - 1) * 3.0, k)
+        alts[:, j] = torch.stack([8.0 + bend, ys], 1)
+    alts[0, -1] = math.nan
+    return waypoints, alts
+
+
+def test_plausible_images_draw_the_demonstration_and_each_alternative() -> None:
+    waypoints, alts = _lines()
+    images, mask = plausible_images(waypoints, alts, 16, 16, width_px=1)
+    assert images.shape == (2, 4, 1, 16, 16)
+    assert mask.tolist() == [[True, True, True, False], [True, True, True, True]]
+    assert images[0, 3].sum() == 0  # the empty slot stays empty
+    assert images[0, 0, 0, 12, 8] == 1 and images[0, 0, 0, 3, 8] == 1  # the demonstration's column
+    wide, _ = plausible_images(waypoints, alts, 16, 16, width_px=3)
+    assert wide[0, 0, 0, 8, 7] == 1 and wide[0, 0, 0, 8, 9] == 1  # widened to 3 px like the training target
+
+
+def test_the_ceiling_is_the_mean_of_the_valid_members() -> None:
+    images = torch.zeros(1, 3, 1, 4, 4)
+    images[0, 0, 0, 0, 0] = 1
+    images[0, 1, 0, 0, 0] = 1
+    images[0, 1, 0, 1, 1] = 1
+    images[0, 2] = 1  # an empty slot, masked out
+    mask = torch.tensor([[True, True, False]])
+    ceiling = ceiling_map(images, mask)
+    assert ceiling[0, 0, 0, 0] == 1.0 and ceiling[0, 0, 1, 1] == 0.5 and ceiling[0, 0, 2, 2] == 0.0
+
+
+def test_reference_maps_without_alternatives_give_the_decoder_floor_only() -> None:
+    path = torch.zeros(2, 1, 8, 8)
+    path[:, 0, 2:6, 4] = 1
+    maps = reference_maps({"path": path, "waypoints": torch.zeros(2, 4, 2)}, 3)
+    assert set(maps) == {"demo_target"} and maps["demo_target"][0, 0, 3, 3] == 1
+
+
+def test_the_oracle_is_the_exact_posterior_mean() -> None:
+    """Against the formula computed by hand in float64 for two candidates."""
+    abar = _schedule()
+    oracle = OracleDenoiser(abar)
+    g = torch.Generator().manual_seed(0)
+    cands = torch.rand(1, 2, 1, 4, 4, generator=g, dtype=torch.float64) * 2 - 1
+    mask = torch.tensor([[True, True]])
+    t = torch.tensor([900])
+    x_t = torch.randn(1, 1, 4, 4, generator=g, dtype=torch.float64)
+    a = abar[900]
+    d = [float(((x_t - a.sqrt() * cands[0, k]) ** 2).sum()) for k in range(2)]
+    logits = [-dk / (2 * (1 - float(a))) for dk in d]
+    w0 = 1 / (1 + math.exp(logits[1] - logits[0]))
+    expected = w0 * cands[0, 0] + (1 - w0) * cands[0, 1]
+    got = oracle(x_t, t, cands, mask)
+    assert torch.allclose(got[0], expected, atol=1e-10)
+    # at a low timestep it snaps to the candidate x_t came from; a masked candidate never counts
+    x_low = abar[5].sqrt() * cands[:, 1] + (1 - abar[5]).sqrt() * 0.01 * torch.randn(1, 1, 4, 4, generator=g,
+                                                                                       dtype=torch.float64)
+    assert torch.allclose(oracle(x_low, torch.tensor([5]), cands, mask), cands[:, 1], atol=1e-6)
+    only_first = oracle(x_low, torch.tensor([5]), cands, torch.tensor([[True, False]]))
+    assert torch.allclose(only_first, cands[:, 0])
+
+
+def _oracle_margin(**options) -> DiffusionMargin:
+    abar = _schedule()
+    config = MarginConfig(oracle=True, expert="conditional", **options)
+    return DiffusionMargin(OracleDenoiser(abar), _add_noise(abar), 1000, True, config,
+                           prediction_target=lambda x0, noise, t: x0)
+
+
+def _plausible_batch():
+    waypoints, alts = _lines(b=2, n=3, size=16)
+    images, mask = plausible_images(waypoints, alts, 16, 16, width_px=3)
+    state = torch.zeros(2, 3, 16, 16)
+    return images, mask, state
+
+
+def test_the_oracle_margin_is_zero_for_a_member_and_positive_for_a_blend() -> None:
+    images, mask, state = _plausible_batch()
+    margin = _oracle_margin(t_max=600)
+    demo = images[:, 0]
+    g = torch.Generator().manual_seed(1)
+    same = margin.margins(demo, demo, state, generator=g, plausible=(images, mask))
+    assert torch.allclose(same, torch.zeros(2), atol=1e-6)
+    blend = ceiling_map(images, mask)  # no operator drew the mean of the set
+    g = torch.Generator().manual_seed(1)
+    worse = margin.margins(blend, demo, state, generator=g, plausible=(images, mask))
+    assert (worse > 0).all()
+
+
+def test_the_oracle_margin_teaches_the_student_through_its_prediction() -> None:
+    images, mask, state = _plausible_batch()
+    margin = _oracle_margin()
+    logits = torch.zeros(2, 1, 16, 16, requires_grad=True)
+    loss, _ = margin(torch.sigmoid(logits), images[:, 0], state, plausible=(images, mask))
+    loss.backward()
+    assert logits.grad is not None and logits.grad.abs().sum() > 0
+
+
+def test_the_oracle_needs_the_plausible_set() -> None:
+    images, mask, state = _plausible_batch()
+    with pytest.raises(ValueError, match="alternatives"):
+        _oracle_margin().margins(images[:, 0], images[:, 0], state)
+
+
+def test_unlabelled_states_get_the_agent_term_alone_or_a_sample_as_reference() -> None:
+    images, mask, state = _plausible_batch()
+    blend = ceiling_map(images, mask)
+    labelled = torch.tensor([True, False])
+    nothing = torch.zeros_like(blend)  # an unlabelled state's target is never used
+    agent = _oracle_margin(unlabelled="agent")
+    g = torch.Generator().manual_seed(3)
+    m = agent.margins(blend, nothing, state, generator=g, plausible=(images, mask), labelled=labelled)
+    g = torch.Generator().manual_seed(3)
+    t, noise = agent.draw(2, (1, 16, 16), blend.device, blend.dtype, g)
+    alone = agent.denoising_error(blend * 2 - 1, noise, t, (oracle_candidates(images), mask))
+    assert torch.isclose(m[1], alone[1], atol=1e-6)  # e_agent, the reference's error taken as 0
+    sample = _oracle_margin(unlabelled="sample")
+    m2 = sample.margins(images[:, 1], nothing, state, generator=torch.Generator().manual_seed(0),
+                        plausible=(images, mask), labelled=labelled)
+    assert torch.isfinite(m2).all()
+
+
+def test_unlabelled_sample_needs_the_oracle() -> None:
+    from spade.training.margin import MarginOptionError
+
+    with pytest.raises(MarginOptionError, match="oracle"):
+        MarginConfig(unlabelled="sample")
+    with pytest.raises(MarginOptionError, match="unlabelled"):
+        MarginConfig(oracle=True, unlabelled="teacher")
+
+
+def test_a_state_view_marks_its_instances_and_pads_their_alternatives() -> None:
+    items = [{"waypoints": torch.zeros(4, 2), "alternatives": torch.ones(2, 4, 2)}, {"waypoints": torch.zeros(4, 2)}]
+    view = StateView(items, labelled=False, alternatives=3, num_waypoints=4)
+    first, second = view[0], view[1]
+    assert first["labelled"].item() is False
+    assert first["alternatives"].shape == (3, 4, 2) and torch.isnan(first["alternatives"][2]).all()
+    assert torch.isnan(second["alternatives"]).all()
+    with pytest.raises(ValueError, match="slots"):
+        StateView(items, True, alternatives=1)[0]
+
+
+def test_a_student_learns_nothing_by_bc_from_unlabelled_states() -> None:
+    """BC sees the labelled instances only: an unlabelled instance's target never moves the BC loss; without a
+    margin, states without demonstrations are refused."""
+    from spade.training.student_module import StudentModule
+
+    torch.manual_seed(0)
+    student = StudentModule(size="small")
+    waypoints, alts = _lines(b=2, n=3, size=16)
+    images, _, _ = _plausible_batch()
+    state = torch.rand(2, 3, 16, 16)
+    batch = {"state": state, "path": images[:, 0], "target": images[:, 0], "waypoints": waypoints,
+             "alternatives": alts, "labelled": torch.tensor([True, False])}
+    with pytest.raises(ValueError, match="unlabelled_dir"):
+        student.losses(batch)
+    student.margin_cfg = MarginConfig(oracle=True)
+    student._margin[:] = [_oracle_margin()]
+    first = student.losses(batch)["loss_bc"]
+    changed = {**batch, "target": torch.stack([images[0, 0], torch.ones_like(images[1, 0])])}
+    assert torch.isclose(first, student.losses(changed)["loss_bc"])
+    assert torch.isclose(first, student.bc_loss(student(state)[:1], images[:1, 0]))
+
+
+def test_bc_on_the_plausible_set_is_refused_without_alternatives() -> None:
+    from spade.data.datamodule_options import DataOptions
+    from spade.utils.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="target_source"):
+        DataOptions(target_source="mean")
+    assert DataOptions(target_source="plausible_mean").target_source == "plausible_mean"
+
+
+def test_instance_rows_record_the_planner_figures() -> None:
+    from spade.metrics.path_metrics import PathMetrics
+
+    m = PathMetrics(fid=False, record_instances=True)
+    waypoints, alts = _lines(b=2, n=3, size=16)
+    images, mask = plausible_images(waypoints, alts, 16, 16, width_px=1)
+    state = torch.zeros(2, 3, 16, 16)
+    state[:, 0] = 0.5
+    state[:, 1, 12, 8] = 1  # start and goal markers at the demonstration's ends
+    state[:, 2, 3, 8] = 1
+    polylines = [waypoints[0].numpy().astype(np.float64), None]
+    batch = {"state": state, "path": images[:, 0], "waypoints": waypoints, "alternatives": alts,
+             "resolution": torch.tensor([0.1, 0.1]), "scenario_id": ["a", "b"], "map_id": ["m", "m"]}
+    m.update(images[:, 0], batch, polylines=polylines)
+    rows = m.instance_rows
+    assert [r["scenario"] for r in rows] == ["a", "b"]
+    assert rows[0]["planner_ape_cm"] == pytest.approx(0.0) and rows[0]["planner_commit"] == 1.0
+    assert rows[1]["planner_failed"] == 1.0 and rows[1]["planner_commit"] == 0.0
+    m.reset()
+    assert m.instance_rows == []
