@@ -23,6 +23,8 @@ def report_files(table: Any, chart: bool = True, teacher_page: Any = None) -> li
     no ``_comparisons.csv``: listed anyway, an existing one is not replaced unasked either)."""
     if str(table) == "closed_loop":
         return ["closed_loop.md", "closed_loop.csv"]
+    if str(table) == "oracle":
+        return ["oracle.md"]
     if str(table) == "teacher":
         from spade.experiments.teacher_table import teacher_files
 
@@ -67,7 +69,7 @@ def validate_report_config(cfg: DictConfig) -> None:
     table = get(cfg, "table")
     from spade.experiments.tables import get_table
 
-    if str(table) not in ("all", "closed_loop", "teacher"):  # not paper tables: closed_loop_table, teacher_table
+    if str(table) not in ("all", "closed_loop", "teacher", "oracle"):  # not paper tables: their own pages
         try:
             get_table(table)
         except (KeyError, ValueError) as exc:
@@ -81,6 +83,12 @@ def validate_report_config(cfg: DictConfig) -> None:
     if unset(uri):
         raise ConfigError("tracking_uri is not set; pass tracking_uri=sqlite:///PATH/logs/mlflow.db")
     path = store_path(str(uri))
+    records = get(cfg, "oracle.records_dir")
+    if str(table) == "oracle" and path is not None and not path.exists() and not unset(records) \
+            and Path(str(records)).is_dir():
+        check_paths(cfg)  # the page regenerates from its committed run records alone
+        _check_output_dir(cfg)
+        return
     if path is not None and not path.exists():
         raise ConfigError(f"tracking_uri={uri}: there is no MLflow store at {path} (reporting would create an empty "
                           "one); point tracking_uri (or SPADE_HOME / MLFLOW_TRACKING_URI) at the store the runs were "

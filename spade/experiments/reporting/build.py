@@ -122,6 +122,14 @@ def report(cfg: DictConfig) -> list[Report]:
         text, files = teacher_report(cfg.tracking_uri, cfg.get("output_dir"), settings,
                                      cfg.scale.name if cfg.get("scale") else None)
         return [Report(None, {}, [], text, files)]  # type: ignore[arg-type]
+    if str(cfg.table) == "oracle":  # not a paper table: where a teacher teaches (spade/experiments/oracle_page)
+        from omegaconf import OmegaConf
+
+        from spade.experiments.oracle_page import oracle_report
+
+        settings = OmegaConf.to_container(cfg.oracle, resolve=True)
+        text, files = oracle_report(cfg.tracking_uri, cfg.get("output_dir"), settings)
+        return [Report(None, {}, [], text, files)]  # type: ignore[arg-type]
     tables = list(TABLES.values()) if str(cfg.table) == "all" else [get_table(cfg.table)]
     # `scale` is the config group of conf/scale (so that scale=cpu reads as everywhere else); its name filters runs.
     scale = cfg.scale.name if cfg.get("scale") else None

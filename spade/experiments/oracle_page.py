@@ -1,0 +1,295 @@
+"""The oracle page: where, if anywhere, a teacher teaches (``python -m spade.report table=oracle``).
+
+Every row is a student trained on a site's few demonstrations (``conf/experiment/site_*``) and tested on the science
+test set (about 100 scenarios on held-out maps). The rows differ in what teaches: BC alone, BC on the plausible set,
+the oracle teacher (the exact denoiser of each instance's plausible set, :mod:`spade.training.oracle`) on the
+labelled states or also on the site's unsketched states, the oracle's samples as labels, the shipped neural teacher.
+The page leads with its verdict, written from the figures, then shows each row (mean +/- sd over seeds and a 95 %
+interval from a bootstrap over test scenarios, :mod:`spade.experiments.reporting.intervals`) between the floor and
+the BC ceiling, beside the classical baselines, and tests every row against BC (Welch's test over seeds with Holm's
+correction over the page, and a paired bootstrap over scenarios).
+
+It reads run records (:mod:`spade.experiments.run_records`), exported from the MLflow store first when the store
+has the page's experiment: the page regenerates from the committed records once the store is gone.
+"""
+
+from __future__ import annotations
+
+import datetime
+import math
+import statistics
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from spade.experiments.reporting.intervals import Interval, paired_difference, scenario_interval
+from spade.experiments.reporting.results import holm, welch
+from spade.experiments.run_records import RunRecord, export_records, load_records
+from spade.metrics import catalog
+from spade.metrics.catalog import BASELINE_ROW_LABELS
+
+__all__ = ["oracle_report"]
+
+DECIDING = "test/planner/ape_cm"
+TAIL_CM = 20.0
+COLUMNS: tuple[tuple[str, str], ...] = (
+    ("test/planner/ape_cm", "planner_ape_cm"),
+    ("test/planner/over_20cm_rate", "tail"),
+    ("test/planner/plausibility_cm", "planner_plausibility_cm"),
+    ("test/planner/commit_rate", "planner_commit"),
+)
+"""(logged metric, per-instance column or ``tail``) of the rows' main figures; the tail's per-instance value is an
+APE over 20 cm or a failure."""
+SEED_ONLY: tuple[str, ...] = ("test/planner/ape_over_floor", "test/planner/failure_rate", "closed_loop/success_rate",
+                              "closed_loop/ape_cm", "closed_loop/mode_switches")
+"""Figures shown as mean +/- sd over seeds only (no per-instance record)."""
+
+
+def _instance_value(row: Mapping[str, Any], column: str) -> float:
+    if column == "tail":
+        ape, failed = row.get("planner_ape_cm"), row.get("planner_failed")
+        if failed == 1.0 or ape is None or (isinstance(ape, float) and math.isnan(ape)):
+            return 1.0
+        return float(float(ape) > TAIL_CM)
+    value = row.get(column)
+    return float("nan") if value is None or value == "" else float(value)
+
+
+def _interval(instances: list[Mapping[str, Any]], column: str) -> Interval:
+    return scenario_interval([str(r.get("scenario", "")) for r in instances],
+                             [_instance_value(r, column) for r in instances])
+
+
+def _by_scenario(instances: list[Mapping[str, Any]], column: str) -> dict[str, list[float]]:
+    out: dict[str, list[float]] = {}
+    for r in instances:
+        out.setdefault(str(r.get("scenario", "")), []).append(_instance_value(r, column))
+    return out
+
+
+def _mean_sd(values: list[float], metric: str) -> str:
+    if not values:
+        return "n/a"
+    figure = catalog.figure(metric)
+    if len(values) == 1:
+        return figure.format(values[0])
+    mean, sd = statistics.fmean(values), statistics.stdev(values)
+    if figure.unit == "share":
+        return f"{100 * mean:.0f} ± {100 * sd:.0f} %"
+    return f"{figure.format(mean)} ± {figure.format(sd)}"
+
+
+def _values(runs: list[RunRecord], metric: str) -> list[float]:
+    return [r.metrics[metric] for r in runs if metric in r.metrics and math.isfinite(r.metrics[metric])]
+
+
+def _cell(runs: list[RunRecord], metric: str, column: str | None) -> str:
+    text = _mean_sd(_values(runs, metric), metric)
+    if column is None or text == "n/a":
+        return text
+    instances = [i for r in runs for i in r.instances]
+    if not instances:
+        return text
+    interval = _interval(instances, column)
+    share = column in ("tail", "planner_commit")
+    return f"{text} <br>[{interval.format('.2f', percent=share).split('[', 1)[1]}" if not math.isnan(interval.low) \
+        else text
+
+
+def _mean(runs: list[RunRecord], metric: str) -> float | None:
+    values = _values(runs, metric)
+    return statistics.fmean(values) if values else None
+
+
+def _reference_rows(runs: list[RunRecord], references: dict[str, list[dict[str, Any]]]) -> list[str]:
+    """The floor, the BC ceiling, the decoder's floor and the baselines, with intervals over scenarios."""
+    lines = ["| reference | planner APE (cm) [95 % CI] | > 20 cm | plausibility (cm) | commits | APE / floor |",
+             "|---|---|---|---|---|---|"]
+    floor = _mean(runs, "test/floor_cm")
+    if floor is not None:
+        lines.append(f"| floor (best single path against one demonstration) | {floor:.2f} | | | | 1.00 |")
+    names = [("ceiling", "BC ceiling (the plausible set's mean image, decoded)"),
+             ("demo_target", "decoder's floor (the demonstration's own target, decoded)"),
+             *((f"baseline/{b}", BASELINE_ROW_LABELS[b]) for b in BASELINE_ROW_LABELS)]
+    for key, label in names:
+        prefix = f"test/{key}/planner/"
+        ape = _mean(runs, prefix + "ape_cm")
+        if ape is None:
+            continue
+        inst = references.get(key, [])
+        ape_text = _interval(inst, "planner_ape_cm").format() if inst else f"{ape:.2f}"
+
+        def fmt(metric: str) -> str:
+            value = _mean(runs, prefix + metric)
+            return "n/a" if value is None else catalog.fmt(f"planner/{metric}", value)
+        lines.append(f"| {label} | {ape_text} | {fmt('over_20cm_rate')} | {fmt('plausibility_cm')} | "
+                     f"{fmt('commit_rate')} | {fmt('ape_over_floor')} |")
+    return lines
+
+
+def _losses(runs: list[RunRecord]) -> list[str]:
+    """The baselines a row loses to by the deciding figure (its seeds' mean planner APE and tail)."""
+    from spade.metrics.verdict import verdicts
+
+    keys = {k for r in runs for k in r.metrics}
+    mean = {k: v for k in keys if (v := _mean(runs, k)) is not None}
+    return [catalog.BASELINE_LABELS[v.name] for v in verdicts(mean, "test") if v.outcome == "loses to"]
+
+
+def _tests(rows: dict[str, list[RunRecord]], against: str) -> dict[str, dict[str, Any]]:
+    """Each row against ``against`` on the deciding figure: Welch over seeds (Holm over the page) and the paired
+    bootstrap over scenarios (the seed-pooled per-scenario means)."""
+    base = rows.get(against, [])
+    names = [n for n in rows if n != against]
+    out: dict[str, dict[str, Any]] = {}
+    ps = []
+    for name in names:
+        p, wording = welch(_values(rows[name], DECIDING), _values(base, DECIDING))
+        ps.append(p)
+        a = _by_scenario([i for r in rows[name] for i in r.instances], "planner_ape_cm")
+        b = _by_scenario([i for r in base for i in r.instances], "planner_ape_cm")
+        out[name] = {"p": p, "wording": wording, "paired": paired_difference(a, b) if a and b else None}
+    for name, adjusted in zip(names, holm(ps)):
+        out[name]["holm"] = adjusted
+    return out
+
+
+def _significance(test: dict[str, Any]) -> str:
+    holm_p = test.get("holm")
+    welch_text = "Welch: no test" if holm_p is None else (
+        f"Welch p = {test['p']:.3g}, Holm {holm_p:.3g}" + (" (significant)" if holm_p < 0.05 else " (not significant)"))
+    paired = test.get("paired")
+    if paired is None or math.isnan(paired.low):
+        return welch_text
+    verdict = "excludes 0" if paired.excludes_zero() else "includes 0"
+    return f"{welch_text}; paired over {paired.scenarios} scenarios: {paired.mean:+.2f} cm [{paired.low:+.2f}, " \
+           f"{paired.high:+.2f}] ({verdict})"
+
+
+def _significant(test: dict[str, Any]) -> bool:
+    """Told apart from the row it is tested against: by Welch's test over seeds after Holm's correction AND by the
+    paired bootstrap over scenarios (the seeds' training spread and the test set's sampling both), each where it
+    could be computed."""
+    holm_p, paired = test.get("holm"), test.get("paired")
+    checks = []
+    if holm_p is not None:
+        checks.append(holm_p < 0.05)
+    if paired is not None and not math.isnan(paired.low):
+        checks.append(paired.excludes_zero())
+    return bool(checks) and all(checks)
+
+
+def _verdict(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], against: str,
+             tests: dict[str, dict[str, Any]]) -> list[str]:
+    """The page's finding in sentences, from the figures."""
+    base_ape = _mean(rows.get(against, []), DECIDING)
+    ceiling = _mean([r for rs in rows.values() for r in rs], "test/ceiling/planner/ape_cm")
+    if base_ape is None:
+        return [f"No finished run of {labels.get(against, against)}: nothing to compare against."]
+    lines = []
+    if ceiling is not None:
+        lines.append(f"- {labels.get(against, against)} plans at {base_ape:.2f} cm; the BC ceiling is {ceiling:.2f} cm: "
+                     f"a gap of {base_ape - ceiling:.2f} cm that a teacher could close.")
+    better, worse, same = [], [], []
+    for name, test in tests.items():
+        ape = _mean(rows[name], DECIDING)
+        if ape is None:
+            continue
+        label = labels.get(name, name)
+        paired = test.get("paired")
+        significant = _significant(test)
+        closed = "" if ceiling is None or base_ape - ceiling <= 0 else \
+            f", {100 * (base_ape - ape) / (base_ape - ceiling):.0f} % of the gap to the ceiling"
+        sentence = f"{label}: {ape:.2f} cm ({ape - base_ape:+.2f} cm{closed}; {_significance(test)})"
+        if not significant:
+            same.append(sentence)
+        elif ape < base_ape:
+            better.append(sentence)
+        else:
+            worse.append(sentence)
+    for title, group in (("Better than BC", better), ("Worse than BC", worse),
+                         ("Not told apart from BC", same)):
+        if group:
+            lines.append(f"- **{title}** by the deciding figure (planner APE): " + "; ".join(group) + ".")
+    for name, runs in rows.items():
+        lost = _losses(runs)
+        if lost:
+            lines.append(f"- {labels.get(name, name)} loses to the {', '.join(lost)} by the planner's APE and tail.")
+    return lines
+
+
+def _provenance(runs: list[RunRecord], records_dir: Path) -> list[str]:
+    from spade.utils.provenance import command_line, commit, machine, shown_path
+
+    lines = [f"- command: `{command_line('spade.report')}`",
+             "- launch: `python -m spade.train -m +experiment=ROW seed=42,1,2` for each row below "
+             "(conf/experiment/site_*.yaml)",
+             f"- commit: {commit() or 'unknown (not a git checkout)'}",
+             f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
+             f"- machine: {machine()}",
+             f"- records: {shown_path(records_dir)} ({len(runs)} runs; the page regenerates from them without the "
+             "store)"]
+    walls = [r.wall_s for r in runs if r.wall_s]
+    if walls:
+        lines.append(f"- wall time of the {len(walls)} runs: {sum(walls) / 60:.0f} min in all, "
+                     f"{statistics.fmean(walls) / 60:.1f} min each on average")
+    return lines
+
+
+def oracle_report(tracking_uri: str, output_dir: str | Path | None, settings: Mapping[str, Any]) -> tuple[str, dict]:
+    """Export the page's runs into records (when the store has them), then write ``<page>.md`` from the records."""
+    labels: dict[str, str] = dict(settings.get("rows") or {})
+    against = str(settings.get("against", "site_bc_L"))
+    records_dir = Path(str(settings["records_dir"]))
+    if _store_exists(tracking_uri):
+        export_records(tracking_uri, str(settings.get("experiment", "oracle")), records_dir, list(labels) or None)
+    runs, references = load_records(records_dir) if records_dir.is_dir() else ([], {})
+    rows: dict[str, list[RunRecord]] = {name: [] for name in labels}
+    for run in runs:
+        rows.setdefault(run.row, []).append(run)
+    rows = {k: sorted(v, key=lambda r: (r.seed is None, r.seed or 0)) for k, v in rows.items() if v}
+    tests = _tests(rows, against)
+    title = str(settings.get("title", "Where a teacher teaches: the oracle, the site's unsketched states, the BC ceiling"))
+    parts = [f"# {title}", "", "## Verdict", "", *_verdict(rows, labels, against, tests), ""]
+    seeds = sorted({len(v) for v in rows.values()})
+    test_size = max((len({i.get('scenario') for r in v for i in r.instances}) for v in rows.values()), default=0)
+    parts += ["## Rows", "",
+              f"Mean ± sd over seeds ({_seed_counts(seeds)} per row) and, "
+              f"under it, the 95 % interval of a bootstrap over the {test_size} test scenarios (all seeds pooled). "
+              "The deciding figure is the planner's APE with its tail; plausibility and commitment see the "
+              "preference.", ""]
+    header = ["row", "seeds", *(catalog.label(m.split('/', 1)[1]) for m, _ in COLUMNS),
+              *(("closed-loop " if m.startswith("closed_loop/") and not catalog.label(m).startswith("closed")
+                 else "") + catalog.label(m.replace('test/', '')) for m in SEED_ONLY), f"against {labels.get(against, against)}"]
+    parts += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for name, runs_ in rows.items():
+        cells = [labels.get(name, name), str(len(runs_)), *(_cell(runs_, m, c) for m, c in COLUMNS),
+                 *(_mean_sd(_values(runs_, m), m.replace("test/", "")) for m in SEED_ONLY),
+                 "—" if name == against else _significance(tests.get(name, {}))]
+        parts.append("| " + " | ".join(cells) + " |")
+    every = [r for v in rows.values() for r in v]
+    parts += ["", "## Between the floor and the ceiling, beside the baselines", "",
+              "The same test set for every row: these predictors learn nothing, so one run's figures hold for all.", "",
+              *_reference_rows(every, references), ""]
+    parts += ["## Provenance", "", *_provenance(every, records_dir), ""]
+    files: dict[str, Path] = {}
+    text = "\n".join(parts)
+    if output_dir is not None:
+        out = Path(output_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        files["markdown"] = out / f"{settings.get('page', 'oracle')}.md"
+        files["markdown"].write_text(text + "\n")
+    return text, files
+
+
+def _seed_counts(counts: list[int]) -> str:
+    if not counts:
+        return "none"
+    return str(counts[0]) if counts[0] == counts[-1] else f"{counts[0]} to {counts[-1]}"
+
+
+def _store_exists(tracking_uri: str) -> bool:
+    """Whether the store holds anything to export (a SQLite file that exists, or a server URI)."""
+    if tracking_uri.startswith("sqlite:///"):
+        return Path(tracking_uri[len("sqlite:///"):]).is_file()
+    return tracking_uri.startswith(("http://", "https://"))

@@ -1,0 +1,82 @@
+"""The oracle page from run records alone, and the bootstrap over scenarios it reads its intervals from."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from spade.experiments.reporting.intervals import paired_difference, scenario_interval
+
+
+def test_a_scenario_interval_is_the_cluster_bootstrap_of_the_instance_mean() -> None:
+    scenarios = ["a", "a", "b", "c", "c", "c"]
+    values = [1.0, 3.0, 2.0, 4.0, 4.0, float("nan")]  # a NaN (failure) is left out, not averaged
+    got = scenario_interval(scenarios, values, draws=4000)
+    assert got.mean == pytest.approx(14 / 5) and got.scenarios == 3 and got.instances == 5
+    # by hand: every resample of the three scenarios' (sum, count) pairs, each with probability 1/27
+    pairs = {"a": (4.0, 2), "b": (2.0, 1), "c": (8.0, 2)}
+    means = sorted(sum(pairs[k][0] for k in pick) / sum(pairs[k][1] for k in pick)
+                   for pick in [(x, y, z) for x in pairs for y in pairs for z in pairs])
+    assert means[0] <= got.low <= got.mean <= got.high <= means[-1]
+    assert got.low == pytest.approx(np.percentile(means, 2.5), abs=0.35)
+    assert got.high == pytest.approx(np.percentile(means, 97.5), abs=0.35)
+
+
+def test_one_scenario_has_no_interval() -> None:
+    got = scenario_interval(["a", "a"], [1.0, 2.0])
+    assert got.mean == 1.5 and math.isnan(got.low)
+
+
+def test_a_paired_difference_excludes_zero_only_when_one_side_is_consistently_lower() -> None:
+    a = {f"s{i}": [1.0 + 0.01 * i] for i in range(30)}
+    b = {f"s{i}": [2.0 + 0.01 * i] for i in range(30)}
+    assert paired_difference(a, b).excludes_zero() and paired_difference(a, b).mean == pytest.approx(-1.0)
+    noise = np.random.default_rng(0).normal(0, 1, 30)
+    c = {f"s{i}": [1.0 + noise[i]] for i in range(30)}
+    d = {f"s{i}": [1.0 - noise[i]] for i in range(30)}
+    assert not paired_difference(c, {k: [1.0] for k in c}).excludes_zero() or abs(noise.mean()) > 0.3
+    assert paired_difference(c, d).scenarios == 30
+
+
+def _record(root: Path, row: str, seed: int, ape: float, rng: np.random.Generator) -> None:
+    instances = [{"scenario": f"m/L{i // 3:03d}", "map": "m", "planner_ape_cm": float(ape + rng.normal(0, 0.3)),
+                  "planner_plausibility_cm": 1.0, "planner_commit": 1.0, "planner_failed": 0.0} for i in range(90)]
+    metrics = {"test/planner/ape_cm": float(np.mean([i["planner_ape_cm"] for i in instances])),
+               "test/planner/over_20cm_rate": 0.0, "test/planner/plausibility_cm": 1.0,
+               "test/planner/commit_rate": 0.9, "test/planner/ape_over_floor": ape / 2.0,
+               "test/planner/failure_rate": 0.0, "test/floor_cm": 2.0, "test/ceiling/planner/ape_cm": 2.5,
+               "test/ceiling/planner/ape_over_floor": 1.25, "test/ceiling/planner/over_20cm_rate": 0.0,
+               "test/baseline/straight/planner/ape_cm": 24.0, "test/baseline/straight/planner/over_20cm_rate": 0.5,
+               "test/baseline/shortest/planner/ape_cm": 19.0, "test/baseline/shortest/planner/over_20cm_rate": 0.4,
+               "test/baseline/heading/planner/ape_cm": 13.0, "test/baseline/heading/planner/over_20cm_rate": 0.1}
+    (root / f"{row}_s{seed}.json").write_text(json.dumps({
+        "row": row, "seed": seed, "run_id": f"{row}{seed}", "start_time": 0, "end_time": 60_000,
+        "metrics": metrics, "params": {}, "instances": instances}))
+
+
+def test_the_page_regenerates_from_its_records_and_leads_with_its_verdict(tmp_path: Path) -> None:
+    from spade.experiments.oracle_page import oracle_report
+
+    records = tmp_path / "records"
+    records.mkdir()
+    rng = np.random.default_rng(0)
+    for seed in (42, 1, 2):
+        _record(records, "site_bc_L", seed, 4.0, rng)
+        _record(records, "site_oracle_L", seed, 4.05, rng)  # not told apart
+        _record(records, "site_oraclelabels_L", seed, 3.0, rng)  # clearly better
+    settings = {"page": "oracle", "experiment": "oracle", "records_dir": str(records), "against": "site_bc_L",
+                "rows": {"site_bc_L": "BC", "site_oracle_L": "oracle", "site_oraclelabels_L": "samples as labels"}}
+    text, files = oracle_report(f"sqlite:///{tmp_path}/missing.db", tmp_path / "out", settings)
+    assert text.index("## Verdict") < text.index("## Rows") < text.index("## Provenance")
+    verdict = text.split("## Rows")[0]
+    assert "**Better than BC**" in verdict and "samples as labels: 2.9" in verdict
+    assert "**Not told apart from BC**" in verdict and "oracle: 4.0" in verdict and "Holm" in verdict
+    assert "the BC ceiling is 2.50 cm" in verdict
+    assert "[" in text.split("## Rows")[1] and "Holm" in text  # intervals and the page's correction
+    assert "BC ceiling" in text and "straight line" in text
+    assert files["markdown"].read_text().startswith("# Where a teacher teaches")
+    assert not (tmp_path / "missing.db").exists()  # no store was created
