@@ -175,7 +175,7 @@ def _planner_section(metrics: dict[str, float]) -> list[str]:
         return []
     k = int(metrics["expert/samples"])
     rows = [("expert, one sample", "expert/planner/"), (f"expert, mean of {k} samples' maps", "expert/mean_map/planner/"),
-            ("student", "student/planner/")]
+            (f"expert, medoid of {k} samples' paths", "expert/medoid/planner/"), ("student", "student/planner/")]
     lines = ["The expert as a planner (each path decoded by the planner), on the same "
              f"{int(metrics['expert/instances'])} instances:", "",
              "| predictor | " + " | ".join(catalog.label(f"planner/{key}", qualified=key == "ape_cm")

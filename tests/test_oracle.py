@@ -226,3 +226,22 @@ def test_instance_rows_record_the_planner_figures() -> None:
     assert rows[1]["planner_failed"] == 1.0 and rows[1]["planner_commit"] == 0.0
     m.reset()
     assert m.instance_rows == []
+
+
+def test_the_medoid_is_the_central_drawn_path() -> None:
+    from spade.metrics.preference import medoid_path
+
+    ys = np.linspace(10, 0, 8)
+    left, centre, right = (np.stack([np.full(8, x), ys], 1) for x in (0.0, 1.0, 3.0))
+    assert medoid_path([left, right, centre, None]) is centre  # the one nearest all others, never a blend
+    assert medoid_path([None]) is None and medoid_path([left]) is left
+
+
+def test_the_oracle_as_a_planner_gives_a_genuine_alternative_and_the_medoid() -> None:
+    from spade.metrics.plausible import reference_polylines
+
+    waypoints, alts = _lines(b=2, n=3, size=16)
+    refs = reference_polylines({"waypoints": waypoints, "alternatives": alts})
+    assert np.allclose(refs["oracle_sample"][0], alts[0, 0].numpy())  # another draw, not the demonstration
+    assert np.allclose(refs["oracle_medoid"][1][:, 0], 8.0)  # straight up: the centre of the bends -3, 0, +3
+    assert reference_polylines({"waypoints": waypoints}) == {}

@@ -249,7 +249,10 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
             lines.append(f"| {row.label} | ? | 0 | " + " | ".join("missing" for _ in range(len(COLUMNS) + 3)) + " |")
             continue
         k = row.params.get("cfg/model/test_samples")
-        for reading, prefix in (("one sample", "test/"), (f"mean of {k or 'K'} samples' maps", "test/mean_map/")):
+        readings = [("one sample", "test/"), (f"mean of {k or 'K'} samples' maps", "test/mean_map/")]
+        if row.values("test/medoid/planner/ape_cm"):  # the minimum-Bayes-risk reading, where the test logged it
+            readings.append((f"medoid of {k or 'K'} samples' paths", "test/medoid/"))
+        for reading, prefix in readings:
             extra = [_cell(row, "test/planner/spread_ratio", ".2f"), _cell(row, "test/seconds_per_sample", ".3f"),
                      _parameters(row)]
             if prefix != "test/":

@@ -9,8 +9,10 @@ once here however many predictors and readings log it:
 - ``closed_loop/<figure>`` (and ``closed_loop/<reference>/<figure>``): the figure of a scenario driven from start to
   goal (``closed-loop ...``; the closed-loop-only figures, such as ``closed_loop/success_rate``, are entries);
 - ``baseline/<name>/<figure>``: a classical baseline's figure on the same test set (the figure's own label);
-- ``ceiling/<figure>``, ``demo_target/<figure>``: the references every test logs beside its predictors
-  (:mod:`spade.metrics.plausible`): the BC ceiling and the decoder's floor on the demonstration's own target.
+- ``ceiling/<figure>``, ``demo_target/<figure>``, ``oracle_sample/<figure>``, ``oracle_medoid/<figure>``: the
+  references every test logs beside its predictors (:mod:`spade.metrics.plausible`): the BC ceiling, the decoder's
+  floor on the demonstration's own target, and the oracle as a planner (one draw; the medoid of its draws);
+- ``medoid/planner/<figure>``: an expert's planner reading of the medoid of its K samples' decoded paths.
 
 Tables, reports, run descriptions, closing summaries and ``gpu_check`` read labels, formats and the ordered figure
 lists at the bottom from here; :func:`label`, :func:`fmt`, :func:`lower_is_better` and :func:`figure` take any
@@ -221,13 +223,15 @@ if len(_BY_NAME) != len(_ENTRIES):  # pragma: no cover - a duplicate entry is a 
 # family prefix -> (label qualifier, header qualifier); longest first
 _FAMILIES: tuple[tuple[str, str, str], ...] = (
     ("mean_map/planner/", "mean-map planner", "mean-map plan"),
+    ("medoid/planner/", "medoid planner", "medoid plan"),
     ("planner/", "planner", "plan"),
     ("closed_loop/", "closed-loop", "closed-loop"),
 )
 # a family member whose compact header is not the qualified one (a run description's columns)
 _FAMILY_HEADERS = {"planner/plausibility_cm": "plaus. cm", "planner/commit_rate": "commit %"}
 # readings that stand for a predictor: their figures are the figure's own (the predictor is named elsewhere)
-_PREDICTOR_PREFIXES = ("baseline/", "followed/", "demonstration/", "ceiling/", "demo_target/")
+_PREDICTOR_PREFIXES = ("baseline/", "followed/", "demonstration/", "ceiling/", "demo_target/", "oracle_sample/",
+                       "oracle_medoid/")
 
 
 def _unstaged(name: str) -> str:

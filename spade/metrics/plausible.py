@@ -14,13 +14,18 @@ import torch
 from spade.data.augment import widen_path
 from spade.data.plausible import ceiling_map, plausible_images
 
-__all__ = ["REFERENCES", "reference_maps"]
+__all__ = ["POLYLINE_REFERENCES", "REFERENCES", "reference_maps", "reference_polylines"]
 
 
-REFERENCES: tuple[str, ...] = ("ceiling", "demo_target")
+REFERENCES: tuple[str, ...] = ("ceiling", "demo_target", "oracle_sample", "oracle_medoid")
 """The reference readings a test logs beside every predictor (``test/<name>/planner/...``): ``ceiling``, the BC
-ceiling (:func:`ceiling_map` decoded by the planner), and ``demo_target``, the demonstration's own training target
-decoded by the planner (the decoder's own floor: how close a perfect image of the one demonstration decodes)."""
+ceiling (:func:`ceiling_map` decoded by the planner); ``demo_target``, the demonstration's own training target
+decoded by the planner (the decoder's own floor: how close a perfect image of the one demonstration decodes); and
+the oracle as a planner, from the plausible set itself: ``oracle_sample``, a genuine alternative (another draw of
+the generator from the same state: what a perfect sampler gives when asked once), and ``oracle_medoid``, the
+minimum-Bayes-risk reading of the set (:func:`~spade.metrics.preference.medoid_path`: what a perfect sampler gives
+with the medoid of its samples). The oracle's two are paths, scored as the baselines are (no decoding)."""
+POLYLINE_REFERENCES: tuple[str, ...] = ("oracle_sample", "oracle_medoid")
 
 
 @torch.no_grad()
@@ -32,3 +37,25 @@ def reference_maps(batch: dict, width_px: int) -> dict[str, torch.Tensor]:
         images, mask = plausible_images(batch["waypoints"], batch["alternatives"], h, w, width_px)
         out["ceiling"] = ceiling_map(images, mask)
     return out
+
+
+def reference_polylines(batch: dict) -> dict[str, list]:
+    """The oracle's paths of :data:`POLYLINE_REFERENCES` for a test batch with ``alternatives`` ({} without):
+    window-pixel polylines, None where an instance has no alternative."""
+    from spade.metrics.preference import medoid_path, plausible_set
+
+    alternatives = batch.get("alternatives")
+    if alternatives is None:
+        return {}
+    truth = batch["waypoints"].detach().cpu().double().numpy()
+    alts = alternatives.detach().cpu().double().numpy()
+    sample, medoid = [], []
+    for i in range(truth.shape[0]):
+        paths = plausible_set(truth[i], alts[i])
+        if len(paths) < 2:
+            sample.append(None)
+            medoid.append(None)
+            continue
+        sample.append(paths[1])  # the first stored alternative: a draw of the generator, not the demonstration
+        medoid.append(medoid_path(list(paths), points=paths.shape[1]))
+    return {"oracle_sample": sample, "oracle_medoid": medoid}

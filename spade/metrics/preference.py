@@ -30,7 +30,7 @@ from spade.data.polyline import resample_polyline
 from spade.metrics._inputs import append_state, cat_state, per_instance_resolution, to_numpy
 from spade.metrics.extraction import marker_centre
 
-__all__ = ["PREFERENCE_KEYS", "PreferenceMetrics", "SpreadMetrics", "floor_path", "plausible_set"]
+__all__ = ["PREFERENCE_KEYS", "PreferenceMetrics", "SpreadMetrics", "floor_path", "medoid_path", "plausible_set"]
 
 PREFERENCE_KEYS: tuple[str, ...] = ("ape_over_floor", "plausibility_cm", "commit_rate")
 """The per-predictor figures (a test logs them for the paper's reading and, prefixed, the planner's)."""
@@ -202,3 +202,18 @@ class SpreadMetrics(Metric):
         return {"spread_cm": spread.mean() if spread.numel() else nan,
                 "generator_spread_cm": gen_all.mean() if gen_all.numel() else nan,
                 "spread_ratio": paired.mean() / gen.mean() if paired.numel() and gen.mean() > 0 else nan}
+
+
+def medoid_path(paths: list[np.ndarray | None], points: int = 64) -> np.ndarray | None:
+    """The minimum-Bayes-risk reading of several sampled paths of one state: the one whose mean pointwise distance
+    (each resampled to ``points`` by arc length) to the others is smallest. A committed, central path, one the
+    sampler actually drew (unlike the mean of the samples' maps, which blends two ways of turning). None when no
+    path is given; a single path is its own medoid."""
+    valid = [np.asarray(p, np.float64) for p in paths if p is not None and len(p) >= 2]
+    if not valid:
+        return None
+    if len(valid) == 1:
+        return valid[0]
+    stack = np.stack([resample_polyline(p, points) for p in valid])
+    dist = np.linalg.norm(stack[:, None] - stack[None], axis=3).mean(axis=2)
+    return valid[int(np.argmin(dist.sum(axis=1)))]

@@ -9,7 +9,7 @@ import lightning as L
 import torch
 
 from spade.metrics.path_metrics import BASELINE_PLANNER_KEYS, PathMetrics
-from spade.metrics.plausible import REFERENCES, reference_maps
+from spade.metrics.plausible import REFERENCES, reference_maps, reference_polylines
 from spade.models.modelfile import write_checkpoint_entry
 from spade.training.logging_utils import log_image
 from spade.training.visualize import TestRecords, prediction_grid
@@ -180,6 +180,8 @@ class PathPlanningModule(L.LightningModule):
         if references:
             for name, image in reference_maps(batch, self._target_width()).items():
                 references[name].update(image, batch)
+            for name, polys in reference_polylines(batch).items():
+                references[name].update(draw_polylines(polys, h, w, prob.device), batch, polylines=polys)
 
     #: The artifact of a test's per-instance planner figures (every predictor): intervals over scenarios come from it.
     INSTANCES_ARTIFACT = "test_instances.csv"

@@ -268,6 +268,7 @@ class ExpertModule(PathPlanningModule):
         self._spread = SpreadMetrics().to(self.device)
         metrics = dict(self.hparams.get("metrics") or {})
         self._mean_map = PathMetrics(**{**metrics, "fid": False}).to(self.device)
+        self._medoid = PathMetrics(**{**metrics, "fid": False}).to(self.device)
 
     def test_step(self, batch: dict, batch_idx: int) -> None:
         """The expert as a planner. ``test_samples`` (K) independent samples of each instance: the first is the
@@ -277,7 +278,7 @@ class ExpertModule(PathPlanningModule):
         generator's (``test/planner/spread_cm``, ``test/generator_spread_cm``, ``test/planner/spread_ratio``;
         :class:`~spade.metrics.preference.SpreadMetrics`): a teacher narrower than the operator's choices can only
         teach one of them. ``test/seconds_per_sample`` is the sampling time per instance and sample."""
-        from spade.training.teacher import sample_maps, two_sample_paths
+        from spade.training.teacher import medoid_reading, sample_maps, two_sample_paths
 
         k = int(self.hparams.get("test_samples", 2) or 2)
         samples, seconds = sample_maps(self, batch["state"], k)
@@ -286,6 +287,7 @@ class ExpertModule(PathPlanningModule):
         self._test_with(samples[0], batch)
         self._mean_map.update(torch.stack(samples).mean(0), batch)
         paths = two_sample_paths(self.test_metrics.decode, samples, batch)
+        medoid_reading(self._medoid, self.test_metrics.decode, samples, batch, paths)
         self._spread.update(paths[0], paths[1], batch["waypoints"], batch.get("alternatives"), batch["resolution"])
 
     def on_test_epoch_end(self) -> None:
@@ -302,4 +304,9 @@ class ExpertModule(PathPlanningModule):
             self.log_dict({f"test/mean_map/{key}": value for key, value in mean_map.compute().items()
                            if key.startswith("planner/")}, sync_dist=False)
             self._mean_map = None
+        medoid = getattr(self, "_medoid", None)
+        if medoid is not None and medoid.planner_ape.total > 0:
+            self.log_dict({f"test/medoid/{key}": value for key, value in medoid.compute().items()
+                           if key.startswith("planner/")}, sync_dist=False)
+            self._medoid = None
         super().on_test_epoch_end()

@@ -5,7 +5,9 @@ A teacher is worth its cost only where it plans better than its student. For eac
 
 - the first sample: ``expert/planner/*`` (what a robot asking the expert once would drive: APE, tail, failures,
   floor ratio, plausibility, commitment);
-- the mean of the K probability maps: ``expert/mean_map/planner/*`` (what K samples buy);
+- the mean of the K probability maps: ``expert/mean_map/planner/*`` (what K samples buy, blended);
+- the medoid of the K samples' decoded paths: ``expert/medoid/planner/*`` (what K samples buy, committed: the
+  minimum-Bayes-risk reading, :func:`~spade.metrics.preference.medoid_path`);
 - the first two: ``expert/spread_cm`` against ``expert/generator_spread_cm`` (the operator's own spread, from the
   test set's alternatives) and their ratio (:class:`~spade.metrics.preference.SpreadMetrics`);
 
@@ -35,6 +37,22 @@ def sample_maps(expert: Any, state: torch.Tensor, samples: int) -> tuple[list[to
     return maps, time.perf_counter() - t0
 
 
+def medoid_reading(metrics: Any, decode: Any, maps: list[torch.Tensor], batch: dict,
+                   decoded: list[list[Any]] | None = None) -> None:
+    """Update ``metrics`` (a :class:`~spade.metrics.path_metrics.PathMetrics`) with the minimum-Bayes-risk reading of
+    the K sample ``maps``: each instance's medoid of its samples' decoded paths
+    (:func:`~spade.metrics.preference.medoid_path`). ``decoded``: the paths of the first maps already decoded."""
+    from spade.metrics.baselines import draw_polylines
+    from spade.metrics.preference import medoid_path
+
+    decoded = list(decoded or [])
+    for m in maps[len(decoded):]:
+        decoded.append([d.points if d.ok else None for d in decode(m, batch["state"], batch["resolution"])])
+    medoids = [medoid_path([paths[i] for paths in decoded]) for i in range(len(decoded[0]))]
+    h, w = maps[0].shape[-2:]
+    metrics.update(draw_polylines(medoids, h, w, maps[0].device), batch, polylines=medoids)
+
+
 def two_sample_paths(decode: Any, maps: list[torch.Tensor], batch: dict) -> list[list[Any]]:
     """The planner's paths (None where it failed) of the first two sample maps: what the spread compares."""
     return [[d.points if d.ok else None for d in decode(m, batch["state"], batch["resolution"])] for m in maps[:2]]
@@ -51,7 +69,7 @@ def planner_figures(expert: Any, loader: Iterable[dict], samples: int = 4, stude
     if isinstance(samples, bool) or not isinstance(samples, int) or samples < 2:
         raise ValueError(f"samples must be an integer >= 2 (two samples measure the spread), got {samples!r}")
     options = {**dict(expert.hparams.get("metrics") or {}), "fid": False}
-    single, mean_map = PathMetrics(**options), PathMetrics(**options)
+    single, mean_map, medoid = PathMetrics(**options), PathMetrics(**options), PathMetrics(**options)
     taught = PathMetrics(**options) if student is not None else None
     spread = SpreadMetrics()
     seconds, count, seen = 0.0, 0, 0
@@ -67,6 +85,7 @@ def planner_figures(expert: Any, loader: Iterable[dict], samples: int = 4, stude
         single.update(maps[0], batch)
         mean_map.update(torch.stack(maps).mean(0), batch)
         paths = two_sample_paths(single.decode, maps, {**batch, "state": state})
+        medoid_reading(medoid, single.decode, maps, {**batch, "state": state}, paths)
         spread.update(paths[0], paths[1], batch["waypoints"], batch.get("alternatives"), batch["resolution"])
         if taught is not None:
             taught.update(torch.sigmoid(student(state)), batch)
@@ -77,7 +96,7 @@ def planner_figures(expert: Any, loader: Iterable[dict], samples: int = 4, stude
     def planner(metrics: PathMetrics, prefix: str) -> dict[str, float]:
         return {f"{prefix}/{k}": float(v) for k, v in metrics.compute().items() if k.startswith("planner/")}
 
-    out = {**planner(single, "expert"), **planner(mean_map, "expert/mean_map")}
+    out = {**planner(single, "expert"), **planner(mean_map, "expert/mean_map"), **planner(medoid, "expert/medoid")}
     s = spread.compute()
     out.update({"expert/spread_cm": float(s["spread_cm"]), "expert/generator_spread_cm": float(s["generator_spread_cm"]),
                 "expert/spread_ratio": float(s["spread_ratio"]), "expert/seconds_per_sample": seconds / count,
