@@ -84,7 +84,7 @@ def critic(cfg: DictConfig) -> dict[str, Any]:
         max_instances=c.max_instances, title=f"{Path(str(cfg.ckpt_path)).name}: score={config.score}, "
         f"agent_input={config.agent_input}, t in [{config.t_min}, {margin.t_max})")
     samples = cfg.critic.get("expert_samples", 0)
-    if samples:
+    if samples and not config.oracle:  # the oracle as a planner: a test's oracle_sample / oracle_medoid references
         from spade.training.teacher import planner_figures
 
         metrics.update(planner_figures(expert, loader, samples=int(samples), student=student,

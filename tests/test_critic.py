@@ -338,3 +338,27 @@ def test_a_guidance_row_tests_its_checkpoint_on_real_maps_as_a_run_of_its_seed(s
     assert real.data.metrics["test/ape_cm"] == pytest.approx(metrics["real/test/ape_cm"])
     history = client.get_metric_history(runs["g_few_conddbcst_L"].info.run_id, "margin/active")
     assert len(history) == 1  # one epoch: one value, at its validation's global step (margin/* shares val's x axis)
+
+
+def test_the_oracle_as_a_critic_ranks_the_demonstration_above_the_blurred_and_the_faint() -> None:
+    """The exact denoiser of each instance's plausible set (here the demonstration alone): at low noise it snaps a
+    corrupted path back to the demonstration, so the demonstration's error is the smaller."""
+    from spade.training.oracle import OracleDenoiser
+
+    b = batch_of(_paths())
+    b["alternatives"] = torch.full((4, 2, b["waypoints"].shape[1], 2), float("nan"))
+    betas = torch.linspace(1e-4, 0.02, 1000, dtype=torch.float64)
+    abar = torch.cumprod(1 - betas, 0)
+
+    def add_noise(x0, noise, t):
+        a = abar.to(x0.dtype)[t].view(-1, 1, 1, 1)
+        return a.sqrt() * x0 + (1 - a).sqrt() * noise
+
+    margin = DiffusionMargin(OracleDenoiser(abar), add_noise, 1000, True, MarginConfig(oracle=True, t_max=300),
+                             prediction_target=lambda x0, noise, t: x0)
+    errors = measure_errors(margin, [b], ROBOT_X, 3, draws_per_band=2, bands=2)
+    m = critic_metrics(errors, margin)
+    assert m["critic/win/blur"] == 1.0 and m["critic/win/faint"] == 1.0
+    del b["alternatives"]
+    with pytest.raises(ValueError, match="alternative"):
+        measure_errors(margin, [b], ROBOT_X, 3, draws_per_band=1, bands=1)

@@ -48,7 +48,8 @@ def page_stem(ckpt_path: str, config: Any, student: bool) -> str:
     under margin ``config``, with or without a student: the checks refuse to replace it unasked."""
     from pathlib import Path
 
-    stem = f"critic_{Path(str(ckpt_path)).stem}_{config.agent_input}_{config.score}"
+    stem = f"critic_{'oracle' if getattr(config, 'oracle', False) else Path(str(ckpt_path)).stem}_" \
+        f"{config.agent_input}_{config.score}"
     if config.t_min or config.t_max is not None:  # a timestep band other than the expert's whole range
         stem += f"_t{config.t_min}-{config.t_max if config.t_max is not None else 'T'}"
     return stem + ("_student" if student else "")
@@ -94,7 +95,10 @@ def _errors(margin: DiffusionMargin, x0s: list[torch.Tensor], cond: torch.Tensor
     b = x0s[0].shape[0]
     x0 = torch.cat(x0s)
     noise_n, t_n = noise.repeat(n, *([1] * (noise.dim() - 1))), t.repeat(n)
-    cond_n = None if cond is None else cond.repeat(n, 1, 1, 1)
+    if isinstance(cond, tuple):  # the oracle's plausible set (B, n, 1, H, W) and mask (B, n)
+        cond_n = tuple(c.repeat(n, *([1] * (c.dim() - 1))) for c in cond)
+    else:
+        cond_n = None if cond is None else cond.repeat(n, 1, 1, 1)
     return list(margin.denoising_error(x0, noise_n, t_n, cond_n).split(b))
 
 
@@ -156,6 +160,15 @@ def measure_errors(margin: DiffusionMargin, batches: Iterable[dict], robot_x: fl
         for name, img in agent.items():
             differs[name].append(((img - demo_seen).abs().flatten(1).sum(1) >= 1.0).cpu())
         x_demo, cond = expert_input(state, target, margin.conditional)
+        if margin.oracle:  # the oracle teacher knows each test instance's plausible set
+            from spade.data.plausible import plausible_images
+
+            alts = batch.get("alternatives")
+            if alts is None:
+                raise ValueError("the oracle as a critic (margin=oracle) needs a test set with alternative "
+                                 "demonstrations; regenerate it with them (alternatives.count=16)")
+            images_p, mask = plausible_images(waypoints, alts[take], *state.shape[-2:], width_px)
+            cond = margin._oracle_condition((images_p.to(device), mask.to(device)))
         x_cands = {name: expert_input(state, img, margin.conditional)[0] for name, img in agent.items()}
         t_batch, e_demo, e_cand = [], [], {name: [] for name in agent}
         for lo, hi in edges:
