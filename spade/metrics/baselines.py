@@ -144,6 +144,21 @@ def baseline_polylines(state: np.ndarray, resolution: float, shape: str | None =
     }
 
 
+def batch_baseline_polylines(state: torch.Tensor, resolution: torch.Tensor | float,
+                             shapes: list[str] | None = None) -> dict[str, list[np.ndarray | None]]:
+    """Each baseline's polylines (one per instance, None where it has none) for a batch of states (B, 3, H, W)."""
+    s = state.detach().float().cpu().numpy()
+    b = s.shape[0]
+    res = np.broadcast_to(np.asarray(resolution.cpu() if isinstance(resolution, torch.Tensor) else resolution,
+                                     dtype=np.float64).reshape(-1), (b,))
+    out: dict[str, list[np.ndarray | None]] = {name: [] for name in BASELINES}
+    for i in range(b):
+        shape = shapes[i] if shapes is not None else None
+        for name, poly in baseline_polylines(s[i], float(res[i]), shape).items():
+            out[name].append(poly)
+    return out
+
+
 def draw_polylines(polylines: list[np.ndarray | None], height: int, width: int,
                    device: torch.device | str = "cpu") -> torch.Tensor:
     """(B, 1, H, W) float32 images of polylines drawn as a dataset's path channel (:func:`draw_polyline`)."""
