@@ -80,3 +80,17 @@ def test_the_page_regenerates_from_its_records_and_leads_with_its_verdict(tmp_pa
     assert "BC ceiling" in text and "straight line" in text
     assert files["markdown"].read_text().startswith("# Where a teacher teaches")
     assert not (tmp_path / "missing.db").exists()  # no store was created
+
+
+def test_a_small_test_set_says_so_in_the_summary() -> None:
+    from spade.tracking.summary import figure_lines
+
+    small = "\n".join(figure_lines({"test/scenarios": 17.0, "test/floor_cm": 2.06,
+                                    "test/ceiling/planner/ape_cm": 2.54, "test/ceiling/planner/ape_over_floor": 1.23,
+                                    "test/ceiling/planner/plausibility_cm": 1.1,
+                                    "test/ceiling/planner/commit_rate": 0.85,
+                                    "test/demo_target/planner/ape_cm": 1.14}, []))
+    assert "17 scenarios (a small test" in small and "data=site_L" in small
+    assert "BC ceiling       : planner/ape_cm=2.54" in small and "decoder floor    : planner/ape_cm=1.14" in small
+    large = "\n".join(figure_lines({"test/scenarios": 120.0}, []))
+    assert "120 scenarios" in large and "small test" not in large

@@ -155,6 +155,8 @@ _ENTRIES: tuple[Figure, ...] = (
     _f("over_20cm_rate", ">20 cm", "share", "lower", ".1%", "share of instances whose APE exceeds 20 cm "
        "(failures included): the tail a mean hides", ">20cm %"),
     _f("instances", "instances", "count", "", ".0f", "test instances scored"),
+    _f("scenarios", "test scenarios", "count", "", ".0f", "distinct test scenarios scored: the unit of a results "
+       "page's intervals (a scenario's states are near-duplicates)"),
     # spade.metrics.hausdorff
     _f("hd19", "Hd19", "count", "lower", ".0f", "instances whose Hausdorff distance to the demonstration exceeds "
        "0.95 m (the paper's 19 px): stray artifacts", "Hd19 n"),

@@ -177,7 +177,26 @@ def figure_lines(metrics: dict[str, Any], prefixes: list[str]) -> list[str]:
     floor = floor_line(metrics)
     if floor:
         lines.append(floor)
+    test_set = test_set_line(metrics)
+    if test_set:
+        lines.append(test_set)
     return lines + learning_verdict(metrics) + closed_loop_lines(metrics)
+
+
+SMALL_TEST_SCENARIOS = 30
+"""Below this many test scenarios a summary says its test can tell only large differences apart."""
+
+
+def test_set_line(metrics: dict[str, Any], prefix: str = "test") -> str | None:
+    """How many scenarios the test scored and, for a small test set, what it can tell."""
+    n = metrics.get(f"{prefix}/scenarios")
+    if n is None or n != n:
+        return None
+    line = f"  test set         : {int(n)} scenarios"
+    if n < SMALL_TEST_SCENARIOS:
+        line += (" (a small test, for speed: it tells only large differences apart; the science test set of about 100 "
+                 "scenarios on held-out maps is data=site_L, and the results pages give intervals over scenarios)")
+    return line
 
 
 def evaluation_summary(cfg: DictConfig, metrics: dict[str, Any]) -> str:

@@ -195,6 +195,9 @@ class PathPlanningModule(L.LightningModule):
                       **{f"baseline/{k}": v for k, v in getattr(self, "_baseline_metrics", {}).items()},
                       **dict(getattr(self, "_reference_metrics", {}).items())}
         rows = [{"predictor": name, **row} for name, m in predictors.items() for row in m.instance_rows]
+        scenarios = {row["scenario"] for row in self.test_metrics.instance_rows}
+        if scenarios:  # the unit of the intervals over scenarios: a small test set says so in the summary
+            self.log("test/scenarios", float(len(scenarios)), sync_dist=False)
         if rows:
             from spade.training.logging_utils import log_table_csv
 
