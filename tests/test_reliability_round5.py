@@ -1,0 +1,167 @@
+"""Reliability, fifth round (issue 63): the wrong cases of the probe, reproduced, and the new behaviour.
+
+- a model export is trusted only as far as it is signed: its integrity record covers every field a planner acts
+  on (window, resolution, markers, footprint, ...) as well as its weights; a file without a record is refused
+  unless its user opts in (``allow_unsigned``); an edited field is refused, named;
+- ``spade.data.verify`` refuses non-finite or absurd poses, waypoints and alternatives with the loaders' check;
+- ``spade.closed_loop`` keys a finished drive by its full settings: a changed setting reruns it.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from test_reliability_outputs import one_error_line, run_main, student_checkpoint  # noqa: F401 - a fixture
+from test_reliability_round3 import _metadata, edited_copy, real_export  # noqa: F401 - a fixture
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+# -- 1. model files trusted only as far as they are signed -----------------------------------------------------------
+def occupancy_graph(path: Path, metadata: dict) -> Path:
+    """The probe's forged student: one node returning the occupancy channel, (N, 3, 64, 64) -> (N, 1, 64, 64), with
+    ``metadata`` (a real export's, its integrity record left out) as its ``spade`` entry."""
+    onnx = pytest.importorskip("onnx")
+    from onnx import TensorProto, helper, numpy_helper
+
+    consts = [numpy_helper.from_array(np.array([v], np.int64), n) for n, v in (("s", 0), ("e", 1), ("a", 1))]
+    graph = helper.make_graph([helper.make_node("Slice", ["state", "s", "e", "a"], ["logits"])], "forged",
+                              [helper.make_tensor_value_info("state", TensorProto.FLOAT, ["N", 3, 64, 64])],
+                              [helper.make_tensor_value_info("logits", TensorProto.FLOAT, ["N", 1, 64, 64])],
+                              initializer=consts)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    entry = model.metadata_props.add()
+    entry.key, entry.value = "spade", json.dumps(metadata)
+    onnx.save(model, str(path))
+    return path
+
+
+def test_a_model_without_an_integrity_record_is_refused_unless_allowed(real_export: Path, tmp_path: Path,
+                                                                       run_main) -> None:
+    """Wrong 1: a one-node graph with a real export's metadata, its integrity record left out, planned everywhere
+    with a warning that it "was exported before SPADE recorded a weight digest". Now it is refused by the Planner
+    API and ``spade.plan``, saying what is missing and naming the opt-in; with ``allow_unsigned`` it opens, warned."""
+    from factories import site_map
+    from spade.deploy.student_planner import Planner, PlannerConfigError
+    from spade.models.onnx_check import UncheckedExportWarning
+
+    meta = {k: v for k, v in _metadata(real_export).items() if k != "integrity"}
+    forged = occupancy_graph(tmp_path / "forged.onnx", meta)
+    with pytest.raises(PlannerConfigError) as info:
+        Planner(forged)
+    message = str(info.value)
+    assert str(forged) in message and "carries no integrity record" in message and "allow_unsigned=true" in message
+    assert "exported before" not in message  # not a guess about the file's age
+    with pytest.warns(UncheckedExportWarning, match="opened unchecked"):
+        Planner(forged, allow_unsigned=True)
+    with pytest.raises(PlannerConfigError, match="allow_unsigned must be true or false"):
+        Planner(forged, allow_unsigned="yes")
+
+    yaml_path = site_map(tmp_path)
+    query = [f"map={yaml_path}", "start=[0.0,1.0,0.0]", "goal=[2.0,1.0]", f"model_path={forged}"]
+    code, err = run_main("spade.plan", [*query, f"out={tmp_path / 'plan.png'}"])
+    assert code == 2 and "carries no integrity record" in one_error_line(err), err
+    assert "planner.allow_unsigned=true" in err and not (tmp_path / "plan.png").exists()
+    code, err = run_main("spade.plan", [*query, "planner.allow_unsigned=maybe"])
+    assert code == 2 and "planner.allow_unsigned='maybe' is not a boolean" in one_error_line(err)
+    code, err = run_main("spade.plan", [*query, "planner.allow_unsigned=true", f"out={tmp_path / 'unsigned.png'}"])
+    assert code == 0, err
+    assert (tmp_path / "unsigned.png").is_file()
+
+
+def test_the_ros_node_takes_the_opt_in_from_its_planner_options(real_export: Path, tmp_path: Path) -> None:
+    """The ROS node builds its planner from ``conf/ros.yaml``'s ``planner`` block: refused by default, opened with
+    ``planner.allow_unsigned=true``."""
+    from spade.deploy.student_planner import PlannerConfigError
+    from spade.models.onnx_check import UncheckedExportWarning
+    from spade.ros.launch import build_planner
+    from spade.utils.config import compose_config
+
+    meta = {k: v for k, v in _metadata(real_export).items() if k != "integrity"}
+    forged = occupancy_graph(tmp_path / "forged.onnx", meta)
+    with pytest.raises(PlannerConfigError, match="carries no integrity record"):
+        build_planner(compose_config("ros", [f"model_path={forged}", "paths.output_dir=."]))
+    with pytest.warns(UncheckedExportWarning):
+        build_planner(compose_config("ros", [f"model_path={forged}", "planner.allow_unsigned=true",
+                                             "paths.output_dir=."]))
+
+
+@pytest.mark.parametrize("field, value", [("resolution_m", 0.05),
+                                          ("footprint", {"radius_m": 0.5, "inflation_radius_m": 0.55}),
+                                          ("marker_encoding", "gaussian"), ("margin_m", 0.0), ("frame", None)])
+def test_an_edited_field_of_a_real_export_is_refused_by_name(real_export: Path, tmp_path: Path, field: str,
+                                                             value: object) -> None:
+    """Wrong 2: editing ``resolution_m`` 0.1 -> 0.05 (every plan rescaled) or the footprint to 0.5 m (a student of
+    a 0.105 m robot planning for a 0.5 m one) was trusted. Now every field a planner acts on is in the record, and
+    an edit is refused naming the field; so is one added since export."""
+    from spade.deploy.student_planner import Planner, PlannerConfigError
+    from spade.models.modelfile import ModelFileError, open_model
+
+    meta = _metadata(real_export)
+    if value is None:
+        del meta["data"][field]
+    else:
+        meta["data"][field] = value
+    edited = edited_copy(real_export, tmp_path / "edited.onnx", metadata=meta)
+    with pytest.raises(ModelFileError) as info:
+        open_model(edited)
+    assert f"data.{field}" in str(info.value) and "edited" in str(info.value) and str(edited) in str(info.value)
+    with pytest.raises(PlannerConfigError, match=f"data\\.{field}"):
+        Planner(edited, allow_unsigned=True)  # the opt-in is for files without a record, not for edited ones
+    meta = _metadata(real_export)
+    meta["data"]["extra_scale"] = 2.0
+    with pytest.raises(ModelFileError, match=r"data\.extra_scale .*was not in its metadata at export"):
+        open_model(edited_copy(real_export, tmp_path / "added.onnx", metadata=meta))
+
+
+def test_a_torchscript_export_is_signed_alike(tmp_path: Path) -> None:
+    """TorchScript exports carry the same record (their weight digest over the archive's code and tensors): an
+    edited field, or a file without the record, is refused as an ONNX one is."""
+    import zipfile
+
+    from spade.deploy.export import export_student
+    from spade.models.modelfile import ModelFileError, open_model
+
+    out = export_student(student_checkpoint(tmp_path / "s.ckpt"), tmp_path / "s.pt", "torchscript",
+                         latency_runs=0).out_path
+    meta = open_model(out).info
+    assert set(meta["integrity"]) == {"weights_sha256", "probe", "fields"}
+
+    def resaved(name: str, metadata: dict) -> Path:
+        """``out`` with its ``spade.json`` replaced, every other entry as it was."""
+        path = tmp_path / name
+        with zipfile.ZipFile(out) as src, zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as dst:
+            for item in src.infolist():
+                body = json.dumps(metadata).encode() if item.filename.endswith("/extra/spade.json") else src.read(item)
+                dst.writestr(item.filename, body)
+        return path
+
+    assert open_model(resaved("same.pt", meta)).info == meta  # re-written as it was: still the export
+    edited = json.loads(json.dumps(meta))
+    edited["data"]["resolution_m"] = 0.05
+    with pytest.raises(ModelFileError, match=r"data\.resolution_m \(= 0\.05\) is not the value signed at export"):
+        open_model(resaved("edited.pt", edited))
+    with pytest.raises(ModelFileError, match="carries no integrity record"):
+        open_model(resaved("unsigned.pt", {k: v for k, v in meta.items() if k != "integrity"}))
+
+
+def test_an_older_record_of_the_weights_opens_only_if_its_window_matches(real_export: Path, tmp_path: Path) -> None:
+    """An export from before the field digests (weights and probe only) still opens, with a warning naming what its
+    record does not cover; one whose window disagrees with the one its probe was recorded on is refused."""
+    from spade.models.modelfile import ModelFileError, open_model
+    from spade.models.onnx_check import UncheckedExportWarning
+
+    meta = _metadata(real_export)
+    meta["integrity"] = {k: v for k, v in meta["integrity"].items() if k != "fields"}
+    older = edited_copy(real_export, tmp_path / "older.onnx", metadata=meta)
+    with pytest.warns(UncheckedExportWarning, match=r"covers its weights and window size but not .*data\.resolution_m"):
+        open_model(older)
+    meta["data"]["image_size"] = [32, 32]
+    with pytest.raises(ModelFileError, match=r"data\.image_size .* is not the \[64, 64\] window .*python -m spade\.export"):
+        open_model(edited_copy(real_export, tmp_path / "older_edited.onnx", metadata=meta))
