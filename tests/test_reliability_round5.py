@@ -165,3 +165,60 @@ def test_an_older_record_of_the_weights_opens_only_if_its_window_matches(real_ex
     meta["data"]["image_size"] = [32, 32]
     with pytest.raises(ModelFileError, match=r"data\.image_size .* is not the \[64, 64\] window .*python -m spade\.export"):
         open_model(edited_copy(real_export, tmp_path / "older_edited.onnx", metadata=meta))
+
+
+# -- 2. poses, waypoints and alternatives: one value check for verify and every loader --------------------------------
+def poisoned(root: Path, name: str, value: float, rows: slice = slice(None), column: int = 0, n: int = 6) -> Path:
+    """A synthetic dataset whose ``name`` array holds ``value`` at ``rows`` (column ``column``), its checksums and
+    manifest checksum recomputed: only the value checks can refuse it."""
+    import hashlib
+
+    from factories import write_synthetic
+    from spade.data.format import MANIFEST_CHECKSUM, manifest_checksum
+
+    write_synthetic(root, n=n)
+    path = root / f"{name}.bin"
+    values = np.fromfile(path, dtype="<f4").reshape(n, -1)
+    values[rows, column] = value
+    values.tofile(path)
+    manifest = json.loads((root / "manifest.json").read_text())
+    manifest["files"][name]["sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
+    manifest[MANIFEST_CHECKSUM] = manifest_checksum(manifest)
+    (root / "manifest.json").write_text(json.dumps(manifest))
+    return path
+
+
+@pytest.mark.parametrize("name, value, column, says", [
+    ("pose", np.nan, 0, "holds NaN or inf"),  # wrong 3: every pose NaN
+    ("pose", np.inf, 2, "holds NaN or inf"),
+    ("pose", 1e30, 1, "a pose beyond 1e+06 m"),
+    ("pose", 5000.0, 2, "a yaw beyond 1000 rad"),
+    ("waypoints", 1e30, 0, "window pixel coordinates beyond 3200"),  # unclear: finite absurd data failing late
+])
+def test_verify_and_the_loaders_refuse_the_same_absurd_values(tmp_path: Path, name: str, value: float, column: int,
+                                                               says: str) -> None:
+    """Wrong 3: ``spade.data.verify`` reported OK for a dataset whose every pose is NaN (``spade.evaluate`` refused
+    it); finite absurd waypoints (1e30) failed late in evaluation and training. Now one check (value_problems)
+    refuses them in both, with the same line naming the file, the first instance and the fix."""
+    from spade.data import DatasetError, PathDataset
+    from spade.data.verify import verify
+
+    path = poisoned(tmp_path / "ds", name, value, column=column)
+    problems = verify(tmp_path / "ds")
+    assert problems and str(path) in problems[0] and says in problems[0] and "Re-generate the dataset" in problems[0]
+    with pytest.raises(DatasetError) as info:
+        PathDataset(tmp_path / "ds")
+    assert str(info.value) == problems[0]  # the same check, the same line
+
+
+def test_verify_command_refuses_nan_poses_in_one_list(tmp_path: Path, capsys) -> None:
+    """``python -m spade.data.verify`` (its main) exits 1 with the problem, no "OK"; a sound dataset is still OK."""
+    from factories import write_synthetic
+    from spade.data.verify import main
+
+    poisoned(tmp_path / "ds", "pose", np.nan)
+    assert main([str(tmp_path / "ds")]) == 1
+    out = capsys.readouterr().out
+    assert "OK" not in out and "pose.bin: instance 0 holds NaN or inf (6 instance(s) in all)" in out
+    write_synthetic(tmp_path / "sound", n=4)
+    assert main([str(tmp_path / "sound")]) == 0 and "OK" in capsys.readouterr().out
