@@ -287,3 +287,60 @@ def test_a_changed_condition_reruns_its_drives_and_the_page_drops_the_old_number
     client.log_metric(late.info.run_id, "closed_loop/ape_cm", 4.0)
     client.set_terminated(late.info.run_id, "FINISHED")
     assert table.fetch_drives(uri)[("bc", "heldout", "perturbed")].values("closed_loop/ape_cm") == [4.0, 4.0]
+
+
+# -- 4. spade.closed_loop and drive.* checked before any run opens ----------------------------------------------------
+@pytest.mark.parametrize("override, says", [
+    ("drive.scenarios=0", "drive.scenarios=0 is out of range"),
+    ("drive.baselines=shortest", "drive.baselines='shortest' is not a list of ['shortest', 'heading']"),
+    ("drive.commit_tol_cm=-1", "drive.commit_tol_cm=-1 is out of range"),
+    ("drive.mcap_episodes=-3", "drive.mcap_episodes=-3 is out of range"),
+    ("drive.follower.speed_mps=0", "drive.follower.speed_mps=0 is out of range"),
+    ("drive.noise_xy_m=abc", "drive.noise_xy_m='abc' is not a number"),
+])
+def test_drive_options_are_checked_before_the_evaluation(override: str, says: str) -> None:
+    """Unclear: ``drive.*`` options were checked after the MLflow run opened (a FAILED run left) or not at all
+    (``scenarios=0``, ``baselines=shortest`` read as the letter "s", a negative ``commit_tol_cm``,
+    ``mcap_episodes=-3``). Now ``spade.evaluate``'s config check refuses each in one line, before the checkpoint is
+    even read."""
+    from spade.config.drive_checks import check_drive_config
+    from spade.utils.config import compose_config
+    from spade.utils.errors import ConfigError
+
+    cfg = compose_config("evaluate", ["closed_loop=true", override])
+    with pytest.raises(ConfigError) as info:
+        check_drive_config(cfg)
+    assert says in str(info.value) and "; " in str(info.value)
+    check_drive_config(compose_config("evaluate", ["closed_loop=true"]))  # the defaults pass
+
+
+def test_evaluate_with_nothing_to_evaluate_is_refused_in_one_line(tmp_path: Path, run_main) -> None:
+    """``open_loop=false closed_loop=false`` was accepted; it is one line and exit 2 now, and no store is made."""
+    ckpt = student_checkpoint(tmp_path / "s.ckpt")
+    store = tmp_path / "mlflow.db"
+    code, err = run_main("spade.evaluate", [f"ckpt_path={ckpt}", "open_loop=false", "closed_loop=false",
+                                            f"paths.mlflow_tracking_uri=sqlite:///{store}"])
+    assert code == 2 and "leaves nothing to evaluate" in one_error_line(err)
+    assert not store.exists()
+    code, err = run_main("spade.evaluate", [f"ckpt_path={ckpt}", "closed_loop=true", "drive.scenarios=0",
+                                            f"paths.mlflow_tracking_uri=sqlite:///{store}"])
+    assert code == 2 and "drive.scenarios=0 is out of range" in one_error_line(err) and not store.exists()
+
+
+@pytest.mark.parametrize("override, says", [
+    ("sources=[{table: guidance}]", "sources[0]="),
+    ("sources=[{table: guidance, row: \"a'b\"}]", "sources[0].row=\"a'b\" is not a row name"),
+    ("sources=guidance", "sources='guidance' is not a non-empty list"),
+    ("datasets.heldout.scenarios=0", "datasets.heldout.scenarios=0 is out of range"),
+    ("conditions.perturbed.noise_xy_m=-0.1", "conditions.perturbed.noise_xy_m=-0.1 is out of range"),
+    ("+conditions.perturbed.nois_xy_m=0.1", "conditions.perturbed.nois_xy_m: no such drive setting"),
+    ("+conditions.odd.baselines=shortest", "conditions.odd.baselines='shortest' is not a list"),
+])
+def test_closed_loop_is_checked_before_any_drive(tmp_path: Path, run_main, override: str, says: str) -> None:
+    """Unclear: ``spade.closed_loop`` had no preflight: malformed ``sources``, a quote in a row name, a bad
+    condition gave tracebacks or exit 0. Now one line and exit 2, before any store is opened."""
+    store = tmp_path / "mlflow.db"
+    code, err = run_main("spade.closed_loop", [override, f"tracking_uri=sqlite:///{store}"])
+    assert code == 2, err
+    assert says in one_error_line(err)
+    assert not store.exists()
