@@ -98,16 +98,22 @@ def drive_settings(cfg: Any, dataset: str, data: str, condition: str) -> dict[st
     (``dataset``, its ``data`` config and scale, ``drive.scenarios``), the ``condition`` with every effective ``drive``
     option (noise, offsets, follower, planner options, baselines, ...; :data:`OUTPUT_ONLY` left out), whether the
     open-loop test runs, and the code (:func:`spade.utils.provenance.commit`, else the package version)."""
+    from importlib.metadata import PackageNotFoundError, version
+
     from omegaconf import OmegaConf
 
-    import spade
     from spade.utils.provenance import commit
+
+    try:
+        code = commit() or f"spade {version('spade')}"
+    except PackageNotFoundError:  # neither a checkout nor an install: the code is unknown, and recorded so
+        code = "unknown"
 
     drive = OmegaConf.to_container(cfg.drive, resolve=True)
     return {"dataset": dataset, "data": data,
             "scale": str(OmegaConf.select(cfg, "scale.name", default="")), "condition": condition,
             "drive": {k: v for k, v in dict(drive).items() if k not in OUTPUT_ONLY},  # type: ignore[arg-type]
-            "open_loop": bool(cfg.get("open_loop")), "code": commit() or f"spade {spade.__version__}"}
+            "open_loop": bool(cfg.get("open_loop")), "code": code}
 
 
 def drive_keys(settings: Mapping[str, Any], source_run: str, seed: int) -> tuple[str, str]:
