@@ -4,7 +4,8 @@
   ``spade.report``'s pages, ``spade.bench``'s JSON), and an empty path is refused instead of the filesystem root;
 - a dataset manifest without its ``manifest_sha256`` is refused by ``verify`` and by loading;
 - an ONNX graph carrying a copy of a real export's ``spade`` metadata is refused by the planner (torch and
-  torch-free), ``spade.plan`` and the sketch server; an export from before the check opens with a warning.
+  torch-free), ``spade.plan`` and the sketch server; an export from before the check is refused unless allowed
+  (``allow_unsigned``, round 5).
 """
 
 from __future__ import annotations
@@ -245,7 +246,7 @@ def test_a_forged_onnx_graph_is_refused_wherever_a_student_is_opened(real_export
     from spade.models.onnx_check import UncheckedExportWarning
 
     meta = _metadata(real_export)
-    assert set(meta["integrity"]) == {"weights_sha256", "probe"} and meta["integrity"]["probe"]["seed"] == 0
+    assert set(meta["integrity"]) == {"weights_sha256", "probe", "fields"} and meta["integrity"]["probe"]["seed"] == 0
     with warnings.catch_warnings():
         warnings.simplefilter("error", UncheckedExportWarning)
         assert open_model(real_export)(__import__("numpy").zeros((2, 3, 64, 64), "float32")).shape == (2, 1, 64, 64)
@@ -275,19 +276,22 @@ def test_a_forged_onnx_graph_is_refused_wherever_a_student_is_opened(real_export
         open_model(probe_only)
 
 
-def test_an_export_from_before_the_check_opens_with_a_warning(real_export: Path, tmp_path: Path) -> None:
-    """Files exported before the digest and probe were recorded still open, with a warning that they cannot be
-    checked and how to re-export them; their shapes are still checked (an old-style forged Identity graph)."""
+def test_an_export_from_before_the_check_opens_only_when_allowed(real_export: Path, tmp_path: Path) -> None:
+    """Files exported before the digest and probe were recorded opened with a warning; since round 5 they are
+    refused unless their user opts in (``allow_unsigned``), and then open with a warning that they are unchecked
+    and how to re-export them; their shapes are still checked (an old-style forged Identity graph)."""
     from spade.models.modelfile import ModelFileError, open_model
     from spade.models.onnx_check import UncheckedExportWarning
 
     old_meta = {k: v for k, v in _metadata(real_export).items() if k != "integrity"}
     old = edited_copy(real_export, tmp_path / "old.onnx", metadata=old_meta)
-    with pytest.warns(UncheckedExportWarning, match=r"old\.onnx .*cannot be checked.*python -m spade\.export"):
-        runner = open_model(old)
+    with pytest.raises(ModelFileError, match=r"old\.onnx carries no integrity record.*allow_unsigned=true"):
+        open_model(old)
+    with pytest.warns(UncheckedExportWarning, match=r"old\.onnx .*opened unchecked.*python -m spade\.export"):
+        runner = open_model(old, allow_unsigned=True)
     assert runner.info == old_meta
     with pytest.raises(ModelFileError, match="its graph's output has shape"):
-        open_model(spade_onnx(tmp_path / "old_identity.onnx", old_meta))
+        open_model(spade_onnx(tmp_path / "old_identity.onnx", old_meta), allow_unsigned=True)
 
 
 def test_spade_plan_and_the_sketch_server_refuse_a_forged_model(real_export: Path, tmp_path: Path,

@@ -66,6 +66,9 @@ def validate_evaluate_config(cfg: DictConfig) -> None:
                fix=": the seed of the training run the checkpoint comes from (null: none)")
     for key in ("open_loop", "closed_loop"):
         check_bool(cfg, key)
+    from spade.config.drive_checks import check_drive_config
+
+    check_drive_config(cfg)  # drive.* typed and ranged, and something to evaluate, before any run opens
     check_int(cfg, "mcap_instances", 1, fix=", e.g. mcap_instances=64")
     ckpt = get(cfg, "ckpt_path")
     fix = "pass a student or expert checkpoint written by python -m spade.train"

@@ -31,6 +31,7 @@ def validate_plan_config(cfg: DictConfig) -> None:
     check_bool(cfg, "overwrite")
     output_file("out", get(cfg, "out"), inputs, "set out=plan.png (a new picture file)", (".png",),
                  get(cfg, "overwrite"))
+    check_bool(cfg, "planner.allow_unsigned")
     check_choice(cfg, "planner.far_goal", ["fail", "clip"])
     check_number(cfg, "planner.threshold", 0, 1, low_open=True, high_open=True)
     check_int(cfg, "planner.num_waypoints", 2)

@@ -39,35 +39,74 @@ def check_files(manifest: Manifest, checksums: bool = True) -> None:
                 )
 
 
-def check_values(manifest: Manifest) -> None:
-    """Refuse arrays that are not finite where they must be: the polylines (``waypoints``), the poses and the
-    alternatives (a NaN row is an empty slot, but a row is all NaN or all finite, and never inf). A poisoned
-    polyline would score any prediction perfectly (NaN APE counted as no error) or break the loss; checksums do not
-    catch it when they were recomputed. Raises :class:`DatasetError` naming the file, the first bad instance and
-    the fix."""
+WINDOW_SPAN_LIMIT = 100
+"""Window pixel coordinates (``waypoints``, ``alternatives``) may lie at most this many window sizes from the
+window: a polyline of the window lies within it (``spade.data.verify`` checks that too); one 100 windows away is
+no demonstration but absurd data (1e30) that would overflow the metrics late in evaluation or training."""
+POSE_LIMIT_M = 1e6
+"""The largest |x| or |y| of a pose, in map metres (1000 km): no occupancy map is larger, and beyond it float32
+positions no longer resolve a 0.05 m pixel."""
+YAW_LIMIT_RAD = 1e3
+"""The largest |yaw| of a pose, in radians (a heading is an angle: a few multiples of pi at most)."""
+
+
+def value_problems(manifest: Manifest) -> list[str]:
+    """The arrays that are not finite, or absurd, where they must be sound: the polylines (``waypoints``), the
+    poses and the alternatives (a NaN row is an empty slot, but a row is all NaN or all finite, and never inf).
+    Coordinates are bounded too: window pixels within :data:`WINDOW_SPAN_LIMIT` window sizes, pose positions
+    within :data:`POSE_LIMIT_M` and yaws within :data:`YAW_LIMIT_RAD`. A poisoned polyline would score any
+    prediction perfectly (NaN APE counted as no error) or break the loss; checksums do not catch it when they
+    were recomputed. One problem per array (its file, first bad instance and count, the fix). The one check of
+    values: :class:`PathDataset` (every loader) and ``spade.data.verify`` both call it."""
     n = manifest.num_instances
+    problems: list[str] = []
     if n == 0:
-        return
+        return problems
     fix = "Re-generate the dataset (python -m spade.annotate ...) or restore the file from a copy."
+    span = WINDOW_SPAN_LIMIT * max(manifest.height, manifest.width)
     for name in ("waypoints", "pose", "alternatives"):
         spec = manifest.specs.get(name)
         if spec is None:
             continue
         path = manifest.root / spec.filename
         values = np.memmap(path, dtype=spec.dtype, mode="r", shape=(n, *spec.row_shape))
+        first, count, what = -1, 0, ""
         for start in range(0, n, 4096):
-            block = np.asarray(values[start:start + 4096])
+            block = np.asarray(values[start:start + 4096], dtype=np.float64)
             if name == "alternatives":
                 finite = np.isfinite(block).all(axis=(-2, -1))
                 empty = np.isnan(block).all(axis=(-2, -1))
                 bad = ~(finite | empty).all(axis=1)
+                kind = "a row that is partly NaN, or holds inf"
             else:
                 bad = ~np.isfinite(block.reshape(len(block), -1)).all(axis=1)
+                kind = "NaN or inf"
+            if not bad.any():  # finite (or empty slots): within bounds?
+                with np.errstate(invalid="ignore"):
+                    if name == "pose":
+                        bad = (np.abs(block[:, :2]) > POSE_LIMIT_M).any(axis=1) | (np.abs(block[:, 2]) > YAW_LIMIT_RAD)
+                        kind = (f"a pose beyond {POSE_LIMIT_M:g} m from its map's origin, or a yaw beyond "
+                                f"{YAW_LIMIT_RAD:g} rad")
+                    else:
+                        flat = np.nan_to_num(block.reshape(len(block), -1), nan=0.0)
+                        bad = (np.abs(flat) > span).any(axis=1)
+                        kind = (f"window pixel coordinates beyond {span:g} ({WINDOW_SPAN_LIMIT} times the "
+                                f"{manifest.height} x {manifest.width} window)")
             if bad.any():
-                first = start + int(np.flatnonzero(bad)[0])
-                what = ("a row that is partly NaN, or holds inf" if name == "alternatives" else "NaN or inf")
-                raise DatasetError(f"{path}: instance {first} holds {what} ({int(bad.sum())} instance(s) of this "
-                                   f"block of {len(block)}): the file's values are not a dataset's. {fix}")
+                if first < 0:
+                    first, what = start + int(np.flatnonzero(bad)[0]), kind
+                count += int(bad.sum())
+        if first >= 0:
+            problems.append(f"{path}: instance {first} holds {what} ({count} instance(s) in all): the file's values "
+                            f"are not a dataset's. {fix}")
+    return problems
+
+
+def check_values(manifest: Manifest) -> None:
+    """Raise :class:`DatasetError` with the first of :func:`value_problems` (the loaders' check)."""
+    problems = value_problems(manifest)
+    if problems:
+        raise DatasetError(problems[0])
 
 
 class PathDataset(Dataset):

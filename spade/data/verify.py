@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spade.data.path_dataset import check_files
+from spade.data.path_dataset import check_files, value_problems
 from spade.data.format import MANIFEST, DatasetError, Manifest, read_manifest
 from spade.data.packing import unpack_bits, unpack_two_bit
 from spade.utils.errors import exit_on_errors
@@ -52,9 +52,7 @@ def check_domains(manifest: Manifest) -> list[str]:
             if len(empty):
                 problems.append(f"{c}: empty channel in instances {_first(empty)}")
         wp = np.asarray(arrays["waypoints"][lo:hi], dtype=np.float64)
-        finite = np.isfinite(wp).all(axis=(1, 2))
-        if not finite.all():
-            problems.append(f"waypoints: NaN or inf in instances {_first(ids[~finite])}")
+        if not np.isfinite(wp).all():  # reported by value_problems, the loaders' check
             continue
         inside = (wp[..., 0] >= -0.5) & (wp[..., 0] <= w - 0.5) & (wp[..., 1] >= -0.5) & (wp[..., 1] <= h - 0.5)
         outside = ids[~inside.all(axis=1)]
@@ -71,13 +69,15 @@ def check_domains(manifest: Manifest) -> list[str]:
 
 
 def verify(root: str | Path) -> list[str]:
-    """All checks of a dataset directory; returns the list of problems (empty when sound)."""
+    """All checks of a dataset directory; returns the list of problems (empty when sound): the files, the values
+    the loaders check (:func:`spade.data.path_dataset.value_problems`: NaN, inf, absurd poses, waypoints and
+    alternatives) and the value domains."""
     try:
         manifest = read_manifest(root)
         check_files(manifest, checksums=True)
     except DatasetError as exc:
         return [str(exc)]
-    return check_domains(manifest)
+    return value_problems(manifest) + check_domains(manifest)
 
 
 def check_target(root: Path) -> None:

@@ -6,8 +6,10 @@ network config, the training windows with their robot frame) plus the export's o
 (:func:`spade.models.modelfile.export_metadata`): the ONNX ``metadata_props`` entry ``spade``, or the TorchScript
 extra file ``spade.json``. :func:`spade.models.modelfile.read_metadata` reads either back and
 :func:`spade.models.modelfile.open_model` runs either (and checkpoints). An ONNX export's metadata also records a
-digest of its weights and its output on a fixed probe input (``integrity``, :mod:`spade.models.onnx_check`), which
-every reader checks, so that a graph carrying a copy of another export's metadata is refused.
+digest of its weights, its output on a fixed probe input and a digest of every metadata field a planner acts on
+(``integrity``, :mod:`spade.models.onnx_check`), which every reader checks, so that a graph carrying a copy of
+another export's metadata, or an edited field (the resolution, the footprint), is refused. A TorchScript export
+carries the same record (its weight digest taken over the archive's code and tensors).
 
 ONNX goes through ``torch.onnx.export(..., dynamo=False)``, the TorchScript-based exporter. Since torch 2.9 the
 default is the torch.export-based exporter, which needs the ``onnxscript`` package; the student is a static
@@ -42,7 +44,14 @@ from spade.models.modelfile import (
     open_model,
     read_metadata,
 )
-from spade.models.onnx_check import INTEGRITY_KEY, PROBE_SEED, integrity_record, probe_record, probe_state
+from spade.models.onnx_check import (
+    INTEGRITY_KEY,
+    PROBE_SEED,
+    archive_sha256,
+    integrity_record,
+    probe_record,
+    probe_state,
+)
 
 FORMATS = ("onnx", "torchscript")
 SUFFIXES = {"onnx": ".onnx", "torchscript": ".pt"}
@@ -109,7 +118,7 @@ def export_net(net: nn.Module, out_path: str | Path, fmt: str, image_size: Seque
     out.parent.mkdir(parents=True, exist_ok=True)
     net = net.eval()
     example = torch.zeros(1, int(getattr(net, "in_channels", 3)), h, w, device=next(net.parameters()).device)
-    text = json.dumps(metadata)
+    metadata = json.loads(json.dumps(metadata))  # as a reader parses it: the field digests are of these values
     tmp = out.with_name(f".{out.stem}.{os.getpid()}.tmp{out.suffix}")
     try:
         with warnings.catch_warnings():
@@ -119,8 +128,7 @@ def export_net(net: nn.Module, out_path: str | Path, fmt: str, image_size: Seque
             if fmt == "onnx":
                 _export_onnx(net, example, tmp, metadata, opset)
             else:
-                traced = torch.jit.freeze(torch.jit.trace(net, example, check_trace=False))
-                torch.jit.save(traced, str(tmp), _extra_files={TORCHSCRIPT_METADATA_FILE: text})
+                _export_torchscript(net, example, tmp, metadata)
         tmp.replace(out)
     finally:
         tmp.unlink(missing_ok=True)
@@ -138,11 +146,24 @@ def _export_onnx(net: nn.Module, example: torch.Tensor, path: Path, metadata: di
     )
     model = onnx.load(str(path))
     # The digest of the bytes onnx.save writes below (adding metadata_props leaves the graph's serialization as is)
-    record = integrity_record(model.SerializeToString(), _probe(net, tuple(example.shape)))
+    record = integrity_record(model.SerializeToString(), _probe(net, tuple(example.shape)), metadata)
     entry = model.metadata_props.add()
     entry.key, entry.value = ENTRY_KEY, json.dumps({**metadata, INTEGRITY_KEY: record})
     onnx.checker.check_model(model)
     onnx.save(model, str(path))
+
+
+def _export_torchscript(net: nn.Module, example: torch.Tensor, path: Path, metadata: dict[str, Any]) -> None:
+    """Write the traced, frozen module with ``metadata`` plus its ``integrity`` record in ``spade.json``. The
+    archive's digest (:func:`~spade.models.onnx_check.archive_sha256`) leaves the extra files out, so it is taken
+    from a first save and checked on the second, the one carrying the record."""
+    traced = torch.jit.freeze(torch.jit.trace(net, example, check_trace=False))
+    torch.jit.save(traced, str(path), _extra_files={TORCHSCRIPT_METADATA_FILE: json.dumps(metadata)})
+    record = integrity_record(archive_sha256(path), _probe(net, tuple(example.shape)), metadata)
+    torch.jit.save(traced, str(path), _extra_files={TORCHSCRIPT_METADATA_FILE: json.dumps({**metadata,
+                                                                                           INTEGRITY_KEY: record})})
+    if archive_sha256(path) != record["weights_sha256"]:  # pragma: no cover - torch's serialization changed
+        raise ExportError(f"{path}: torch.jit.save wrote another archive the second time; export format=onnx")
 
 
 def _probe(net: nn.Module, shape: Sequence[int]) -> dict[str, Any]:

@@ -45,7 +45,7 @@ class OnnxRunner:
     format, runtime, net = "onnx", "onnxruntime", None
 
     def __init__(self, path: str | Path, device: str = "cpu", threads: int | None = None,
-                 role: str | None = "student") -> None:
+                 role: str | None = "student", allow_unsigned: bool = False) -> None:
         self.path = Path(path).expanduser()
         if not self.path.is_file():
             raise ModelFileError(f"{self.path} does not exist; pass an ONNX student from python -m spade.export")
@@ -62,7 +62,7 @@ class OnnxRunner:
         if role is not None and self.info.get("role") != role:
             raise ModelFileError(f"{self.path} has role {self.info.get('role')!r}, not {role!r}: pass a student export")
         check_onnx_student(self.path, self.info, self.path.read_bytes, self._session.input.shape,
-                           self._session.output.shape, self, ModelFileError)
+                           self._session.output.shape, self, ModelFileError, allow_unsigned)
 
     def __call__(self, states: np.ndarray) -> np.ndarray:
         return self._session(states)
@@ -74,8 +74,8 @@ class OnnxRunner:
 
 
 def open_model(path: str | Path, device: str = "cpu", threads: int | None = None,
-               role: str | None = "student") -> OnnxRunner:
-    return OnnxRunner(path, device, threads, role)
+               role: str | None = "student", allow_unsigned: bool = False) -> OnnxRunner:
+    return OnnxRunner(path, device, threads, role, allow_unsigned)
 
 
 def robot_frame(info: Mapping[str, Any], path: str | Path) -> dict[str, Any]:

@@ -433,6 +433,8 @@ class Planner(WindowPlanner):
             records the footprint its demonstrations assumed (``data.footprint``, :attr:`footprint`); a robot that
             differs is refused, or only warned about with ``footprint_mismatch="warn"``.
         footprint_mismatch: ``refuse`` (default) or ``warn``.
+        allow_unsigned: open an export that carries no integrity record (weight digest, parity probe, the digests
+            of the fields above), with a warning, instead of refusing it (:mod:`spade.models.onnx_check`).
     """
 
     def __init__(
@@ -457,6 +459,7 @@ class Planner(WindowPlanner):
         robot_radius_m: float | None = None,
         inflation_radius_m: float | None = None,
         footprint_mismatch: str = "refuse",
+        allow_unsigned: bool = False,
     ) -> None:
         path = Path(model).expanduser()
         if not path.is_file():
@@ -464,7 +467,9 @@ class Planner(WindowPlanner):
                                     "python -m spade.train or its export (.onnx / .pt) from python -m spade.export")
         self.path = path
         try:
-            self.backend = open_model(path, device, threads, role="student")
+            if not isinstance(allow_unsigned, bool):
+                raise PlannerConfigError(f"allow_unsigned must be true or false, got {allow_unsigned!r}")
+            self.backend = open_model(path, device, threads, role="student", allow_unsigned=allow_unsigned)
             frame = RobotFrame.from_json(robot_frame(self.backend.info, path))
         except UnsafeModelFileError:
             raise

@@ -5,7 +5,11 @@ rows (by default the guidance table's BC and Cond-DBC rows at equal size, and th
 checkpoint is driven by ``spade.evaluate closed_loop=true`` on each scenario set (the held-out map, the unseen real
 maps) under each condition (clean; perturbed: localisation noise and an initial offset), each drive a run of its own
 in the MLflow experiment ``closed_loop`` named ``<row>__<dataset>__<condition>``, carrying its source run and seed.
-A drive that already finished is not run again (the launch resumes).
+A drive is keyed by its full settings (:func:`drive_settings`: the source run and seed, the scenario set, the
+condition's effective ``drive`` options with the planner's, open loop or not, the code's commit), recorded with it
+(tags ``drive_key``, ``condition_key``, ``drive_settings``): a drive that already finished with the same settings is
+not run again (the launch resumes), and a changed setting runs it again. The page shows, in each cell, only the
+drives of its latest settings, so it never keeps old numbers under a changed condition.
 
 Report (``python -m spade.report table=closed_loop``): per dataset and condition, every row's closed-loop figures as
 mean +/- sd over its seeds beside the baselines driven in the same runs; tests (Welch's between rows, paired between
@@ -16,6 +20,7 @@ a row and a baseline over the seeds) with Holm's correction over the page; and w
 from __future__ import annotations
 
 import datetime
+import json
 import logging
 import math
 import time
@@ -81,18 +86,56 @@ def source_runs(client: Any, table: str, row: str, scale: str | None) -> list[An
     return with_predictor_figures(client, list(by_seed.values()))  # its baselines' figures, from its child runs
 
 
-def _finished_drives(client: Any) -> set[tuple[str, str]]:
+DRIVE_KEY, CONDITION_KEY, DRIVE_SETTINGS = "drive_key", "condition_key", "drive_settings"
+"""Tags of a drive: the fingerprint of its full settings, of its settings less the source run and seed (shared by
+a cell's seeds), and the settings themselves (JSON)."""
+OUTPUT_ONLY = ("pictures", "mcap", "mcap_episodes")
+"""``drive`` options that change what a drive writes beside its figures, not the figures: outside its key."""
+
+
+def drive_settings(cfg: Any, dataset: str, data: str, condition: str) -> dict[str, Any]:
+    """What a drive's figures depend on, from its composed ``spade.evaluate`` config ``cfg``: the scenario set
+    (``dataset``, its ``data`` config and scale, ``drive.scenarios``), the ``condition`` with every effective ``drive``
+    option (noise, offsets, follower, planner options, baselines, ...; :data:`OUTPUT_ONLY` left out), whether the
+    open-loop test runs, and the code (:func:`spade.utils.provenance.commit`, else the package version)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    from omegaconf import OmegaConf
+
+    from spade.utils.provenance import commit
+
+    try:
+        code = commit() or f"spade {version('spade')}"
+    except PackageNotFoundError:  # neither a checkout nor an install: the code is unknown, and recorded so
+        code = "unknown"
+
+    drive = OmegaConf.to_container(cfg.drive, resolve=True)
+    return {"dataset": dataset, "data": data,
+            "scale": str(OmegaConf.select(cfg, "scale.name", default="")), "condition": condition,
+            "drive": {k: v for k, v in dict(drive).items() if k not in OUTPUT_ONLY},  # type: ignore[arg-type]
+            "open_loop": bool(cfg.get("open_loop")), "code": code}
+
+
+def drive_keys(settings: Mapping[str, Any], source_run: str, seed: int) -> tuple[str, str]:
+    """(drive key, condition key): fingerprints of ``settings`` with and without the source run and seed."""
+    from spade.data.fingerprint import fingerprint
+
+    return fingerprint({**settings, "source_run": source_run, "seed": int(seed)}, 16), fingerprint(settings, 16)
+
+
+def _finished_drives(client: Any) -> set[str]:
+    """The drive keys of the finished drives (a drive from before keys has none: it is run again)."""
     experiment = client.get_experiment_by_name(CLOSED_LOOP_TABLE)
     if experiment is None:
         return set()
     runs = client.search_runs([experiment.experiment_id], "attributes.status = 'FINISHED'", max_results=5000)
-    return {(r.info.run_name, r.data.tags.get("source_run", "")) for r in runs}
+    return {r.data.tags[DRIVE_KEY] for r in runs if r.data.tags.get(DRIVE_KEY)}
 
 
 def launch(cfg: Any) -> list[dict[str, Any]]:
     """Drive every (source run, dataset, condition) not yet driven (module docstring); returns what ran."""
     from spade.tracking.client import mlflow_client
-    from omegaconf import OmegaConf
+    from omegaconf import OmegaConf, open_dict
 
     from spade.experiments.evaluation import evaluate
     from spade.utils.config import compose_config
@@ -113,14 +156,7 @@ def launch(cfg: Any) -> list[dict[str, Any]]:
             for dataset, data_cfg in cfg.datasets.items():
                 for condition, settings in cfg.conditions.items():
                     name = f"{row}__{dataset}__{condition}"
-                    if (name, run.info.run_id) in done:
-                        continue
-                    ckpt = ckpt or _best_checkpoint(client, run, cache)
-                    if ckpt is None:
-                        log.warning("closed loop: run %s of %s has no checkpoint artifact; skipped", run.info.run_id,
-                                    row)
-                        break
-                    overrides = [f"ckpt_path={ckpt}", f"data={data_cfg.data}", f"scale={cfg.scale.name}",
+                    overrides = [f"data={data_cfg.data}", f"scale={cfg.scale.name}",
                                  f"run_name={name}", f"tags.table={CLOSED_LOOP_TABLE}", f"tags.row={name}",
                                  f"+tags.source_run={run.info.run_id}", f"+tags.source_row={row}",
                                  f"+tags.dataset={dataset}", f"+tags.condition={condition}", f"seed={seed}",
@@ -129,8 +165,22 @@ def launch(cfg: Any) -> list[dict[str, Any]]:
                                  f"paths.output_dir={cfg.paths.output_dir}/{name}/{seed}",
                                  f"paths.mlflow_tracking_uri={cfg.tracking_uri}"]
                     overrides += [f"drive.{k}={v}" for k, v in OmegaConf.to_container(settings).items()]
+                    wanted = drive_settings(compose_config("evaluate", overrides), dataset, str(data_cfg.data),
+                                            condition)
+                    key, condition_key = drive_keys(wanted, run.info.run_id, seed)
+                    if key in done:
+                        continue
+                    ckpt = ckpt or _best_checkpoint(client, run, cache)
+                    if ckpt is None:
+                        log.warning("closed loop: run %s of %s has no checkpoint artifact; skipped", run.info.run_id,
+                                    row)
+                        break
+                    drive_cfg = compose_config("evaluate", [*overrides, f"ckpt_path={ckpt}"])
+                    with open_dict(drive_cfg):  # set, not typed on a command line: no quoting of the JSON
+                        drive_cfg.tags.update({DRIVE_KEY: key, CONDITION_KEY: condition_key,
+                                               DRIVE_SETTINGS: json.dumps(wanted, sort_keys=True)})
                     t0 = time.perf_counter()
-                    metrics = evaluate(compose_config("evaluate", overrides))
+                    metrics = evaluate(drive_cfg)
                     ran.append({"run": name, "seed": seed, "seconds": time.perf_counter() - t0,
                                 "success_rate": metrics.get("closed_loop/success_rate")})
                     print(f"closed loop: {name} seed {seed}: success {metrics.get('closed_loop/success_rate'):.0%}, "
@@ -167,12 +217,15 @@ def fetch_drives(tracking_uri: str, scale: str | None = None) -> dict[tuple[str,
     query = "attributes.status = 'FINISHED'" + (f" and tags.scale = '{scale}'" if scale else "")
     runs = client.search_runs([experiment.experiment_id], query, order_by=["attributes.end_time DESC"],
                               max_results=5000)
+    settings: dict[tuple[str, str, str], str | None] = {}
     for run in runs:
         tags = run.data.tags
         if tags.get("mlflow.parentRunId") or "source_row" not in tags:
             continue
         key = (tags["source_row"], tags.get("dataset", "?"), tags.get("condition", "?"))
         cell = cells.setdefault(key, Cell(*key))
+        if settings.setdefault(key, tags.get(CONDITION_KEY)) != tags.get(CONDITION_KEY):
+            continue  # a drive under the condition's earlier settings: never shown beside the latest
         seed = int(float(run.data.params.get("cfg/seed", -1)))
         if seed in cell.seeds:
             continue  # an older drive of the same seed

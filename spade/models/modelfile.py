@@ -22,8 +22,9 @@ runs. :func:`load_lightning` applies the same rule to Lightning's ``load_from_ch
 :func:`safe_loading` to loads made inside other code (``Trainer.fit`` / ``Trainer.test`` with a ``ckpt_path``).
 
 :func:`open_model` opens any of the three kinds of file (checkpoint, ONNX, TorchScript) as one callable,
-``ModelRunner(states) -> logits``, with one device policy (:func:`resolve_device`). An ONNX file must be the export
-its metadata describes (shapes, weight digest, parity probe: :mod:`spade.models.onnx_check`).
+``ModelRunner(states) -> logits``, with one device policy (:func:`resolve_device`). An export (ONNX or TorchScript)
+must be the one its metadata describes (shapes, weight digest, parity probe, the digests of the fields a planner
+acts on: :mod:`spade.models.onnx_check`); one without that record is refused unless ``allow_unsigned``.
 
 This module sits on the models floor: it imports torch, numpy, :mod:`spade.models.builders` and
 :mod:`spade.models.onnx_session` (the ONNX Runtime set-up both ONNX runners share) only (onnx, onnxruntime and
@@ -424,11 +425,12 @@ class ModelRunner:
 
     ``states`` (N, 3, H, W) float32 as numpy or torch; returns numpy float32 logits (N, 1, H, W). Attributes:
     ``path``, ``format`` (checkpoint / onnx / torchscript), ``runtime``, ``device``, ``info`` (the ``spade``
-    entry or the export metadata), ``net`` (the rebuilt network, checkpoints only).
+    entry or the export metadata), ``net`` (the rebuilt network, checkpoints only). ``allow_unsigned``: open an
+    export without an integrity record (with a warning) instead of refusing it (:mod:`spade.models.onnx_check`).
     """
 
     def __init__(self, path: str | Path, device: str = "cpu", threads: int | None = None,
-                 role: str | None = "student") -> None:
+                 role: str | None = "student", allow_unsigned: bool = False) -> None:
         self.path = _existing(path)
         self.format = file_format(self.path)
         self.runtime = RUNTIMES[self.format]
@@ -444,20 +446,25 @@ class ModelRunner:
         if self.format == "onnx":
             self._session = OnnxSession(self.path, device, threads, ModelFileError)
             self.device = self._session.device
-            self._check_export()
         else:
             self.device = resolve_device(device)
             with warnings.catch_warnings():
                 warnings.filterwarnings("ignore", category=DeprecationWarning)  # TorchScript is deprecated in 2.x
                 self._module = torch.jit.load(str(self.path), map_location=self.device)
+        self._check_export(allow_unsigned)
 
-    def _check_export(self) -> None:
-        """An ONNX file is the export its metadata describes (:mod:`spade.models.onnx_check`): shapes, weight
-        digest, parity probe; else :class:`ModelFileError`. Exports from before the records: a warning."""
-        from spade.models.onnx_check import check_onnx_student
+    def _check_export(self, allow_unsigned: bool) -> None:
+        """An export is the one its metadata describes (:mod:`spade.models.onnx_check`): shapes, weight digest,
+        parity probe, covered fields; else :class:`ModelFileError`. No record: refused unless ``allow_unsigned``."""
+        from spade.models.onnx_check import archive_sha256, check_student_export, weights_sha256
 
-        check_onnx_student(self.path, self.info, self.path.read_bytes, self._session.input.shape,
-                           self._session.output.shape, self, ModelFileError)
+        if self.format == "onnx":
+            shapes = self._session.input.shape, self._session.output.shape
+            weights = lambda: weights_sha256(self.path.read_bytes())  # noqa: E731
+        else:  # TorchScript keeps no shapes: the probe's output shape stands for them
+            shapes = tuple((self.info.get(k) or {}).get("shape") for k in ("input", "output"))
+            weights = lambda: archive_sha256(self.path)  # noqa: E731
+        check_student_export(self.path, self.info, weights, *shapes, self, ModelFileError, allow_unsigned)
 
     def __call__(self, states: np.ndarray | torch.Tensor) -> np.ndarray:
         if self.format == "onnx":
@@ -474,9 +481,9 @@ class ModelRunner:
 
 
 def open_model(path: str | Path, device: str = "cpu", threads: int | None = None,
-               role: str | None = "student") -> ModelRunner:
+               role: str | None = "student", allow_unsigned: bool = False) -> ModelRunner:
     """Open a checkpoint, ONNX or TorchScript student as a :class:`ModelRunner` (see there)."""
-    return ModelRunner(path, device, threads, role)
+    return ModelRunner(path, device, threads, role, allow_unsigned)
 
 
 def _import(name: str) -> Any:

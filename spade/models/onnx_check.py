@@ -9,16 +9,29 @@ metadata's ``integrity`` entry (:func:`integrity_record`):
   computes it too;
 - ``probe``: the network's output on a fixed input (:func:`probe_state`, batch 1, the model's input shape, made
   from ``seed`` by integer arithmetic alone, so that numpy versions cannot change it), kept compactly: its shape,
-  mean, sd, min and max, and :data:`PROBE_SAMPLES` evenly spaced values (float32, base64).
+  mean, sd, min and max, and :data:`PROBE_SAMPLES` evenly spaced values (float32, base64);
+- ``fields``: a digest of each metadata field a planner acts on (:func:`fields_record`, :func:`covered_fields`):
+  the role, the network config, the tensor shapes, the format, and every entry of ``data`` (window size and
+  resolution, robot frame, input and marker encodings, disc radius, goal margin, footprint), so that editing one
+  (``data.resolution_m`` 0.1 -> 0.05 would rescale every plan) is refused, naming the field.
+
+A TorchScript export carries the same record in its ``spade.json``, its ``weights_sha256`` taken over the
+archive's code and tensors (:func:`archive_sha256`).
 
 Opening an ONNX student (:class:`spade.models.modelfile.ModelRunner`, :class:`spade.deploy.onnx_runtime.OnnxRunner`)
 runs :func:`check_onnx_student`: the graph's input and output shapes against the metadata's, the weight digest
 recomputed, and the probe run and compared (:data:`PROBE_ATOL`, :data:`PROBE_RTOL`: runtimes and devices agree far
-closer than that, another network does not). A mismatch is refused, naming the file: it was not written by
-``spade.export``. A file exported before these were recorded opens with an :class:`UncheckedExportWarning`.
+closer than that, another network does not), and the covered fields' digests compared. A mismatch is refused,
+naming the file (and the field): it was not written by ``spade.export``, or was changed since.
 
-This is a consistency check, not a signature: it refuses a graph that carries another export's metadata, and a
-file damaged or edited since its export; whoever rewrites the metadata itself can rewrite its records as well.
+A file trusted only as far as it is signed: one without an ``integrity`` record (another tool's metadata copied
+onto a graph, or an export from before the records) is refused unless its user
+opts in by name (``allow_unsigned=True``; it then opens with an :class:`UncheckedExportWarning`, its shapes still
+checked). A record from before ``fields`` (weights and probe only) opens with a warning naming the fields it does
+not cover, provided the window its probe records is the metadata's.
+
+This is a consistency check, not a cryptographic signature: it refuses a graph that carries another export's
+metadata, and a file damaged or edited since its export; whoever rewrites the records as well is not stopped.
 
 Torch-free on purpose (numpy, hashlib): the deploy install imports it.
 """
@@ -27,6 +40,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import json
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
@@ -34,8 +48,9 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["INTEGRITY_KEY", "UncheckedExportWarning", "check_onnx_student", "integrity_record", "probe_record",
-           "probe_state", "weights_sha256"]
+__all__ = ["ALLOW_UNSIGNED", "INTEGRITY_KEY", "UncheckedExportWarning", "archive_sha256",
+           "check_onnx_student", "check_student_export", "covered_fields", "fields_record", "integrity_record",
+           "probe_record", "probe_state", "weights_sha256"]
 
 INTEGRITY_KEY = "integrity"  # the metadata entry holding the records below
 PROBE_SEED = 0
@@ -44,13 +59,23 @@ PROBE_ATOL = PROBE_RTOL = 1e-2
 """A probe value matches when ``|got - recorded| <= PROBE_ATOL + PROBE_RTOL * |recorded|``: float32 reorderings
 between PyTorch, onnxruntime and devices (TF32 included) stay well inside it; another network's logits do not."""
 REEXPORT = "re-export it from its student checkpoint: python -m spade.export ckpt_path=<student .ckpt>"
+ALLOW_UNSIGNED = ("allow_unsigned=true to use it unchecked (Planner(..., allow_unsigned=True); spade.plan and "
+                  "spade.ros: planner.allow_unsigned=true)")
+COVERED_KEYS = ("role", "config", "format", "input", "output")
+"""Top-level metadata fields the ``fields`` record covers; with them every entry of ``data`` (``data.<key>``) and
+the :data:`PLANNER_DATA_KEYS` even where absent (a planner falls back to a default for a missing one, so adding
+one later changes its plans too). Provenance (``source_checkpoint``, ``torch_version``, ``opset``,
+``mlflow_run_id``) is not covered: no planner acts on it."""
+PLANNER_DATA_KEYS = ("image_size", "resolution_m", "frame", "input_encoding", "marker_encoding", "disc_radius_m",
+                     "margin_m", "footprint")
 
 # ONNX protobuf field numbers (onnx/onnx.proto): ModelProto.graph, GraphProto.initializer / sparse_initializer
 _MODEL_GRAPH, _GRAPH_INITIALIZER, _GRAPH_SPARSE_INITIALIZER = 7, 5, 15
 
 
 class UncheckedExportWarning(UserWarning):
-    """An ONNX student exported before SPADE recorded a weight digest and a parity probe: it opens unchecked."""
+    """A student export opened without the full check: its user allowed an unsigned file (``allow_unsigned``), or
+    its record predates the ``fields`` digests."""
 
 
 # -- the records -------------------------------------------------------------------------------------------------
@@ -149,9 +174,48 @@ def probe_record(input_shape: Sequence[int], output: np.ndarray, seed: int = PRO
             "samples": base64.b64encode(flat[_sample_index(flat.size)].astype("<f4").tobytes()).decode("ascii")}
 
 
-def integrity_record(model: bytes, probe: Mapping[str, Any]) -> dict[str, Any]:
-    """The ``integrity`` entry of an export: the weight digest of the serialized ``model`` and the ``probe``."""
-    return {"weights_sha256": weights_sha256(model), "probe": dict(probe)}
+def archive_sha256(path: Path) -> str:
+    """The sha256 of a TorchScript archive's code, constants and tensors: every entry but ``extra/`` (the metadata
+    itself) and ``.data/`` (``serialization_id`` differs on every save), by name with its length. The torch-free
+    counterpart of :func:`weights_sha256` for ``.pt`` exports."""
+    import zipfile
+
+    digest = hashlib.sha256()
+    with zipfile.ZipFile(path) as archive:
+        named = sorted((n.split("/", 1)[1], n) for n in archive.namelist() if "/" in n)
+        for name, full in named:
+            if name.startswith(("extra/", ".data/")) or name.endswith("/"):
+                continue
+            value = archive.read(full)
+            digest.update(name.encode() + b"\0" + len(value).to_bytes(8, "little"))
+            digest.update(value)
+    return digest.hexdigest()
+
+
+def covered_fields(metadata: Mapping[str, Any]) -> dict[str, Any]:
+    """The metadata fields a planner acts on, by dotted name (:data:`COVERED_KEYS`, ``data.<key>``), with their
+    values (None where absent)."""
+    data = metadata.get("data")
+    data = data if isinstance(data, Mapping) else {}
+    out: dict[str, Any] = {key: metadata.get(key) for key in COVERED_KEYS}
+    out.update({f"data.{key}": data.get(key) for key in sorted({*PLANNER_DATA_KEYS, *map(str, data)})})
+    return out
+
+
+def _field_digest(value: Any) -> str:
+    return hashlib.sha256(json.dumps(value, sort_keys=True, separators=(",", ":")).encode()).hexdigest()[:32]
+
+
+def fields_record(metadata: Mapping[str, Any]) -> dict[str, str]:
+    """The ``fields`` record: a digest of each of :func:`covered_fields`' values, by name."""
+    return {name: _field_digest(value) for name, value in covered_fields(metadata).items()}
+
+
+def integrity_record(model: bytes | str, probe: Mapping[str, Any], metadata: Mapping[str, Any]) -> dict[str, Any]:
+    """The ``integrity`` entry of an export: the weight digest (of the serialized ONNX ``model``, or a TorchScript
+    :func:`archive_sha256` given as a str), the ``probe``, and the ``fields`` digests of ``metadata``."""
+    digest = model if isinstance(model, str) else weights_sha256(model)
+    return {"weights_sha256": digest, "probe": dict(probe), "fields": fields_record(metadata)}
 
 
 # -- the check ---------------------------------------------------------------------------------------------------
@@ -197,27 +261,80 @@ def _probe_mismatch(probe: Mapping[str, Any], run: Callable[[np.ndarray], np.nda
     return None
 
 
-def check_onnx_student(path: Path, info: Mapping[str, Any], model: Callable[[], bytes],
-                       input_shape: Sequence[Any], output_shape: Sequence[Any],
-                       run: Callable[[np.ndarray], np.ndarray], error: type[Exception]) -> None:
-    """Refuse (``error``, naming ``path``) an ONNX student whose graph is not the one its metadata ``info``
-    describes: input and output shapes (the session's, ``input_shape`` / ``output_shape``), the weight digest of
-    the file's bytes (``model()``, read only when a digest is recorded), the parity probe (``run``: the runner's
-    ``logits``). A file without the records opens with an :class:`UncheckedExportWarning`."""
+def _short(value: Any) -> str:
+    text = json.dumps(value, sort_keys=True)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _fields_mismatch(info: Mapping[str, Any], recorded: Any) -> str | None:
+    """Why the metadata's covered fields are not the ones signed at export (None where they all are): the names
+    of the fields edited, added or removed since."""
+    if not isinstance(recorded, Mapping):
+        return f"its metadata's {INTEGRITY_KEY}.fields record is malformed"
+    values, now = covered_fields(info), fields_record(info)
+    changed = [name for name in sorted(set(now) | set(recorded)) if now.get(name) != recorded.get(name)]
+    if not changed:
+        return None
+    what = []
+    for name in changed:
+        if name not in recorded:
+            what.append(f"{name} (= {_short(values.get(name))}) was not in its metadata at export")
+        elif name not in now:
+            what.append(f"{name} was removed since export")
+        else:
+            what.append(f"{name} (= {_short(values.get(name))}) is not the value signed at export")
+    return f"its metadata was edited: {'; '.join(what)}"
+
+
+def _old_record_mismatch(info: Mapping[str, Any], probe: Mapping[str, Any]) -> str | None:
+    """For a record from before ``fields``: whether the window its probe records (``input_shape`` [1, C, H, W]) is
+    the metadata's (``data.image_size``, the input channels); None where it is."""
+    try:
+        _, channels, *size = (int(v) for v in probe["input_shape"])
+    except (KeyError, TypeError, ValueError):
+        return "its probe record is malformed"
+    data = info.get("data") if isinstance(info.get("data"), Mapping) else {}
+    image_size = data.get("image_size")
+    if isinstance(image_size, Sequence) and [v for v in image_size] != size:
+        return (f"its metadata was edited: data.image_size (= {_short(image_size)}) is not the {size} window its "
+                f"parity probe was recorded on")
+    shape = (info.get("input") or {}).get("shape") if isinstance(info.get("input"), Mapping) else None
+    if isinstance(shape, Sequence) and len(shape) > 1 and shape[1] != channels:
+        return f"its metadata was edited: input.shape has {shape[1]} channels, its parity probe {channels}"
+    return None
+
+
+def check_student_export(path: Path, info: Mapping[str, Any], weights: Callable[[], str],
+                         input_shape: Sequence[Any], output_shape: Sequence[Any],
+                         run: Callable[[np.ndarray], np.ndarray], error: type[Exception],
+                         allow_unsigned: bool = False) -> None:
+    """Refuse (``error``, naming ``path``) a student export (ONNX or TorchScript) that is not the one its metadata
+    ``info`` describes: input and output shapes (the runtime's, ``input_shape`` / ``output_shape``), the weight
+    digest (``weights()``: :func:`weights_sha256` of an ONNX file, :func:`archive_sha256` of a TorchScript one;
+    called only when a digest is recorded), the parity probe (``run``: the runner's ``logits``) and the covered
+    fields' digests. A file without an ``integrity`` record is refused unless ``allow_unsigned`` (then: an
+    :class:`UncheckedExportWarning`); a record without ``fields`` opens with that warning."""
     why = (_shape_mismatch("input", input_shape, (info.get("input") or {}).get("shape"))
            or _shape_mismatch("output", output_shape, (info.get("output") or {}).get("shape")))
     integrity = info.get(INTEGRITY_KEY)
     if why is None and integrity is None:
-        warnings.warn(UncheckedExportWarning(
-            f"{path} was exported before SPADE recorded a weight digest and parity probe in its exports: it cannot "
-            f"be checked against its metadata; {REEXPORT} (overwrite=true replaces this file)"), stacklevel=3)
+        missing = (f"{path} carries no {INTEGRITY_KEY} record in its SPADE metadata (the weight digest, parity probe "
+                   f"and field digests python -m spade.export writes), so nothing ties its graph, window, "
+                   f"resolution or footprint to what was trained")
+        if not allow_unsigned:
+            raise error(f"{missing}: refused. {REEXPORT[0].upper()}{REEXPORT[1:]}, or pass {ALLOW_UNSIGNED}")
+        warnings.warn(UncheckedExportWarning(f"{missing}; opened unchecked (allow_unsigned=true). {REEXPORT}"),
+                      stacklevel=3)
         return
     if why is None and not (isinstance(integrity, Mapping) and isinstance(integrity.get("probe"), Mapping)):
         why = f"its metadata's {INTEGRITY_KEY} record is malformed"
     if why is None:
+        why = (_fields_mismatch(info, integrity["fields"]) if "fields" in integrity
+               else _old_record_mismatch(info, integrity["probe"]))
+    if why is None:
         try:
-            digest = weights_sha256(model())
-        except ValueError as err:
+            digest = weights()
+        except (ValueError, OSError) as err:
             digest = f"unreadable ({err})"
         if digest != integrity.get("weights_sha256"):
             why = "its weights do not match the digest its metadata records (weights_sha256)"
@@ -226,3 +343,18 @@ def check_onnx_student(path: Path, info: Mapping[str, Any], model: Callable[[], 
     if why is not None:
         raise error(f"{path} is not the export its SPADE metadata describes: {why}. It was not written by "
                     f"python -m spade.export (or was changed since); do not use it: {REEXPORT}")
+    if "fields" not in integrity:
+        uncovered = ", ".join(f"data.{k}" for k in PLANNER_DATA_KEYS if k != "image_size")
+        warnings.warn(UncheckedExportWarning(
+            f"{path}: its integrity record (from an older SPADE) covers its weights and window size but not "
+            f"{uncovered}: those are unchecked; {REEXPORT} to have them checked"), stacklevel=3)
+
+
+def check_onnx_student(path: Path, info: Mapping[str, Any], model: Callable[[], bytes],
+                       input_shape: Sequence[Any], output_shape: Sequence[Any],
+                       run: Callable[[np.ndarray], np.ndarray], error: type[Exception],
+                       allow_unsigned: bool = False) -> None:
+    """:func:`check_student_export` of an ONNX file, whose weight digest is :func:`weights_sha256` of its bytes
+    (``model()``)."""
+    check_student_export(path, info, lambda: weights_sha256(model()), input_shape, output_shape, run, error,
+                         allow_unsigned)

@@ -1,0 +1,125 @@
+"""The closed loop's checks: every ``drive.*`` option (conf/drive/default.yaml) typed and ranged, for
+``spade.evaluate closed_loop=true`` and for each condition of ``spade.closed_loop``, and ``spade.closed_loop``'s own
+``sources``, ``datasets`` and ``conditions``: all before any MLflow run opens (a bad value checked inside the drive
+left a FAILED run, or none: ``scenarios=0``, ``baselines=shortest`` read as the letter ``s``, a negative
+``commit_tol_cm``, ``mcap_episodes=-3``)."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from typing import Any
+
+from omegaconf import DictConfig
+
+from spade.config.values import check_int, get
+from spade.utils.errors import ConfigError
+from spade.utils.option_checks import MISSING, check_int_value, check_number_value
+
+__all__ = ["check_drive", "validate_closed_loop_config"]
+
+DRIVE_DEFAULTS = "conf/drive/default.yaml"
+_NONNEGATIVE = ("noise_xy_m", "noise_yaw_rad", "initial_offset_m", "initial_offset_rad", "budget_extra_s",
+                "commit_tol_cm", "min_replan_interval_s")
+_POSITIVE = ("replan_distance_m", "subgoal_replan_m", "goal_tolerance_m", "budget_factor")
+_FOLLOWER_POSITIVE = ("speed_mps", "lookahead_m", "max_angular_rps", "dt_s")
+_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
+
+
+def check_drive(drive: Mapping[str, Any], prefix: str = "drive") -> None:
+    """Every ``drive`` option of ``drive`` (a plain mapping) typed and ranged; ``prefix`` names them in the
+    message (``drive.scenarios``, ``conditions.perturbed.noise_xy_m``). Unknown keys are refused too."""
+    from spade.closedloop.planners import BASELINE_PLANNERS
+
+    fix = f" (see {DRIVE_DEFAULTS})"
+    for key in _NONNEGATIVE:
+        check_number_value(f"{prefix}.{key}", drive.get(key, MISSING), 0, fix=fix)
+    for key in _POSITIVE:
+        check_number_value(f"{prefix}.{key}", drive.get(key, MISSING), 0, low_open=True, fix=fix)
+    check_number_value(f"{prefix}.replan_every_m", drive.get("replan_every_m", MISSING), 0, low_open=True,
+                       none_ok=True, fix=fix)
+    check_int_value(f"{prefix}.scenarios", drive.get("scenarios", MISSING), 1, none_ok=True,
+                    fix=": null (the test set's scenarios) or how many to drive, e.g. 100")
+    check_int_value(f"{prefix}.pictures", drive.get("pictures", MISSING), 0, fix=fix)
+    check_int_value(f"{prefix}.mcap_episodes", drive.get("mcap_episodes", MISSING), 1, fix=", e.g. 20")
+    mcap = drive.get("mcap")
+    if mcap is not None and (not isinstance(mcap, str) or not mcap.strip()):
+        raise ConfigError(f"{prefix}.mcap={mcap!r} is not a path; give a new .mcap file or rosbag2 folder, or null")
+    baselines = drive.get("baselines", MISSING)
+    if baselines is not MISSING:
+        if not isinstance(baselines, (list, tuple)) or any(b not in BASELINE_PLANNERS for b in baselines):
+            raise ConfigError(f"{prefix}.baselines={baselines!r} is not a list of {list(BASELINE_PLANNERS)}; set "
+                              f"{prefix}.baselines=[shortest] (a list, in brackets), or [] for none")
+    follower = drive.get("follower", MISSING)
+    if follower is not MISSING:
+        if not isinstance(follower, Mapping):
+            raise ConfigError(f"{prefix}.follower={follower!r} is not a mapping{fix}")
+        for key in _FOLLOWER_POSITIVE:
+            check_number_value(f"{prefix}.follower.{key}", follower.get(key, MISSING), 0, low_open=True, fix=fix)
+        check_number_value(f"{prefix}.follower.rotate_deg", follower.get("rotate_deg", MISSING), 0, 180, fix=fix)
+    planner = drive.get("planner", MISSING)
+    if planner is not MISSING and planner is not None and not isinstance(planner, Mapping):
+        raise ConfigError(f"{prefix}.planner={planner!r} is not a mapping of spade.planner.Planner options, e.g. "
+                          f"{prefix}.planner={{threshold: 0.5}}")
+
+
+def check_drive_config(cfg: DictConfig) -> None:
+    """``spade.evaluate``'s drive checks: something to run (``open_loop`` or ``closed_loop``), and with
+    ``closed_loop=true`` every ``drive.*`` option (:func:`check_drive`)."""
+    open_loop, closed_loop = get(cfg, "open_loop"), get(cfg, "closed_loop")
+    if open_loop is False and closed_loop is False:
+        raise ConfigError("open_loop=false closed_loop=false leaves nothing to evaluate; set open_loop=true (the "
+                          "test set's figures), closed_loop=true (drive its scenarios), or both")
+    if closed_loop is True:
+        drive = get(cfg, "drive")
+        if not isinstance(drive, Mapping):
+            raise ConfigError(f"drive={drive!r} is not the drive section; use conf/drive/default.yaml's keys")
+        check_drive(drive)
+
+
+def validate_closed_loop_config(cfg: DictConfig) -> None:
+    """``spade.closed_loop``'s checks before any drive: ``sources`` a list of ``{table, row}`` names, ``datasets``
+    a mapping of ``{data, scenarios}``, ``conditions`` a mapping of drive settings (each checked as
+    ``drive.*``, merged over the defaults), and ``seed``."""
+    from omegaconf import OmegaConf
+
+    from spade.utils.config import compose_config
+
+    check_int(cfg, "seed", 0, 2**32 - 1, fix=", e.g. seed=42")
+    sources = get(cfg, "sources")
+    example = "sources=[{table: guidance, row: g_full_bc_L}]"
+    if not isinstance(sources, list) or not sources:
+        raise ConfigError(f"sources={sources!r} is not a non-empty list of {{table, row}}; e.g. {example}")
+    for i, source in enumerate(sources):
+        if not isinstance(source, Mapping) or set(source) != {"table", "row"}:
+            raise ConfigError(f"sources[{i}]={source!r} is not {{table: NAME, row: NAME}}; e.g. {example}")
+        for key in ("table", "row"):
+            value = source[key]
+            if not isinstance(value, str) or not _NAME.match(value):
+                raise ConfigError(f"sources[{i}].{key}={value!r} is not a {key} name (letters, digits, _ . -); "
+                                  f"e.g. {example}")
+    datasets = get(cfg, "datasets")
+    if not isinstance(datasets, Mapping) or not datasets:
+        raise ConfigError(f"datasets={datasets!r} is not a mapping of scenario sets; e.g. "
+                          "datasets={heldout: {data: lshape, scenarios: 100}}")
+    for name, spec in datasets.items():
+        if not isinstance(spec, Mapping) or not isinstance(spec.get("data"), str) or not _NAME.match(spec["data"]):
+            raise ConfigError(f"datasets.{name}={spec!r} needs data: a data config name (conf/data), e.g. "
+                              f"datasets.{name}={{data: lshape, scenarios: 100}}")
+        check_int_value(f"datasets.{name}.scenarios", spec.get("scenarios"), 1, none_ok=True,
+                        fix=": null (the test set's scenarios) or how many to drive, e.g. 100")
+    conditions = get(cfg, "conditions")
+    if not isinstance(conditions, Mapping) or not conditions:
+        raise ConfigError(f"conditions={conditions!r} is not a mapping of drive settings; e.g. conditions={{clean: "
+                          "{}}")
+    defaults = OmegaConf.to_container(compose_config("evaluate", []).drive, resolve=True)
+    for name, settings in conditions.items():
+        if not _NAME.match(str(name)):
+            raise ConfigError(f"conditions.{name}: not a condition name (letters, digits, _ . -)")
+        if not isinstance(settings, Mapping):
+            raise ConfigError(f"conditions.{name}={settings!r} is not a mapping of drive settings ({DRIVE_DEFAULTS})")
+        unknown = sorted(set(settings) - set(defaults))  # type: ignore[arg-type]
+        if unknown:
+            raise ConfigError(f"conditions.{name}.{unknown[0]}: no such drive setting; the keys are those of "
+                              f"{DRIVE_DEFAULTS}")
+        check_drive({**defaults, **settings}, f"conditions.{name}")  # type: ignore[dict-item]
