@@ -80,6 +80,9 @@ def test_the_page_regenerates_from_its_records_and_leads_with_its_verdict(tmp_pa
     assert "BC ceiling" in text and "straight line" in text
     assert files["markdown"].read_text().startswith("# Where a teacher teaches")
     assert not (tmp_path / "missing.db").exists()  # no store was created
+    settings["rows"]["site_teacher_L"] = "never run"
+    text, _ = oracle_report(f"sqlite:///{tmp_path}/missing.db", None, settings)
+    assert "| never run | 0 | not run" in text
 
 
 def test_a_small_test_set_says_so_in_the_summary() -> None:

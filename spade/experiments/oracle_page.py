@@ -127,6 +127,32 @@ def _reference_rows(runs: list[RunRecord], references: dict[str, list[dict[str, 
     return lines
 
 
+def _teacher_rows(teachers: Mapping[str, str], runs: dict[str, list[RunRecord]],
+                  references: dict[str, list[dict[str, Any]]], every: list[RunRecord]) -> list[str]:
+    """Each teacher as a planner (one sample, the mean of its K samples' maps, their medoid) beside the oracle as a
+    planner (one draw of the generator, the medoid of the plausible set): what a neural teacher must reach."""
+    lines = ["| planner | planner APE (cm) | > 20 cm | plausibility (cm) | commits |", "|---|---|---|---|---|"]
+
+    def row(label: str, source: list[RunRecord], prefix: str, instances: list[dict[str, Any]] | None) -> None:
+        ape = _mean(source, prefix + "ape_cm")
+        if ape is None:
+            return
+        ape_text = _interval(instances, "planner_ape_cm").format() if instances else f"{ape:.2f}"
+        cells = [catalog.fmt(f"planner/{k}", _mean(source, prefix + k))
+                 for k in ("over_20cm_rate", "plausibility_cm", "commit_rate")]
+        lines.append(f"| {label} | {ape_text} | " + " | ".join(cells) + " |")
+
+    for name, label in teachers.items():
+        source = runs.get(name, [])
+        instances = [i for r in source for i in r.instances]
+        row(f"{label}, one sample", source, "test/planner/", instances)
+        row(f"{label}, mean of its samples' maps", source, "test/mean_map/planner/", None)
+        row(f"{label}, medoid of its samples' paths", source, "test/medoid/planner/", None)
+    row("oracle, one draw of the generator", every, "test/oracle_sample/planner/", references.get("oracle_sample"))
+    row("oracle, medoid of the plausible set", every, "test/oracle_medoid/planner/", references.get("oracle_medoid"))
+    return lines if len(lines) > 2 else []
+
+
 def _losses(runs: list[RunRecord]) -> list[str]:
     """The baselines a row loses to by the deciding figure (its seeds' mean planner APE and tail)."""
     from spade.metrics.verdict import verdicts
@@ -239,14 +265,18 @@ def _provenance(runs: list[RunRecord], records_dir: Path) -> list[str]:
 def oracle_report(tracking_uri: str, output_dir: str | Path | None, settings: Mapping[str, Any]) -> tuple[str, dict]:
     """Export the page's runs into records (when the store has them), then write ``<page>.md`` from the records."""
     labels: dict[str, str] = dict(settings.get("rows") or {})
+    teachers: dict[str, str] = dict(settings.get("teachers") or {})
     against = str(settings.get("against", "site_bc_L"))
     records_dir = Path(str(settings["records_dir"]))
     if _store_exists(tracking_uri):
-        export_records(tracking_uri, str(settings.get("experiment", "oracle")), records_dir, list(labels) or None)
+        export_records(tracking_uri, str(settings.get("experiment", "oracle")), records_dir,
+                       [*labels, *teachers] or None)
     runs, references = load_records(records_dir) if records_dir.is_dir() else ([], {})
     rows: dict[str, list[RunRecord]] = {name: [] for name in labels}
+    teacher_runs: dict[str, list[RunRecord]] = {}
     for run in runs:
-        rows.setdefault(run.row, []).append(run)
+        (teacher_runs if run.row in teachers else rows).setdefault(run.row, []).append(run)
+    missing = [k for k, v in rows.items() if not v]  # named rows without a finished run: shown, never dropped
     rows = {k: sorted(v, key=lambda r: (r.seed is None, r.seed or 0)) for k, v in rows.items() if v}
     tests = _tests(rows, against)
     title = str(settings.get("title", "Where a teacher teaches: the oracle, the site's unsketched states, the BC ceiling"))
@@ -267,11 +297,20 @@ def oracle_report(tracking_uri: str, output_dir: str | Path | None, settings: Ma
                  *(_mean_sd(_values(runs_, m), m.replace("test/", "")) for m in SEED_ONLY),
                  "—" if name == against else _significance(tests.get(name, {}))]
         parts.append("| " + " | ".join(cells) + " |")
+    for name in missing:
+        parts.append(f"| {labels.get(name, name)} | 0 | " + " | ".join("not run" for _ in header[2:]) + " |")
     every = [r for v in rows.values() for r in v]
     parts += ["", "## Between the floor and the ceiling, beside the baselines", "",
               "The same test set for every row: these predictors learn nothing, so one run's figures hold for all.", "",
               *_reference_rows(every, references), ""]
-    parts += ["## Provenance", "", *_provenance(every, records_dir), ""]
+    teacher_lines = _teacher_rows(teachers, teacher_runs, references, every)
+    if teacher_lines:
+        parts += ["## The teachers as planners, beside the oracle", "",
+                  "A teacher can only teach what it plans better than its student. Each teacher's samples on the same "
+                  "test set, decoded by the planner (one sample with its interval over scenarios; the mean of its "
+                  "samples' maps; their medoid, the minimum-Bayes-risk reading), beside the oracle as a planner.", "",
+                  *teacher_lines, ""]
+    parts += ["## Provenance", "", *_provenance(every + [r for v in teacher_runs.values() for r in v], records_dir), ""]
     files: dict[str, Path] = {}
     text = "\n".join(parts)
     if output_dir is not None:
