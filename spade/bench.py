@@ -40,17 +40,17 @@ def main(cfg: DictConfig) -> None:
     from spade.config.refusals import exit_on_user_error
 
     exit_on_user_error(validate_bench_config)(cfg, SECTIONS)  # a bad value: one `error:` line, exit 2, before any section
-    t0 = time.perf_counter()
+    from spade.utils.provenance import command_line, commit
+
+    t0, command, checkout = time.perf_counter(), command_line("spade.bench"), commit()  # the code that runs
     results = bench(cfg)
     path = write_json(results, cfg.out_json)
     print(format_report(results))
     print(f"\nJSON: {path}")
     if cfg.get("speed_page"):
         from spade.perf.speed_page import write_speed_page
-        from spade.utils.provenance import command_line, commit
 
-        page = write_speed_page(results, cfg.speed_page, command_line("spade.bench"), commit(),
-                                time.perf_counter() - t0)
+        page = write_speed_page(results, cfg.speed_page, command, checkout, time.perf_counter() - t0)
         print(f"Page: {page}")
 
 
