@@ -39,7 +39,9 @@ def main(cfg: DictConfig) -> None:
     from spade.config.bench_checks import validate_bench_config
     from spade.config.refusals import exit_on_user_error
 
-    exit_on_user_error(validate_bench_config)(cfg, SECTIONS)  # a bad value: one `error:` line, exit 2, before any section
+    from spade.perf.training import LEVERS
+
+    exit_on_user_error(validate_bench_config)(cfg, SECTIONS, list(LEVERS))  # a bad value: one `error:` line, exit 2, before any section
     from spade.utils.provenance import command_line, commit
 
     t0, command, checkout = time.perf_counter(), command_line("spade.bench"), commit()  # the code that runs
@@ -48,7 +50,9 @@ def main(cfg: DictConfig) -> None:
     print(format_report(results))
     print(f"\nJSON: {path}")
     if cfg.get("speed_page"):
-        from spade.perf.speed_page import write_speed_page
+        from spade.perf.speed_page import read_science, write_speed_page
+
+        results["speed_science"] = read_science(cfg.get("speed_science") or [])
 
         page = write_speed_page(results, cfg.speed_page, command, checkout, time.perf_counter() - t0)
         print(f"Page: {page}")

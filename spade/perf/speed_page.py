@@ -19,10 +19,12 @@ _COUNTED = ("conv", "mkldnn", "addmm", "mm", "bmm", "matmul", "linear")
 
 
 def steps_table(rows: list[dict[str, Any]]) -> str:
+    def ratio(r: dict[str, Any], key: str) -> str:
+        return f"{r[key]:.2f}" if key in r else "-"
+
     table = [[r["approach"], r["student"], r.get("expert_preset") or "-", r["image_size"], r["batch_size"],
-              r["gflop"], r["step_ms"], r["steps_per_s"], r["gflops"], r["matmul_gflops"],
-              f"{r['ratio_to_matmul']:.2f}", f"{r['ratio_to_bc']:.2f}" if "ratio_to_bc" in r else "-"]
-             for r in rows]
+              r.get("gflop", "-"), r["step_ms"], r.get("steps_per_s", "-"), r.get("gflops", "-"),
+              r.get("matmul_gflops", "-"), ratio(r, "ratio_to_matmul"), ratio(r, "ratio_to_bc")] for r in rows]
     return _table(["step", "student", "expert", "px", "batch", "GFLOP", "ms / step", "steps / s", "GFLOP/s",
                    "matmul GFLOP/s", "x matmul", "x BC"], table)
 
@@ -95,6 +97,46 @@ def _bounds(results: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+#: The test figures the precision check compares (spade/perf/precision_check.py), as spade.train logs them.
+SCIENCE_KEYS: tuple[str, ...] = ("test/planner/ape_cm", "test/planner/plausibility_cm", "test/planner/ape_over_floor",
+                                 "test/score_cm", "test/ape_cm")
+
+
+def science_table(rows: list[dict[str, Any]]) -> str:
+    """Mean +- sd of each test figure per precision over seeds, and Welch's test of each against the first
+    precision (the fp32 reference)."""
+    import statistics
+
+    from spade.experiments.reporting.results import welch
+
+    precisions = list(dict.fromkeys(r["precision"] for r in rows))
+    keys = [k for k in SCIENCE_KEYS if any(k in r["metrics"] for r in rows)]
+
+    def values(precision: str, key: str) -> list[float]:
+        return [r["metrics"][key] for r in rows if r["precision"] == precision and key in r["metrics"]]
+
+    def cell(v: list[float]) -> str:
+        if not v:
+            return "-"
+        sd = f" +- {statistics.stdev(v):.2f}" if len(v) > 1 else ""
+        return f"{statistics.mean(v):.2f}{sd} (n={len(v)})"
+
+    table = []
+    for key in [*keys, "fit + test s"]:
+        line = [key]
+        ref = values(precisions[0], key) if key != "fit + test s" else \
+            [r["seconds"] for r in rows if r["precision"] == precisions[0]]
+        for precision in precisions:
+            v = values(precision, key) if key != "fit + test s" else \
+                [r["seconds"] for r in rows if r["precision"] == precision]
+            line.append(cell(v) + ("" if precision == precisions[0] else f"; {welch(v, ref)[1]}"))
+        table.append(line)
+    seeds = sorted({r["seed"] for r in rows})
+    resolved = {r["precision"]: r.get("resolved") for r in rows}
+    return (_table(["figure", *(f"{p} (ran as {resolved[p]})" for p in precisions)], table)
+            + f"\n\nSeeds {seeds}; spade.train overrides {rows[0].get('overrides')} (spade/perf/precision_check.py).")
+
+
 def _defaults() -> str:
     """What ``trainer=cpu``'s speed options resolve to on this machine."""
     from omegaconf import OmegaConf
@@ -144,7 +186,11 @@ def speed_page(results: dict[str, Any], command: str, commit: str | None, wall_s
                      + "\n\nbf16 (`trainer.precision=bf16-mixed`, or `auto`: bf16-mixed where the CPU or GPU has "
                        "native bf16) and `trainer.frozen_expert_bf16=true` change the numerics: they stay opt-in "
                        "until the planner figures of the medium BC and teacher-guided rows are shown within noise of "
-                       "fp32's; this page does not show that.")
+                       "fp32's" + ("; the check below is the evidence so far." if results.get("speed_science")
+                                   else "; this page does not show that."))
+    if results.get("speed_science"):
+        parts.append("## Does bf16 keep the science? The medium BC student at the quickstart's scale\n\n"
+                     + science_table(results["speed_science"]))
     bounds = _bounds(results)
     if bounds:
         parts.append("## What bounds the ratio to the matmul\n\n" + bounds)
@@ -155,6 +201,20 @@ def speed_page(results: dict[str, Any], command: str, commit: str | None, wall_s
         parts.append("## Lightning's per-step overhead (BC step inside `Trainer.fit`, CSV logger)\n\n"
                      + lightning_table(speed["lightning"]))
     return "\n\n".join(parts) + "\n"
+
+
+def read_science(paths: Any) -> list[dict[str, Any]]:
+    """The rows of the precision check's JSON files (``speed_science``: one path or a list)."""
+    import json
+
+    paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    rows: list[dict[str, Any]] = []
+    for path in paths:
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"speed_science={path} does not exist; write it with python -m "
+                                    "spade.perf.precision_check out=PATH")
+        rows += json.loads(Path(path).read_text())
+    return rows
 
 
 def write_speed_page(results: dict[str, Any], path: str | Path, command: str, commit: str | None,
