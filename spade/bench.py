@@ -41,7 +41,8 @@ def main(cfg: DictConfig) -> None:
 
     from spade.perf.training import LEVERS
 
-    exit_on_user_error(validate_bench_config)(cfg, SECTIONS, list(LEVERS))  # a bad value: one `error:` line, exit 2, before any section
+    # a bad value: one `error:` line, exit 2, before any section
+    exit_on_user_error(validate_bench_config)(cfg, SECTIONS, list(LEVERS))
     from spade.utils.provenance import command_line, commit
 
     t0, command, checkout = time.perf_counter(), command_line("spade.bench"), commit()  # the code that runs

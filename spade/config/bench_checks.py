@@ -51,8 +51,8 @@ def validate_bench_config(cfg: DictConfig, known_sections: Sequence[str], known_
     check_number(cfg, "data.spacing_m", 0, low_open=True, none_ok=True)
     for key in ("student.onnx", "training.batched_terms", "metrics.sensitivity"):
         check_bool(cfg, key)
-    for key in ("training.lever_rounds", "training.lever_image_size", "training.matmul_size", "training.lightning_rounds",
-                "training.profile_top"):
+    for key in ("training.lever_rounds", "training.lever_image_size", "training.matmul_size",
+                "training.lightning_rounds", "training.profile_top"):
         check_int(cfg, key, 1, none_ok=True)
     check_int(cfg, "training.lightning_steps", 0, none_ok=True, fix=" (0: no Lightning overhead table)")
     for key in ("training.levers", "training.profile_levers"):

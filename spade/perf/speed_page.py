@@ -56,7 +56,8 @@ def format_training_speed(speed: dict[str, Any]) -> str:
     """The levers, profiles and Lightning's overhead as Markdown (also part of the bench's printed report)."""
     parts = []
     if speed.get("levers"):
-        parts.append("### Training levers (each alone, same rounds as its baseline)\n\n" + levers_table(speed["levers"]))
+        parts.append("### Training levers (each alone, same rounds as its baseline)\n\n"
+                     + levers_table(speed["levers"]))
     if speed.get("profiles"):
         parts.append("### Where a step's time goes (torch.profiler, top operators by self CPU time)\n\n"
                      + profile_tables(speed["profiles"]))
