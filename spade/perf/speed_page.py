@@ -154,12 +154,13 @@ def _defaults() -> str:
             f"`{cfg.get('log_every_n_steps')}`.")
 
 
-def speed_page(results: dict[str, Any], command: str, commit: str | None, wall_s: float) -> str:
+def speed_page(results: dict[str, Any], command: str, commit: str | None, wall_s: float,
+               date: str | None = None) -> str:
     """The page: provenance, the step table, the levers, the bound, the profiles, Lightning's overhead."""
     m = results.get("machine", {})
     speed = results.get("training_speed") or {}
     hw = speed.get("hardware") or {}
-    date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    date = date or _now()
     head = [
         "# Training speed",
         "",
@@ -218,9 +219,46 @@ def read_science(paths: Any) -> list[dict[str, Any]]:
     return rows
 
 
+def _now() -> str:
+    return datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+
+
 def write_speed_page(results: dict[str, Any], path: str | Path, command: str, commit: str | None,
                      wall_s: float) -> Path:
+    """The page at ``path`` and, beside it (``.json``), the results and provenance it was written from, so that
+    :func:`rerender` can add the precision check to it later without measuring again."""
+    import json
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(speed_page(results, command, commit, wall_s))
+    provenance = {"command": command, "commit": commit, "wall_s": wall_s, "date": _now()}
+    path.with_suffix(".json").write_text(json.dumps({"provenance": provenance, "results": results}, indent=1,
+                                                    default=str))
+    path.write_text(speed_page(results, command, commit, wall_s, provenance["date"]))
     return path
+
+
+def rerender(json_path: str | Path, science: list[str | Path]) -> Path:
+    """The page of ``json_path`` (what :func:`write_speed_page` wrote beside it) written again with the precision
+    check's runs (:mod:`spade.perf.precision_check` JSON files) added; the measured figures and their provenance
+    are the recorded ones."""
+    import json
+
+    json_path = Path(json_path)
+    data = json.loads(json_path.read_text())
+    results, p = data["results"], data["provenance"]
+    if science:
+        results["speed_science"] = read_science(science)
+        data["science_files"] = [str(s) for s in science]
+        json_path.write_text(json.dumps(data, indent=1, default=str))
+    page = json_path.with_suffix(".md")
+    page.write_text(speed_page(results, p["command"], p["commit"], p["wall_s"], p["date"]))
+    return page
+
+
+if __name__ == "__main__":
+    import sys
+
+    if len(sys.argv) < 2:
+        raise SystemExit("usage: python -m spade.perf.speed_page docs/results/speed.json [PRECISION_CHECK.json ...]")
+    print(rerender(sys.argv[1], sys.argv[2:]))
