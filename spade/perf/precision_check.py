@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 #: spade.train overrides of every run: the medium BC row of the encoding table, tested on the held-out map only.
-BASE_OVERRIDES: tuple[str, ...] = ("+experiment=enc_gaussian_L", "also_test={}", "logger=none", "closed_loop=false",
+BASE_OVERRIDES: tuple[str, ...] = ("+experiment=enc_gaussian_L", "~also_test", "logger=none", "closed_loop=false",
                                    "test_untrained=false", "trainer.enable_progress_bar=false")
 
 
