@@ -13,7 +13,7 @@ import torch
 from spade.perf.step_cost import matmul_gflops, step_gflop, top_operators
 from spade.perf.training import LEVERS, Setup, applies, build_step, example_batch, student_with_margin
 from spade.training.callbacks import ChannelsLast
-from spade.training.speed import (Bf16Module, FrozenExpertBf16, build_trainer, resolve_channels_last,
+from spade.training.speed import (Bf16Module, build_trainer, resolve_channels_last,
                                   resolve_precision, use_bf16_expert)
 from spade.utils.config import compose_config
 from spade.utils.errors import ConfigError
@@ -24,13 +24,12 @@ def _callbacks(trainer: L.Trainer) -> list[type]:
 
 
 @pytest.mark.parametrize("overrides", [[], ["trainer.precision=auto"], ["trainer.channels_last=false"],
-                                       ["trainer.frozen_expert_bf16=true", "trainer.precision=bf16-mixed"]])
+                                       ["trainer.precision=bf16-mixed"]])
 def test_trainer_options_compose_and_instantiate(overrides: list[str], tmp_path: Path) -> None:
     cfg = compose_config("train", ["logger=none", f"paths.output_dir={tmp_path}", *overrides])
     trainer = hydra.utils.instantiate(cfg.trainer)
     assert isinstance(trainer, L.Trainer)
     assert (ChannelsLast in _callbacks(trainer)) == resolve_channels_last(cfg.trainer.channels_last, "cpu")
-    assert (FrozenExpertBf16 in _callbacks(trainer)) == cfg.trainer.frozen_expert_bf16
     expected = "bf16-mixed" if resolve_precision(cfg.trainer.precision, "cpu") == "bf16-mixed" else "32-true"
     assert trainer.precision == expected
 
@@ -40,7 +39,7 @@ def test_gpu_trainer_keeps_one_channels_last_callback() -> None:
     assert cfg.trainer.precision == "bf16-mixed" and cfg.trainer.channels_last == "auto"
     from spade.training.speed import speed_callbacks
 
-    assert speed_callbacks(True, False, [ChannelsLast()]) == []
+    assert speed_callbacks(True, [ChannelsLast()]) == []
 
 
 def test_auto_values_follow_the_detected_hardware(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -55,8 +54,7 @@ def test_auto_values_follow_the_detected_hardware(monkeypatch: pytest.MonkeyPatc
 
 
 @pytest.mark.parametrize("kwargs, key", [({"precision": "fp7"}, "trainer.precision"),
-                                         ({"channels_last": "maybe"}, "trainer.channels_last"),
-                                         ({"frozen_expert_bf16": "yes"}, "trainer.frozen_expert_bf16")])
+                                         ({"channels_last": "maybe"}, "trainer.channels_last")])
 def test_bad_values_name_the_option(kwargs: dict, key: str) -> None:
     with pytest.raises(ConfigError, match=key):
         build_trainer(accelerator="cpu", logger=False, **kwargs)
@@ -97,13 +95,14 @@ def test_bf16_expert_stays_bf16_and_passes_gradients() -> None:
 
 
 def test_fit_with_every_option_on(tmp_path: Path) -> None:
-    """Lightning's bf16-mixed on the CPU, channels_last and the bf16 expert together, through Trainer.fit."""
+    """Lightning's bf16-mixed on the CPU, channels_last and the bf16 expert (the bench's lever) together, through
+    Trainer.fit."""
     module = student_with_margin("small", "cond", "tiny")
     batch = example_batch(2, 32)
     loader = torch.utils.data.DataLoader([dict(batch), dict(batch)], batch_size=None)
-    trainer = build_trainer(accelerator="cpu", precision="bf16-mixed", channels_last=True, frozen_expert_bf16=True,
-                            max_steps=2, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-                            enable_model_summary=False, limit_val_batches=0, num_sanity_val_steps=0,
+    use_bf16_expert(module)
+    trainer = build_trainer(accelerator="cpu", precision="bf16-mixed", channels_last=True, max_steps=2, logger=False,
+                            enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0, num_sanity_val_steps=0,
                             default_root_dir=str(tmp_path))
     trainer.fit(module, train_dataloaders=loader)
     assert trainer.global_step == 2 and isinstance(module.margin.expert, Bf16Module)

@@ -94,7 +94,10 @@ def _bounds(results: dict[str, Any]) -> str:
             f"target {RATIO_TARGET:g}x {'reached' if met else 'NOT reached'}. Convolution and matmul kernels take "
             f"{share:.0%} of its profiled self CPU time; the other {1 - share:.0%} (batch norm, activations, "
             f"elementwise, copies, the optimiser) does work the FLOP counter does not count. Even with the counted "
-            f"work at the matmul's rate, that rest caps the step at {ratio_bound(row, share):.2f}x.")
+            f"work at the matmul's rate, that rest caps the step at {ratio_bound(row, share):.2f}x. What bounds it is "
+            f"the convolution kernels themselves: oneDNN's convolutions (forward and backward, at these channel "
+            f"widths) run the counted work at {row['ratio_to_matmul'] / share if share else 0:.2f}x the matmul's "
+            f"rate.")
     return "\n".join(lines)
 
 
@@ -150,7 +153,7 @@ def _defaults() -> str:
     return (f"`trainer=cpu` on this machine: precision `{cfg.get('precision')}` -> "
             f"`{resolve_precision(cfg.get('precision', '32-true'), acc)}`, channels_last "
             f"`{cfg.get('channels_last')}` -> `{resolve_channels_last(cfg.get('channels_last', False), acc)}`, "
-            f"frozen_expert_bf16 `{cfg.get('frozen_expert_bf16', False)}`, log_every_n_steps "
+            f"log_every_n_steps "
             f"`{cfg.get('log_every_n_steps')}`.")
 
 
@@ -186,7 +189,7 @@ def speed_page(results: dict[str, Any], command: str, commit: str | None, wall_s
     if speed.get("levers"):
         parts.append("## Levers, each alone against the same run's baseline\n\n" + levers_table(speed["levers"])
                      + "\n\nbf16 (`trainer.precision=bf16-mixed`, or `auto`: bf16-mixed where the CPU or GPU has "
-                       "native bf16) and `trainer.frozen_expert_bf16=true` change the numerics: they stay opt-in "
+                       "native bf16) changes the numerics: it stays opt-in "
                        "until the planner figures of the medium BC and teacher-guided rows are shown within noise of "
                        "fp32's" + ("; the check below is the evidence so far." if results.get("speed_science")
                                    else "; this page does not show that."))
@@ -201,7 +204,10 @@ def speed_page(results: dict[str, Any], command: str, commit: str | None, wall_s
                      + profile_tables(speed["profiles"]))
     if speed.get("lightning"):
         parts.append("## Lightning's per-step overhead (BC step inside `Trainer.fit`, CSV logger)\n\n"
-                     + lightning_table(speed["lightning"]))
+                     + lightning_table(speed["lightning"])
+                     + "\n\nThe settings run one after another (each a short `Trainer.fit`), not interleaved step by "
+                       "step: a change of the machine's load between them moves these rows as much as the setting "
+                       "does; the bare loop and the fits share a median, not a round.")
     return "\n\n".join(parts) + "\n"
 
 

@@ -1,4 +1,4 @@
-"""The trainer's speed options (``conf/trainer``): precision, channels_last and the frozen expert in bf16, with
+"""The trainer's speed options (``conf/trainer``): precision and channels_last, with
 ``auto`` values resolved on the machine the run starts on (:mod:`spade.utils.hardware`).
 
 ``conf/trainer/cpu.yaml`` (and every trainer config built on it) instantiates :func:`build_trainer` rather than
@@ -11,8 +11,10 @@ they need and returns a plain :class:`lightning.pytorch.Trainer`.
   ``binary_cross_entropy_with_logits`` and reductions of fp32 targets in fp32).
 - ``channels_last``: ``true``/``false``/``auto`` (``auto``: on where oneDNN (CPU) or cuDNN (GPU) runs NHWC
   convolutions natively; :class:`~spade.training.callbacks.ChannelsLast`). The same numbers up to summation order.
-- ``frozen_expert_bf16``: the margin's frozen expert (DBC / Cond-DBC) held and run in bf16
-  (:class:`FrozenExpertBf16`); changes the margin's numerics, so off unless asked for.
+
+The margin's frozen expert held in bf16 (:func:`use_bf16_expert`) is a lever the bench measures
+(``spade.bench`` ``training.levers``: ``expert_bf16``); it did not pay (docs/results/speed.md), so it is no trainer
+option.
 """
 
 from __future__ import annotations
@@ -108,35 +110,21 @@ def use_bf16_expert(module: nn.Module) -> bool:
     return True
 
 
-class FrozenExpertBf16(Callback):
-    """``trainer.frozen_expert_bf16=true``: the margin's frozen expert in bf16 from the start of fitting (after the
-    student's ``setup`` has loaded it and the trainer has moved the module)."""
-
-    def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        use_bf16_expert(pl_module)
-
-
-def speed_callbacks(channels_last: bool, frozen_expert_bf16: bool, callbacks: list[Callback]) -> list[Callback]:
+def speed_callbacks(channels_last: bool, callbacks: list[Callback]) -> list[Callback]:
     """The callbacks the resolved options need that ``callbacks`` does not hold yet."""
     from spade.training.callbacks import ChannelsLast
 
-    extra: list[Callback] = []
     if channels_last and not any(isinstance(c, ChannelsLast) for c in callbacks):
-        extra.append(ChannelsLast())
-    if frozen_expert_bf16 and not any(isinstance(c, FrozenExpertBf16) for c in callbacks):
-        extra.append(FrozenExpertBf16())
-    return extra
+        return [ChannelsLast()]
+    return []
 
 
-def build_trainer(*, precision: Any = "32-true", channels_last: Any = "auto", frozen_expert_bf16: Any = False,
+def build_trainer(*, precision: Any = "32-true", channels_last: Any = "auto",
                   callbacks: list[Callback] | Callback | None = None, accelerator: Any = "auto",
                   **kwargs: Any) -> L.Trainer:
     """A :class:`lightning.pytorch.Trainer` with the speed options resolved (module docstring); ``kwargs`` are
     Lightning's."""
-    if frozen_expert_bf16 not in (True, False):
-        raise ConfigError(f"trainer.frozen_expert_bf16={frozen_expert_bf16!r} must be true or false")
     callbacks = [callbacks] if isinstance(callbacks, Callback) else list(callbacks or [])
-    callbacks += speed_callbacks(resolve_channels_last(channels_last, accelerator), bool(frozen_expert_bf16),
-                                 callbacks)
+    callbacks += speed_callbacks(resolve_channels_last(channels_last, accelerator), callbacks)
     return L.Trainer(accelerator=accelerator, precision=resolve_precision(precision, accelerator),
                      callbacks=callbacks, **kwargs)
