@@ -101,8 +101,9 @@ def test_fit_with_every_option_on(tmp_path: Path) -> None:
     batch = example_batch(2, 32)
     loader = torch.utils.data.DataLoader([dict(batch), dict(batch)], batch_size=None)
     use_bf16_expert(module)
-    trainer = build_trainer(accelerator="cpu", precision="bf16-mixed", channels_last=True, max_steps=2, logger=False,
-                            enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0, num_sanity_val_steps=0,
+    trainer = build_trainer(accelerator="cpu", precision="bf16-mixed", channels_last=True, max_steps=2,
+                            logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                            enable_model_summary=False, limit_val_batches=0, num_sanity_val_steps=0,
                             default_root_dir=str(tmp_path))
     trainer.fit(module, train_dataloaders=loader)
     assert trainer.global_step == 2 and isinstance(module.margin.expert, Bf16Module)

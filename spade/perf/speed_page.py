@@ -82,6 +82,7 @@ def ratio_bound(row: dict[str, Any], share: float) -> float:
 def _bounds(results: dict[str, Any]) -> str:
     speed = results.get("training_speed") or {}
     profiles = {p["setup"]: p for p in speed.get("profiles", []) if p["lever"] == "baseline"}
+    levers = {(r["setup"], r["lever"]): r for r in speed.get("levers", [])}
     lines = []
     for row in results.get("training", []):
         p = profiles.get(row["approach"])
@@ -98,6 +99,11 @@ def _bounds(results: dict[str, Any]) -> str:
             f"the convolution kernels themselves: oneDNN's convolutions (forward and backward, at these channel "
             f"widths) run the counted work at {row['ratio_to_matmul'] / share if share else 0:.2f}x the matmul's "
             f"rate.")
+        for name in ("channels_last", "bf16"):
+            lever, base = levers.get((row["approach"], name)), levers.get((row["approach"], "baseline"))
+            if lever is not None and base is not None:
+                lines[-1] += (f" With {name} (the lever table's rounds): {lever['ratio_to_matmul']:.2f}x, against "
+                              f"{base['ratio_to_matmul']:.2f}x for the baseline in the same rounds.")
     return "\n".join(lines)
 
 
