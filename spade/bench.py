@@ -7,7 +7,9 @@ One command measures, prints as Markdown tables, and writes as JSON (``out_json`
   (``experts``; random weights at the paper's presets where a CPU holds them);
 - APE of DDIM-k against DDPM on a *trained* conditional expert, same initial noise (``quality``; ``expert_ckpt=``
   or a tiny expert trained here for ``quality.train_steps`` steps);
-- training step time of BC, DBC and Cond-DBC with the same student (``training``);
+- training step time of BC, DBC and Cond-DBC with the same student and of the expert, their FLOP rate against a
+  matmul's, each speed lever against the baseline, profiles and Lightning's overhead (``training``; with
+  ``speed_page=docs/results/speed.md`` also written as that page);
 - metric throughput and a per-instance reference pipeline on the same predictions (``metrics``; with
   ``metrics.sensitivity=true`` also how FID follows degradations), dataset generation and read throughput
   (``data``), annotation instances/s per worker at each window size and worker count (``annotation_scaling``);
@@ -19,6 +21,8 @@ then checks the targets of the deployment issue. ``quick=true`` runs everything 
 """
 
 from __future__ import annotations
+
+import time
 
 import hydra
 from omegaconf import DictConfig
@@ -35,11 +39,24 @@ def main(cfg: DictConfig) -> None:
     from spade.config.bench_checks import validate_bench_config
     from spade.config.refusals import exit_on_user_error
 
-    exit_on_user_error(validate_bench_config)(cfg, SECTIONS)  # a bad value: one `error:` line, exit 2, before any section
+    from spade.perf.training import LEVERS
+
+    # a bad value: one `error:` line, exit 2, before any section
+    exit_on_user_error(validate_bench_config)(cfg, SECTIONS, list(LEVERS))
+    from spade.utils.provenance import command_line, commit
+
+    t0, command, checkout = time.perf_counter(), command_line("spade.bench"), commit()  # the code that runs
     results = bench(cfg)
     path = write_json(results, cfg.out_json)
     print(format_report(results))
     print(f"\nJSON: {path}")
+    if cfg.get("speed_page"):
+        from spade.perf.speed_page import read_science, write_speed_page
+
+        results["speed_science"] = read_science(cfg.get("speed_science") or [])
+
+        page = write_speed_page(results, cfg.speed_page, command, checkout, time.perf_counter() - t0)
+        print(f"Page: {page}")
 
 
 if __name__ == "__main__":

@@ -35,8 +35,13 @@ def test_quick_bench_measures_the_default_sections(tmp_path: Path) -> None:
         assert e["params"] > 0 and e["ddpm"]["steps"] == 1000 and e["ddpm"]["extrapolated"]
         assert all(r["seconds_per_sample"] > 0 and r["speedup_vs_ddpm"] > 1 for r in e["ddim"])
     approaches = [r["approach"] for r in results["training"]]
-    assert approaches == ["BC", "DBC", "Cond-DBC", "Cond-DBC (batch_terms)"]
+    assert approaches == ["BC", "DBC", "Cond-DBC", "Cond-DBC (batch_terms)", "Expert (cond tiny)"]
     assert results["training"][0]["ratio_to_bc"] == 1.0 and all(r["step_ms"] > 0 for r in results["training"])
+    assert all(r["gflop"] > 0 and r["ratio_to_matmul"] > 0 for r in results["training"])
+    speed = results["training_speed"]
+    assert {r["lever"] for r in speed["levers"]} >= {"baseline", "channels_last", "bf16", "fused"}
+    assert all(r["loss_finite"] for r in speed["levers"]) and len(speed["profiles"]) == 4
+    assert [r["setting"] for r in speed["lightning"]][0] == "bare loop"
     assert results["metrics"]["ape_hd_instances_per_s"] > 0 and results["metrics"]["fid_images_per_s"] > 0
     assert not {"annotation", "dataset", "maps"} & set(results)  # the components' sections run when named
     assert [g["preset"] for g in results["data"]["generation"]] == ["lshape", "test"]

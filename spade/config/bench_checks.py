@@ -12,7 +12,7 @@ from spade.utils.errors import ConfigError
 from spade.utils.option_checks import MISSING
 
 
-def validate_bench_config(cfg: DictConfig, known_sections: Sequence[str]) -> None:
+def validate_bench_config(cfg: DictConfig, known_sections: Sequence[str], known_levers: Sequence[str] = ()) -> None:
     """``spade.bench``'s checks before any section runs: ``quick`` a boolean, ``sections`` among ``known_sections``
     (:data:`spade.perf.bench.SECTIONS`, passed in: the benchmark sits on a higher floor), a thread count, and an
     ``out_json`` (given or the default) that replaces only an earlier benchmark's JSON, with ``overwrite=true``."""
@@ -51,3 +51,18 @@ def validate_bench_config(cfg: DictConfig, known_sections: Sequence[str]) -> Non
     check_number(cfg, "data.spacing_m", 0, low_open=True, none_ok=True)
     for key in ("student.onnx", "training.batched_terms", "metrics.sensitivity"):
         check_bool(cfg, key)
+    for key in ("training.lever_rounds", "training.lever_image_size", "training.matmul_size",
+                "training.lightning_rounds", "training.profile_top"):
+        check_int(cfg, key, 1, none_ok=True)
+    check_int(cfg, "training.lightning_steps", 0, none_ok=True, fix=" (0: no Lightning overhead table)")
+    for key in ("training.levers", "training.profile_levers"):
+        levers = get(cfg, key)
+        if known_levers and levers is not MISSING and levers is not None:
+            if isinstance(levers, str) or not isinstance(levers, list):
+                raise ConfigError(f"{key}={levers!r} is not a list; use {key}=[{','.join(list(known_levers)[1:3])}]")
+            unknown = sorted({str(x) for x in levers} - set(known_levers))
+            if unknown:
+                raise ConfigError(f"{key}: unknown {', '.join(unknown)}; use some of {', '.join(known_levers)}")
+    page = get(cfg, "speed_page")
+    if page is not MISSING and page is not None and not str(page).endswith(".md"):
+        raise ConfigError(f"speed_page={page!r} is not a .md file; set speed_page=docs/results/speed.md or null")

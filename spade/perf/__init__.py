@@ -3,7 +3,11 @@
 - :mod:`spade.perf.student` - student latency per size and batch, eager PyTorch and ONNX Runtime;
 - :mod:`spade.perf.experts` - seconds per sample of the diffusion experts (DDIM / DDPM) and the APE of DDIM-k
   against the full DDPM loop;
-- :mod:`spade.perf.training` - training step time of BC, DBC and Cond-DBC with the same student;
+- :mod:`spade.perf.training` - training steps of BC, DBC, Cond-DBC and the expert: time, FLOP rate against a
+  matmul, each speed lever, profiles (FLOPs, the matmul reference and the profiler in :mod:`spade.perf.step_cost`,
+  Lightning's per-step overhead in :mod:`spade.perf.lightning_overhead`);
+- :mod:`spade.perf.speed_page` - the training section's results page (``docs/results/speed.md``), with the bf16
+  check of :mod:`spade.perf.precision_check`;
 - :mod:`spade.perf.metrics` - APE + Hd19 and FID throughput, a per-instance reference pipeline, FID sensitivity;
 - :mod:`spade.perf.throughput` - dataset-read and generation (annotation) throughput;
 - :mod:`spade.perf.dataset` - a large dataset read in a fresh process, with its resident memory;

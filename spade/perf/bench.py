@@ -65,7 +65,7 @@ def bench(cfg: DictConfig) -> dict[str, Any]:
         if "experts" in sections:
             results["experts"] = _experts(c["experts"])
         if "training" in sections:
-            results["training"] = _training(c["training"])
+            results["training"], results["training_speed"] = _training(c["training"])
         if "metrics" in sections:
             results["metrics"] = _metrics(c["metrics"], c["seed"])
         if "decoder" in sections:
@@ -132,15 +132,40 @@ def _experts(e: dict[str, Any]) -> list[dict[str, Any]]:
     return out
 
 
-def _training(t: dict[str, Any]) -> list[dict[str, Any]]:
-    from spade.perf.training import training_step_times
+def _training(t: dict[str, Any]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The step table at every image size, then at ``lever_image_size``: each lever against the baseline, the
+    profiles and Lightning's per-step overhead (spade/perf/training.py, spade/perf/lightning_overhead.py)."""
+    from spade.perf.training import Setup, lever_table, step_profiles, training_step_times
+    from spade.utils.hardware import describe
 
+    matmul = {"matmul_size": t.get("matmul_size", 1024), "matmul_seconds": t.get("matmul_seconds", 0.5)}
     rows = []
     for size in t["image_sizes"]:
         log.info("training steps at %d px, batch %d", size, t["batch_size"])
         rows += training_step_times(t["student"], size, t["batch_size"], t["cond_presets"], t.get("uncond_preset"),
-                                    t["runs"], t["warmup"], t.get("batched_terms", True))
-    return rows
+                                    t["runs"], t["warmup"], t.get("batched_terms", True),
+                                    t.get("expert_presets") or (), **matmul)
+    speed: dict[str, Any] = {"hardware": describe(), "matmul_size": matmul["matmul_size"]}
+    px, batch = t.get("lever_image_size") or t["image_sizes"][0], t["batch_size"]
+    cond = (t.get("cond_presets") or [None])[0]
+    setups = [Setup("BC", t["student"])]
+    if cond:
+        setups.append(Setup("Cond-DBC", t["student"], cond))
+    setups += [Setup("Expert", None, p) for p in (t.get("expert_presets") or ())[:1]]
+    if t.get("levers"):
+        log.info("training levers at %d px: %s", px, t["levers"])
+        speed["levers"] = lever_table(setups, t["levers"], px, batch, t.get("lever_rounds", t["runs"]), t["warmup"],
+                                      **matmul)
+    if t.get("profile_levers"):
+        log.info("training step profiles at %d px", px)
+        speed["profiles"] = step_profiles(setups[:2], t["profile_levers"], px, batch, t.get("profile_top", 10))
+    if t.get("lightning_steps"):
+        from spade.perf.lightning_overhead import lightning_overhead
+
+        log.info("Lightning's per-step overhead at %d px", px)
+        speed["lightning"] = lightning_overhead(t["student"], px, batch, t["lightning_steps"],
+                                                t.get("lightning_rounds", 1), t.get("lightning_settings") or [])
+    return rows, speed
 
 
 def _metrics(m: dict[str, Any], seed: int) -> dict[str, Any]:

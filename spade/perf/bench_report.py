@@ -36,7 +36,7 @@ def check_targets(results: dict[str, Any]) -> list[dict[str, Any]]:
                         "setting": f"{row['image_size']} px ({row['gflop_b1']:.2f} GFLOP)", "value": f"{value:.1f} ms",
                         "met": value <= STUDENT_ONNX_TARGET_MS})
     for row in results.get("training", []):
-        if row["approach"].startswith("Cond-DBC") and "batch_terms" not in row["approach"]:
+        if row["approach"].startswith("Cond-DBC") and "batch_terms" not in row["approach"] and "ratio_to_bc" in row:
             value = row["ratio_to_bc"]
             out.append({"target": f"Cond-DBC step <= {COND_DBC_RATIO_TARGET:g} x BC step",
                         "setting": f"{row['image_size']} px, batch {row['batch_size']}, {row['student']} student, "
@@ -117,10 +117,11 @@ def format_report(results: dict[str, Any]) -> str:
         parts.append("### Path decoding per instance (the planner's search vs the paper's skeleton extraction)\n\n"
                      + _table(["decoder", "px", "instances", "median ms", "p95 ms", "CPU ms / instance"], table))
     if results.get("training"):
-        table = [[r["approach"], r["student"], r["expert_preset"] or "-", r["image_size"], r["batch_size"],
-                  r["step_ms"], r["ratio_to_bc"]] for r in results["training"]]
-        parts.append("### Training step\n\n" + _table(
-            ["approach", "student", "expert", "px", "batch", "ms / step", "x BC"], table))
+        from spade.perf.speed_page import format_training_speed, steps_table
+
+        parts.append("### Training step\n\n" + steps_table(results["training"]))
+        if results.get("training_speed"):
+            parts.append(format_training_speed(results["training_speed"]))
     if results.get("metrics"):
         parts.append(_metrics(results["metrics"]))
     if results.get("data"):
