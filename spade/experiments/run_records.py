@@ -65,6 +65,21 @@ def _instances(client: Any, run_id: str) -> list[dict[str, Any]]:
     return [{k: _number(v) for k, v in row.items()} for row in csv.DictReader(io.StringIO(text))]
 
 
+def _shown(value: str) -> str:
+    """A parameter as a committed record keeps it: a path relative to the project, never the writing machine's."""
+    if isinstance(value, str) and value.startswith("/"):
+        from spade.utils.provenance import shown_path
+
+        shown = shown_path(value)
+        if shown.startswith("/"):  # outside the project (another checkout, a run folder): its file name alone
+            from pathlib import PurePath
+
+            parts = PurePath(shown).parts
+            return "/".join(parts[-3:]) if "weights" in parts else parts[-1]
+        return shown
+    return value
+
+
 def _json_safe(value: Any) -> Any:
     if isinstance(value, float) and not math.isfinite(value):
         return None
@@ -107,9 +122,9 @@ def export_records(tracking_uri: str, experiment: str, out_dir: str | Path, rows
                 if r.get("predictor") != "model":
                     references.setdefault(r["predictor"], []).append({k: v for k, v in r.items() if k != "predictor"})
         metrics = {k: v for k, v in run.data.metrics.items() if k.startswith(KEPT_PREFIXES)}
-        params = {k: v for k, v in run.data.params.items() if k.startswith(("cfg/seed", "cfg/data/max_train",
-                                                                            "cfg/trainer/max_epochs",
-                                                                            "cfg/model/margin/"))}
+        params = {k: _shown(v) for k, v in run.data.params.items() if k.startswith(("cfg/seed", "cfg/data/max_train",
+                                                                                  "cfg/trainer/max_epochs",
+                                                                                  "cfg/model/margin/"))}
         record = {"row": name, "seed": int(seed) if seed not in ("None", "") else None, "run_id": run.info.run_id,
                   "start_time": run.info.start_time, "end_time": run.info.end_time,
                   "commit": run.data.tags.get("mlflow.source.git.commit") or run.data.tags.get("git_commit"),
