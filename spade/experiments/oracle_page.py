@@ -238,9 +238,37 @@ def _verdict(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], agains
         if group:
             lines.append(f"- **{title}** by the deciding figure (planner APE): " + "; ".join(group) + ".")
     for name, runs in rows.items():
+        if len(runs) == 1:
+            lines.append(f"- {labels.get(name, name)} has one seed: its test against BC is over scenarios only, not "
+                         "over training seeds.")
+    for name, runs in rows.items():
         lost = _losses(runs)
         if lost:
             lines.append(f"- {labels.get(name, name)} loses to the {', '.join(lost)} by the planner's APE and tail.")
+    return lines
+
+
+def _teacher_verdict(teachers: Mapping[str, str], teacher_runs: dict[str, list[RunRecord]],
+                    every: list[RunRecord]) -> list[str]:
+    """What a neural teacher must reach: each teacher's planner (one sample, medoid) against the oracle's."""
+    oracle_one = _mean(every, "test/oracle_sample/planner/ape_cm")
+    oracle_medoid = _mean(every, "test/oracle_medoid/planner/ape_cm")
+    if oracle_one is None or oracle_medoid is None:
+        return []
+    lines = [f"- What a neural teacher must reach: the oracle plans at {oracle_one:.2f} cm with one draw and "
+             f"{oracle_medoid:.2f} cm with the medoid of its draws, every path plausible (plausibility 0)."]
+    for name, label in teachers.items():
+        runs = teacher_runs.get(name, [])
+        one, med = _mean(runs, "test/planner/ape_cm"), _mean(runs, "test/medoid/planner/ape_cm")
+        plaus = _mean(runs, "test/planner/plausibility_cm")
+        if one is None:
+            continue
+        text = f"- The {label} plans at {one:.2f} cm with one sample"
+        if med is not None:
+            text += f", {med:.2f} cm with the medoid of its samples"
+        if plaus is not None:
+            text += f"; plausibility {plaus:.2f} cm"
+        lines.append(text + ".")
     return lines
 
 
@@ -280,7 +308,9 @@ def oracle_report(tracking_uri: str, output_dir: str | Path | None, settings: Ma
     rows = {k: sorted(v, key=lambda r: (r.seed is None, r.seed or 0)) for k, v in rows.items() if v}
     tests = _tests(rows, against)
     title = str(settings.get("title", "Where a teacher teaches: the oracle, the site's unsketched states, the BC ceiling"))
-    parts = [f"# {title}", "", "## Verdict", "", *_verdict(rows, labels, against, tests), ""]
+    every_run = [r for v in rows.values() for r in v]
+    parts = [f"# {title}", "", "## Verdict", "", *_verdict(rows, labels, against, tests),
+             *_teacher_verdict(teachers, teacher_runs, every_run), ""]
     seeds = sorted({len(v) for v in rows.values()})
     test_size = max((len({i.get('scenario') for r in v for i in r.instances}) for v in rows.values()), default=0)
     parts += ["## Rows", "",
