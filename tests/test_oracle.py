@@ -245,3 +245,50 @@ def test_the_oracle_as_a_planner_gives_a_genuine_alternative_and_the_medoid() ->
     assert np.allclose(refs["oracle_sample"][0], alts[0, 0].numpy())  # another draw, not the demonstration
     assert np.allclose(refs["oracle_medoid"][1][:, 0], 8.0)  # straight up: the centre of the bends -3, 0, +3
     assert reference_polylines({"waypoints": waypoints}) == {}
+
+
+def _write_with_alternatives(root, n: int, seed: int, map_prefix: str) -> None:
+    from factories import synthetic_instance
+
+    from spade.data.writer import DatasetWriter
+
+    rng = np.random.default_rng(seed)
+    with DatasetWriter(root, image_size=32, resolution=0.05, num_waypoints=16, generator_config={"seed": seed},
+                       alternatives=2, alternatives_info={"count": 2}) as w:
+        for i in range(n):
+            inst = synthetic_instance(rng, 32, 16)
+            bent = inst["waypoints"].copy()
+            bent[1:-1, 0] += 1.5  # another way to the same goal
+            labels = {"shape": "L", "map_id": f"{map_prefix}{i % 2}", "scenario_id": f"{map_prefix}{i % 2}/s{i}"}
+            w.add(**inst, **labels, alternatives=np.stack([bent]))
+
+
+def test_a_student_trains_with_the_oracle_on_labelled_and_unlabelled_states(tmp_path) -> None:
+    """The whole path of the site rows at a tiny size: a training set and a set of states without demonstrations,
+    both with alternatives, in one loader; the oracle margin on every state, BC on the labelled ones."""
+    import lightning as L
+
+    from spade.data.datamodule import PathDataModule
+    from spade.training.expert_module import ExpertModule
+    from spade.training.student_module import StudentModule
+
+    _write_with_alternatives(tmp_path / "train", 12, 0, "a")
+    _write_with_alternatives(tmp_path / "unlabelled", 8, 1, "b")
+    _write_with_alternatives(tmp_path / "test", 4, 2, "c")
+    dm = PathDataModule(tmp_path / "train", tmp_path / "test", val_fraction=0.25, batch_size=8, target_width_px=3,
+                        unlabelled_dir=tmp_path / "unlabelled", max_unlabelled_instances=6)
+    dm.setup("fit")
+    assert len(dm.train_set) > 6 and dm.unlabelled_count == 6
+    labelled = torch.cat([b["labelled"] for b in dm.train_dataloader()])
+    assert int((~labelled).sum()) == 6 and bool(labelled.any())
+    placeholder = tmp_path / "expert.ckpt"  # the expert is given below (use_expert), never loaded from here
+    placeholder.touch()
+    student = StudentModule(size="small", margin={"oracle": True, "t_max": 600, "expert_ckpt": str(placeholder)},
+                            metrics={"fid": False}, grid_size=0)
+    expert = ExpertModule(conditional=True, preset="tiny", metrics={"fid": False, "planner": False})
+    student.use_expert(expert)  # lends its schedule; the oracle stands in for its network
+    trainer = L.Trainer(max_steps=4, accelerator="cpu", logger=False, enable_checkpointing=False,
+                        enable_progress_bar=False, num_sanity_val_steps=0, limit_val_batches=0)
+    trainer.fit(student, datamodule=dm)
+    assert student.margin_history and 0.0 <= student.margin_history[-1][1] <= 1.0
+    assert all(math.isfinite(v) for _, _, v in student.margin_history)
