@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from spade.experiments.reporting.results import holm, welch
 from spade.metrics import catalog
 from spade.metrics.catalog import BASELINE_LABELS
 
@@ -265,14 +266,6 @@ class Test:
     p_holm: float | None = None
 
 
-def _welch(a: list[float], b: list[float]) -> float | None:
-    from scipy import stats
-
-    if len(a) < 2 or len(b) < 2 or (np.std(a) == 0 and np.std(b) == 0):
-        return None
-    return float(stats.ttest_ind(a, b, equal_var=False).pvalue)
-
-
 def _paired(a: list[float], b: list[float]) -> float | None:
     from scipy import stats
 
@@ -283,8 +276,6 @@ def _paired(a: list[float], b: list[float]) -> float | None:
 
 
 def _holm(tests: list[Test]) -> None:
-    from spade.experiments.reporting.results import holm
-
     for t, adjusted in zip(tests, holm([t.p for t in tests])):
         t.p_holm = adjusted
 
@@ -364,7 +355,7 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
                     if va and vb:
                         tests.append(Test(f"{dataset}, {condition}: {labels.get(a.row, a.row)} vs "
                                           f"{labels.get(b.row, b.row)}", key, float(np.mean(va)), float(np.mean(vb)),
-                                          _welch(va, vb), "Welch"))
+                                          welch(va, vb)[0], "Welch"))
             for prefix in ("baseline/shortest/", "baseline/heading/"):
                 for key in ("ape_cm", "success_rate"):
                     pairs = [(m[f"closed_loop/{key}"], m[f"closed_loop/{prefix}{key}"]) for m in a.seeds.values()

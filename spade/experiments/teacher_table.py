@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from spade.experiments.reporting.results import holm, welch
 from spade.metrics import catalog
 from spade.metrics.catalog import BASELINE_ROW_LABELS
 
@@ -122,27 +123,11 @@ def _one_sample_p(values: list[float], value: float) -> float | None:
     return float(ttest_1samp(values, value).pvalue)
 
 
-def _holm(ps: list[float | None]) -> list[float | None]:
-    order = sorted((p, i) for i, p in enumerate(ps) if p is not None)
-    out: list[float | None] = [None] * len(ps)
-    running = 0.0
-    for rank, (p, i) in enumerate(order):
-        running = max(running, min(1.0, (len(order) - rank) * p))
-        out[i] = running
-    return out
-
-
 CLOSED_LOOP_COLUMNS: tuple[tuple[str, str, str], ...] = tuple(
     (catalog.label(n), n, catalog.figure(n).fmt) for n in ("closed_loop/success_rate", "closed_loop/ape_cm"))
 """(label, metric, format) of a guided row's closed loop: its drives of the same scenario set, clean condition."""
 GUIDED_TESTED = tuple((n, catalog.figure(n).fmt) for n in ("planner/ape_cm", "planner/over_20cm_rate",
                                                              "planner/plausibility_cm", "planner/commit_rate"))
-
-
-def _welch(a: list[float], b: list[float]) -> float | None:
-    from spade.experiments.reporting.results import welch
-
-    return welch(a, b)[0]
 
 
 def _guided(client: Any, guided: Sequence[Mapping[str, Any]], scale: str | None,
@@ -190,13 +175,13 @@ def _guided(client: Any, guided: Sequence[Mapping[str, Any]], scale: str | None,
                 a, b = row.values("test/" + key), twin.values("test/" + key)
                 if a and b:
                     tests.append((f"{row.label} vs {twin.label}, {where}", key, fmt, statistics.fmean(a),
-                                  statistics.fmean(b), _welch(a, b)))
+                                  statistics.fmean(b), welch(a, b)[0]))
             for _, key, fmt in CLOSED_LOOP_COLUMNS:
                 a = [m[key] for m in driven[id(row)] if key in m and math.isfinite(m[key])]
                 b = [m[key] for m in driven[id(twin)] if key in m and math.isfinite(m[key])]
                 if a and b:
                     tests.append((f"{row.label} vs {twin.label}, {where}", key, fmt, statistics.fmean(a),
-                                  statistics.fmean(b), _welch(a, b)))
+                                  statistics.fmean(b), welch(a, b)[0]))
     return lines, tests
 
 
@@ -320,12 +305,12 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
     guided_lines, guided_tests = _guided(client, guided, scale,
                                          fetch_drives(str(tracking_uri), scale), guided_seconds)
     ps = [_one_sample_p(values, value) for _, _, value, values in tests]
-    holm = _holm(ps + [t[5] for t in guided_tests])
-    guided_holm = holm[len(ps):]
+    adjusted = holm(ps + [t[5] for t in guided_tests])
+    guided_holm = adjusted[len(ps):]
     test_lines = ["| comparison | figure | expert | student (mean of seeds) | p | p (Holm) | verdict |",
                   "|---|---|---:|---:|---:|---:|---|"]
     verdicts = []
-    for (what, key, value, values), p, ph in zip(tests, ps, holm):
+    for (what, key, value, values), p, ph in zip(tests, ps, adjusted):
         mean = statistics.fmean(values) if values else float("nan")
         sig = "no test" if ph is None else ("significant" if ph < 0.05 else "not significant")
         test_lines.append(f"| {what} | {key} | {value:.2f} | {mean:.2f} | {'n/a' if p is None else f'{p:.3g}'} | "
