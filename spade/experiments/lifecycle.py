@@ -32,6 +32,8 @@ import lightning as L
 import numpy as np
 import torch
 from lightning.pytorch.callbacks import Callback
+
+from spade.tracking.callback import NO_STAGE  # the stage of a run that trains and tests nothing
 from torch.utils.data import DataLoader, RandomSampler
 
 log = logging.getLogger(__name__)
@@ -127,7 +129,6 @@ class DeterministicTraining(Callback):
 
 
 # -- resume ---------------------------------------------------------------------------------------------------------
-NO_STAGE = "none"  # the stage a run that trains and tests nothing gives its callbacks' setup and teardown
 
 
 def run_without_stages(trainer: L.Trainer, model: L.LightningModule) -> None:

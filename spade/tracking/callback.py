@@ -49,7 +49,7 @@ from spade.tracking.runs import (
 
 log = logging.getLogger(__name__)
 
-NO_STAGE = "none"  # spade.experiments.lifecycle.NO_STAGE: the stage of a run that trains and tests nothing
+NO_STAGE = "none"  # the stage of a run that trains and tests nothing (its callbacks' setup and teardown)
 
 
 class RunRecord(Callback):

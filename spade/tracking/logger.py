@@ -40,9 +40,9 @@ from lightning.pytorch.utilities import rank_zero_only
 
 from spade.tracking.client import ensure_store
 from spade.tracking.predictors import TEST_STEP, is_reference_metric
+from spade.tracking.progress_picture import MARGIN_STEP_TAG
 
 MARGIN_PREFIX = "margin/"
-MARGIN_STEP_TAG = "spade.margin_step"  # the same name as spade.tracking.progress_picture's
 
 
 class MLFlowLogger(LightningMLFlowLogger):
