@@ -233,6 +233,12 @@ def _verdict(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], agains
             better.append(sentence)
         else:
             worse.append(sentence)
+    rule = ("a row is told apart from BC only when Welch's test over seeds (Holm's correction over the page) and the "
+            "paired bootstrap over scenarios both say so")
+    if better:
+        lines.insert(0, f"- **Where a teacher teaches here**: {len(better)} row(s) beat BC by the deciding figure ({rule}).")
+    else:
+        lines.insert(0, f"- **No row beats BC** by the deciding figure on this test set ({rule}).")
     for title, group in (("Better than BC", better), ("Worse than BC", worse),
                          ("Not told apart from BC", same)):
         if group:
