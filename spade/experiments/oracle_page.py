@@ -216,7 +216,7 @@ def _verdict(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], agains
     if ceiling is not None:
         lines.append(f"- {labels.get(against, against)} plans at {base_ape:.2f} cm; the BC ceiling is {ceiling:.2f} cm: "
                      f"a gap of {base_ape - ceiling:.2f} cm that a teacher could close.")
-    better, worse, same = [], [], []
+    better, worse, same, single = [], [], [], []
     for name, test in tests.items():
         ape = _mean(rows[name], DECIDING)
         if ape is None:
@@ -227,7 +227,9 @@ def _verdict(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], agains
         closed = "" if ceiling is None or base_ape - ceiling <= 0 else \
             f", {100 * (base_ape - ape) / (base_ape - ceiling):.0f} % of the gap to the ceiling"
         sentence = f"{label}: {ape:.2f} cm ({ape - base_ape:+.2f} cm{closed}; {_significance(test)})"
-        if not significant:
+        if len(rows[name]) < 2:  # one training seed: its difference may be the seed's, whatever the scenarios say
+            single.append(sentence)
+        elif not significant:
             same.append(sentence)
         elif ape < base_ape:
             better.append(sentence)
@@ -240,13 +242,9 @@ def _verdict(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], agains
     else:
         lines.insert(0, f"- **No row beats BC** by the deciding figure on this test set ({rule}).")
     for title, group in (("Better than BC", better), ("Worse than BC", worse),
-                         ("Not told apart from BC", same)):
+                         ("Not told apart from BC", same), ("One seed only, not tested over seeds", single)):
         if group:
             lines.append(f"- **{title}** by the deciding figure (planner APE): " + "; ".join(group) + ".")
-    for name, runs in rows.items():
-        if len(runs) == 1:
-            lines.append(f"- {labels.get(name, name)} has one seed: its test against BC is over scenarios only, not "
-                         "over training seeds.")
     for name, runs in rows.items():
         lost = _losses(runs)
         if lost:
