@@ -75,21 +75,6 @@ def draw_polyline(points: np.ndarray | None, height: int, width: int) -> np.ndar
     return image
 
 
-def batch_baseline_polylines(state: torch.Tensor, resolution: torch.Tensor | float,
-                             shapes: list[str] | None = None) -> dict[str, list[np.ndarray | None]]:
-    """Each baseline's polylines (one per instance, None where it has none) for a batch of states (B, 3, H, W)."""
-    s = state.detach().float().cpu().numpy()
-    b = s.shape[0]
-    res = np.broadcast_to(np.asarray(resolution.cpu() if isinstance(resolution, torch.Tensor) else resolution,
-                                     dtype=np.float64).reshape(-1), (b,))
-    out: dict[str, list[np.ndarray | None]] = {name: [] for name in BASELINES}
-    for i in range(b):
-        shape = shapes[i] if shapes is not None else None
-        for name, poly in baseline_polylines(s[i], float(res[i]), shape).items():
-            out[name].append(poly)
-    return out
-
-
 def fits_robot_frame(points: np.ndarray, frame: RobotFrame, margin_px: float, lookahead_px: float = 2.0) -> bool:
     """Whether a path (map pixel coords) seen from a robot at its first point, heading along it, lies
     ``margin_px`` inside the robot-frame window."""
