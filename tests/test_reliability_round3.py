@@ -198,23 +198,32 @@ def _metadata(path: Path) -> dict:
     return read_metadata(path)
 
 
-def conv_graph(path: Path, metadata: dict) -> Path:
-    """A forged graph of the right shapes, (N, 3, 64, 64) -> (N, 1, 64, 64): one 1x1 convolution of its own."""
+def one_node_graph(path: Path, metadata: dict, node: object, initializer: list) -> Path:
+    """A forged model of the right shapes, (N, 3, 64, 64) -> (N, 1, 64, 64), of one ``node`` (reading ``state``,
+    writing ``logits``) and its ``initializer`` tensors, with ``metadata`` as its ``spade`` entry."""
     onnx = pytest.importorskip("onnx")
-    import numpy as np
-    from onnx import TensorProto, helper, numpy_helper
+    from onnx import TensorProto, helper
 
-    weight = numpy_helper.from_array(np.full((1, 3, 1, 1), 0.3, np.float32), "w")
-    graph = helper.make_graph([helper.make_node("Conv", ["state", "w"], ["logits"])], "forged",
+    graph = helper.make_graph([node], "forged",
                               [helper.make_tensor_value_info("state", TensorProto.FLOAT, ["N", 3, 64, 64])],
                               [helper.make_tensor_value_info("logits", TensorProto.FLOAT, ["N", 1, 64, 64])],
-                              initializer=[weight])
+                              initializer=initializer)
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     model.ir_version = 8
     entry = model.metadata_props.add()
     entry.key, entry.value = "spade", json.dumps(metadata)
     onnx.save(model, str(path))
     return path
+
+
+def conv_graph(path: Path, metadata: dict) -> Path:
+    """A forged graph of the right shapes, (N, 3, 64, 64) -> (N, 1, 64, 64): one 1x1 convolution of its own."""
+    pytest.importorskip("onnx")
+    import numpy as np
+    from onnx import helper, numpy_helper
+
+    weight = numpy_helper.from_array(np.full((1, 3, 1, 1), 0.3, np.float32), "w")
+    return one_node_graph(path, metadata, helper.make_node("Conv", ["state", "w"], ["logits"]), [weight])
 
 
 def edited_copy(src: Path, dst: Path, *, metadata: dict | None = None, weight_delta: float = 0.0) -> Path:

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from test_reliability_outputs import one_error_line, run_main, student_checkpoint  # noqa: F401 - a fixture
-from test_reliability_round3 import _metadata, edited_copy, real_export  # noqa: F401 - a fixture
+from test_reliability_round3 import _metadata, edited_copy, one_node_graph, real_export  # noqa: F401 - a fixture
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -26,20 +26,11 @@ REPO = Path(__file__).resolve().parents[1]
 def occupancy_graph(path: Path, metadata: dict) -> Path:
     """The probe's forged student: one node returning the occupancy channel, (N, 3, 64, 64) -> (N, 1, 64, 64), with
     ``metadata`` (a real export's, its integrity record left out) as its ``spade`` entry."""
-    onnx = pytest.importorskip("onnx")
-    from onnx import TensorProto, helper, numpy_helper
+    pytest.importorskip("onnx")
+    from onnx import helper, numpy_helper
 
     consts = [numpy_helper.from_array(np.array([v], np.int64), n) for n, v in (("s", 0), ("e", 1), ("a", 1))]
-    graph = helper.make_graph([helper.make_node("Slice", ["state", "s", "e", "a"], ["logits"])], "forged",
-                              [helper.make_tensor_value_info("state", TensorProto.FLOAT, ["N", 3, 64, 64])],
-                              [helper.make_tensor_value_info("logits", TensorProto.FLOAT, ["N", 1, 64, 64])],
-                              initializer=consts)
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    entry = model.metadata_props.add()
-    entry.key, entry.value = "spade", json.dumps(metadata)
-    onnx.save(model, str(path))
-    return path
+    return one_node_graph(path, metadata, helper.make_node("Slice", ["state", "s", "e", "a"], ["logits"]), consts)
 
 
 def test_a_model_without_an_integrity_record_is_refused_unless_allowed(real_export: Path, tmp_path: Path,
