@@ -3,7 +3,7 @@
 A results page must be regenerable and testable after the machine that held ``logs/mlflow.db`` is gone. Its runs
 are exported once into files committed beside the page (``docs/results/records/<page>/``): each run's row, seed,
 times, status, test and closed-loop metrics (with its baselines' and references' figures folded in) and its
-per-instance planner figures (:data:`spade.training.base.PathPlanningModule.INSTANCES_ARTIFACT`), so that intervals
+per-instance planner figures (:data:`spade.metrics.path_metrics.INSTANCES_ARTIFACT`), so that intervals
 over scenarios can be recomputed. The instances of the data-determined predictors (baselines, the BC ceiling and the
 decoder's floor) are the same in every run on one test set: they are kept once, in ``_references.json``.
 """
@@ -18,10 +18,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from spade.metrics.path_metrics import INSTANCES_ARTIFACT
+
 __all__ = ["RunRecord", "export_records", "load_records", "REFERENCES_FILE"]
 
 REFERENCES_FILE = "_references.json"
-INSTANCES_ARTIFACT = "test_instances.csv"  # PathPlanningModule.INSTANCES_ARTIFACT (training floor: not imported)
 KEPT_PREFIXES = ("test/", "closed_loop/", "model/", "margin/")
 ROUND = 4
 

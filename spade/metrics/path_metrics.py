@@ -26,6 +26,9 @@ PLANNER_KEYS: tuple[str, ...] = ("ape_cm", "ape_median_cm", "ape_max_cm", "failu
                                   "low_confidence_rate", *PREFERENCE_KEYS)
 """The planner's figures a test logs (``planner/<key>``): MLflow's run page lists about 100 metrics, so the
 planner's figures are the ones a reader compares, not every statistic (``planner_keys=None`` keeps them all)."""
+INSTANCES_ARTIFACT = "test_instances.csv"
+"""The run artifact a test writes its per-instance planner figures to (:attr:`PathMetrics.instance_rows` of every
+predictor) and results pages read their intervals over scenarios from."""
 BASELINE_PLANNER_KEYS: tuple[str, ...] = ("ape_cm", "failure_rate", "over_20cm_rate", *PREFERENCE_KEYS)
 
 

@@ -8,7 +8,7 @@ from typing import Any
 import lightning as L
 import torch
 
-from spade.metrics.path_metrics import BASELINE_PLANNER_KEYS, PathMetrics
+from spade.metrics.path_metrics import BASELINE_PLANNER_KEYS, INSTANCES_ARTIFACT, PathMetrics
 from spade.metrics.plausible import REFERENCES, reference_maps, reference_polylines
 from spade.models.modelfile import write_checkpoint_entry
 from spade.training.logging_utils import log_image
@@ -183,9 +183,6 @@ class PathPlanningModule(L.LightningModule):
             for name, polys in reference_polylines(batch).items():
                 references[name].update(draw_polylines(polys, h, w, prob.device), batch, polylines=polys)
 
-    #: The artifact of a test's per-instance planner figures (every predictor): intervals over scenarios come from it.
-    INSTANCES_ARTIFACT = "test_instances.csv"
-
     def _log_instance_rows(self) -> None:
         """Write the per-instance planner figures of the model, the baselines and the references as one CSV
         (:data:`INSTANCES_ARTIFACT`, column ``predictor``) into the run (MLflow artifact) or the log folder."""
@@ -201,7 +198,7 @@ class PathPlanningModule(L.LightningModule):
         if rows:
             from spade.training.logging_utils import log_table_csv
 
-            log_table_csv(self.logger, rows, self.INSTANCES_ARTIFACT, self.trainer.log_dir)
+            log_table_csv(self.logger, rows, INSTANCES_ARTIFACT, self.trainer.log_dir)
 
     def _target_width(self) -> int:
         """The training target's width in pixels (the datamodule's ``target_width_px``; 1 without one)."""
