@@ -41,7 +41,7 @@ COLUMNS: tuple[tuple[str, str], ...] = (
 """(logged metric, per-instance column or ``tail``) of the rows' main figures; the tail's per-instance value is an
 APE over 20 cm or a failure."""
 SEED_ONLY: tuple[str, ...] = ("test/planner/ape_over_floor", "test/planner/failure_rate", "closed_loop/success_rate",
-                              "closed_loop/ape_cm", "closed_loop/mode_switches")
+                              "closed_loop/ape_cm", "closed_loop/mode_switches", "margin/active")
 """Figures shown as mean +/- sd over seeds only (no per-instance record)."""
 
 
