@@ -3,6 +3,8 @@ is neither the checkpoint nor a folder and replaces only an export of SPADE's wi
 
 from __future__ import annotations
 
+import re
+
 from omegaconf import DictConfig
 
 from spade.config.checkpoint_checks import check_checkpoint
@@ -50,16 +52,30 @@ def validate_export_config(cfg: DictConfig) -> None:
     _check_register(cfg, fmt)
 
 
+_RESERVED_ALIAS = re.compile(r"^(latest|v\d+)$", re.IGNORECASE)
+
+
+def _reserved_alias_problem(alias: str) -> str | None:
+    """MLflow's documented reservation: ``latest`` and ``v<digits>`` name versions, never aliases. Checked here
+    because MLflow's private validator for it has changed name between releases (3.17 -> 3.18)."""
+    if _RESERVED_ALIAS.match(alias):
+        return f"'{alias}' is reserved by MLflow's registry for versions"
+    return None
+
+
 def _mlflow_name_problem(kind: str, value: str) -> str | None:
     """What MLflow's registry would say of a model ``kind`` (name / alias) ``value`` (None: accepted), asked of its
-    own validators before any export is written; None too where this MLflow has none of them."""
+    own validators (under either release's names) before any export is written; the reserved aliases always."""
+    if kind == "alias" and (problem := _reserved_alias_problem(value)) is not None:
+        return problem
     try:
         from mlflow.exceptions import MlflowException
         from mlflow.utils import validation
     except ImportError:  # pragma: no cover - MLflow is a dependency
         return None
     checks = (["_validate_model_name"] if kind == "name"
-              else ["_validate_model_alias_name", "_validate_model_alias_name_reserved"])
+              else ["_validate_model_alias_name", "_validate_alias_name", "_validate_model_alias_name_reserved",
+                  "_validate_alias_name_reserved"])
     for name in checks:
         check = getattr(validation, name, None)
         if check is None:
