@@ -292,3 +292,45 @@ def test_a_student_trains_with_the_oracle_on_labelled_and_unlabelled_states(tmp_
     trainer.fit(student, datamodule=dm)
     assert student.margin_history and 0.0 <= student.margin_history[-1][1] <= 1.0
     assert all(math.isfinite(v) for _, _, v in student.margin_history)
+
+
+def test_every_site_row_composes_and_its_variants_change_only_what_they_name(tmp_path) -> None:
+    """The oracle page's rows (conf/experiment/site_*.yaml) compose and pass spade.train's checks; a lambda, t or
+    data-size variant differs from its parent row only in that setting and its run name."""
+    from omegaconf import OmegaConf
+
+    from spade.config.preflight import validate_train_config
+    from spade.paths import CONF_DIR
+    from training_helpers import compose_row
+
+    rows = sorted(p.stem for p in (CONF_DIR / "experiment").glob("site_*_L.yaml"))
+    composed = {}
+    for row in rows:
+        extra = ["model.margin.expert_ckpt=/nonexistent.ckpt"] if "richteacher" in row else []
+        cfg = compose_row(row, tmp_path, "logger=none", *extra)
+        assert cfg.run_name == row and cfg.tags.table == "oracle"
+        if not extra:
+            validate_train_config(cfg)
+        composed[row] = OmegaConf.to_container(cfg, resolve=False)
+
+    def differences(a: dict, b: dict, prefix: str = "") -> set[str]:
+        keys = set(a) | set(b)
+        out = set()
+        for k in keys:
+            x, y = a.get(k), b.get(k)
+            if isinstance(x, dict) and isinstance(y, dict):
+                out |= differences(x, y, f"{prefix}{k}.")
+            elif x != y:
+                out.add(f"{prefix}{k}")
+        return out
+
+    ignore = {"run_name", "paths.output_dir", "tags.row"}
+    expected = {"site_oracle_lam01_L": ("site_oracle_L", {"model.margin.lambda_dm"}),
+                "site_oracle_lam10_L": ("site_oracle_L", {"model.margin.lambda_dm"}),
+                "site_oracle_allt_L": ("site_oracle_L", {"model.margin.t_max"}),
+                "site_bc_250_L": ("site_bc_L", {"data.max_train_instances"}),
+                "site_bc_2000_L": ("site_bc_L", {"data.max_train_instances"}),
+                "site_bcplaus_250_L": ("site_bcplaus_L", {"data.max_train_instances"}),
+                "site_bcplaus_2000_L": ("site_bcplaus_L", {"data.max_train_instances"})}
+    for row, (parent, keys) in expected.items():
+        assert differences(composed[row], composed[parent]) - ignore == keys, row

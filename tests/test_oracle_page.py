@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -97,3 +98,47 @@ def test_a_small_test_set_says_so_in_the_summary() -> None:
     assert "BC ceiling       : planner/ape_cm=2.54" in small and "decoder floor    : planner/ape_cm=1.14" in small
     large = "\n".join(figure_lines({"test/scenarios": 120.0}, []))
     assert "120 scenarios" in large and "small test" not in large
+
+
+def test_the_data_size_curve_tests_each_size_against_bc_at_that_size_with_one_holm_family(tmp_path: Path) -> None:
+    from spade.experiments.oracle_page import oracle_report
+
+    records = tmp_path / "records"
+    records.mkdir()
+    rng = np.random.default_rng(1)
+    for seed in (42, 1, 2):
+        _record(records, "site_bc_250_L", seed, 6.0, rng)
+        _record(records, "site_bcplaus_250_L", seed, 4.5, rng)  # clearly better at 250
+        _record(records, "site_bc_L", seed, 4.0, rng)
+        _record(records, "site_bcplaus_L", seed, 4.02, rng)  # the same at 500
+    _record(records, "site_bc_2000_L", 42, 3.0, rng)  # one seed: never "told apart" over seeds
+    settings = {"page": "oracle", "experiment": "oracle", "records_dir": str(records), "against": "site_bc_L",
+                "rows": {"site_bc_L": "BC", "site_bcplaus_L": "BC plausible"},
+                "curve": {"BC": {250: "site_bc_250_L", 500: "site_bc_L", 2000: "site_bc_2000_L"},
+                          "BC plausible": {"250": "site_bcplaus_250_L", 500: "site_bcplaus_L"}}}
+    text, files = oracle_report(f"sqlite:///{tmp_path}/missing.db", tmp_path / "out", settings)
+    curve = text.split("## Data-size curve")[1].split("##")[0]
+    assert "| series | 250 demonstrations | 500 demonstrations | 2,000 demonstrations |" in curve
+    assert re.search(r"\| 2\.9\d \(1 seed\) \||\| 3\.0\d \(1 seed\) \|", curve) and "| floor | 2.00 | 2.00 | 2.00 |" in curve and "| BC ceiling | 2.50" in curve
+    verdict = text.split("## Rows")[0]
+    line = [x for x in verdict.splitlines() if x.startswith("- **Data-size curve**")][0]
+    at_250, at_500 = line.split("at 500")
+    assert re.search(r"at 250 demonstrations BC plans at (5\.9\d|6\.0\d) cm", at_250)
+    assert re.search(r"BC plausible 4\.[45]\d cm \(-1\.\d\d, \d+ % of the gap; told apart\)", at_250)
+    assert "not told apart" in at_500.split("at 2,000")[0]
+    # the 500-demonstration comparison is one test, with one Holm-adjusted p, in the rows and in the curve
+    holm_in_rows = text.split("## Rows")[1].split("## Between")[0].split("Holm ")[1].split(" ")[0]
+    assert f"Holm {holm_in_rows}" in curve
+    assert files["curve"].is_file() and files["curve"].stat().st_size > 5_000
+    assert "![planner APE against the number of demonstrations](oracle_curve.png)" in text
+    # curve-only rows stay out of the rows table and its tests
+    assert "site_bc_250_L" not in text.split("## Rows")[1].split("## Between")[0]
+
+
+def test_a_malformed_curve_setting_names_the_fix() -> None:
+    from spade.experiments.oracle_curve import curve_series
+
+    with pytest.raises(ValueError, match="must map a number of demonstrations"):
+        curve_series({"BC": ["site_bc_L"]})
+    with pytest.raises(ValueError, match="not a whole number"):
+        curve_series({"BC": {"many": "site_bc_L"}})

@@ -24,7 +24,7 @@ def report_files(table: Any, chart: bool = True, teacher_page: Any = None) -> li
     if str(table) == "closed_loop":
         return ["closed_loop.md", "closed_loop.csv"]
     if str(table) == "oracle":
-        return ["oracle.md"]
+        return ["oracle.md", "oracle_curve.png"]
     if str(table) == "teacher":
         from spade.experiments.teacher_table import teacher_files
 

@@ -22,6 +22,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from spade.experiments.oracle_curve import curve_rows, curve_section, curve_series, curve_tests, plot_curve
 from spade.experiments.reporting.intervals import Interval, paired_difference, scenario_interval
 from spade.experiments.reporting.results import holm, welch
 from spade.experiments.run_records import RunRecord, export_records, load_records
@@ -163,21 +164,23 @@ def _losses(runs: list[RunRecord]) -> list[str]:
 
 
 def _tests(rows: dict[str, list[RunRecord]], against: str) -> dict[str, dict[str, Any]]:
-    """Each row against ``against`` on the deciding figure: Welch over seeds (Holm over the page) and the paired
-    bootstrap over scenarios (the seed-pooled per-scenario means)."""
+    """Each row against ``against`` on the deciding figure: Welch over seeds and the paired bootstrap over scenarios
+    (the seed-pooled per-scenario means); Holm's correction is applied by :func:`_correct` over the page."""
     base = rows.get(against, [])
-    names = [n for n in rows if n != against]
     out: dict[str, dict[str, Any]] = {}
-    ps = []
-    for name in names:
+    for name in (n for n in rows if n != against):
         p, wording = welch(_values(rows[name], DECIDING), _values(base, DECIDING))
-        ps.append(p)
         a = _by_scenario([i for r in rows[name] for i in r.instances], "planner_ape_cm")
         b = _by_scenario([i for r in base for i in r.instances], "planner_ape_cm")
         out[name] = {"p": p, "wording": wording, "paired": paired_difference(a, b) if a and b else None}
-    for name, adjusted in zip(names, holm(ps)):
-        out[name]["holm"] = adjusted
     return out
+
+
+def _correct(*families: Mapping[Any, dict[str, Any]]) -> None:
+    """Holm's correction over every distinct test of the page (a test shared by two sections counted once)."""
+    tests = list({id(t): t for family in families for t in family.values()}.values())
+    for test, adjusted in zip(tests, holm([t["p"] for t in tests])):
+        test["holm"] = adjusted
 
 
 def _significance(test: dict[str, Any]) -> str:
@@ -280,7 +283,7 @@ def _provenance(runs: list[RunRecord], records_dir: Path) -> list[str]:
     from spade.utils.provenance import command_line, commit, machine, shown_path
 
     lines = [f"- command: `{command_line('spade.report')}`",
-             "- launch: `python -m spade.train -m +experiment=ROW seed=42,1,2` for each row below "
+             "- launch: `python -m spade.train -m +experiment=ROW seed=42,1,2,3,4` for each row below "
              "(conf/experiment/site_*.yaml)",
              f"- commit: {commit() or 'unknown (not a git checkout)'}",
              f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
@@ -299,21 +302,27 @@ def oracle_report(tracking_uri: str, output_dir: str | Path | None, settings: Ma
     labels: dict[str, str] = dict(settings.get("rows") or {})
     teachers: dict[str, str] = dict(settings.get("teachers") or {})
     against = str(settings.get("against", "site_bc_L"))
+    curve = curve_series(settings.get("curve"))
     records_dir = Path(str(settings["records_dir"]))
     if _store_exists(tracking_uri):
         export_records(tracking_uri, str(settings.get("experiment", "oracle")), records_dir,
-                       [*labels, *teachers] or None)
+                       [*labels, *teachers, *curve_rows(curve)] or None)
     runs, references = load_records(records_dir) if records_dir.is_dir() else ([], {})
-    rows: dict[str, list[RunRecord]] = {name: [] for name in labels}
-    teacher_runs: dict[str, list[RunRecord]] = {}
+    by_name: dict[str, list[RunRecord]] = {}
     for run in runs:
-        (teacher_runs if run.row in teachers else rows).setdefault(run.row, []).append(run)
+        by_name.setdefault(run.row, []).append(run)
+    rows: dict[str, list[RunRecord]] = {name: list(by_name.get(name, [])) for name in labels}
+    teacher_runs = {name: by_name[name] for name in teachers if name in by_name}
     missing = [k for k, v in rows.items() if not v]  # named rows without a finished run: shown, never dropped
     rows = {k: sorted(v, key=lambda r: (r.seed is None, r.seed or 0)) for k, v in rows.items() if v}
     tests = _tests(rows, against)
+    ctests = curve_tests(curve, by_name, {(name, against): test for name, test in tests.items()})
+    _correct(tests, ctests)
     title = str(settings.get("title", "Where a teacher teaches: the oracle, the site's unsketched states, the BC ceiling"))
     every_run = [r for v in rows.values() for r in v]
-    parts = [f"# {title}", "", "## Verdict", "", *_verdict(rows, labels, against, tests),
+    floor, ceiling = _mean(every_run, "test/floor_cm"), _mean(every_run, "test/ceiling/planner/ape_cm")
+    curve_lines, curve_verdict = curve_section(curve, by_name, ctests, floor, ceiling, _significance, _significant)
+    parts = [f"# {title}", "", "## Verdict", "", *_verdict(rows, labels, against, tests), *curve_verdict,
              *_teacher_verdict(teachers, teacher_runs, every_run), ""]
     seeds = sorted({len(v) for v in rows.values()})
     test_size = max((len({i.get('scenario') for r in v for i in r.instances}) for v in rows.values()), default=0)
@@ -337,6 +346,15 @@ def oracle_report(tracking_uri: str, output_dir: str | Path | None, settings: Ma
     parts += ["", "## Between the floor and the ceiling, beside the baselines", "",
               "The same test set for every row: these predictors learn nothing, so one run's figures hold for all.", "",
               *_reference_rows(every, references), ""]
+    page = str(settings.get("page", "oracle"))
+    if curve_lines:
+        chart = f"{page}_curve.png"
+        parts += ["## Data-size curve", "",
+                  "Planner APE (cm) at each number of the site's demonstrations, mean ± sd over seeds; each series "
+                  "is tested against the first at the same size by the page's rule (Welch with Holm over the curve, "
+                  "and the paired bootstrap over scenarios). The floor and the BC ceiling do not depend on the "
+                  "training set.", "", *curve_lines, "", f"![planner APE against the number of demonstrations]({chart})",
+                  ""]
     teacher_lines = _teacher_rows(teachers, teacher_runs, references, every)
     if teacher_lines:
         parts += ["## The teachers as planners, beside the oracle", "",
@@ -344,15 +362,28 @@ def oracle_report(tracking_uri: str, output_dir: str | Path | None, settings: Ma
                   "test set, decoded by the planner (one sample with its interval over scenarios; the mean of its "
                   "samples' maps; their medoid, the minimum-Bayes-risk reading), beside the oracle as a planner.", "",
                   *teacher_lines, ""]
-    parts += ["## Provenance", "", *_provenance(every + [r for v in teacher_runs.values() for r in v], records_dir), ""]
+    shown = {id(r) for r in every}
+    extra = [r for v in teacher_runs.values() for r in v] + \
+        [r for name in sorted(curve_rows(curve)) for r in by_name.get(name, []) if id(r) not in shown]
+    parts += ["## Provenance", "", *_provenance(every + extra, records_dir), ""]
     files: dict[str, Path] = {}
     text = "\n".join(parts)
     if output_dir is not None:
         out = Path(output_dir)
         out.mkdir(parents=True, exist_ok=True)
-        files["markdown"] = out / f"{settings.get('page', 'oracle')}.md"
+        files["markdown"] = out / f"{page}.md"
         files["markdown"].write_text(text + "\n")
+        if curve_lines:
+            files["curve"] = out / f"{page}_curve.png"
+            plot_curve(curve, by_name, floor, ceiling, _best_baseline(every), files["curve"])
     return text, files
+
+
+def _best_baseline(runs: list[RunRecord]) -> tuple[str, float] | None:
+    """The non-learned baseline with the lowest planner APE on the page's test set, as (label, APE)."""
+    found = [(BASELINE_ROW_LABELS[b], ape) for b in BASELINE_ROW_LABELS
+             if (ape := _mean(runs, f"test/baseline/{b}/planner/ape_cm")) is not None]
+    return min(found, key=lambda x: x[1]) if found else None
 
 
 def _seed_counts(counts: list[int]) -> str:
