@@ -91,14 +91,15 @@ def _mean_sd(values: list[float]) -> str:
     return f"{statistics.fmean(values):.2f} ± {statistics.stdev(values):.2f} ({len(values)} seeds)"
 
 
-def curve_section(series: CurveSeries, runs: Mapping[str, list[RunRecord]], tests: dict[tuple[str, int], dict[str, Any]],
-                  floor: float | None, ceiling: float | None, significance: Callable[[dict[str, Any]], str],
+def curve_section(series: CurveSeries, runs: Mapping[str, list[RunRecord]],
+                  tests: dict[tuple[str, int], dict[str, Any]], floor: float | None, ceiling: float | None,
                   significant: Callable[[dict[str, Any]], bool]) -> tuple[list[str], list[str]]:
     """(the section's markdown lines, the verdict's sentences) of the curve; empty when no point has a run."""
     if not any(runs.get(row) for points in series.values() for row in points.values()):
         return [], []
     sizes = sorted({s for points in series.values() for s in points})
     labels = list(series)
+    base = series[labels[0]]
     lines = ["| series | " + " | ".join(f"{s:,} demonstrations" for s in sizes) + " |",
              "|---|" + "---|" * len(sizes)]
     for label in labels:
@@ -106,8 +107,13 @@ def curve_section(series: CurveSeries, runs: Mapping[str, list[RunRecord]], test
         for size in sizes:
             row = series[label].get(size)
             cell = _mean_sd(_values(runs.get(row, []))) if row else "—"
-            if (label, size) in tests:
-                cell += f" <br>{significance(tests[(label, size)])}"
+            test = tests.get((label, size))
+            base_values = _values(runs.get(base.get(size, ""), []))
+            if test is not None and base_values and row:
+                diff = statistics.fmean(_values(runs[row])) - statistics.fmean(base_values)
+                holm_p = test.get("holm")
+                cell += (f" <br>{diff:+.2f} cm, {'told apart' if significant(test) else 'not told apart'}"
+                         + ("" if holm_p is None else f" (Holm p {holm_p:.2g})"))
             cells.append(cell)
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     if floor is not None:
@@ -115,7 +121,6 @@ def curve_section(series: CurveSeries, runs: Mapping[str, list[RunRecord]], test
     if ceiling is not None:
         lines.append("| BC ceiling | " + " | ".join(f"{ceiling:.2f}" for _ in sizes) + " |")
     verdict = []
-    base = series[labels[0]]
     for size in sizes:
         bc = _values(runs.get(base.get(size, ""), []))
         if not bc:

@@ -183,18 +183,6 @@ def _correct(*families: Mapping[Any, dict[str, Any]]) -> None:
         test["holm"] = adjusted
 
 
-def _significance(test: dict[str, Any]) -> str:
-    holm_p = test.get("holm")
-    welch_text = "Welch: no test" if holm_p is None else (
-        f"Welch p = {test['p']:.3g}, Holm {holm_p:.3g}" + (" (significant)" if holm_p < 0.05 else " (not significant)"))
-    paired = test.get("paired")
-    if paired is None or math.isnan(paired.low):
-        return welch_text
-    verdict = "excludes 0" if paired.excludes_zero() else "includes 0"
-    return f"{welch_text}; paired over {paired.scenarios} scenarios: {paired.mean:+.2f} cm [{paired.low:+.2f}, " \
-           f"{paired.high:+.2f}] ({verdict})"
-
-
 def _significant(test: dict[str, Any]) -> bool:
     """Told apart from the row it is tested against: by Welch's test over seeds after Holm's correction AND by the
     paired bootstrap over scenarios (the seeds' training spread and the test set's sampling both), each where it
@@ -208,51 +196,114 @@ def _significant(test: dict[str, Any]) -> bool:
     return bool(checks) and all(checks)
 
 
+def _outcome(rows: dict[str, list[RunRecord]], name: str, base_ape: float, test: dict[str, Any]) -> str:
+    """better / worse / not told apart / one seed: a row against BC by the page's rule."""
+    if len(rows[name]) < 2:  # one training seed: its difference may be the seed's, whatever the scenarios say
+        return "one seed"
+    if not _significant(test):
+        return "not told apart"
+    ape = _mean(rows[name], DECIDING)
+    return "better" if ape is not None and ape < base_ape else "worse"
+
+
 def _verdict(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], against: str,
              tests: dict[str, dict[str, Any]]) -> list[str]:
-    """The page's finding in sentences, from the figures."""
+    """The page's finding in short sentences, from the figures (the numbers of each test are in the tests table)."""
     base_ape = _mean(rows.get(against, []), DECIDING)
     ceiling = _mean([r for rs in rows.values() for r in rs], "test/ceiling/planner/ape_cm")
     if base_ape is None:
         return [f"No finished run of {labels.get(against, against)}: nothing to compare against."]
-    lines = []
-    if ceiling is not None:
-        lines.append(f"- {labels.get(against, against)} plans at {base_ape:.2f} cm; the BC ceiling is {ceiling:.2f} cm: "
-                     f"a gap of {base_ape - ceiling:.2f} cm that a teacher could close.")
-    better, worse, same, single = [], [], [], []
+    groups: dict[str, list[str]] = {"better": [], "worse": [], "not told apart": [], "one seed": []}
     for name, test in tests.items():
         ape = _mean(rows[name], DECIDING)
         if ape is None:
             continue
-        label = labels.get(name, name)
-        paired = test.get("paired")
-        significant = _significant(test)
         closed = "" if ceiling is None or base_ape - ceiling <= 0 else \
-            f", {100 * (base_ape - ape) / (base_ape - ceiling):.0f} % of the gap to the ceiling"
-        sentence = f"{label}: {ape:.2f} cm ({ape - base_ape:+.2f} cm{closed}; {_significance(test)})"
-        if len(rows[name]) < 2:  # one training seed: its difference may be the seed's, whatever the scenarios say
-            single.append(sentence)
-        elif not significant:
-            same.append(sentence)
-        elif ape < base_ape:
-            better.append(sentence)
-        else:
-            worse.append(sentence)
-    rule = ("a row is told apart from BC only when Welch's test over seeds (Holm's correction over the page) and the "
-            "paired bootstrap over scenarios both say so")
-    if better:
-        lines.insert(0, f"- **Where a teacher teaches here**: {len(better)} row(s) beat BC by the deciding figure ({rule}).")
-    else:
-        lines.insert(0, f"- **No row beats BC** by the deciding figure on this test set ({rule}).")
-    for title, group in (("Better than BC", better), ("Worse than BC", worse),
-                         ("Not told apart from BC", same), ("One seed only, not tested over seeds", single)):
-        if group:
-            lines.append(f"- **{title}** by the deciding figure (planner APE): " + "; ".join(group) + ".")
+            f", {100 * (base_ape - ape) / (base_ape - ceiling):.0f} % of the gap"
+        groups[_outcome(rows, name, base_ape, test)].append(
+            f"{labels.get(name, name)} {ape:.2f} cm ({ape - base_ape:+.2f}{closed})")
+    rule = ("told apart only when Welch's test over seeds (Holm's correction over the page) and the paired "
+            "bootstrap over scenarios agree")
+    head = (f"- **Where a teacher teaches here**: {len(groups['better'])} row(s) beat BC by the deciding figure, "
+            f"the planner's APE ({rule})." if groups["better"] else
+            f"- **No row beats BC** by the deciding figure, the planner's APE ({rule}).")
+    lines = [head]
+    if ceiling is not None:
+        lines.append(f"- {labels.get(against, against)} plans at {base_ape:.2f} cm; the BC ceiling is {ceiling:.2f} cm: "
+                     f"a gap of {base_ape - ceiling:.2f} cm that a teacher could close.")
+    for title, key in (("Better than BC", "better"), ("Worse than BC", "worse"),
+                       ("Not told apart from BC", "not told apart"), ("One seed only, not tested over seeds", "one seed")):
+        if groups[key]:
+            lines.append(f"- **{title}**: " + "; ".join(groups[key]) + ".")
     for name, runs in rows.items():
         lost = _losses(runs)
         if lost:
             lines.append(f"- {labels.get(name, name)} loses to the {', '.join(lost)} by the planner's APE and tail.")
     return lines
+
+
+HEADLINE: tuple[tuple[str, str, str | None], ...] = (
+    ("planner APE (cm) [95 % CI]", "test/planner/ape_cm", "planner_ape_cm"),
+    ("> 20 cm", "test/planner/over_20cm_rate", None),
+    ("plausibility (cm)", "test/planner/plausibility_cm", None),
+    ("commits", "test/planner/commit_rate", None),
+    ("closed-loop APE (cm)", "closed_loop/ape_cm", None),
+)
+"""The headline table's figures (short headers: the table fits the docs column); every figure is in the full table."""
+
+
+def _headline(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], against: str,
+              tests: dict[str, dict[str, Any]]) -> list[str]:
+    """One short table: each row's deciding figure with its interval, tail, preference figures, closed loop and its
+    outcome against BC."""
+    base_ape = _mean(rows.get(against, []), DECIDING)
+    lines = ["| row | seeds | " + " | ".join(h for h, _, _ in HEADLINE) + " | against BC |",
+             "|---|---|" + "---|" * len(HEADLINE) + "---|"]
+    for name, runs in rows.items():
+        cells = []
+        for _, metric, column in HEADLINE:
+            text = _mean_sd(_values(runs, metric), metric.replace("test/", ""))
+            if column is not None and text != "n/a":
+                instances = [i for r in runs for i in r.instances]
+                interval = _interval(instances, column) if instances else None
+                if interval is not None and not math.isnan(interval.low):
+                    text = f"{text} [{interval.low:.2f}, {interval.high:.2f}]"
+            cells.append(text)
+        if name == against or base_ape is None:
+            outcome = "—"
+        else:
+            ape = _mean(runs, DECIDING)
+            outcome = f"{ape - base_ape:+.2f} cm, {_outcome(rows, name, base_ape, tests.get(name, {}))}" \
+                if ape is not None else "n/a"
+        lines.append(f"| {labels.get(name, name)} | {len(runs)} | " + " | ".join(cells) + f" | {outcome} |")
+    return lines
+
+
+def _tests_table(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], against: str,
+                 tests: dict[str, dict[str, Any]]) -> list[str]:
+    """The tests against BC, those told apart first: difference, Welch's p, Holm's p, the paired bootstrap."""
+    base_ape = _mean(rows.get(against, []), DECIDING)
+    if base_ape is None or not tests:
+        return []
+    lines = ["| row | difference (cm) | Welch p | Holm p | paired over scenarios (cm) [95 % CI] | outcome |",
+             "|---|---|---|---|---|---|"]
+    order = sorted(tests, key=lambda n: (not _significant(tests[n]), tests[n].get("holm") or 2.0))
+    for name in order:
+        test, ape = tests[name], _mean(rows[name], DECIDING)
+        if ape is None:
+            continue
+        p, holm_p, paired = test.get("p"), test.get("holm"), test.get("paired")
+        paired_text = "n/a" if paired is None or math.isnan(paired.low) else \
+            f"{paired.mean:+.2f} [{paired.low:+.2f}, {paired.high:+.2f}]"
+        lines.append(f"| {labels.get(name, name)} | {ape - base_ape:+.2f} | {'n/a' if p is None else f'{p:.3g}'} | "
+                     f"{'n/a' if holm_p is None else f'{holm_p:.3g}'} | {paired_text} | "
+                     f"{_outcome(rows, name, base_ape, test)} |")
+    return lines
+
+
+def _collapsed(title: str, lines: list[str]) -> list[str]:
+    """A block the docs site shows closed (pymdownx.details): the full tables below the headline."""
+    return [f'??? note "{title}"', "", *(f"    {line}" if line else "" for line in lines)]
 
 
 def _teacher_verdict(teachers: Mapping[str, str], teacher_runs: dict[str, list[RunRecord]],
@@ -321,27 +372,32 @@ def oracle_report(tracking_uri: str, output_dir: str | Path | None, settings: Ma
     title = str(settings.get("title", "Where a teacher teaches: the oracle, the site's unsketched states, the BC ceiling"))
     every_run = [r for v in rows.values() for r in v]
     floor, ceiling = _mean(every_run, "test/floor_cm"), _mean(every_run, "test/ceiling/planner/ape_cm")
-    curve_lines, curve_verdict = curve_section(curve, by_name, ctests, floor, ceiling, _significance, _significant)
+    curve_lines, curve_verdict = curve_section(curve, by_name, ctests, floor, ceiling, _significant)
     parts = [f"# {title}", "", "## Verdict", "", *_verdict(rows, labels, against, tests), *curve_verdict,
              *_teacher_verdict(teachers, teacher_runs, every_run), ""]
     seeds = sorted({len(v) for v in rows.values()})
     test_size = max((len({i.get('scenario') for r in v for i in r.instances}) for v in rows.values()), default=0)
     parts += ["## Rows", "",
-              f"Mean ± sd over seeds ({_seed_counts(seeds)} per row) and, "
-              f"under it, the 95 % interval of a bootstrap over the {test_size} test scenarios (all seeds pooled). "
-              "The deciding figure is the planner's APE with its tail; plausibility and commitment see the "
-              "preference.", ""]
+              f"Mean ± sd over seeds ({_seed_counts(seeds)} per row) with, for the planner's APE, the 95 % interval "
+              f"of a bootstrap over the {test_size} test scenarios (all seeds pooled). The deciding figure is the "
+              "planner's APE with its tail (the [metrics reference](../reference/metrics.md) says why); plausibility and "
+              "commitment see the preference.", "", *_headline(rows, labels, against, tests), ""]
+    for name in missing:
+        parts.append(f"- not run yet: {labels.get(name, name)} (`+experiment={name}`)")
+    if missing:
+        parts.append("")
+    tests_lines = _tests_table(rows, labels, against, tests)
+    if tests_lines:
+        parts += [f"## Tests against {labels.get(against, against)}", "", *tests_lines, ""]
     header = ["row", "seeds", *(catalog.label(m.split('/', 1)[1]) for m, _ in COLUMNS),
               *(("closed-loop " if m.startswith("closed_loop/") and not catalog.label(m).startswith("closed")
-                 else "") + catalog.label(m.replace('test/', '')) for m in SEED_ONLY), f"against {labels.get(against, against)}"]
-    parts += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+                 else "") + catalog.label(m.replace('test/', '')) for m in SEED_ONLY)]
+    full = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for name, runs_ in rows.items():
         cells = [labels.get(name, name), str(len(runs_)), *(_cell(runs_, m, c) for m, c in COLUMNS),
-                 *(_mean_sd(_values(runs_, m), m.replace("test/", "")) for m in SEED_ONLY),
-                 "—" if name == against else _significance(tests.get(name, {}))]
-        parts.append("| " + " | ".join(cells) + " |")
-    for name in missing:
-        parts.append(f"| {labels.get(name, name)} | 0 | " + " | ".join("not run" for _ in header[2:]) + " |")
+                 *(_mean_sd(_values(runs_, m), m.replace("test/", "")) for m in SEED_ONLY)]
+        full.append("| " + " | ".join(cells) + " |")
+    parts += [*_collapsed("Every figure of every row (mean ± sd over seeds, 95 % interval over scenarios)", full), ""]
     every = [r for v in rows.values() for r in v]
     parts += ["", "## Between the floor and the ceiling, beside the baselines", "",
               "The same test set for every row: these predictors learn nothing, so one run's figures hold for all.", "",
