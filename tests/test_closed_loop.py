@@ -254,10 +254,10 @@ def test_evaluate_drives_the_test_scenarios_in_closed_loop(spade_home, tiny_chec
     assert "test/ape_cm" not in only
     for key in ("closed_loop/ape_cm", "closed_loop/success_rate", "closed_loop/baseline/heading/ape_cm"):
         assert only[key] == first[key], key  # same seed, same noise, same paths
-    from spade.experiments.closed_loop_evaluation import ClosedLoopConfigError
     from spade.utils.errors import ConfigError
 
-    with pytest.raises(ClosedLoopConfigError, match="noise_xy_m must be a number >= 0"):
+    # refused by the drive preflight (spade/config/drive_checks.py) before any run opens
+    with pytest.raises(ConfigError, match=r"drive\.noise_xy_m=-0\.1 is out of range; set it to a number >= 0"):
         evaluate(compose_config("evaluate", [*overrides, "drive.noise_xy_m=-0.1"]))
     expert = [f"ckpt_path={tiny_checkpoints['cond']}", *overrides[1:]]
     with pytest.raises(ConfigError, match="closed_loop=true drives a planner"):
