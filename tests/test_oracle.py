@@ -334,3 +334,49 @@ def test_every_site_row_composes_and_its_variants_change_only_what_they_name(tmp
                 "site_bcplaus_2000_L": ("site_bcplaus_L", {"data.max_train_instances"})}
     for row, (parent, keys) in expected.items():
         assert differences(composed[row], composed[parent]) - ignore == keys, row
+
+
+def test_a_teachers_medoid_plans_label_the_unsketched_states_once(tmp_path, tiny_checkpoints) -> None:
+    """data.unlabelled_teacher: the states without demonstrations get the medoid of the expert's decoded samples as
+    their label, from the robot's start to the goal, written once beside the unlabelled set and reused; BC sees them
+    as labelled states. A student checkpoint, or the option without unlabelled_labels, is refused by name."""
+    from spade.data.datamodule import PathDataModule
+    from spade.data.format import DatasetError
+    from spade.data.path_dataset import PathDataset
+    from spade.data.teacher_labels import ensure_teacher_labels
+
+    _write_with_alternatives(tmp_path / "train", 12, 0, "a")
+    _write_with_alternatives(tmp_path / "unlabelled", 8, 1, "b")
+    _write_with_alternatives(tmp_path / "test", 4, 2, "c")
+    source = PathDataset(tmp_path / "unlabelled")
+    out = ensure_teacher_labels(tiny_checkpoints["cond"], tmp_path / "unlabelled", 2, 6, "binary")
+    labels = PathDataset(out)
+    info = labels.manifest.generator["teacher_labels"]
+    assert info["samples"] == 2 and info["states"] == 6 and len(labels) + labels.manifest.extra[
+        "teacher_labels_left_out"] == 6
+    assert labels.manifest.alternatives == 0  # the generator's alternatives are the oracle's, never copied
+    scenarios = source.labels("scenario_id")
+    for i in range(len(labels)):
+        got = labels[i]
+        src = source[scenarios.index(got["scenario_id"])]
+        assert torch.equal(got["state"], src["state"])  # the same window, start and goal: only the label is new
+        assert got["path"].sum() > 0 and got["waypoints"].shape == src["waypoints"].shape
+        for end in (0, -1):  # the teacher's plan runs from the robot's start to the goal
+            assert float(torch.linalg.norm(got["waypoints"][end] - src["waypoints"][end])) < 1.5
+    stamp = (out / "manifest.json").stat().st_mtime_ns
+    assert ensure_teacher_labels(tiny_checkpoints["cond"], tmp_path / "unlabelled", 2, 6, "binary") == out
+    assert (out / "manifest.json").stat().st_mtime_ns == stamp  # sampled once, then read
+
+    dm = PathDataModule(tmp_path / "train", tmp_path / "test", val_fraction=0.25, batch_size=8,
+                        unlabelled_dir=tmp_path / "unlabelled", max_unlabelled_instances=6, unlabelled_labels=True,
+                        unlabelled_teacher=tiny_checkpoints["cond"], unlabelled_teacher_samples=2)
+    dm.setup("fit")
+    assert dm.unlabelled_count == len(labels)
+    assert all(bool(b["labelled"].all()) for b in dm.train_dataloader())
+    with pytest.raises(ValueError, match="data.unlabelled_labels=true"):
+        PathDataModule(tmp_path / "train", unlabelled_dir=tmp_path / "unlabelled",
+                       unlabelled_teacher=tiny_checkpoints["cond"])
+    with pytest.raises(DatasetError, match="is a student checkpoint"):
+        ensure_teacher_labels(tiny_checkpoints["student"], tmp_path / "unlabelled", 2, 3, "binary")
+    with pytest.raises(DatasetError, match="does not exist"):
+        ensure_teacher_labels(tmp_path / "missing.ckpt", tmp_path / "unlabelled", 2, 3, "binary")

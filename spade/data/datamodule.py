@@ -90,12 +90,15 @@ class PathDataModule(L.LightningDataModule):
         unlabelled_generate: Any = None,
         max_unlabelled_instances: int | None = None,
         unlabelled_labels: bool = False,
+        unlabelled_teacher: str | Path | None = None,
+        unlabelled_teacher_samples: int = 4,
     ) -> None:
         options = DataOptions(batch_size=batch_size, eval_batch_size=eval_batch_size, num_workers=num_workers,
                               val_fraction=val_fraction, split_seed=split_seed,
                               max_train_instances=max_train_instances, max_test_instances=max_test_instances,
                               target_width_px=target_width_px, encoding=encoding, target_source=target_source,
-                              max_unlabelled_instances=max_unlabelled_instances)
+                              max_unlabelled_instances=max_unlabelled_instances,
+                              unlabelled_teacher_samples=unlabelled_teacher_samples)
         super().__init__()
         self.experiment = experiment
         self.encoding = options.encoding
@@ -118,6 +121,12 @@ class PathDataModule(L.LightningDataModule):
         # True: the unlabelled states keep their generator draw as a BC label (the oracle teacher's own samples as
         # labels: diffusion-based augmentation read literally, with a perfect teacher)
         self.unlabelled_labels = bool(unlabelled_labels)
+        # an expert checkpoint: the labels are its committed plans instead (spade.data.teacher_labels)
+        self.unlabelled_teacher = Path(unlabelled_teacher) if unlabelled_teacher not in (None, "") else None
+        self.unlabelled_teacher_samples = options.unlabelled_teacher_samples
+        if self.unlabelled_teacher is not None and not (self.unlabelled_labels and self.unlabelled_dir is not None):
+            raise ValueError(f"data.unlabelled_teacher={self.unlabelled_teacher} labels the unlabelled states: set "
+                             "data.unlabelled_dir and data.unlabelled_labels=true with it (or drop it)")
         self.generator = generator
         self.train_set = self.val_set = self.test_set = None
 
@@ -227,6 +236,13 @@ class PathDataModule(L.LightningDataModule):
                                    "the margin trained on; draw the unlabelled states with another seed")
         n = len(unlabelled) if not self.max_unlabelled_instances else min(len(unlabelled),
                                                                           self.max_unlabelled_instances)
+        if self.unlabelled_teacher is not None:  # the teacher's medoid plans as the labels, sampled once per teacher
+            from spade.data.teacher_labels import ensure_teacher_labels
+
+            labels_dir = ensure_teacher_labels(self.unlabelled_teacher, self.unlabelled_dir,
+                                               self.unlabelled_teacher_samples, n, self.encoding)
+            unlabelled = PathDataset(labels_dir, encoding=self.encoding)
+            n = len(unlabelled)
         slots = max(full.manifest.alternatives, unlabelled.manifest.alternatives)
         k = full.manifest.num_waypoints
         self.unlabelled_count = n

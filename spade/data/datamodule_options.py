@@ -43,6 +43,7 @@ class DataOptions:
     encoding: str = "binary"  # the start and goal markers (spade.data.encoding.MARKER_ENCODINGS)
     target_source: str = "demonstration"  # BC's label: the demonstration, or plausible_mean (spade.data.plausible)
     max_unlabelled_instances: int | None = None
+    unlabelled_teacher_samples: int = 4  # samples per state whose medoid labels it (spade.data.teacher_labels)
 
     def __post_init__(self) -> None:
         check_int_value("data.batch_size", self.batch_size, 1, fix=", e.g. data.batch_size=32")
@@ -58,6 +59,8 @@ class DataOptions:
             raise ConfigError(f"data.target_width_px={width!r} is not an odd number of pixels >= 1; set it to 1 (or "
                               "3, 5, ...)")
         check_int_value("data.max_unlabelled_instances", self.max_unlabelled_instances, 1, none_ok=True)
+        check_int_value("data.unlabelled_teacher_samples", self.unlabelled_teacher_samples, 1,
+                        fix=" (4: the medoid of four samples)")
         if self.target_source not in TARGET_SOURCES:
             raise ConfigError(f"data.target_source={self.target_source!r} is not one of {list(TARGET_SOURCES)}; set "
                               "data.target_source=demonstration (the paper's BC) or plausible_mean (BC on the mean of "
