@@ -306,7 +306,8 @@ def test_every_site_row_composes_and_its_variants_change_only_what_they_name(tmp
     rows = sorted(p.stem for p in (CONF_DIR / "experiment").glob("site_*_L.yaml"))
     composed = {}
     for row in rows:
-        extra = ["model.margin.expert_ckpt=/nonexistent.ckpt"] if "richteacher" in row else []
+        extra = ["model.margin.expert_ckpt=/nonexistent.ckpt"] if "richteacher" in row else \
+            ["data.unlabelled_teacher=/nonexistent.ckpt"] if "richlabels" in row else []
         cfg = compose_row(row, tmp_path, "logger=none", *extra)
         assert cfg.run_name == row and cfg.tags.table == "oracle"
         if not extra:
@@ -380,3 +381,17 @@ def test_a_teachers_medoid_plans_label_the_unsketched_states_once(tmp_path, tiny
         ensure_teacher_labels(tiny_checkpoints["student"], tmp_path / "unlabelled", 2, 3, "binary")
     with pytest.raises(DatasetError, match="does not exist"):
         ensure_teacher_labels(tmp_path / "missing.ckpt", tmp_path / "unlabelled", 2, 3, "binary")
+
+
+def test_the_teacher_label_row_is_refused_before_it_starts_without_a_teacher(tmp_path) -> None:
+    from spade.config.preflight import validate_train_config
+    from spade.utils.errors import ConfigError
+    from training_helpers import compose_row
+
+    cfg = compose_row("site_richlabels_L", tmp_path, "logger=none", f"data.unlabelled_teacher={tmp_path}/none.ckpt")
+    with pytest.raises(ConfigError, match=r"data.unlabelled_teacher=.*none.ckpt does not exist"):
+        validate_train_config(cfg)
+    cfg = compose_row("site_richlabels_L", tmp_path, "logger=none", f"data.unlabelled_teacher={tmp_path}/none.ckpt",
+                      "data.unlabelled_labels=false")
+    with pytest.raises(ConfigError, match="data.unlabelled_labels=true with it"):
+        validate_train_config(cfg)

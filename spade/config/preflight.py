@@ -166,6 +166,14 @@ def check_checkpoints(cfg: DictConfig) -> None:
                                  "the experiment's requires.expert finds or trains one")
         check_geometry("model.margin.expert_ckpt", expert, info, cfg, train_data)
         check_expert_kind(cfg, expert, info)
+    teacher = get(cfg, "data.unlabelled_teacher")
+    if teacher not in (MISSING, None, ""):
+        if get(cfg, "data.unlabelled_labels") is not True or get(cfg, "data.unlabelled_dir") in (MISSING, None, ""):
+            raise ConfigError(f"data.unlabelled_teacher={teacher} labels the unlabelled states: set data.unlabelled_dir "
+                              "and data.unlabelled_labels=true with it (or drop it)")
+        info = check_checkpoint("data.unlabelled_teacher", teacher, "expert",
+                                "pass a conditional expert checkpoint (a cond_expert_* or teacher_* run's best)")
+        check_geometry("data.unlabelled_teacher", teacher, info, cfg, train_data)
 
 
 # What a resumed run must share with the run its checkpoint was written under: (config key, MLflow parameter).
