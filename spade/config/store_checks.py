@@ -1,37 +1,24 @@
-"""Checks of an MLflow store URI: an existing SQLite file is an MLflow store before MLflow opens (and would
-write into) it."""
+"""Checks of an MLflow store URI: an existing SQLite file is a complete MLflow store before MLflow opens (and would
+write into) it. Where a store URI points (:func:`store_path`) is :mod:`spade.deploy.mlflow_store`'s, re-exported."""
 
 from __future__ import annotations
 
 import sqlite3
-from pathlib import Path
-from urllib.parse import urlparse
 
 from omegaconf import DictConfig
 
 from spade.config.values import get
+from spade.deploy.mlflow_store import CORE_TABLES, store_path, store_problem
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import unset
-
-
-def store_path(uri: str) -> Path | None:
-    """The local path of an MLflow store URI (sqlite:///..., file:..., a plain path); None for a server."""
-    if uri.startswith("sqlite:"):
-        rest = uri[len("sqlite:"):]
-        return Path(rest[3:] if rest.startswith("///") else rest.lstrip("/"))
-    if uri.startswith("file:"):
-        return Path(urlparse(uri).path)
-    if "://" in uri:
-        return None  # http(s), databricks, ...: the server answers for itself
-    return Path(uri)
 
 
 def check_store_file(key: str, uri: str) -> None:
     """An existing SQLite store at ``uri`` must be an MLflow store: read-only, before MLflow opens it (MLflow
     creates its tables in any SQLite file it is given, so a reader would write into someone else's database)."""
     path = store_path(uri)
-    if path is None or not uri.startswith("sqlite:") or not path.is_file():
-        return
+    if path is None or not uri.startswith("sqlite:") or not path.is_file() or path.stat().st_size == 0:
+        return  # none yet, or an empty file: the command creates the store (spade.deploy.mlflow_store)
     try:
         db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=30)
         try:
@@ -41,7 +28,10 @@ def check_store_file(key: str, uri: str) -> None:
     except sqlite3.DatabaseError as exc:
         raise ConfigError(f"{key}={uri}: {path} is not an SQLite database ({exc}); point {key} (or SPADE_HOME / "
                           "MLFLOW_TRACKING_URI) at the MLflow store the runs were logged to") from None
-    missing = {"experiments", "runs", "metrics", "alembic_version"} - tables
+    missing = CORE_TABLES - tables
+    problem = store_problem(path)
+    if problem:  # a half-made store (a creation interrupted by an older SPADE), or another MLflow's schema
+        raise ConfigError(f"{key}={uri}: {problem}")
     if missing:
         raise ConfigError(f"{key}={uri}: {path} is an SQLite database but not an MLflow store (no "
                           f"{', '.join(sorted(missing))} table); it is left untouched. Point {key} (or SPADE_HOME / "

@@ -201,7 +201,9 @@ class PathDataModule(L.LightningDataModule):
                 idx = [i for i, s in enumerate(shapes) if self.test_shape in (None, s)]
                 if not idx:
                     raise DatasetError(
-                        f"{self.test_dir}: no test instances of shape {self.test_shape!r} (shapes: {sorted(set(shapes))})"
+                        f"data.test_shape={self.test_shape!r}: {self.test_dir} holds no test instances of that "
+                        f"shape (it holds {', '.join(sorted({str(s) for s in shapes})) or 'none'}); set data.test_shape to one of "
+                        "them, or data.test_shape=null for all"
                     )
                 idx = idx[: self.max_test_instances or None]
                 self.test_set = Subset(test, idx)

@@ -46,11 +46,17 @@ def is_model_uri(value: str) -> bool:
 
 
 def _mlflow(tracking_uri: str | None) -> Any:
+    """MLflow (the module), its tracking and registry URIs set to ``tracking_uri`` when given, a local store there
+    checked, or created whole, under the store's lock first (:func:`spade.deploy.mlflow_store.ensure_store`: the
+    registry's client would otherwise create a fresh store's tables while a training or an evaluation does)."""
     try:
         import mlflow
     except ImportError:
         raise RegistryError("model URIs need MLflow (pip install mlflow), or pass the model file itself") from None
     if tracking_uri:
+        from spade.deploy.mlflow_store import ensure_store
+
+        ensure_store(str(tracking_uri))
         mlflow.set_tracking_uri(str(tracking_uri))
         mlflow.set_registry_uri(str(tracking_uri))
     return mlflow

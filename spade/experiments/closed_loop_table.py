@@ -135,12 +135,13 @@ def _finished_drives(client: Any) -> set[str]:
 
 def launch(cfg: Any) -> list[dict[str, Any]]:
     """Drive every (source run, dataset, condition) not yet driven (module docstring); returns what ran."""
-    from spade.tracking.client import mlflow_client
+    from spade.tracking.client import ensure_store, mlflow_client
     from omegaconf import OmegaConf, open_dict
 
     from spade.experiments.evaluation import evaluate
     from spade.utils.config import compose_config
 
+    ensure_store(str(cfg.tracking_uri))  # a fresh store created whole, under its lock, before the first search
     client = mlflow_client(str(cfg.tracking_uri))
     done = _finished_drives(client)
     cache = Path(str(cfg.cache_dir))

@@ -54,7 +54,7 @@ class MLFlowLogger(LightningMLFlowLogger):
         super().__init__(*args, **kwargs)
         self.held: dict[str, float] = {}  # the references' figures, for the child runs and the description
         self.hold_open = False  # set between a fit and its test: the run stays RUNNING at the fit's end
-        self.end_status: str | None = None  # KILLED / FAILED, set when the run was marked ended
+        self.end_status: str | None = None  # KILLED / FAILED / DELETED, set when the run was marked ended
         self._epoch_step: dict[int, int] = {}  # epoch -> the last global step logged in it
         self._margin_tagged = False
 
@@ -72,9 +72,11 @@ class MLFlowLogger(LightningMLFlowLogger):
     @rank_zero_only
     def finalize(self, status: str = "success") -> None:
         """End the run, unless it is held open for the stage that follows (:attr:`hold_open`); a run marked
-        KILLED or FAILED keeps that status (:attr:`end_status`)."""
+        KILLED or FAILED keeps that status (:attr:`end_status`), a deleted one is left alone."""
         if status == "success" and self.hold_open:
             return
+        if self.end_status == "DELETED":
+            return  # a refused run, deleted (spade.tracking.runs.refused_before_work): nothing to close
         super().finalize(self.end_status or status)
 
     @rank_zero_only

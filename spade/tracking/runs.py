@@ -11,7 +11,8 @@
   (:mod:`~spade.tracking.run_report`); :func:`drop_process_tags` removes the process tags of a run that finished.
   :func:`finish_evaluation` does the same for ``spade.evaluate``'s run.
 * A run that does not finish is closed honestly: :func:`mark_run_ended` marks it KILLED (a signal, Ctrl+C:
-  :func:`spade.experiments.lifecycle.install_signal_handlers`) or FAILED (any other exception), and
+  :func:`spade.experiments.lifecycle.install_signal_handlers`) or FAILED (any other exception), or deletes it when
+  a refusal (a user error) came before it recorded any metric (:func:`refused_before_work`), and
   :func:`mark_stale_runs` (run by the next ``spade.train`` of the same row) marks RUNNING runs whose process is
   gone (a ``kill -9``, a power cut) KILLED, with a message. The process tags stay on a KILLED or FAILED run.
 
@@ -150,13 +151,39 @@ def end_status(exc: BaseException) -> tuple[str, str]:
     return ("KILLED" if killed else "FAILED"), reason[:4000]
 
 
+#: What :func:`mark_run_ended` returns for a refused run it deleted (not an MLflow status: the run is gone).
+DELETED = "DELETED"
+
+
+def refused_before_work(client: Any, run_id: str, exc: BaseException) -> bool:
+    """Whether ``exc`` is a refusal (a :class:`~spade.utils.errors.UserError`: an empty test set, a full disk while
+    a dataset was generated, a bad dataset) that came before the run ``run_id`` recorded any metric. Such a run
+    holds nothing but its opening: it is deleted, not left FAILED (the one-line error says what to fix)."""
+    from spade.utils.errors import UserError
+
+    if not isinstance(exc, UserError):
+        return False
+    try:
+        return not client.get_run(run_id).data.metrics
+    except Exception:  # noqa: BLE001 - unknown: keep the run, marked FAILED
+        return False
+
+
 def mark_run_ended(loggers: list[Logger], exc: BaseException) -> str | None:
-    """Close this process's MLflow run after ``exc``: KILLED for a signal or Ctrl+C, FAILED otherwise; returns the
+    """Close this process's MLflow run after ``exc``: KILLED for a signal or Ctrl+C, FAILED otherwise, deleted
+    (:data:`DELETED`) for a refusal before the run recorded anything (:func:`refused_before_work`); returns the
     status set (None when no run was open)."""
     ml = mlflow_logger(loggers)
     run_id = bound_run_id(ml) if ml is not None else None
     if run_id is None:
         return None  # no run was opened (or the one to resume could not be): nothing to close
+    if refused_before_work(ml.experiment, run_id, exc):
+        try:
+            ml.experiment.delete_run(run_id)
+            log.info("MLflow run %s deleted: refused before it recorded anything (%s)", run_id, str(exc)[:200])
+            return DELETED
+        except Exception as err:  # noqa: BLE001 - never hide the original error; the run is then marked FAILED
+            log.warning("could not delete the refused MLflow run %s: %s", run_id, err)
     status, reason = end_status(exc)
     try:
         ml.experiment.set_tag(run_id, "spade.end_reason", reason)

@@ -1,0 +1,213 @@
+"""A store that survives a race and an interrupt (issue 63, item 3).
+
+- every path that may create the MLflow store takes the store's lock (``<store>.lock``): training's and
+  evaluation's logger, the critic's (the same logger), ``spade.export register=`` and model URIs (the registry's
+  client), ``spade.closed_loop``; an evaluation, a training and an ``export register=`` started together on a fresh
+  store crashed with ``table ... already exists`` because the registry's client skipped the lock;
+- a store creation interrupted (Ctrl+C) leaves no half-made store: the store is made in a temporary file beside
+  it and moved into place once MLflow's schema is complete; a half-made store left by an older SPADE is refused,
+  named, with the fix;
+- a refusal leaves no FAILED run: a run refused before it recorded anything is deleted.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from factories import write_synthetic
+from test_reliability_outputs import one_error_line, run_main  # noqa: F401 - a fixture
+from test_reliability_round4 import checkpoint
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def runs_in(store: Path) -> list[tuple[str, str, str]]:
+    """(name, status, lifecycle stage) of every run in the SQLite store ``store`` (none without a store)."""
+    if not store.exists():
+        return []
+    db = sqlite3.connect(store)
+    try:
+        return [tuple(r) for r in db.execute("SELECT name, status, lifecycle_stage FROM runs")]
+    finally:
+        db.close()
+
+
+def complete_store(uri: str) -> bool:
+    """Whether the store at ``uri`` opens with MLflow and holds its Default experiment."""
+    from mlflow import MlflowClient
+
+    return MlflowClient(tracking_uri=uri).get_experiment("0") is not None
+
+
+# -- 1. every path that creates a store takes its lock ----------------------------------------------------------------
+_OPEN = r"""
+import sys
+uri, mode, cache = sys.argv[1], sys.argv[2], sys.argv[3]
+import mlflow
+from omegaconf import OmegaConf
+from spade.deploy.mlflow_models import RegistryError, resolve_model
+from spade.experiments.closed_loop_table import launch
+from spade.tracking.logger import MLFlowLogger
+print("ready", flush=True)
+if mode == "logger":  # training, evaluation and the critic: SPADE's MLflow logger
+    MLFlowLogger(experiment_name="race", tracking_uri=uri).experiment
+elif mode == "registry":  # spade.export register= and model URIs: the registry's client
+    try:
+        resolve_model("models:/nothing@champion", uri)
+    except RegistryError:
+        pass  # no such model: the store was opened all the same
+elif mode == "closed_loop":
+    launch(OmegaConf.create({"tracking_uri": uri, "cache_dir": cache, "sources": []}))
+print("ok", flush=True)
+"""
+_MODES = ("logger", "registry", "closed_loop")
+
+
+def _start(uri: str, mode: str, cache: Path) -> subprocess.Popen:
+    """A process opening the store at ``uri`` by path ``mode``, started and its imports done (it said ``ready``)."""
+    proc = subprocess.Popen([sys.executable, "-c", _OPEN, uri, mode, str(cache)], cwd=REPO, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout.readline().strip() == "ready", proc.stderr.read()[-2000:]
+    return proc
+
+
+def _open_by(mode: str, uri: str, cache: Path) -> None:
+    """Open the store at ``uri`` as path ``mode`` of SPADE does (:data:`_OPEN`, in this process)."""
+    from omegaconf import OmegaConf
+
+    from spade.deploy.mlflow_models import RegistryError, resolve_model
+    from spade.experiments.closed_loop_table import launch
+    from spade.tracking.logger import MLFlowLogger
+
+    if mode == "logger":
+        MLFlowLogger(experiment_name="race", tracking_uri=uri).experiment  # noqa: B018 - opens the run
+    elif mode == "registry":
+        with pytest.raises(RegistryError):
+            resolve_model("models:/nothing@champion", uri)
+    else:
+        assert launch(OmegaConf.create({"tracking_uri": uri, "cache_dir": str(cache), "sources": []})) == []
+
+
+@pytest.mark.parametrize("mode", _MODES)
+def test_every_path_that_creates_a_store_waits_for_its_lock(tmp_path: Path, mode: str) -> None:
+    """The probe: an evaluation, a training and an ``export register=`` started together on a fresh store crashed
+    (``table ... already exists``): the registry's client (and ``spade.closed_loop``'s) created the store without
+    the lock. Held here (another open file of ``<store>.lock``: ``flock`` keeps it from this process's threads as
+    from other processes), the lock keeps each path from creating the store until it is released."""
+    import threading
+
+    store = tmp_path / "logs" / "mlflow.db"
+    uri = f"sqlite:///{store}"
+    store.parent.mkdir(parents=True)
+    errors: list[BaseException] = []
+
+    def opening() -> None:
+        try:
+            _open_by(mode, uri, tmp_path / "cache")
+        except BaseException as exc:  # noqa: BLE001 - reported by the test
+            errors.append(exc)
+
+    import spade.deploy.mlflow_models, spade.experiments.closed_loop_table, spade.tracking.logger  # noqa: F401, E401
+
+    with open(store.with_name("mlflow.db.lock"), "a") as lock:  # imported first: the thread only opens the store
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        worker = threading.Thread(target=opening, daemon=True)
+        worker.start()
+        worker.join(timeout=3)  # long enough to create the store, were the lock not taken
+        assert worker.is_alive() and not store.exists(), errors
+    worker.join(timeout=120)
+    assert not worker.is_alive() and not errors, errors
+    assert complete_store(uri)
+
+
+@pytest.mark.slow  # three processes racing on fresh stores (a minute on two loaded cores)
+def test_three_paths_create_one_fresh_store_together(tmp_path: Path) -> None:
+    """The probe itself: a logger (training, evaluation), the registry's client (``export register=``) and
+    ``spade.closed_loop`` open one fresh store at once, three times over: all three succeed, every time."""
+    for attempt in range(3):
+        uri = f"sqlite:///{tmp_path / f'store{attempt}' / 'mlflow.db'}"
+        procs = [_start(uri, mode, tmp_path / "cache") for mode in _MODES]
+        outs = [p.communicate(timeout=300) for p in procs]
+        assert all(p.returncode == 0 for p in procs), [o[1][-2000:] for o in outs]
+        assert complete_store(uri)
+
+
+# -- 2. an interrupted creation leaves no half-made store ------------------------------------------------------------
+def _interrupt_migrations(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl+C in the middle of MLflow's schema migrations (its initial tables made, the upgrade not)."""
+    import mlflow.store.db.utils as db_utils
+
+    def interrupted(engine) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(db_utils, "_upgrade_db", interrupted)
+
+
+def test_an_interrupted_creation_leaves_no_store(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl+C while a fresh store was created left a half-made store on which every later command failed. The
+    store is made in a temporary file moved into place once complete: interrupted, nothing is left (no store, no
+    temporary file), and the next command creates a complete store."""
+    from spade.tracking.client import ensure_store
+
+    store = tmp_path / "logs" / "mlflow.db"
+    uri = f"sqlite:///{store}"
+    with monkeypatch.context() as patch:
+        _interrupt_migrations(patch)
+        with pytest.raises(KeyboardInterrupt):
+            ensure_store(uri)
+    assert sorted(p.name for p in store.parent.iterdir()) == ["mlflow.db.lock"]
+    ensure_store(uri)
+    assert complete_store(uri)
+    assert sorted(p.name for p in store.parent.iterdir()) == ["mlflow.db", "mlflow.db.lock"]
+
+
+def test_a_half_made_store_is_named_with_the_fix(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A half-made store an older SPADE left (its creation interrupted in place) is refused, in one line naming the
+    file and the fix (delete it: it holds no run), by the store check before any work and by the store's opening;
+    once deleted, the store is created whole."""
+    from mlflow import MlflowClient
+
+    from spade.config.store_checks import check_store_file
+    from spade.tracking.client import ensure_store
+    from spade.utils.errors import ConfigError
+
+    store = tmp_path / "mlflow.db"
+    uri = f"sqlite:///{store}"
+    with monkeypatch.context() as patch:
+        _interrupt_migrations(patch)
+        with pytest.raises(KeyboardInterrupt):
+            MlflowClient(tracking_uri=uri).search_experiments()  # what an older SPADE did, in place
+    assert store.is_file()
+    for check in (lambda: check_store_file("logger.mlflow.tracking_uri", uri), lambda: ensure_store(uri)):
+        with pytest.raises(ConfigError) as info:
+            check()
+        message = str(info.value)
+        assert "half-made MLflow store" in message and str(store) in message and f"rm {store}" in message
+        assert "\n" not in message
+    from spade.deploy.mlflow_store import _dispose
+
+    _dispose(uri)  # this process's cached connection to the half-made file (a new command has none)
+    store.unlink()
+    ensure_store(uri)
+    assert complete_store(uri)
+
+
+# -- 3. a refusal leaves no FAILED run ----------------------------------------------------------------------------------
+def test_a_refused_evaluation_leaves_no_run(tmp_path: Path, run_main) -> None:
+    """An empty test set (no instance of ``data.test_shape``) was refused in one line but left a FAILED run: the
+    refusal came after Lightning opened the run. A run refused before it recorded anything is deleted."""
+    test = tmp_path / "test"
+    write_synthetic(test, n=4)
+    ckpt = checkpoint(tmp_path / "student.ckpt")
+    code, err = run_main("spade.evaluate", [f"ckpt_path={ckpt}", "data=own", f"data.test_dir={test}",
+                                            "data.test_shape=Z"])
+    assert code == 2 and "holds no test instances of that shape" in one_error_line(err), err
+    runs = runs_in(tmp_path / "home" / "logs" / "mlflow.db")
+    assert runs and all(stage == "deleted" for _, _, stage in runs), runs
