@@ -34,7 +34,9 @@ from spade.deploy.plan_picture import plan_text
 
 def _resolve_model_uri(cfg: DictConfig) -> None:
     """``model=models:/NAME@ALIAS`` (or ``runs:/...``): the registered ONNX student, downloaded from the project's
-    MLflow store (``paths.mlflow_tracking_uri``) into ``paths.registry_cache_dir``; ``model_path`` becomes the file."""
+    MLflow store (``paths.mlflow_tracking_uri``: ``MLFLOW_TRACKING_URI``, else ``logs/mlflow.db`` under SPADE_HOME or
+    the current folder) into ``paths.registry_cache_dir``; ``model_path`` becomes the file. A store that is not there
+    is named in the refusal, never created."""
     from spade.deploy.mlflow_models import is_model_uri, resolve_model
 
     value = cfg.get("model_path")

@@ -30,11 +30,18 @@ def dedent(block: str) -> str:
     return "\n".join(line[pad:] for line in lines) + "\n"
 
 
-def summary_ape(text: str, label: str) -> float:
-    """The APE of one line of a run's closing summary (``test``, ``baseline heading``)."""
-    found = re.search(rf"^  {label}\s*: ape_cm=(\S+)", text, re.M)
-    assert found, f"no '{label}' line in the summary:\n{text[-3000:]}"
-    return float(found.group(1))
+def summary_ape(text: str, column: str) -> float:
+    """The APE (the paper's extraction) of one predictor in a run's closing summary: its figures table's column
+    (``student``, ``heading``), right-aligned under its name."""
+    lines = text.splitlines()
+    header = next((i for i, line in enumerate(lines) if line.startswith("  test figures")), None)
+    assert header is not None, f"no figures table in the summary:\n{text[-3000:]}"
+    name = re.search(rf"\s{column}(\s|$)", lines[header])
+    assert name, f"no '{column}' column in the summary:\n{lines[header]}"
+    end = name.start() + 1 + len(column)
+    row = next(line for line in lines[header:] if line.startswith("  APE (cm)"))
+    assert row[end - 1:end].strip(), f"no APE for '{column}':\n{lines[header]}\n{row}"
+    return float(row[:end].split()[-1])
 
 
 @pytest.mark.slow  # annotation on a real map, 10 epochs of a small student, its test, evaluation and a plan: minutes
@@ -71,7 +78,7 @@ def test_the_own_map_tutorial_runs_as_written(tmp_path: Path, maps_dir: Path) ->
             assert found, done.stdout[-3000:]
             checkpoint = found.group(1)
             # the page's sizes teach the student a preference: it beats the heading template on the test part
-            student, template = summary_ape(done.stdout, "test"), summary_ape(done.stdout, "baseline heading")
+            student, template = summary_ape(done.stdout, "student"), summary_ape(done.stdout, "heading")
             assert student < template, f"student {student} cm vs heading template {template} cm APE"
     assert (tmp_path / "data/site/train/preview.png").is_file()
     # Evaluate the student, then plan with it: the plan may find no path from the page's pose on another map (exit

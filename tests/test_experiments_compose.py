@@ -341,11 +341,13 @@ def test_run_summary_says_when_a_student_did_not_learn_and_how_to_use_its_checkp
     assert "loses" not in text and "beats the heading template" in text
     assert "best checkpoint  : /runs/x/checkpoints/epoch004.ckpt" in text
     assert "python -m spade.evaluate ckpt_path=/runs/x/checkpoints/epoch004.ckpt scale=" in text
-    assert "python -m spade.plan model_path=/runs/x/checkpoints/epoch004.ckpt" in text
+    # one spade.plan syntax, the README's, with the checkpoint: it works from any folder (a runs:/ URI needs the store)
+    assert "python -m spade.plan MAP.yaml start=X,Y,YAW goal=X,Y model=/runs/x/checkpoints/epoch004.ckpt" in text
+    assert text.count("spade.plan") == 1
     own = compose_row("t1_small_bc_L", spade_home, "logger=none", "data=own", "data.train_dir=/d/site_train",
                       "data.test_dir=/d/site_test")
-    assert ("spade.evaluate ckpt_path=/c.ckpt data=own data.train_dir=/d/site_train data.test_dir=/d/site_test"
-            in run_summary(own, winning, checkpoint="/c.ckpt"))
+    pasted = " ".join(run_summary(own, winning, checkpoint="/c.ckpt").replace(" \\\n", " ").split())  # as pasted
+    assert "spade.evaluate ckpt_path=/c.ckpt data=own data.train_dir=/d/site_train data.test_dir=/d/site_test" in pasted
 
 
 def test_the_evaluate_command_names_a_rows_data_config(spade_home: Path, monkeypatch) -> None:

@@ -100,7 +100,8 @@ def test_a_small_test_set_says_so_in_the_summary() -> None:
                                     "test/ceiling/planner/commit_rate": 0.85,
                                     "test/demo_target/planner/ape_cm": 1.14}, []))
     assert "17 scenarios (a small test" in small and "data=site_L" in small
-    assert "BC ceiling       : planner/ape_cm=2.54" in small and "decoder floor    : planner/ape_cm=1.14" in small
+    assert "BC ceiling       : planner APE 2.54 cm, 1.23x the floor" in small and "commits 85%" in small
+    assert "decoder floor    : planner APE 1.14 cm" in small
     large = "\n".join(figure_lines({"test/scenarios": 120.0}, []))
     assert "120 scenarios" in large and "small test" not in large
 

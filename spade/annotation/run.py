@@ -105,7 +105,8 @@ def annotate(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
     if warning:
         summary["warning"] = warning
         log.warning("%s", warning)
-    log.info("annotation done: %s", summary)
+    # the warning was logged on its own line just above: the summary's log line does not say it again
+    log.info("annotation done: %s", {k: v for k, v in summary.items() if k != "warning"})
     return summary
 
 

@@ -80,7 +80,8 @@ def using_tracking_uri(tracking_uri: str | None) -> Iterator[Any]:
 
 def resolve_model(value: str | Path, tracking_uri: str | None = None, cache_dir: str | Path | None = None) -> Path:
     """The local model file of ``value``: a path as it is (it must exist); a model URI downloaded from the MLflow
-    registry at ``tracking_uri`` (into ``cache_dir`` when given), its ONNX file returned."""
+    registry at ``tracking_uri`` (into ``cache_dir`` when given), its ONNX file returned. A local store that does not
+    exist is refused, naming it, and never created (:func:`_check_existing_store`)."""
     text = str(value)
     if not is_model_uri(text):
         path = Path(text).expanduser()
@@ -90,6 +91,8 @@ def resolve_model(value: str | Path, tracking_uri: str | None = None, cache_dir:
                                     "models:/NAME@ALIAS")
         return path
     mlflow = _mlflow(tracking_uri)
+    uri = str(tracking_uri) if tracking_uri else str(mlflow.get_tracking_uri())
+    _check_existing_store(text, uri)  # before anything is created (the cache folder below included)
     dst = None
     if cache_dir is not None:
         dst = Path(cache_dir).expanduser() / text.replace(":/", "_").replace("/", "_").replace("@", "_at_")
@@ -97,14 +100,41 @@ def resolve_model(value: str | Path, tracking_uri: str | None = None, cache_dir:
     try:
         local = Path(mlflow.artifacts.download_artifacts(artifact_uri=text, dst_path=str(dst) if dst else None))
     except Exception as err:  # noqa: BLE001 - MLflow raises its own kinds (unknown model, alias, run, server down)
-        raise RegistryError(f"{text}: cannot be fetched from the MLflow registry at {mlflow.get_tracking_uri()} "
-                            f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}); register the "
-                            "student with python -m spade.export ... register=NAME, or pass a model file") from None
+        reason = f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}"
+        if text.startswith("runs:/"):
+            raise RegistryError(f"{text}: cannot be fetched from the MLflow store at {uri} ({reason}): the run is not "
+                                f"in the store looked in. {OTHER_STORE}") from None
+        raise RegistryError(f"{text}: cannot be fetched from the MLflow registry at {uri} ({reason}); register the "
+                            "student with python -m spade.export ... register=NAME, point MLFLOW_TRACKING_URI (or "
+                            "paths.mlflow_tracking_uri) at the store it is registered in, or pass a model "
+                            "file") from None
     files = [local] if local.is_file() else sorted(local.rglob("*.onnx"))
     if len(files) != 1:
         raise RegistryError(f"{text}: the model holds {len(files)} .onnx files, expected one (an MLflow ONNX model "
                             "logged by python -m spade.export register=NAME)")
     return files[0]
+
+
+OTHER_STORE = ("Point MLFLOW_TRACKING_URI (or paths.mlflow_tracking_uri=..., or SPADE_HOME) at the store the run was "
+               "logged to, e.g. MLFLOW_TRACKING_URI=sqlite:////path/to/logs/mlflow.db, or pass the run's checkpoint "
+               "(model=.../checkpoints/epochNNN.ckpt, printed at the end of its training)")
+"""How to look a model URI up elsewhere: what the refusals below end with."""
+
+
+def _check_existing_store(text: str, uri: str) -> None:
+    """A model URI is looked up in an existing MLflow store, never a new one: MLflow opens a missing SQLite store by
+    creating it (its folder, file and tables), so ``spade.plan model=runs:/...`` run from another folder than the
+    run's left an empty ``logs/mlflow.db`` there and answered that the run was not found. A server answers for
+    itself; an SQLite file that is no MLflow store is refused unopened
+    (:func:`spade.config.store_checks.check_store_file`)."""
+    from spade.config.store_checks import check_store_file, store_path
+
+    path = store_path(uri)
+    if path is None:
+        return
+    if not path.exists():
+        raise RegistryError(f"{text}: no MLflow store at {uri} (looked for {path}; none was created). {OTHER_STORE}")
+    check_store_file("MLFLOW_TRACKING_URI / paths.mlflow_tracking_uri", uri)
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,9 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     classical baselines as a ROS 2 MCAP recording (:mod:`spade.experiments.prediction_recording`)."""
     from spade.config.evaluate_checks import expert_sampling, validate_evaluate_config
 
+    from spade.utils.console import lightning_logs_once
+
+    lightning_logs_once()  # Lightning's lines printed once, not twice (its own handler and the command's)
     validate_evaluate_config(cfg)  # role, and the checkpoint's window geometry against the test data's
     if cfg.get("closed_loop"):
         from spade.experiments.closed_loop_evaluation import closed_loop_settings
@@ -58,7 +61,9 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     try:
         results_from_test = bool(cfg.get("open_loop", True) or not cfg.get("closed_loop"))
         if results_from_test:
-            results = trainer.test(model=model, datamodule=datamodule)[0]
+            # verbose=False: Lightning's table of every figure, unrounded (over a hundred lines), would bury the
+            # summary that spade.evaluate prints (spade.tracking.summary.evaluation_summary)
+            results = trainer.test(model=model, datamodule=datamodule, verbose=False)[0]
         else:  # closed loop only (open_loop=false): the instance-by-instance test is not run
             results = {}
         if cfg.get("closed_loop"):

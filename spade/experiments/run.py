@@ -33,6 +33,7 @@ from spade.config.preflight import validate_checkpoints, validate_train_config
 from spade.metrics import catalog
 from spade.models.modelfile import safe_loading
 from spade.training.instantiate import instantiate_callbacks, instantiate_loggers, run_id_from_checkpoint
+from spade.utils.console import lightning_logs_once
 
 __all__ = ["ClosedLoopTest", "fit_and_test", "from_checkpoint", "optimized_value", "prerequisite_plan", "rename_prefix",
            "sweep_result", "test_elsewhere", "train", "untrained_test_metrics"]
@@ -48,6 +49,7 @@ def train(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
     trained (:func:`fit_and_test`) and its registered version filled into the config that needs it; then the run
     itself. Nothing here calls itself: the plan is made once, then carried out top to bottom.
     """
+    lightning_logs_once()  # Lightning is loaded (this module imports it): its lines printed once, not twice
     trained: set[str] = set()
     for parent, prerequisite in prerequisite_plan(cfg):
         if prerequisite.name not in trained:  # two configs may need the same model: it trains once
@@ -122,7 +124,9 @@ def fit_and_test(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
         best = best_checkpoint_path(trainer) or None
         if best is None and cfg.get("train", True):
             log.warning("No best checkpoint found: testing the last weights")
-        from_checkpoint(trainer.test, best, model=model, datamodule=datamodule)
+        # verbose=False: Lightning's table of every figure, unrounded (over a hundred lines), buried the summary
+        # spade.train prints from these metrics (spade.tracking.summary.run_summary)
+        from_checkpoint(trainer.test, best, model=model, datamodule=datamodule, verbose=False)
         metrics.update({k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1})
         metrics.update(drive.metrics if drive is not None else {})
         for name, data in (cfg.get("also_test") or {}).items():
@@ -172,8 +176,8 @@ def test_elsewhere(cfg: DictConfig, ckpt_path: str, name: str, data: str) -> dic
         overrides.append("logger=none")
     results = evaluate(compose_config("evaluate", overrides))
     headline = {catalog.mlflow_key(n) for n in catalog.HEADLINE}
-    print(f"  {name} ({data}): " + "  ".join(f"{k.split('/', 1)[1]}={v:.4g}" for k, v in sorted(results.items())
-                                            if k in headline), flush=True)
+    print(f"  {name} ({data}): " + "  ".join(f"{k.split('/', 1)[1]}={catalog.fmt(k, v)}"
+                                            for k, v in sorted(results.items()) if k in headline), flush=True)
     return {f"{name}/{k}": v for k, v in results.items()}
 
 
@@ -187,8 +191,11 @@ def from_checkpoint(step: Callable[..., Any], ckpt_path: str | Path | None, **kw
 
 def untrained_test_metrics(cfg: DictConfig, model: L.LightningModule, datamodule: L.LightningDataModule) -> dict:
     """Test metrics of the model before any training, as ``untrained/...`` (the baseline learning must beat)."""
-    tester = hydra.utils.instantiate(cfg.trainer, logger=False, callbacks=[], enable_progress_bar=False)
-    results = tester.test(model=model, datamodule=datamodule, verbose=False)[0]
+    from spade.utils.console import quiet_lightning_info
+
+    with quiet_lightning_info():  # the run's trainer has said which devices it uses; this one would say it again
+        tester = hydra.utils.instantiate(cfg.trainer, logger=False, callbacks=[], enable_progress_bar=False)
+        results = tester.test(model=model, datamodule=datamodule, verbose=False)[0]
     return rename_prefix({k: float(v) for k, v in results.items()}, "test/", "untrained/")
 
 

@@ -42,10 +42,10 @@ PREFERENCE_METRICS = tuple(catalog.figure(n).key for n in catalog.PREFERENCE)
 """The preference figures beside a table's cells (:data:`spade.metrics.catalog.PREFERENCE`), by report key."""
 
 
-TINY_NOTICE = ("scale=tiny: a pipeline check, not a result (64 px, a few hundred instances, 2 epochs, tiny "
-               "experts); these figures mean nothing about the methods. Run a table at scale=cpu (its default) or "
-               "scale=paper for figures that do.")
-"""What every summary printed at ``scale=tiny`` says (the run summary, ``spade.report``, a table's start message)."""
+TINY_NOTICE = ("scale=tiny: a pipeline check, not a result: its figures mean nothing about the methods (scale=cpu "
+               "or scale=paper)")
+"""What every summary printed at ``scale=tiny`` says (the run summary, ``spade.report``, a table's start message):
+one console line (within 120 characters, indented), so that it is found whole wherever it is printed."""
 
 
 def baseline_metric(name: str, key: str) -> str:

@@ -348,10 +348,11 @@ DESCRIPTION: tuple[str, ...] = ("ape_cm", "fid", "hd19", "failure_rate", "over_2
                                 "planner/over_20cm_rate", "planner/plausibility_cm", "planner/commit_rate")
 """The test figures a run's description shows (its figures table), in this order."""
 
-SUMMARY: tuple[str, ...] = ("ape_cm", "fid", "hd19", "failure_rate", "over_20cm_rate", "planner/ape_cm",
-                            "planner/over_20cm_rate", "planner/low_confidence_rate", "planner/ape_over_floor",
-                            "planner/plausibility_cm", "planner/commit_rate", "seconds_per_sample")
-"""The figures a run's closing summary prints per predictor (the floor once, on its own line)."""
+SUMMARY: tuple[str, ...] = ("planner/ape_cm", "planner/over_20cm_rate", "planner/ape_over_floor",
+                            "planner/plausibility_cm", "planner/commit_rate", "planner/low_confidence_rate", "ape_cm",
+                            "over_20cm_rate", "failure_rate", "fid", "hd19", "seconds_per_sample")
+"""The figures a run's closing summary prints per predictor (the floor once, on its own line): the figure that
+decides first, with its tail (:mod:`spade.metrics.verdict`), then the planner's others, then the paper's."""
 
 HEADLINE: tuple[str, ...] = ("ape_cm", "over_20cm_rate", "failure_rate", "planner/ape_cm")
 """The few figures a one-line report of a test prints (a test of a checkpoint elsewhere)."""

@@ -20,6 +20,9 @@ from spade.metrics.hausdorff import HausdorffCount
 from spade.metrics.preference import PREFERENCE_KEYS, PreferenceMetrics
 
 log = logging.getLogger(__name__)
+# (images, needed) pairs already warned of: a test scores the model and every baseline on the same instances, and
+# each predictor's metrics said the same "FID left out" line again (one line per process and size)
+_FID_WARNED: set[tuple[int, int]] = set()
 
 
 PLANNER_KEYS: tuple[str, ...] = ("ape_cm", "ape_median_cm", "ape_max_cm", "failure_rate", "over_20cm_rate", "hd19",
@@ -196,7 +199,8 @@ class PathMetrics(MetricCollection):
             have, need = int(self.fid.fake_n), self.fid.feature_dim + 1
             if have >= need:
                 out.update({k: float(v) for k, v in self.fid.compute().items()})
-            elif not self._warned:
+            elif not self._warned and (have, need) not in _FID_WARNED:
                 log.warning("FID left out: %d images, its extractor needs at least %d", have, need)
                 self._warned = True
+                _FID_WARNED.add((have, need))
         return out

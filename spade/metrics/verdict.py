@@ -101,13 +101,17 @@ def verdicts(metrics: Mapping[str, float], prefix: str = "test") -> list[Verdict
     return out
 
 
-def verdict_lines(metrics: Mapping[str, float], prefix: str = "test", model: str = "the model") -> list[str]:
-    """The verdict as lines of text: the deciding figure named, the floor where known, one line per baseline."""
+def verdict_lines(metrics: Mapping[str, float], prefix: str = "test", model: str = "the model",
+                  with_floor: bool = True) -> list[str]:
+    """The verdict as lines of text: the deciding figure named, the floor and the BC ceiling where known
+    (``with_floor``: False where the text says them already, as a closing summary does), one line per baseline."""
     found = verdicts(metrics, prefix)
     if not found:
         return []
     lines = [f"deciding figure: the planner's APE ({DECIDING_FIGURE}) with its tail ({TAIL_FIGURE}), then "
              "plausibility and commitment where the test set has alternatives"]
+    if not with_floor:
+        return lines + [v.sentence(model) for v in found]
     floor, ratio = _value(metrics, f"{prefix}/floor_cm"), _value(metrics, f"{prefix}/planner/ape_over_floor")
     if floor is not None and ratio is not None:
         lines.append(f"floor: {floor:.2f} cm (the best a single path can do against one demonstration); "

@@ -72,8 +72,8 @@ def ui_command(tracking_uri: str, ui_url: str | None = None) -> str | None:
     return command
 
 
-SWITCH_HINT = ("  in a new browser: set the sidebar's switch to \"Model training\" once (the browser keeps it); "
-               "MLflow 3 otherwise opens experiments on the GenAI overview")
+SWITCH_HINT = ("  in a new browser: set the sidebar's switch to \"Model training\" once (else MLflow 3 opens the "
+               "GenAI overview)")
 
 
 def ui_lines(tracking_uri: str, experiment_id: str | None = None, run_id: str | None = None,
@@ -87,7 +87,8 @@ def ui_lines(tracking_uri: str, experiment_id: str | None = None, run_id: str | 
     lines = [f"open the MLflow UI on it with:  {command}" if command else f"open the MLflow UI on it at:  {base}"]
     if experiment_id is not None:
         if run_id is not None:
-            lines.append(f"  this run:          {run_url(base, experiment_id, run_id)}")
+            # the label short: the URL (about 105 characters) and it fit the console's 120 columns
+            lines.append(f"  this run: {run_url(base, experiment_id, run_id)}")
         lines.append(f"  experiment's runs: {experiment_url(base, experiment_id)}")
     lines.append(SWITCH_HINT)
     return lines

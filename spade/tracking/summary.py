@@ -4,6 +4,11 @@
 ``mlflow ui`` command and the URLs of the run and of its experiment's runs table
 (:func:`~spade.tracking.links.ui_lines`); the run is the one ``spade.train`` just recorded (the ``run`` its
 :func:`~spade.experiments.run.train` returns), else the newest run of that name in the store.
+
+Every line fits :data:`~spade.utils.console.CONSOLE_WIDTH` (a word longer than a line, a path, stays whole): the
+figures are one table, a row per figure with the deciding one first (:data:`spade.metrics.catalog.SUMMARY`) and a
+column per predictor, shares in per cent; sentences wrap under their label; a command too long for one line
+continues on the next with a shell's ``\\``, so that it still pastes as one.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ from spade.tracking.client import mlflow_client
 from spade.tracking.descriptions import guidance_verdict
 from spade.tracking.links import ui_lines
 from spade.tracking.runs import RunRef
+from spade.utils.console import CONSOLE_WIDTH, wrap
 
 log = logging.getLogger(__name__)
 
@@ -47,10 +53,41 @@ def find_run(cfg: DictConfig) -> RunRef | None:
                   f"runs:/{info.run_id}/{MODEL_NAME}" if logged else None)
 
 
+LABEL_WIDTH = 17
+"""The width of a summary line's label (``  label            : text``)."""
+
+
+def field(label: str, text: str) -> list[str]:
+    """``  label            : text``, wrapped within :data:`CONSOLE_WIDTH` under its text."""
+    return wrap(text, f"  {label:{LABEL_WIDTH}s}: ")
+
+
+def command_lines(label: str, words: list[str]) -> list[str]:
+    """A ready-to-paste command after its label: one line, or, past :data:`CONSOLE_WIDTH`, several joined by the
+    shell's line continuation (`` \\``), so that the lines still paste as one command (a word is never split). The
+    continuation lines are indented by 4, not under the label's text: a checkpoint's path (about 75 characters
+    under the SPADE home) then fits on one of them."""
+    first = f"  {label:{LABEL_WIDTH}s}: "
+    lines, line = [], first + words[0]
+    for word in words[1:]:
+        if len(line) + len(word) + 3 > CONSOLE_WIDTH:  # the word, its space and the continuation's " \\"
+            lines.append(line + " \\")
+            line = "    " + word
+        else:
+            line += " " + word
+    return [*lines, line]
+
+
 def guidance_line(history: list[tuple[int, float, float]] | None) -> str | None:
     """One line saying whether the diffusion margin acted, epoch by epoch (``StudentModule.margin_history``)."""
     verdict = guidance_verdict(history)
-    return f"  guidance         : {verdict}" if verdict else None
+    return "\n".join(field("guidance", verdict)) if verdict else None
+
+
+def _who(metrics: dict[str, Any]) -> str:
+    """The tested model, as the verdict names it: an expert's test (the expert as a planner) is the only one that
+    measures the spread of its samples."""
+    return "the expert" if "test/planner/spread_cm" in metrics else "the student"
 
 
 def learning_verdict(metrics: dict[str, Any]) -> list[str]:
@@ -62,49 +99,73 @@ def learning_verdict(metrics: dict[str, Any]) -> list[str]:
     failures = metrics.get("test/failure_rate")
     if failures is None:
         return []
-    # an expert's test (the expert as a planner) is the only one that measures the spread of its samples
-    who = "the expert" if "test/planner/spread_cm" in metrics else "the student"
+    who = _who(metrics)
     if failures >= 0.999:
-        return [f"  verdict          : {who} extracted no path on any test instance: it has not learned yet. "
-                "Train longer (trainer.max_epochs) or on more demonstrations (the training set's num_instances)"]
-    lines = [f"  verdict          : {line}" for line in verdict_lines(metrics, "test", who)]
+        return field("verdict", f"{who} extracted no path on any test instance: it has not learned yet. Train longer "
+                     "(trainer.max_epochs) or on more demonstrations (the training set's num_instances)")
+    # the floor and the BC ceiling have their own lines (floor_lines), and the planner's APE over the floor its row
+    lines = [wrapped for line in verdict_lines(metrics, "test", who, with_floor=False)
+             for wrapped in field("verdict", line)]
     if any(v.outcome == "loses to" for v in verdicts(metrics, "test")):
-        lines.append("  verdict          : it loses to a baseline that learns nothing: give it more demonstrations or "
-                     "epochs before trusting it")
-    return lines
-
-
-def summary_figures(metrics: dict[str, Any], prefixes: list[str]) -> list[str]:
-    """One line per predictor (``prefixes``: ``test``, ``test/baseline/<name>``, ``untrained``) with its figures."""
-    lines = []
-    for prefix in prefixes:
-        vals = [f"{k}={metrics[f'{prefix}/{k}']:.4g}" for k in SUMMARY_KEYS if f"{prefix}/{k}" in metrics]
-        if vals:
-            label = prefix.replace("test/baseline/", "baseline ")
-            lines.append(f"  {label:17s}: " + "  ".join(vals))
+        lines += field("verdict", "it loses to a baseline that learns nothing: give it more demonstrations or epochs "
+                       "before trusting it")
     return lines
 
 
 SUMMARY_KEYS = catalog.SUMMARY  # the figures a closing summary prints per predictor (the floor once, alone)
 
 
-def floor_line(metrics: dict[str, Any], prefix: str = "test") -> str | None:
-    """The test set's floor, when it has alternatives."""
+def _predictor_name(prefix: str, model: str) -> str:
+    """A figures table's column: ``student`` (``test``), ``straight`` (``test/baseline/straight``), ``untrained``."""
+    if prefix == "test":
+        return model
+    return prefix.rsplit("/", 1)[-1]
+
+
+def summary_figures(metrics: dict[str, Any], prefixes: list[str]) -> list[str]:
+    """The figures as one table: a row per figure of :data:`SUMMARY_KEYS` that a predictor has (the planner's APE,
+    which decides, first, then its tail), a column per predictor (``prefixes``: ``test``, ``test/baseline/<name>``,
+    ``untrained``), each cell as the results pages format it (shares in per cent; ``n/a`` when not computed)."""
+    columns = [(p, _predictor_name(p, _who(metrics).removeprefix("the "))) for p in prefixes
+               if any(f"{p}/{k}" in metrics for k in SUMMARY_KEYS)]
+    rows = [k for k in SUMMARY_KEYS if any(f"{p}/{k}" in metrics for p, _ in columns)]
+    if not rows:
+        return []
+
+    def cell(prefix: str, key: str) -> str:
+        value = metrics.get(f"{prefix}/{key}")
+        return "" if value is None else catalog.fmt(key, float(value))
+
+    title = "test figures"
+    first = max(len(title), *(len(catalog.label(k)) for k in rows))
+    widths = [max(len(name), *(len(cell(p, k)) for k in rows)) for p, name in columns]
+    lines = ["  " + title.ljust(first) + "".join(f"  {name:>{w}}" for (_, name), w in zip(columns, widths))]
+    for key in rows:
+        lines.append(("  " + catalog.label(key).ljust(first)
+                      + "".join(f"  {cell(p, key):>{w}}" for (p, _), w in zip(columns, widths))).rstrip())
+    return lines
+
+
+def floor_lines(metrics: dict[str, Any], prefix: str = "test") -> list[str]:
+    """The test set's floor, when it has alternatives, with the BC ceiling and the decoder's floor."""
     floor = metrics.get(f"{prefix}/floor_cm")
     if floor is None or floor != floor:
-        return None
-    line = (f"  floor            : {float(floor):.4g} cm (APE of the best single path under the test set's alternative "
-            "demonstrations: no predictor can score much below it)")
-    figures = [(k, metrics.get(f"{prefix}/ceiling/planner/{k}")) for k in ("ape_cm", "ape_over_floor",
-                                                                           "plausibility_cm", "commit_rate")]
-    if figures[0][1] is not None and figures[0][1] == figures[0][1]:
-        line += "\n  BC ceiling       : " + "  ".join(f"planner/{k}={float(v):.4g}" for k, v in figures if v is not None)
-        line += " (the plausible set's mean image decoded by the planner: the best a BC student can plan)"
+        return []
+    lines = field("floor", f"{float(floor):.2f} cm (APE of the best single path under the test set's alternative "
+                  "demonstrations: no predictor can score much below it)")
+    ceiling = {k: metrics.get(f"{prefix}/ceiling/planner/{k}") for k in ("ape_cm", "ape_over_floor",
+                                                                         "plausibility_cm", "commit_rate")}
+    if ceiling["ape_cm"] is not None and ceiling["ape_cm"] == ceiling["ape_cm"]:
+        words = {"ape_cm": "planner APE {:.2f} cm", "ape_over_floor": "{:.2f}x the floor",
+                 "plausibility_cm": "plausibility {:.2f} cm", "commit_rate": "commits {:.0%}"}
+        figures = ", ".join(words[k].format(float(v)) for k, v in ceiling.items() if v is not None)
+        lines += field("BC ceiling", f"{figures} (the plausible set's mean image decoded by the planner: the best a "
+                       "BC student can plan)")
     target = metrics.get(f"{prefix}/demo_target/planner/ape_cm")
     if target is not None and target == target:
-        line += (f"\n  decoder floor    : planner/ape_cm={float(target):.4g} (the demonstration's own training target "
-                 "decoded by the planner)")
-    return line
+        lines += field("decoder floor", f"planner APE {float(target):.2f} cm (the demonstration's own training "
+                       "target decoded by the planner)")
+    return lines
 
 
 def _data_choice() -> str:
@@ -122,18 +183,18 @@ def next_commands(cfg: DictConfig, checkpoint: str | None) -> list[str]:
     """The best checkpoint's path and ready-to-paste evaluate / export / plan commands for it (a student's)."""
     if not checkpoint:
         return []
-    lines = [f"  best checkpoint  : {checkpoint}"]
+    lines = field("best checkpoint", checkpoint)
     if str(cfg.model.get("_target_", "")).endswith("StudentModule"):
         data = cfg.get("data") or {}
         own = data.get("train_generate", "unset") is None
         data_args = (f" data=own data.train_dir={data.get('train_dir')} data.test_dir={data.get('test_dir')}"
                      if own else f"{_data_choice()} scale={cfg.scale.name}")
-        lines += [
-            f"  evaluate it      : python -m spade.evaluate ckpt_path={checkpoint}{data_args}",
-            f"  export it        : python -m spade.export ckpt_path={checkpoint}",
-            f"  plan with it     : python -m spade.plan model_path={checkpoint} map=MAP.yaml start=[X,Y,YAW] "
-            "goal=[X,Y]",
-        ]
+        # one spade.plan syntax (the README's), with the checkpoint's own path: it works from any folder, where a
+        # runs:/ URI needs the store the run is in (MLFLOW_TRACKING_URI)
+        lines += command_lines("evaluate it", f"python -m spade.evaluate ckpt_path={checkpoint}{data_args}".split())
+        lines += command_lines("export it", f"python -m spade.export ckpt_path={checkpoint}".split())
+        lines += command_lines("plan with it", f"python -m spade.plan MAP.yaml start=X,Y,YAW goal=X,Y "
+                                               f"model={checkpoint}".split())
     return lines
 
 
@@ -163,9 +224,8 @@ def run_summary(cfg: DictConfig, metrics: dict[str, Any],
     except Exception as exc:  # noqa: BLE001 - the closing lines must not fail a finished run
         log.warning("could not look the run up in %s: %s", uri, exc)
         ref = None
-    if ref is not None and ref.model_uri:
-        lines.append(f"  logged model     : {ref.model_uri}  (python -m spade.plan MAP.yaml start=X,Y,YAW goal=X,Y "
-                     f"model={ref.model_uri})")
+    if ref is not None and ref.model_uri:  # where the model lives in MLflow; the plan command above needs no store
+        lines += field("logged model", f"{ref.model_uri} (MLflow's copy of the model, in the store below)")
     lines += ui_lines(uri, ref.experiment_id if ref else None, ref.run_id if ref else None)
     return "\n".join(lines)
 
@@ -173,10 +233,7 @@ def run_summary(cfg: DictConfig, metrics: dict[str, Any],
 def figure_lines(metrics: dict[str, Any], prefixes: list[str]) -> list[str]:
     """The figures of every predictor, the floor, the verdict and the closed loop: what a run's and an
     evaluation's closing lines share."""
-    lines = summary_figures(metrics, prefixes)
-    floor = floor_line(metrics)
-    if floor:
-        lines.append(floor)
+    lines = summary_figures(metrics, prefixes) + floor_lines(metrics)
     test_set = test_set_line(metrics)
     if test_set:
         lines.append(test_set)
@@ -192,11 +249,11 @@ def test_set_line(metrics: dict[str, Any], prefix: str = "test") -> str | None:
     n = metrics.get(f"{prefix}/scenarios")
     if n is None or n != n:
         return None
-    line = f"  test set         : {int(n)} scenarios"
+    text = f"{int(n)} scenarios"
     if n < SMALL_TEST_SCENARIOS:
-        line += (" (a small test, for speed: it tells only large differences apart; the science test set of about 100 "
+        text += (" (a small test, for speed: it tells only large differences apart; the science test set of about 100 "
                  "scenarios on held-out maps is data=site_L, and the results pages give intervals over scenarios)")
-    return line
+    return "\n".join(field("test set", text))
 
 
 def evaluation_summary(cfg: DictConfig, metrics: dict[str, Any]) -> str:
@@ -212,22 +269,36 @@ CLOSED_LOOP_NAMES = {"": "model", "baseline/shortest/": catalog.BASELINE_LABELS[
                      "followed/": "demonstration followed", "demonstration/": "demonstration replayed"}
 
 
+CLOSED_LOOP_COLUMNS = ("success_rate", "collision_rate", "timeout_rate", "no_plan_rate", "ape_cm", "plausibility_cm",
+                       "commit_rate", "mode_switches", "plan_ms")
+"""The closed-loop table's columns (``closed_loop/<figure>``): outcome shares, APE over the whole scenario,
+plausibility and commitment (where the test set has alternatives), mode switches per scenario and the time of one
+plan (the plans per scenario are in the run's metrics: the table fits 120 columns without them)."""
+
+
+def _closed_loop_header(key: str) -> str:
+    """A closed-loop column's header: the catalog's label; a distance's compact header (``APE cm``: the cells are
+    centimetres)."""
+    return catalog.header(key) if key.endswith("_cm") else catalog.label(f"closed_loop/{key}", qualified=False)
+
+
 def closed_loop_lines(metrics: dict[str, Any]) -> list[str]:
-    """One line per predictor driven in closed loop (``closed_loop/*``): outcome rates, APE over the whole
-    scenario, plausibility, mode switches and replanning change."""
-    lines = []
+    """A row per predictor driven in closed loop (``closed_loop/*``), under the number of scenarios driven: see
+    :data:`CLOSED_LOOP_COLUMNS`."""
+    rows = []
     for prefix, name in CLOSED_LOOP_NAMES.items():
         key = f"closed_loop/{prefix}"
         if f"{key}success_rate" not in metrics:
             continue
         m = {k[len(key):]: float(v) for k, v in metrics.items() if k.startswith(key) and "/" not in k[len(key):]}
-        text = (f"success {m['success_rate']:.0%}, collision {m['collision_rate']:.0%}, timeout {m['timeout_rate']:.0%}"
-                f", no plan {m['no_plan_rate']:.0%}; APE {m['ape_cm']:.2f} cm")
-        if m.get("plausibility_cm") == m.get("plausibility_cm"):
-            text += f", plausibility {m['plausibility_cm']:.2f} cm, commits {m['commit_rate']:.0%}"
-        text += (f"; {m['mode_switches']:.2f} mode switches and {m['replans']:.1f} plans per scenario, "
-                 f"{m['plan_ms']:.1f} ms a plan")
-        lines.append(f"  closed loop {name:<24}: {text}")
-    if lines:
-        lines.insert(0, f"  closed loop: {int(metrics.get('closed_loop/episodes', 0))} scenarios driven from start to goal")
+        rows.append((name, [catalog.fmt(f"closed_loop/{k}", m[k]) if k in m and m[k] == m[k] else ""
+                            for k in CLOSED_LOOP_COLUMNS]))
+    if not rows:
+        return []
+    headers = [_closed_loop_header(k) for k in CLOSED_LOOP_COLUMNS]
+    first = max(len(name) for name, _ in rows)
+    widths = [max(len(header), *(len(cells[i]) for _, cells in rows)) for i, header in enumerate(headers)]
+    lines = [f"  closed loop: {int(metrics.get('closed_loop/episodes', 0))} scenarios driven from start to goal",
+             "  " + "".ljust(first) + "".join(f"  {h:>{w}}" for h, w in zip(headers, widths))]
+    lines += ["  " + name.ljust(first) + "".join(f"  {c:>{w}}" for c, w in zip(cells, widths)) for name, cells in rows]
     return lines

@@ -95,9 +95,10 @@ def run_entry_point(main: Callable[[], Any]) -> None:
     error does, instead of Hydra's 1; its message is Hydra's own."""
     global _task_started
     _task_started = False
-    from spade.utils.console import quiet_third_party_advertising
+    from spade.utils.console import quiet_library_deprecations, quiet_third_party_advertising
 
     quiet_third_party_advertising()  # Lightning's product tips are not SPADE's output
+    quiet_library_deprecations()  # nor one library's deprecation notes about another
     try:
         main()
     except SystemExit as exc:
