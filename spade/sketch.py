@@ -1,4 +1,4 @@
-"""``python -m spade.sketch MAP.yaml [port=8765] [out_dir=...] [model=student.ckpt|.onnx] [annotate.KEY=VALUE]``:
+"""``python -m spade.sketch MAP.yaml [port=8770] [out_dir=...] [model=student.ckpt|.onnx] [annotate.KEY=VALUE]``:
 sketching in the browser (spade/sketching/, README *Sketching in the browser*; settings in conf/sketch.yaml).
 
 Before Hydra parses the command line, a leading positional map becomes ``map=...``, ``model=`` becomes

@@ -83,6 +83,9 @@ def test_the_site_builds_strictly_without_a_warning(built: tuple[Path, str]) -> 
         assert f"python -m spade.{module}" in entries and (module == "data.verify" or f"spade-{module}" in entries)
     assert 'id="spade.planner.Planner"' in (site / "reference/api/planner/index.html").read_text()
     assert (site / "deployment" / "index.html").is_file()
+    layout = site / "how-to" / "spade-foxglove-layout.json"  # the Foxglove layout, linked from the ROS 2 page
+    assert layout.is_file() and not layout.is_symlink() and '"3D!spade"' in layout.read_text()
+    assert 'href="../how-to/spade-foxglove-layout.json"' in (site / "deployment" / "index.html").read_text()
 
 
 def _site_text(site: Path) -> dict[Path, str]:

@@ -28,6 +28,7 @@ def test_an_installed_wheel_runs_its_entry_points_from_any_folder(tmp_path: Path
     assert {f"spade/conf/{c}" for c in conf} <= names  # every config
     assert any(n.startswith("spade/models/weights/") and n.endswith(".ckpt") for n in names)  # the shipped expert
     assert "spade/sketching/static/index.html" in names and "spade/metrics/shape_features_v1.npz" in names
+    assert "spade/ros/foxglove_layout.json" in names  # the Foxglove layout (spade.ros.live.LAYOUT)
     install = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target", str(site),
                               str(wheel)], capture_output=True, text=True, timeout=600)
     assert install.returncode == 0, install.stderr[-3000:]

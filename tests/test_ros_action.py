@@ -381,3 +381,18 @@ def test_the_docs_qos_override_composes_and_bad_options_are_refused_before_any_w
                 from spade.ros.launch import foxglove_options
 
                 foxglove_options(cfg)
+
+
+def test_an_accepted_action_goal_is_shown_as_a_goal() -> None:
+    """With the action (Nav2's bt_navigator) no /goal_pose arrives: the node hands each accepted goal's pose to its
+    viewers (the live Foxglove server's /goal_pose) through on_goal."""
+    now = [0.0]
+    core = PlannerCore(FakePlanner(), CoreSettings(), clock=lambda: now[0], now_ns=lambda: 10**9)
+    shown: list = []
+    logic = GoalLogic(core, ActionSettings(enabled=True), clock=lambda: now[0], now_ns=lambda: 2 * 10**9,
+                      on_goal=shown.append)
+    core.handle_map(grid())
+    assert send(logic, gid(1), (8.0, 2.0, 1.0), start=(1.0, 1.0, 0.0)).accepted
+    assert not send(logic, gid(1), (3.0, 3.0, 0.0)).accepted  # a rejected goal is not shown
+    assert len(shown) == 1 and (shown[0].pose.position.x, shown[0].pose.position.y) == (8.0, 2.0)
+    assert shown[0].header.frame_id == "map"

@@ -1,6 +1,9 @@
-"""Live Foxglove: a client speaking Foxglove's WebSocket protocol (foxglove.sdk.v1 / foxglove.websocket.v1, written here on a plain
-socket) is advertised the node's channels and receives the map and a plan as ROS 2 CDR that decodes to what was
-sent; the shipped layout file is well formed and names only channels SPADE serves (or records)."""
+"""Live Foxglove: a client speaking Foxglove's WebSocket protocol (foxglove.sdk.v1 / foxglove.websocket.v1, written
+here on a plain socket) is advertised the node's channels and receives the map and a plan as ROS 2 CDR that decodes
+to what was sent; a viewer that connects late still gets the map, the goal and the last plan (latched channels),
+under either protocol name, and a client offering neither is told why, once; the simulator's server advertises only
+what it carries; the shipped layout file is well formed, names only channels SPADE serves (or records), lies in the
+package and is linked from the documentation."""
 
 from __future__ import annotations
 
@@ -22,23 +25,28 @@ pytest.importorskip("cyclonedds")
 from spade.ros import messages as M  # noqa: E402
 from spade.ros.live import CHANNELS, FoxgloveLive  # noqa: E402
 
-LAYOUT = Path(__file__).resolve().parents[1] / "docs" / "how-to" / "spade-foxglove-layout.json"
+REPO = Path(__file__).resolve().parents[1]
+LAYOUT = REPO / "docs" / "how-to" / "spade-foxglove-layout.json"
 
 
 class WsClient:
     """The smallest WebSocket client (RFC 6455) that Foxglove's protocol needs: text and binary frames."""
 
-    def __init__(self, port: int) -> None:
+    def __init__(self, port: int, protocols: str = "foxglove.sdk.v1, foxglove.websocket.v1") -> None:
         self.sock = socket.create_connection(("127.0.0.1", port), timeout=5)
         key = base64.b64encode(os.urandom(16)).decode()
         self.sock.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
                            f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
-                           "Sec-WebSocket-Protocol: foxglove.sdk.v1, foxglove.websocket.v1\r\n\r\n").encode())
+                           f"Sec-WebSocket-Protocol: {protocols}\r\n\r\n").encode())
         head = b""
         while b"\r\n\r\n" not in head:
             head += self.sock.recv(1)
+        self.head = head.decode(errors="replace")
         assert b" 101 " in head.split(b"\r\n")[0], head
-        assert b"foxglove." in head  # foxglove.sdk.v1 (this SDK) or foxglove.websocket.v1
+        # the protocol the server chose, one of those offered (foxglove.sdk.v1: this SDK's own name)
+        self.protocol = next(line.split(":", 1)[1].strip() for line in self.head.split("\r\n")
+                             if line.lower().startswith("sec-websocket-protocol:"))
+        assert self.protocol in protocols.split(", "), self.head
 
     def _read(self, n: int) -> bytes:
         out = b""
@@ -174,3 +182,151 @@ def test_recordings_carry_tf_and_the_students_window(tmp_path: Path) -> None:
     children = {msg.transforms[0].child_frame_id for t, msg in got if t == "/tf"}
     assert children == {"base_link", "spade_window"}
     assert set(dict(got)["/plan_probability"].data) == {50}
+
+
+def advertised(client: WsClient, topics: set[str] | None = None, seconds: float = 5.0) -> dict[str, dict]:
+    """The channels the server advertises (until ``topics`` are all there, or ``seconds`` pass), by topic."""
+    channels: dict[str, dict] = {}
+    client.sock.settimeout(0.5)
+    end = time.monotonic() + seconds
+    while time.monotonic() < end and (topics is None or not topics <= set(channels)):
+        try:
+            op, data = client.recv()
+        except TimeoutError:
+            if topics is None and channels:
+                break
+            continue
+        if op == 1:
+            msg = json.loads(data)
+            if msg.get("op") == "advertise":
+                channels.update({c["topic"]: c for c in msg["channels"]})
+    client.sock.settimeout(5)
+    return channels
+
+
+def subscribe(client: WsClient, channels: dict[str, dict]) -> dict[int, str]:
+    """Subscribe to every channel; returns subscription id -> topic."""
+    subs = {i: topic for i, topic in enumerate(channels)}
+    client.send_text(json.dumps({"op": "subscribe", "subscriptions": [
+        {"id": i, "channelId": channels[topic]["id"]} for i, topic in subs.items()]}))
+    return subs
+
+
+def receive(client: WsClient, subs: dict[int, str], wanted: set[str], seconds: float) -> dict[str, list[bytes]]:
+    """The messages received (payloads by topic) until every topic of ``wanted`` has one, or ``seconds`` pass."""
+    got: dict[str, list[bytes]] = {}
+    client.sock.settimeout(0.5)
+    end = time.monotonic() + seconds
+    while not wanted <= set(got) and time.monotonic() < end:
+        try:
+            op, data = client.recv()
+        except TimeoutError:
+            continue
+        if op == 2 and data[0] == 0x01:
+            got.setdefault(subs[struct.unpack("<I", data[1:5])[0]], []).append(data[13:])
+    client.sock.settimeout(5)
+    return got
+
+
+@pytest.mark.parametrize("protocols", ["foxglove.websocket.v1", "foxglove.sdk.v1"])
+def test_a_viewer_that_connects_after_the_map_gets_the_map_the_goal_and_the_last_plan(protocols: str) -> None:
+    """Every channel is latched as a transient-local ROS topic is: the map, the goal, the last plan and the robot's
+    transform, all sent before the viewer connected, reach it when it subscribes; under the old protocol name too."""
+    from spade.maps import FREE, OccupancyMap
+
+    live = FoxgloveLive("127.0.0.1", 0)
+    try:
+        m = OccupancyMap(np.full((40, 60), FREE, np.uint8), 0.1, (1.0, 2.0, 0.0), name="m")
+        live.on_message("map", M.occupancy_grid(m, "map"))
+        live.on_message("goal", M.pose_stamped((3.0, 3.5, 0.5), "map"))
+        live.on_message("pose", M.pose_with_covariance((2.0, 3.0, 0.5), "map"))
+        for x in (2.5, 3.0):  # two plans: the viewer gets the last one
+            live.on_plan(NS(result=NS(window=None), stamp_ns=10**9, frame_id="map", confidence=0.75),
+                         M.path(np.array([[2.0, 3.0], [x, 3.5]]), "map", 10**9, 0.0))
+        client = WsClient(live.port, protocols)
+        assert client.protocol == protocols  # the old name is answered with the old name
+        channels = advertised(client, {topic for topic, _ in CHANNELS.values()})
+        subs = subscribe(client, channels)
+        wanted = {"/map", "/goal_pose", "/plan", "/plan_confidence", "/amcl_pose", "/tf"}
+        got = receive(client, subs, wanted, 5)
+        assert wanted <= set(got), sorted(got)
+        grid = M.OccupancyGrid.deserialize(got["/map"][0])
+        assert (grid.info.width, grid.info.height) == (60, 40)
+        goal = M.PoseStamped.deserialize(got["/goal_pose"][0])
+        assert (goal.pose.position.x, goal.pose.position.y) == (3.0, 3.5)
+        plans = [M.Path.deserialize(b) for b in got["/plan"]]
+        assert len(plans) == 1 and plans[0].poses[-1].pose.position.x == 3.0  # the last plan only (depth 1)
+        assert M.Float32.deserialize(got["/plan_confidence"][0]).data == pytest.approx(0.75)
+        # a second late viewer gets them too; a new map replaces the latched one
+        live.on_message("map", M.occupancy_grid(OccupancyMap(np.full((10, 20), FREE, np.uint8), 0.1,
+                                                             (0.0, 0.0, 0.0)), "map"))
+        second = WsClient(live.port)
+        got2 = receive(second, subscribe(second, advertised(second, {"/map", "/goal_pose"})), {"/map", "/goal_pose"},
+                       5)
+        assert M.OccupancyGrid.deserialize(got2["/map"][-1]).info.width == 20
+    finally:
+        live.close()
+
+
+def test_a_client_offering_neither_protocol_name_is_told_why_and_it_is_logged_once(
+        caplog: pytest.LogCaptureFixture) -> None:
+    live = FoxgloveLive("127.0.0.1", 0)
+    try:
+        replies = []
+        with caplog.at_level("DEBUG", logger="spade.ros"):
+            for _ in range(3):  # a viewer retries about once a second
+                sock = socket.create_connection(("127.0.0.1", live.port), timeout=5)
+                sock.sendall(b"GET / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                             b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n"
+                             b"Sec-WebSocket-Protocol: rosbridge.v2\r\n\r\n")
+                reply = b""
+                while chunk := sock.recv(4096):
+                    reply += chunk
+                sock.close()
+                replies.append(reply.decode())
+        assert all(r.startswith("HTTP/1.1 400") for r in replies)
+        assert "foxglove.sdk.v1, foxglove.websocket.v1" in replies[0] and "rosbridge.v2" in replies[0]
+        warnings = [r for r in caplog.records if r.levelname == "WARNING" and "refused" in r.getMessage()]
+        assert len(warnings) == 1 and "said once" in warnings[0].getMessage()
+        client = WsClient(live.port)  # a good client still connects
+        assert client.protocol == "foxglove.sdk.v1"
+    finally:
+        live.close()
+
+
+def test_the_simulators_server_advertises_only_what_it_carries() -> None:
+    """The desk simulator has no window, probabilities or confidence (the node's): its server does not offer them."""
+    from spade.ros.live import SIM_CHANNELS
+
+    assert set(SIM_CHANNELS) == {"map", "pose", "goal", "plan", "tf"}
+    live = FoxgloveLive("127.0.0.1", 0, channels=SIM_CHANNELS)
+    try:
+        channels = advertised(WsClient(live.port), seconds=2)
+        assert set(channels) == {CHANNELS[k][0] for k in SIM_CHANNELS}
+        live.on_plan(None, M.path(np.array([[0.0, 0.0], [1.0, 0.0]]), "map", 10**9))  # the sim's plans: no event
+    finally:
+        live.close()
+    with pytest.raises(ValueError, match="not among"):
+        FoxgloveLive("127.0.0.1", 0, channels=["costmap"])
+
+
+def test_a_port_in_use_is_one_line_naming_the_option() -> None:
+    from spade.utils.errors import ConfigError
+
+    holder = socket.create_server(("127.0.0.1", 0))
+    try:
+        with pytest.raises(ConfigError, match=r"^foxglove_port=\d+: cannot listen .* choose another foxglove_port"):
+            FoxgloveLive("127.0.0.1", holder.getsockname()[1])
+    finally:
+        holder.close()
+
+
+def test_the_layout_ships_in_the_package_and_the_site_links_it() -> None:
+    from spade.ros.live import LAYOUT as PACKAGED
+
+    assert PACKAGED.is_file() and PACKAGED.parent == REPO / "spade" / "ros"
+    assert LAYOUT.resolve() == PACKAGED.resolve()  # the site's copy is the package's file
+    pyproject = (REPO / "pyproject.toml").read_text()
+    assert '"spade.ros" = ["foxglove_layout.json"]' in pyproject
+    page = (REPO / "docs" / "deployment.md").read_text()
+    assert "](how-to/spade-foxglove-layout.json)" in page  # a link, downloadable from the site

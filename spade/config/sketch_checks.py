@@ -27,7 +27,7 @@ def validate_sketch_config(cfg: DictConfig) -> None:
     """``spade.sketch``'s checks before the server starts: map, port, model file, output folder and window."""
     check_paths(cfg)
     map_files("map", get(cfg, "map"))
-    check_int(cfg, "port", 1, 65535, fix=", e.g. port=8765")
+    check_int(cfg, "port", 1, 65535, fix=", e.g. port=8770")
     host = get(cfg, "host")
     if not isinstance(host, str) or not host:
         raise ConfigError(f"host={host!r} is not an address; use host=127.0.0.1")

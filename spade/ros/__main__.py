@@ -8,7 +8,7 @@ Examples::
     python -m spade.ros model=student.onnx                        # /map, /amcl_pose, /goal_pose -> /plan
     python -m spade.ros model=student.onnx topics.plan=/spade/plan domain_id=7 record=session_bag
     python -m spade.ros model=student.onnx replay=robot_bag replay_out=replanned_bag
-    python -m spade.ros sim map=site.yaml model=student.onnx                # the desk simulator (conf/ros_sim.yaml)
+    python -m spade.ros sim map=warehouse:1 model=student.onnx              # the desk simulator (conf/ros_sim.yaml)
 """
 
 from __future__ import annotations

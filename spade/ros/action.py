@@ -91,17 +91,20 @@ class GoalLogic:
 
     ``core``: the node's :class:`spade.ros.core.PlannerCore` (its map, pose, frame and planner); ``clock``:
     monotonic seconds; ``now_ns``: wall-clock nanoseconds (stamps); ``on_path``: called with each successful
-    ``nav_msgs/Path`` (the node also publishes it on its plan topic, as ``planner_server`` does).
+    ``nav_msgs/Path`` (the node also publishes it on its plan topic, as ``planner_server`` does); ``on_goal``: called
+    with each accepted goal's ``PoseStamped`` (the node shows it to its viewers as a ``/goal_pose`` goal).
     """
 
     def __init__(self, core: Any, settings: ActionSettings | None = None, *,
                  clock: Callable[[], float] = time.monotonic, now_ns: Callable[[], int] = time.time_ns,
-                 on_path: Callable[[Any, Any], None] | None = None) -> None:
+                 on_path: Callable[[Any, Any], None] | None = None,
+                 on_goal: Callable[[Any], None] | None = None) -> None:
         self.core = core
         self.settings = settings or ActionSettings()
         self.T = types_for(self.settings.distro)
         self.clock, self.now_ns = clock, now_ns
         self.on_path = on_path
+        self.on_goal = on_goal
         self.goals: dict[bytes, _Goal] = {}
         self.status_changed = False
 
@@ -118,6 +121,8 @@ class GoalLogic:
             g = req.goal.goal.pose.position
             log.info("action goal %s accepted: (%.2f, %.2f) m%s", gid.hex()[:8], g.x, g.y,
                      " from the given start" if req.goal.use_start else "")
+            if self.on_goal is not None:
+                self.on_goal(req.goal.goal)
         else:
             log.warning("action goal %s rejected: its id is already in use", gid.hex()[:8])
         return self.T.SendGoalResponse(req.client_guid, req.sequence_number, accepted, M.Time(sec, nanosec))

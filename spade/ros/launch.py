@@ -11,7 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from spade.utils.errors import ConfigError
 
-__all__ = ["build_core", "build_planner", "checked_options", "domain_id", "foxglove_options", "run"]
+__all__ = ["build_core", "build_planner", "checked_options", "domain_id", "foxglove_options", "require_dds", "run"]
 
 log = logging.getLogger("spade.ros")
 
@@ -168,6 +168,7 @@ def domain_id(cfg: DictConfig) -> int:
 
 def run(cfg: DictConfig) -> dict[str, int]:
     """Run the node (or the replay) the config describes; returns the core's message and outcome counts."""
+    require_dds("python -m spade.ros")  # its messages and options are DDS types, a replay's too
     options = checked_options(cfg)
     if cfg.get("replay"):
         from spade.ros.recording import replay_bag
@@ -213,15 +214,36 @@ def run(cfg: DictConfig) -> dict[str, int]:
     return core.counts
 
 
-def foxglove_options(cfg: DictConfig) -> dict[str, Any] | None:
-    """``foxglove=true`` (and ``foxglove_host``, ``foxglove_port``): the live Foxglove server's options, or None.
-    Checked before any work; a missing foxglove-sdk is refused with the install line."""
+#: The node's live Foxglove port: Foxglove's own default (its "Open connection" proposes ws://localhost:8765).
+NODE_FOXGLOVE_PORT = 8765
+#: The desk simulator's own Foxglove server (both run side by side).
+SIM_FOXGLOVE_PORT = 8766
+#: The install line of the robot side's optional packages (cyclonedds: ROS 2's DDS; foxglove-sdk: live Foxglove).
+ROS_INSTALL = 'pip install "spade[ros]" (in a clone of the repository: pip install -e ".[ros]")'
+
+
+def require_dds(command: str) -> None:
+    """The DDS package that ``command`` (the node, the simulator) needs, or one :class:`ConfigError` naming it and
+    the install line (instead of a ``ModuleNotFoundError`` traceback)."""
+    try:
+        import cyclonedds.domain  # noqa: F401
+    except ImportError as err:
+        why = "" if isinstance(err, ModuleNotFoundError) and (err.name or "").startswith("cyclonedds") else f" ({err})"
+        raise ConfigError(f"{command} needs the cyclonedds package (ROS 2's DDS, no ROS install needed){why}: "
+                          f"{ROS_INSTALL}") from None
+
+
+def foxglove_options(cfg: DictConfig, prefix: str = "foxglove", default_port: int = NODE_FOXGLOVE_PORT,
+                     host_key: str = "foxglove_host") -> dict[str, Any] | None:
+    """``foxglove=true`` (and ``foxglove_host``, ``foxglove_port``): the live Foxglove server's options, or None
+    (``prefix``: ``node_foxglove`` for the node that the simulator starts). Checked before any work; a missing
+    foxglove-sdk is refused with the install line."""
     from spade.ros.core import check_option
 
     try:
-        enabled = check_option("foxglove", cfg.get("foxglove", False), "bool")
-        port = check_option("foxglove_port", cfg.get("foxglove_port", 8765), "int", 0, True, high=65535)
-        host = check_option("foxglove_host", cfg.get("foxglove_host", "127.0.0.1"), "str")
+        enabled = check_option(prefix, cfg.get(prefix, False), "bool")
+        port = check_option(f"{prefix}_port", cfg.get(f"{prefix}_port", default_port), "int", 0, True, high=65535)
+        host = check_option(host_key, cfg.get(host_key, "127.0.0.1"), "str")
     except ValueError as err:
         raise ConfigError(str(err)) from None
     if not enabled:
@@ -229,6 +251,5 @@ def foxglove_options(cfg: DictConfig) -> dict[str, Any] | None:
     import importlib.util
 
     if importlib.util.find_spec("foxglove") is None:
-        raise ConfigError("foxglove=true needs the foxglove-sdk package: pip install \"spade[ros]\" (or "
-                          "pip install foxglove-sdk), or leave foxglove=false")
+        raise ConfigError(f"{prefix}=true needs the foxglove-sdk package: {ROS_INSTALL}; or leave {prefix}=false")
     return {"host": host, "port": int(port)}

@@ -126,7 +126,8 @@ class PlannerNode:
         if action is not None and action.enabled:
             from spade.ros.action import ActionServer, GoalLogic
 
-            self.action = ActionServer(p, GoalLogic(core, action, on_path=self._publish_path))
+            self.action = ActionServer(p, GoalLogic(core, action, on_path=self._publish_path,
+                                                    on_goal=lambda goal: self._notify("goal", goal)))
             self._conditions += self.action.conditions
         for c in self._conditions:
             self.waitset.attach(c)
@@ -164,6 +165,14 @@ class PlannerNode:
             except Exception as err:  # noqa: BLE001 - a viewer must never stop the node
                 log.warning("observer %s failed on a plan: %s: %s", type(observer).__name__, type(err).__name__, err)
 
+    def _notify(self, name: str, msg: Any) -> None:
+        """Tell the observers of a message the node took (an action goal's pose is a ``goal``)."""
+        for observer in self.observers:
+            try:
+                observer.on_message(name, msg)
+            except Exception as err:  # noqa: BLE001 - a viewer must never stop the node
+                log.warning("observer %s failed on a %s message: %s", type(observer).__name__, name, err)
+
     # -- the loop ------------------------------------------------------------------------------------------------
     def spin_once(self, timeout_s: float = 0.1) -> int:
         """Wait up to ``timeout_s`` for samples, handle them; returns how many were taken."""
@@ -183,11 +192,7 @@ class PlannerNode:
                 taken += 1
                 if self.recorder is not None:
                     self.recorder.message(name, sample)
-                for observer in self.observers:
-                    try:
-                        observer.on_message(name, sample)
-                    except Exception as err:  # noqa: BLE001 - a viewer must never stop the node
-                        log.warning("observer %s failed on a %s message: %s", type(observer).__name__, name, err)
+                self._notify(name, sample)
                 try:
                     event = handle(sample)
                 except Exception as err:  # noqa: BLE001 - the core logs and survives; this is its last guard

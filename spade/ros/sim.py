@@ -1,4 +1,4 @@
-"""The desk simulator, ``python -m spade.ros sim map=MAP.yaml [model=student.onnx] ...``: a robot without a robot.
+"""The desk simulator, ``python -m spade.ros sim map=MAP [model=student.onnx] ...``: a robot without a robot.
 
 It plays map_server, AMCL and RViz2 for the planner node on DDS (no ROS install): publishes the map
 (``nav_msgs/OccupancyGrid``, latched), the robot's pose (``PoseWithCovarianceStamped`` on ``/amcl_pose`` and
@@ -6,7 +6,13 @@ It plays map_server, AMCL and RViz2 for the planner node on DDS (no ROS install)
 random; the robot follows the node's latest ``/plan`` with the closed-loop evaluation's pure-pursuit follower
 (:mod:`spade.deploy.follower`). With ``use_action=true`` the goals go through the ``ComputePathToPose`` action
 instead (:class:`spade.ros.action.ActionClient`, re-sent every ``action_replan_s`` as Nav2's behaviour tree does).
-Given ``model=``, it starts the node itself (``python -m spade.ros``) as a child process.
+Given ``model=``, it starts the node itself (``python -m spade.ros``) as a child process. ``MAP``: a ROS map yaml
+or a procedural spec such as ``warehouse:1`` (the tutorials' maps).
+
+``foxglove=true`` serves what the simulator sees (map, pose, goals, the node's plans, ``/tf``) on its own live
+Foxglove server (``foxglove_port``, 8766); ``node_foxglove=true`` turns on the node's server too
+(``node_foxglove_port``, 8765: the student's window and path probabilities of each plan besides);
+:mod:`spade.ros.live`.
 
 A goal is reached within ``goal_reached_m``; a goal not reached within ``goal_timeout_s`` is given up. The run
 ends after the last goal (or ``max_seconds``) with one summary line; the exit status is 0 when every goal was
@@ -29,7 +35,7 @@ import numpy as np
 
 from spade.maps import FREE, OccupancyMap
 
-__all__ = ["SimRobot", "SimSettings", "pick_free_pose", "run_sim"]
+__all__ = ["SimRobot", "SimSettings", "pick_free_pose", "run_sim", "sim_map"]
 
 log = logging.getLogger("spade.ros")
 
@@ -118,12 +124,25 @@ def _triples(value: Any, key: str) -> list[np.ndarray]:
     return [np.append(p, 0.0) if p.shape == (2,) else p for p in out]
 
 
+def sim_map(spec: Any) -> OccupancyMap:
+    """The simulator's map: a ROS map yaml (and its image) or a procedural ``kind:seed`` spec such as
+    ``warehouse:1``; a missing file or a bad spec is one :class:`~spade.utils.errors.ConfigError` line."""
+    from spade.annotation.sources import parse_procedural
+    from spade.config.file_checks import map_files
+    from spade.maps import generate_map, load_ros_map
+
+    map_files("map", spec)
+    procedural = parse_procedural(str(spec))
+    if procedural is not None:
+        return generate_map(*procedural)
+    return load_ros_map(Path(str(spec)).expanduser())
+
+
 def run_sim(cfg: Any) -> int:
     """Run the simulator of ``cfg`` (conf/ros_sim.yaml); returns the exit status (0: every goal reached)."""
     from omegaconf import OmegaConf
 
-    from spade.maps import load_ros_map
-    from spade.ros.launch import domain_id, foxglove_options
+    from spade.ros.launch import NODE_FOXGLOVE_PORT, SIM_FOXGLOVE_PORT, domain_id, foxglove_options, require_dds
     from spade.ros.core import check_option
     from spade.utils.errors import ConfigError
 
@@ -153,25 +172,42 @@ def run_sim(cfg: Any) -> int:
         raise ConfigError(f"{err} (conf/ros_sim.yaml)") from None
     map_path = c.get("map")
     if not map_path:
-        raise ConfigError("map: no map; pass map=MAP.yaml (a ROS map: yaml + image)")
+        raise ConfigError("map: no map; pass map=MAP.yaml (a ROS map: yaml + image) or a procedural spec such as "
+                          "map=warehouse:1")
     domain = domain_id(cfg)
-    foxglove = foxglove_options(cfg)
+    foxglove = foxglove_options(cfg, default_port=SIM_FOXGLOVE_PORT)
+    node_foxglove = foxglove_options(cfg, "node_foxglove", NODE_FOXGLOVE_PORT)
+    if node_foxglove is not None and not c.get("model_path"):
+        raise ConfigError("node_foxglove=true: the simulator starts no node without model=; pass model=student.onnx, "
+                          "or start the node yourself with foxglove=true")
+    if foxglove is not None and node_foxglove is not None and foxglove["port"] == node_foxglove["port"] != 0:
+        raise ConfigError(f"foxglove_port and node_foxglove_port are both {foxglove['port']}: the simulator's and the "
+                          "node's Foxglove servers need a port each; give them two")
+    require_dds("python -m spade.ros sim")
     topics = {"map": "/map", "pose": "/amcl_pose", "goal": "/goal_pose", "plan": "/plan", **(c.get("topics") or {})}
-    m = load_ros_map(Path(str(map_path)).expanduser())
+    m = sim_map(map_path)
     rng = np.random.default_rng(seed)
     clear = _clearance(m)
     for name, p in ([("start", start)] if start is not None else []) + [(f"goal {i}", g)
                                                                          for i, g in enumerate(goals or [])]:
         if not _free(m, p[:2]):
-            raise ConfigError(f"{name} ({p[0]:.2f}, {p[1]:.2f}) is not on a free cell of {map_path}")
+            raise ConfigError(f"{name} ({p[0]:.2f}, {p[1]:.2f}) is not on a free cell of map {map_path}")
     if start is None:
         start = pick_free_pose(m, rng, settings.clearance_m, clearance=clear)
     robot = SimRobot(start.copy(), m, settings)
 
+    live = None
+    if foxglove is not None:
+        from spade.ros.live import SIM_CHANNELS, FoxgloveLive
+
+        live = FoxgloveLive(**foxglove, channels=SIM_CHANNELS)
     node_proc = None
     if c.get("model_path"):
         args = [sys.executable, "-m", "spade.ros", f"model_path={c['model_path']}", f"domain_id={domain}",
                 *[str(a) for a in (c.get("node_args") or [])]]
+        if node_foxglove is not None:
+            args += ["foxglove=true", f"foxglove_host={node_foxglove['host']}",
+                     f"foxglove_port={node_foxglove['port']}"]
         if use_action:
             args += ["action.enabled=true", f"action.name={c.get('action_name', '/compute_path_to_pose')}",
                      f"action.distro={c.get('action_distro', 'jazzy')}"]
@@ -179,8 +215,10 @@ def run_sim(cfg: Any) -> int:
         node_proc = subprocess.Popen(args, env=os.environ.copy())
     try:
         return _run(cfg, c, m, robot, goals, num_goals, rng, clear, topics, domain, use_action, replan_s,
-                    max_seconds, foxglove, node_proc)
+                    max_seconds, live, node_proc)
     finally:
+        if live is not None:
+            live.close()
         if node_proc is not None:
             node_proc.terminate()
             try:
@@ -191,7 +229,7 @@ def run_sim(cfg: Any) -> int:
 
 def _run(cfg: Any, c: dict, m: OccupancyMap, robot: SimRobot, goals: list[np.ndarray] | None, num_goals: int,
          rng: np.random.Generator, clear: np.ndarray, topics: dict, domain: int, use_action: bool, replan_s: float,
-         max_seconds: float | None, foxglove: dict | None, node_proc: Any) -> int:
+         max_seconds: float | None, live: Any, node_proc: Any) -> int:
     from cyclonedds.domain import DomainParticipant
     from cyclonedds.pub import DataWriter
     from cyclonedds.sub import DataReader
@@ -214,11 +252,6 @@ def _run(cfg: Any, c: dict, m: OccupancyMap, robot: SimRobot, goals: list[np.nda
 
         client = ActionClient(p, str(c.get("action_name", "/compute_path_to_pose")),
                               str(c.get("action_distro", "jazzy")))
-    live = None
-    if foxglove is not None:
-        from spade.ros.live import FoxgloveLive
-
-        live = FoxgloveLive(**foxglove)
     grid = M.occupancy_grid(m, "map")
     map_writer.write(grid)
     if live is not None:
@@ -248,11 +281,11 @@ def _run(cfg: Any, c: dict, m: OccupancyMap, robot: SimRobot, goals: list[np.nda
         robot.plan = None
         sent_ns = time.time_ns()
         log.info("sim: goal %d: (%.2f, %.2f, %.2f)", k, *goal)
+        msg = M.pose_stamped(goal, "map")
         if client is None:
-            msg = M.pose_stamped(goal, "map")
             goal_writer.write(msg)
-            if live is not None:
-                live.on_message("goal", msg)
+        if live is not None:  # a topic goal or an action goal: the viewer shows it either way
+            live.on_message("goal", msg)
         goal_end, next_action = time.monotonic() + s.goal_timeout_s, 0.0
         ok = False
         while time.monotonic() < goal_end and (end is None or time.monotonic() < end):
@@ -279,6 +312,8 @@ def _run(cfg: Any, c: dict, m: OccupancyMap, robot: SimRobot, goals: list[np.nda
             for sample in plan_reader.take(N=16):
                 if sample is None or not getattr(getattr(sample, "sample_info", None), "valid_data", True):
                     continue
+                if live is not None:  # every plan the node publishes (an action goal's too, as planner_server)
+                    live.on_plan(None, sample)
                 stamp = int(sample.header.stamp.sec) * 10**9 + int(sample.header.stamp.nanosec)
                 if client is None and stamp >= sent_ns - 50_000_000 and len(sample.poses) >= 2:
                     robot.plan, plans = _path_xy(sample), plans + 1
@@ -303,6 +338,4 @@ def _run(cfg: Any, c: dict, m: OccupancyMap, robot: SimRobot, goals: list[np.nda
     log.info("sim: %d/%d goals reached in %.1f s, %d plans followed, %d collisions", reached, total,
              time.monotonic() - t_start, plans, robot.collisions)
     print(f"sim: {reached}/{total} goals reached, {plans} plans followed, {robot.collisions} collisions")
-    if live is not None:
-        live.close()
     return 0 if reached == total and total > 0 else 1

@@ -148,7 +148,7 @@ def flatten_overrides(tree: Mapping[str, Any], prefix: str = "") -> list[str]:
     return out
 
 
-def serve(app: FastAPI, host: str = "127.0.0.1", port: int = 8765) -> None:
+def serve(app: FastAPI, host: str = "127.0.0.1", port: int = 8770) -> None:
     """Run the app with uvicorn until interrupted."""
     import uvicorn
 
