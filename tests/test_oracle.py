@@ -344,7 +344,7 @@ def test_a_teachers_medoid_plans_label_the_unsketched_states_once(tmp_path, tiny
     from spade.data.datamodule import PathDataModule
     from spade.data.format import DatasetError
     from spade.data.path_dataset import PathDataset
-    from spade.data.teacher_labels import ensure_teacher_labels
+    from spade.training.teacher_labels import ensure_teacher_labels, label_unlabelled
 
     _write_with_alternatives(tmp_path / "train", 12, 0, "a")
     _write_with_alternatives(tmp_path / "unlabelled", 8, 1, "b")
@@ -371,6 +371,9 @@ def test_a_teachers_medoid_plans_label_the_unsketched_states_once(tmp_path, tiny
     dm = PathDataModule(tmp_path / "train", tmp_path / "test", val_fraction=0.25, batch_size=8,
                         unlabelled_dir=tmp_path / "unlabelled", max_unlabelled_instances=6, unlabelled_labels=True,
                         unlabelled_teacher=tiny_checkpoints["cond"], unlabelled_teacher_samples=2)
+    with pytest.raises(DatasetError, match="its labels are not made yet"):
+        dm.setup("fit")
+    assert label_unlabelled(dm) == out  # the same teacher, samples and states: the labels already made
     dm.setup("fit")
     assert dm.unlabelled_count == len(labels)
     assert all(bool(b["labelled"].all()) for b in dm.train_dataloader())

@@ -52,17 +52,14 @@ import sys
 uri, mode, cache = sys.argv[1], sys.argv[2], sys.argv[3]
 import mlflow
 from omegaconf import OmegaConf
-from spade.deploy.mlflow_models import RegistryError, resolve_model
+from spade.deploy.mlflow_models import _mlflow
 from spade.experiments.closed_loop_table import launch
 from spade.tracking.logger import MLFlowLogger
 print("ready", flush=True)
 if mode == "logger":  # training, evaluation and the critic: SPADE's MLflow logger
     MLFlowLogger(experiment_name="race", tracking_uri=uri).experiment
-elif mode == "registry":  # spade.export register= and model URIs: the registry's client
-    try:
-        resolve_model("models:/nothing@champion", uri)
-    except RegistryError:
-        pass  # no such model: the store was opened all the same
+elif mode == "registry":  # spade.export register=: the registry's client (a model URI never creates a store)
+    _mlflow(uri).MlflowClient().search_registered_models()
 elif mode == "closed_loop":
     launch(OmegaConf.create({"tracking_uri": uri, "cache_dir": cache, "sources": []}))
 print("ok", flush=True)
@@ -82,15 +79,14 @@ def _open_by(mode: str, uri: str, cache: Path) -> None:
     """Open the store at ``uri`` as path ``mode`` of SPADE does (:data:`_OPEN`, in this process)."""
     from omegaconf import OmegaConf
 
-    from spade.deploy.mlflow_models import RegistryError, resolve_model
+    from spade.deploy.mlflow_models import _mlflow
     from spade.experiments.closed_loop_table import launch
     from spade.tracking.logger import MLFlowLogger
 
     if mode == "logger":
         MLFlowLogger(experiment_name="race", tracking_uri=uri).experiment  # noqa: B018 - opens the run
     elif mode == "registry":
-        with pytest.raises(RegistryError):
-            resolve_model("models:/nothing@champion", uri)
+        _mlflow(uri).MlflowClient().search_registered_models()
     else:
         assert launch(OmegaConf.create({"tracking_uri": uri, "cache_dir": str(cache), "sources": []})) == []
 

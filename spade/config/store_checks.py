@@ -3,12 +3,10 @@ write into) it. Where a store URI points (:func:`store_path`) is :mod:`spade.dep
 
 from __future__ import annotations
 
-import sqlite3
-
 from omegaconf import DictConfig
 
 from spade.config.values import get
-from spade.deploy.mlflow_store import CORE_TABLES, store_path, store_problem
+from spade.deploy.mlflow_store import foreign_file_problem, store_path, store_problem
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import unset
 
@@ -17,25 +15,15 @@ def check_store_file(key: str, uri: str) -> None:
     """An existing SQLite store at ``uri`` must be an MLflow store: read-only, before MLflow opens it (MLflow
     creates its tables in any SQLite file it is given, so a reader would write into someone else's database)."""
     path = store_path(uri)
-    if path is None or not uri.startswith("sqlite:") or not path.is_file() or path.stat().st_size == 0:
-        return  # none yet, or an empty file: the command creates the store (spade.deploy.mlflow_store)
-    try:
-        db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=30)
-        try:
-            tables = {row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
-        finally:
-            db.close()
-    except sqlite3.DatabaseError as exc:
-        raise ConfigError(f"{key}={uri}: {path} is not an SQLite database ({exc}); point {key} (or SPADE_HOME / "
-                          "MLFLOW_TRACKING_URI) at the MLflow store the runs were logged to") from None
-    missing = CORE_TABLES - tables
+    if path is None or not uri.startswith("sqlite:"):
+        return  # a server answers for itself
     problem = store_problem(path)
     if problem:  # a half-made store (a creation interrupted by an older SPADE), or another MLflow's schema
         raise ConfigError(f"{key}={uri}: {problem}")
-    if missing:
-        raise ConfigError(f"{key}={uri}: {path} is an SQLite database but not an MLflow store (no "
-                          f"{', '.join(sorted(missing))} table); it is left untouched. Point {key} (or SPADE_HOME / "
-                          "MLFLOW_TRACKING_URI) at the MLflow store the runs were logged to")
+    foreign = foreign_file_problem(path)
+    if foreign:
+        raise ConfigError(f"{key}={uri}: {foreign}; point {key} (or SPADE_HOME / MLFLOW_TRACKING_URI) at the MLflow "
+                          "store the runs were logged to")
 
 
 #: Seconds a tracking server has to answer the check's one request (MLflow's own client would retry for minutes).

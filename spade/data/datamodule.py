@@ -121,9 +121,10 @@ class PathDataModule(L.LightningDataModule):
         # True: the unlabelled states keep their generator draw as a BC label (the oracle teacher's own samples as
         # labels: diffusion-based augmentation read literally, with a perfect teacher)
         self.unlabelled_labels = bool(unlabelled_labels)
-        # an expert checkpoint: the labels are its committed plans instead (spade.data.teacher_labels)
+        # an expert checkpoint: the labels are its committed plans instead (spade.training.teacher_labels)
         self.unlabelled_teacher = Path(unlabelled_teacher) if unlabelled_teacher not in (None, "") else None
         self.unlabelled_teacher_samples = options.unlabelled_teacher_samples
+        self.teacher_labels_dir: Path | None = None
         if self.unlabelled_teacher is not None and not (self.unlabelled_labels and self.unlabelled_dir is not None):
             raise ValueError(f"data.unlabelled_teacher={self.unlabelled_teacher} labels the unlabelled states: set "
                              "data.unlabelled_dir and data.unlabelled_labels=true with it (or drop it)")
@@ -215,6 +216,18 @@ class PathDataModule(L.LightningDataModule):
             else:
                 self.test_set = self.val_set
 
+    def teacher_label_request(self) -> tuple[Path, Path, int, int | None, str] | None:
+        """(teacher checkpoint, unlabelled states, samples per state, at most how many states, encoding) when the
+        unlabelled states take a teacher's plans as labels (``unlabelled_teacher``), else None."""
+        if self.unlabelled_teacher is None or self.unlabelled_dir is None:
+            return None
+        return (self.unlabelled_teacher, self.unlabelled_dir, self.unlabelled_teacher_samples,
+                self.max_unlabelled_instances, self.encoding)
+
+    def use_teacher_labels(self, path: str | Path) -> None:
+        """The teacher-labelled copy of the unlabelled states to train on (written by the training side)."""
+        self.teacher_labels_dir = Path(path)
+
     def _with_unlabelled(self, labelled: Subset) -> Any:
         """The training set with the states of ``unlabelled_dir`` (their demonstrations never a label: only the
         diffusion margin sees them, :class:`~spade.data.labelled.StateView`), after checking their windows and that
@@ -238,12 +251,12 @@ class PathDataModule(L.LightningDataModule):
                                    "the margin trained on; draw the unlabelled states with another seed")
         n = len(unlabelled) if not self.max_unlabelled_instances else min(len(unlabelled),
                                                                           self.max_unlabelled_instances)
-        if self.unlabelled_teacher is not None:  # the teacher's medoid plans as the labels, sampled once per teacher
-            from spade.data.teacher_labels import ensure_teacher_labels
-
-            labels_dir = ensure_teacher_labels(self.unlabelled_teacher, self.unlabelled_dir,
-                                               self.unlabelled_teacher_samples, n, self.encoding)
-            unlabelled = PathDataset(labels_dir, encoding=self.encoding)
+        if self.unlabelled_teacher is not None:  # the teacher's medoid plans as the labels, made by the training side
+            if self.teacher_labels_dir is None:
+                raise DatasetError(f"data.unlabelled_teacher={self.unlabelled_teacher}: its labels are not made yet; "
+                                   "spade.train makes them (spade.training.teacher_labels.label_unlabelled(datamodule) "
+                                   "before fitting)")
+            unlabelled = PathDataset(self.teacher_labels_dir, encoding=self.encoding)
             n = len(unlabelled)
         slots = max(full.manifest.alternatives, unlabelled.manifest.alternatives)
         k = full.manifest.num_waypoints

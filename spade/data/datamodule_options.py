@@ -43,7 +43,7 @@ class DataOptions:
     encoding: str = "binary"  # the start and goal markers (spade.data.encoding.MARKER_ENCODINGS)
     target_source: str = "demonstration"  # BC's label: the demonstration, or plausible_mean (spade.data.plausible)
     max_unlabelled_instances: int | None = None
-    unlabelled_teacher_samples: int = 4  # samples per state whose medoid labels it (spade.data.teacher_labels)
+    unlabelled_teacher_samples: int = 4  # samples per state whose medoid labels it (spade.training.teacher_labels)
 
     def __post_init__(self) -> None:
         check_int_value("data.batch_size", self.batch_size, 1, fix=", e.g. data.batch_size=32")

@@ -90,9 +90,9 @@ def resolve_model(value: str | Path, tracking_uri: str | None = None, cache_dir:
                                     "spade.train, its export (.onnx / .pt) from python -m spade.export, or "
                                     "models:/NAME@ALIAS")
         return path
+    uri = str(tracking_uri) if tracking_uri else str(_mlflow(None).get_tracking_uri())
+    _check_existing_store(text, uri)  # before anything is created (the store, the cache folder below)
     mlflow = _mlflow(tracking_uri)
-    uri = str(tracking_uri) if tracking_uri else str(mlflow.get_tracking_uri())
-    _check_existing_store(text, uri)  # before anything is created (the cache folder below included)
     dst = None
     if cache_dir is not None:
         dst = Path(cache_dir).expanduser() / text.replace(":/", "_").replace("/", "_").replace("@", "_at_")
@@ -126,15 +126,17 @@ def _check_existing_store(text: str, uri: str) -> None:
     creating it (its folder, file and tables), so ``spade.plan model=runs:/...`` run from another folder than the
     run's left an empty ``logs/mlflow.db`` there and answered that the run was not found. A server answers for
     itself; an SQLite file that is no MLflow store is refused unopened
-    (:func:`spade.config.store_checks.check_store_file`)."""
-    from spade.config.store_checks import check_store_file, store_path
+    (:func:`spade.deploy.mlflow_store.foreign_file_problem`)."""
+    from spade.deploy.mlflow_store import foreign_file_problem, store_path
 
     path = store_path(uri)
     if path is None:
         return
     if not path.exists():
         raise RegistryError(f"{text}: no MLflow store at {uri} (looked for {path}; none was created). {OTHER_STORE}")
-    check_store_file("MLFLOW_TRACKING_URI / paths.mlflow_tracking_uri", uri)
+    foreign = foreign_file_problem(path)
+    if foreign:
+        raise RegistryError(f"{text}: {foreign}. {OTHER_STORE}")
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,8 @@ from urllib.parse import urlparse
 
 from spade.utils.errors import ConfigError
 
-__all__ = ["StoreError", "ensure_store", "sqlite_store_path", "store_lock", "store_path", "store_problem"]
+__all__ = ["StoreError", "ensure_store", "foreign_file_problem", "sqlite_store_path", "store_lock", "store_path",
+           "store_problem"]
 
 #: The tables every MLflow store has: an SQLite file without them is not (or not yet) an MLflow store.
 CORE_TABLES = frozenset({"experiments", "runs", "metrics", "alembic_version"})
@@ -73,6 +74,27 @@ def store_lock(tracking_uri: str | None) -> Iterator[None]:
             yield
         finally:
             fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def foreign_file_problem(path: Path) -> str | None:
+    """Why the existing, non-empty file ``path`` is no MLflow store (not SQLite, or SQLite without MLflow's core
+    tables), read-only and before MLflow opens it (MLflow creates its tables in any SQLite file it is given); None
+    for a missing or empty file or an MLflow store."""
+    if not path.is_file() or path.stat().st_size == 0:
+        return None
+    try:
+        db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=30)
+        try:
+            tables = {row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        finally:
+            db.close()
+    except sqlite3.DatabaseError as exc:
+        return f"{path} is not an SQLite database ({exc})"
+    missing = CORE_TABLES - tables
+    if missing:
+        return (f"{path} is an SQLite database but not an MLflow store (no {', '.join(sorted(missing))} table); it is "
+                "left untouched")
+    return None
 
 
 def _schema_head() -> str | None:

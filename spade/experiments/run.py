@@ -95,6 +95,10 @@ def fit_and_test(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
 
     log.info("Instantiating datamodule <%s>", cfg.data._target_)
     datamodule: L.LightningDataModule = hydra.utils.instantiate(cfg.data)
+    if getattr(datamodule, "teacher_label_request", lambda: None)() is not None:
+        from spade.training.teacher_labels import label_unlabelled
+
+        label_unlabelled(datamodule)  # a teacher's plans label the unsketched states (sampled once, then read)
     log.info("Instantiating model <%s>", cfg.model._target_)
     model: L.LightningModule = hydra.utils.instantiate(cfg.model)
 

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from spade.maps import FREE, OccupancyMap
+from spade.utils.errors import ConfigError
 
 __all__ = ["SimRobot", "SimSettings", "pick_free_pose", "run_sim", "sim_map"]
 
@@ -128,14 +129,24 @@ def sim_map(spec: Any) -> OccupancyMap:
     """The simulator's map: a ROS map yaml (and its image) or a procedural ``kind:seed`` spec such as
     ``warehouse:1``; a missing file or a bad spec is one :class:`~spade.utils.errors.ConfigError` line."""
     from spade.annotation.sources import parse_procedural
-    from spade.config.file_checks import map_files
-    from spade.maps import generate_map, load_ros_map
+    from spade.maps import MapFormatError, generate_map, load_ros_map
 
-    map_files("map", spec)
-    procedural = parse_procedural(str(spec))
+    fix = "give a ROS map yaml (map_server format) or a generator spec such as warehouse:101"
+    if spec in (None, ""):
+        raise ConfigError(f"map is not set; {fix}")
+    try:
+        procedural = parse_procedural(str(spec))
+    except ValueError as exc:
+        raise ConfigError(f"map={spec}: {exc}") from None
     if procedural is not None:
         return generate_map(*procedural)
-    return load_ros_map(Path(str(spec)).expanduser())
+    path = Path(str(spec)).expanduser()
+    if not path.is_file():
+        raise ConfigError(f"map={spec} does not exist; {fix}")
+    try:
+        return load_ros_map(path)
+    except MapFormatError as exc:
+        raise ConfigError(f"map={spec}: {exc}") from None
 
 
 def run_sim(cfg: Any) -> int:

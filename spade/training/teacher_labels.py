@@ -4,7 +4,8 @@ Diffusion-based augmentation read literally (issue 58, item 3c): for each state 
 draws ``samples`` (K) paths, the planner decodes each, and their medoid (the minimum-Bayes-risk reading,
 :func:`spade.metrics.preference.medoid_path`, the same reading as the teacher's planner figures) becomes the state's
 demonstration. A student then trains by BC on its own demonstrations plus these labels
-(``data.unlabelled_labels=true data.unlabelled_teacher=CKPT``): the plainest way for one large teacher to pass what it
+(``data.unlabelled_labels=true data.unlabelled_teacher=CKPT``; ``spade.train`` calls :func:`label_unlabelled` on its
+data module before fitting): the plainest way for one large teacher to pass what it
 knows about a site's maps to a small per-site student.
 
 The labelled set is a SPADE dataset written beside the unlabelled one (``<unlabelled>.teacher-<digest>``), keyed by
@@ -20,13 +21,14 @@ import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
 from spade.data.format import DatasetError
 
-__all__ = ["TeacherLabels", "teacher_labels_dir", "write_teacher_labels", "ensure_teacher_labels"]
+__all__ = ["TeacherLabels", "teacher_labels_dir", "write_teacher_labels", "ensure_teacher_labels", "label_unlabelled"]
 
 log = logging.getLogger(__name__)
 
@@ -141,3 +143,19 @@ def ensure_teacher_labels(teacher_ckpt: str | Path, unlabelled_dir: str | Path, 
     log.info("teacher labels: %d states labelled, %d left out (no sample decoded), %.0f s", report.labelled,
              report.left_out, report.seconds)
     return out
+
+
+def label_unlabelled(datamodule: Any) -> Path | None:
+    """Give a :class:`~spade.data.datamodule.PathDataModule` with ``unlabelled_teacher`` its teacher-labelled states
+    (made once, after the unlabelled states themselves are generated); None when it names no teacher."""
+    request = datamodule.teacher_label_request()
+    if request is None:
+        return None
+    datamodule.prepare_data()  # the unlabelled states first (generated when missing)
+    from spade.data.path_dataset import PathDataset
+
+    ckpt, source, samples, limit, encoding = request
+    count = len(PathDataset(source, encoding=encoding))
+    path = ensure_teacher_labels(ckpt, source, samples, min(count, limit) if limit else count, encoding)
+    datamodule.use_teacher_labels(path)
+    return path
