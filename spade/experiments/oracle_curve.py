@@ -112,8 +112,9 @@ def curve_section(series: CurveSeries, runs: Mapping[str, list[RunRecord]],
             if test is not None and base_values and row:
                 diff = statistics.fmean(_values(runs[row])) - statistics.fmean(base_values)
                 holm_p = test.get("holm")
-                cell += (f" <br>{diff:+.2f} cm, {'told apart' if significant(test) else 'not told apart'}"
-                         + ("" if holm_p is None else f" (Holm p {holm_p:.2g})"))
+                one_seed = len(_values(runs[row])) < 2 or len(base_values) < 2
+                told = "one seed" if one_seed else "told apart" if significant(test) else "not told apart"
+                cell += f" <br>{diff:+.2f} cm, {told}" + ("" if holm_p is None else f" (Holm p {holm_p:.2g})")
             cells.append(cell)
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     if floor is not None:
@@ -138,9 +139,11 @@ def curve_section(series: CurveSeries, runs: Mapping[str, list[RunRecord]],
             mean = statistics.fmean(values)
             gap = "" if ceiling is None or bc_mean - ceiling <= 0 else \
                 f", {100 * (bc_mean - mean) / (bc_mean - ceiling):.0f} % of the gap"
-            told = "told apart" if significant(test) else "not told apart"
-            parts.append(f"{label} {mean:.2f} cm ({mean - bc_mean:+.2f}{gap}; {told}"
-                         f"{'' if len(values) > 1 and len(bc) > 1 else ', one seed'})")
+            if len(values) < 2 or len(bc) < 2:  # one training seed: its difference may be the seed's
+                told = "one seed, not tested over seeds"
+            else:
+                told = "told apart" if significant(test) else "not told apart"
+            parts.append(f"{label} {mean:.2f} cm ({mean - bc_mean:+.2f}{gap}; {told})")
         verdict.append(text + (": " + "; ".join(parts) if parts else ""))
     sentences = ["- **Data-size curve**: " + "; ".join(verdict) + "."] if verdict else []
     return lines, sentences

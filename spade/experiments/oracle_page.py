@@ -409,7 +409,7 @@ def oracle_report(tracking_uri: str, output_dir: str | Path | None, settings: Ma
                   "Planner APE (cm) at each number of the site's demonstrations, mean ± sd over seeds; each series "
                   "is tested against the first at the same size by the page's rule (Welch with Holm over the curve, "
                   "and the paired bootstrap over scenarios). The floor and the BC ceiling do not depend on the "
-                  "training set.", "", *curve_lines, "", f"![planner APE against the number of demonstrations]({chart})",
+                  f"training set.{_epochs_note(by_name, curve_rows(curve))}", "", *curve_lines, "", f"![planner APE against the number of demonstrations]({chart})",
                   ""]
     teacher_lines = _teacher_rows(teachers, teacher_runs, references, every)
     if teacher_lines:
@@ -433,6 +433,14 @@ def oracle_report(tracking_uri: str, output_dir: str | Path | None, settings: Ma
             files["curve"] = out / f"{page}_curve.png"
             plot_curve(curve, by_name, floor, ceiling, _best_baseline(every), files["curve"])
     return text, files
+
+
+def _epochs_note(by_name: Mapping[str, list[RunRecord]], names: set[str]) -> str:
+    """Says that every point of the curve trained the same epochs (so fewer demonstrations, fewer steps)."""
+    epochs = {r.params.get("cfg/trainer/max_epochs") for n in names for r in by_name.get(n, [])} - {None}
+    if len(epochs) != 1:
+        return ""
+    return f" Every point trains {epochs.pop()} epochs, so fewer demonstrations also mean fewer optimiser steps."
 
 
 def _best_baseline(runs: list[RunRecord]) -> tuple[str, float] | None:
