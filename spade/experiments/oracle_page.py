@@ -407,7 +407,7 @@ def oracle_report(tracking_uri: str, output_dir: str | Path | None, settings: Ma
         chart = f"{page}_curve.png"
         parts += ["## Data-size curve", "",
                   "Planner APE (cm) at each number of the site's demonstrations, mean ± sd over seeds; each series "
-                  "is tested against the first at the same size by the page's rule (Welch with Holm over the curve, "
+                  "is tested against the first at the same size by the page's rule (Welch with Holm over the page, "
                   "and the paired bootstrap over scenarios). The floor and the BC ceiling do not depend on the "
                   f"training set.{_epochs_note(by_name, curve_rows(curve))}", "", *curve_lines, "", f"![planner APE against the number of demonstrations]({chart})",
                   ""]
