@@ -83,9 +83,12 @@ def validate_report_config(cfg: DictConfig) -> None:
     if unset(uri):
         raise ConfigError("tracking_uri is not set; pass tracking_uri=sqlite:///PATH/logs/mlflow.db")
     path = store_path(str(uri))
-    records = get(cfg, "oracle.records_dir")
-    if str(table) == "oracle" and path is not None and not path.exists() and not unset(records) \
-            and Path(str(records)).is_dir():
+    # Without a store, a page that has its run records regenerates from them, and a page whose store was lost
+    # before it had records keeps its committed copy under a notice (spade.experiments.run_records).
+    offline = {"oracle": ("oracle.records_dir",), "teacher": ("teacher.records_dir", "teacher.committed"),
+               "closed_loop": ("closed_loop_records_dir", "closed_loop_committed")}.get(str(table), ())
+    kept = [get(cfg, key) for key in offline]
+    if path is not None and not path.exists() and any(not unset(k) and Path(str(k)).exists() for k in kept):
         check_paths(cfg)  # the page regenerates from its committed run records alone
         _check_output_dir(cfg)
         return

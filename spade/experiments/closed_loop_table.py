@@ -41,6 +41,7 @@ log = logging.getLogger(__name__)
 
 CLOSED_LOOP_TABLE = "closed_loop"
 """The MLflow experiment (``tags.table``) of the drives, and the ``spade.report`` table name."""
+TITLE = "Closed loop: students driven through whole scenarios, beside the classical planners"
 
 FIGURES: tuple[tuple[str, str, str, bool | None], ...] = tuple(
     (catalog.label(n, qualified=False), n.removeprefix("closed_loop/"), catalog.figure(n).fmt,
@@ -206,44 +207,52 @@ class Cell:
         return [m[key] for _, m in sorted(self.seeds.items()) if key in m and math.isfinite(m[key])]
 
 
-def fetch_drives(tracking_uri: str, scale: str | None = None) -> dict[tuple[str, str, str], Cell]:
-    """The finished drives of the ``closed_loop`` experiment, the latest run per seed of each cell."""
-    from spade.tracking.client import mlflow_client
+DRIVE_TAGS = ("source_row", "source_run", "dataset", "condition", CONDITION_KEY, "scale")
+"""The tags a drive's run record keeps (:mod:`spade.experiments.run_records`): where it came from and what ran."""
 
-    client = mlflow_client(tracking_uri)
-    experiment = client.get_experiment_by_name(CLOSED_LOOP_TABLE)
+
+def export_drives(tracking_uri: str, records_dir: str | Path, scale: str | None = None,
+                  rows: list[str] | None = None) -> int:
+    """The finished drives of the ``closed_loop`` experiment (run names ``rows`` when given) as run records in
+    ``records_dir``: one per (cell, seed, condition key), each with its trained run's ``margin/active``."""
+    from spade.experiments.run_records import export_records
+
+    return export_records(tracking_uri, CLOSED_LOOP_TABLE, records_dir, rows, scale=scale, tags=DRIVE_TAGS,
+                          key_tag=CONDITION_KEY, instances=False, source_metrics=(MARGIN_ACTIVE,))
+
+
+def drive_cells(runs: list[Any], scale: str | None = None) -> dict[tuple[str, str, str], Cell]:
+    """The drives' run records (:func:`export_drives`) as cells: the latest drive per seed of each (row, dataset,
+    condition), only under the cell's latest settings (its latest drive's condition key)."""
     cells: dict[tuple[str, str, str], Cell] = {}
-    margins: dict[str, float | None] = {}
-    if experiment is None:
-        return cells
-    query = "attributes.status = 'FINISHED'" + (f" and tags.scale = '{scale}'" if scale else "")
-    runs = client.search_runs([experiment.experiment_id], query, order_by=["attributes.end_time DESC"],
-                              max_results=5000)
     settings: dict[tuple[str, str, str], str | None] = {}
-    for run in runs:
-        tags = run.data.tags
-        if tags.get("mlflow.parentRunId") or "source_row" not in tags:
+    for run in sorted(runs, key=lambda r: -(r.end_time or 0)):
+        tags = run.tags
+        if "source_row" not in tags or (scale and tags.get("scale", scale) != scale):
             continue
         key = (tags["source_row"], tags.get("dataset", "?"), tags.get("condition", "?"))
         cell = cells.setdefault(key, Cell(*key))
         if settings.setdefault(key, tags.get(CONDITION_KEY)) != tags.get(CONDITION_KEY):
             continue  # a drive under the condition's earlier settings: never shown beside the latest
-        seed = int(float(run.data.params.get("cfg/seed", -1)))
+        seed = int(run.seed) if run.seed is not None else -1
         if seed in cell.seeds:
             continue  # an older drive of the same seed
-        cell.seeds[seed] = dict(run.data.metrics)
-        source = tags.get("source_run")
-        if source:  # the trained run's own record: whether a guided row's margin still acted at the end
-            if source not in margins:
-                try:
-                    margins[source] = client.get_run(source).data.metrics.get(MARGIN_ACTIVE)
-                except Exception:  # noqa: BLE001 - a deleted source run: its margin is unknown
-                    margins[source] = None
-            if margins[source] is not None:
-                cell.seeds[seed][MARGIN_ACTIVE] = margins[source]
-        if run.info.end_time and run.info.start_time:
-            cell.seconds += (run.info.end_time - run.info.start_time) / 1000.0
+        cell.seeds[seed] = dict(run.metrics)
+        if run.wall_s:
+            cell.seconds += run.wall_s
     return cells
+
+
+def fetch_drives(tracking_uri: str, scale: str | None = None) -> dict[tuple[str, str, str], Cell]:
+    """The finished drives of the ``closed_loop`` experiment, the latest run per seed of each cell (read through
+    their run records, as a page reads them: :func:`export_drives`, :func:`drive_cells`)."""
+    import tempfile
+
+    from spade.experiments.run_records import load_records
+
+    with tempfile.TemporaryDirectory() as tmp:
+        export_drives(tracking_uri, tmp, scale)
+        return drive_cells(load_records(tmp)[0], scale)
 
 
 def _mean_sd(values: list[float], fmt: str) -> str:
@@ -286,17 +295,39 @@ def _ranking(cells: list[Cell], key: str) -> list[str]:
     return [row for _, row in sorted(means)]
 
 
+RERUN_COMMAND = ("python -m spade.closed_loop, then python -m spade.report table=closed_loop scale=quickstart "
+                 "output_dir=docs/results")
+"""What reruns the closed-loop page's rows (its drives) and rewrites it, for the lost-store notice."""
+
+
 def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: str | None = None,
-                       rows: list[str] | None = None, labels: Mapping[str, str] | None = None) -> tuple[str, dict]:
-    """Render the closed-loop page (markdown) from the ``closed_loop`` experiment; with ``output_dir`` also write
-    ``closed_loop.md`` and ``closed_loop.csv``. Returns the text and the files written."""
+                       rows: list[str] | None = None, labels: Mapping[str, str] | None = None,
+                       records_dir: str | Path | None = None, committed: str | Path | None = None
+                       ) -> tuple[str, dict]:
+    """Render the closed-loop page (markdown) from the drives' run records, exported from the ``closed_loop``
+    experiment first when the store has it (into ``records_dir``; a temporary folder without one); with
+    ``output_dir`` also write ``closed_loop.md`` and ``closed_loop.csv``. Without records, the ``committed`` page is
+    kept under the lost-store notice (:func:`spade.experiments.run_records.keep_committed_page`). Returns the text
+    and the files written."""
+    import tempfile
+
+    from spade.experiments.run_records import has_records, keep_committed_page, load_records, store_exists
     from spade.utils.provenance import command_line, commit, machine, shown_path
 
     labels = dict(labels or {})
-    cells = fetch_drives(tracking_uri, scale)
+    with tempfile.TemporaryDirectory() as tmp:
+        records = Path(records_dir) if records_dir is not None else Path(tmp)
+        if store_exists(tracking_uri):  # a lost store is never created empty: the records alone are read
+            export_drives(tracking_uri, records, scale)
+        if not has_records(records):
+            kept = keep_committed_page(committed, RERUN_COMMAND, records, output_dir, "closed_loop.md")
+            if kept is not None:
+                return kept
+        drives = load_records(records)[0] if records.is_dir() else []
+    cells = drive_cells(drives, scale)
     order = rows or sorted({k[0] for k in cells})
     groups = sorted({(k[1], k[2]) for k in cells}, key=lambda g: (g[0] != "heldout", g[0], g[1] != "clean", g[1]))
-    parts = ["## Closed loop: students driven through whole scenarios, beside the classical planners", ""]
+    parts = [f"# {TITLE}", ""]
     if not cells:
         parts += [f"No finished drive in the MLflow experiment `{CLOSED_LOOP_TABLE}` of {shown_path(tracking_uri)}"
                   + (f" at scale {scale}" if scale else "") + ": launch them with `python -m spade.closed_loop`."]
@@ -314,9 +345,7 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
         "A guided row is guidance only where its margin acted: the last column is the share of its training "
         "instances whose margin was active in the last epoch (its training run's `margin/active`); near 0, the row "
         "trained as BC did at the end.", "",
-        "Which figure decides: the success rate first (a planner that collides or stalls is not deployable), then "
-        "the closed-loop APE; plausibility, commitment and mode switches say whether the robot drove a turn an "
-        "operator drew.", ""]
+        ]
     tests: list[Test] = []
     csv_rows = []
     for dataset, condition in groups:
@@ -374,22 +403,24 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
                       f"closed-loop APE: {' < '.join(labels.get(r, r) for r in closed_rank)}: "
                       + ("they agree." if agree else "**they disagree**."), ""]
     _holm(tests)
+    significant = [t for t in tests if t.p_holm is not None and t.p_holm < 0.05]
     if tests:
-        parts += ["Tests (two-sided; Holm's correction over every test of this page; significant: adjusted p < 0.05; "
-                  "n/a: fewer than 2 seeds or no spread):", "",
-                  "| comparison | figure | mean A | mean B | test | p | p (Holm) | verdict |", "|---|---|---:|---:|---|---:|---:|---|"]
-        for t in tests:
-            fmt = next(f for _, k, f, _ in FIGURES if k == t.figure)
-            p = "n/a" if t.p is None else f"{t.p:.3g}"
-            ph = "n/a" if t.p_holm is None else f"{t.p_holm:.3g}"
-            verdict = ("no test" if t.p_holm is None else "significant" if t.p_holm < 0.05 else "not significant")
-            parts.append(f"| {t.what} | {t.figure} | {format(t.a, fmt)} | {format(t.b, fmt)} | {t.kind} | {p} | {ph} "
-                         f"| {verdict} |")
-        parts.append("")
-    parts += ["Verdict:", "", *[f"- {line}" for line in verdict_lines(tests, labels)], ""]
+        parts += [f"## Tests ({len(significant)} of {len(tests)} significant)", "",
+                  "Two-sided; Holm's correction over every test of this page; significant: adjusted p < 0.05; n/a: "
+                  "fewer than 2 seeds or no spread. The significant tests first, the rest collapsed below.", "",
+                  *(_test_table(significant) if significant else ["No test is significant."]), ""]
+        rest = [t for t in tests if t not in significant]
+        if rest:
+            parts += [*_collapsed(f"The other {len(rest)} tests (not significant, or no test)", _test_table(rest)),
+                      ""]
+    parts += ["## Every comparison in words", "", *[f"- {line}" for line in verdict_lines(tests, labels)], ""]
+    head = [f"# {TITLE}", "", *summary(tests, labels), "",
+            "Which figure decides in closed loop: the success rate, then the closed-loop APE (the [metrics "
+            "reference](../reference/metrics.md#which-figure-decides) states it for open and closed loop).", ""]
+    parts = head + parts[2:]
     seconds = sum(c.seconds for c in cells.values())
     driving = sum(m.get("closed_loop/seconds", 0.0) for c in cells.values() for m in c.seeds.values())
-    parts += ["Provenance:", "", f"- command: `{command_line('spade.report')}` (launch: `python -m spade.closed_loop`)",
+    parts += ["## Provenance", "", f"- command: `{command_line('spade.report')}` (launch: `python -m spade.closed_loop`)",
               f"- commit: {commit() or 'unknown (not a git checkout)'}",
               f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
               f"- machine: {machine()}",
@@ -397,7 +428,9 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
               f"driving (every planner, closed_loop/seconds); their MLflow runs {seconds / 60:.0f} min (the clean "
               "drives' open-loop tests included)",
               f"- MLflow experiment `{CLOSED_LOOP_TABLE}` in {shown_path(tracking_uri)}"
-              + (f", scale {scale}" if scale else "")]
+              + (f", scale {scale}" if scale else ""),
+              *([f"- records: {shown_path(records_dir)} ({len(drives)} drives; the page regenerates from them "
+                 "without the store)"] if records_dir is not None else [])]
     files: dict[str, Path] = {}
     text = "\n".join(parts) + "\n"
     if output_dir is not None:
@@ -415,37 +448,82 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
     return text, files
 
 
-def verdict_lines(tests: list[Test], labels: Mapping[str, str]) -> list[str]:
-    """The tests in words, one line per comparison that the seeds can test: the deciding figure (success) first,
-    then the closed-loop APE, each with its Holm-adjusted verdict; comparisons without a test (a row of one seed)
-    are left to the tables."""
+def _test_table(tests: list[Test]) -> list[str]:
+    lines = ["| comparison | figure | A | B | test | p (Holm) | verdict |", "|---|---|---:|---:|---|---:|---|"]
+    for t in tests:
+        fmt = next(f for _, k, f, _ in FIGURES if k == t.figure)
+        ph = "n/a" if t.p_holm is None else f"{t.p_holm:.3g}"
+        verdict = ("no test" if t.p_holm is None else "significant" if t.p_holm < 0.05 else "not significant")
+        lines.append(f"| {t.what} | {t.figure} | {format(t.a, fmt)} | {format(t.b, fmt)} | {t.kind} | {ph} | "
+                     f"{verdict} |")
+    return lines
+
+
+def _collapsed(title: str, lines: list[str]) -> list[str]:
+    """A block the docs site shows closed (pymdownx.details)."""
+    return [f'??? note "{title}"', "", *(f"    {line}" if line else "" for line in lines)]
+
+
+def _decisions(tests: list[Test]) -> list[tuple[str, str, str, dict[str, Test], str | None]]:
+    """Each comparison the seeds can test: (group, A, B, its tests by figure, the winner or ``None``), decided by
+    the success rate first, then the closed-loop APE, each by its Holm-adjusted p."""
     by_pair: dict[str, dict[str, Test]] = {}
     for t in tests:
         if t.figure in ("success_rate", "ape_cm"):
             by_pair.setdefault(t.what, {})[t.figure] = t
-    lines = []
+    out = []
     for what, figs in by_pair.items():
         if all(t.p_holm is None for t in figs.values()):
             continue
         group, pair = what.split(": ", 1)
         a, b = pair.split(" vs ")
+        winner = None
+        for t, higher_better in ((figs.get("success_rate"), True), (figs.get("ape_cm"), False)):
+            if t is not None and t.p_holm is not None and t.p_holm < 0.05 and t.a != t.b:
+                winner = a if (t.a > t.b) == higher_better else b
+                break
+        out.append((group, a, b, figs, winner))
+    return out
+
+
+def summary(tests: list[Test], labels: Mapping[str, str]) -> list[str]:
+    """The page's finding in two or three sentences: what the tests between students and against the classical
+    planners establish (its first sentence is the page's one-line finding in the results index)."""
+    decisions = _decisions(tests)
+    planners = set(REFERENCES.values())
+    between = [d for d in decisions if d[2] not in planners]
+    against = [d for d in decisions if d[2] in planners]
+    told = [d for d in between if d[4] is not None]
+    if not decisions:
+        return ["No comparison can be tested yet (every row has fewer than two seeds)."]
+    first = (f"Driven in closed loop, no student is told apart from another ({len(between)} comparisons by success, "
+             "then closed-loop APE, Holm's correction over the page)." if not told else
+             f"Driven in closed loop, {len(told)} of {len(between)} comparisons between students are told apart: "
+             + "; ".join(f"{d[4]} wins against {d[2] if d[4] == d[1] else d[1]} ({d[0]})" for d in told) + ".")
+    wins = [d for d in against if d[4] == d[1]]
+    losses = [d for d in against if d[4] == d[2]]
+    second = (f"Against the classical planners the students win {len(wins)} of {len(against)} comparisons"
+              + (f" and lose {len(losses)}" if losses else " and lose none")
+              + "; the rest are not told apart."
+              + (f" The wins: {', '.join(sorted({f'{d[0]} against the {d[2]}' for d in wins}))}." if wins else ""))
+    return [first + " " + second] if against else [first]
+
+
+def verdict_lines(tests: list[Test], labels: Mapping[str, str]) -> list[str]:
+    """The tests in words, one line per comparison that the seeds can test: the deciding figure (success) first,
+    then the closed-loop APE, each with its Holm-adjusted verdict; comparisons without a test (a row of one seed)
+    are left to the tables."""
+    lines = []
+    for group, a, b, figs, winner in _decisions(tests):
         words = []
-        for figure, name, fmt, higher in (("success_rate", "success", ".1%", True), ("ape_cm", "APE", ".2f", False)):
+        for figure, name, fmt in (("success_rate", "success", ".1%"), ("ape_cm", "APE", ".2f")):
             t = figs.get(figure)
             if t is None:
                 continue
             unit = "" if figure == "success_rate" else " cm"
-            if t.a == t.b:
-                order = "equal"
-            else:
-                order = "higher" if t.a > t.b else "lower"
+            order = "equal" if t.a == t.b else ("higher" if t.a > t.b else "lower")
             sig = "no test" if t.p_holm is None else ("significant" if t.p_holm < 0.05 else "not significant")
             words.append(f"{name} {format(t.a, fmt)}{unit} vs {format(t.b, fmt)}{unit} ({order}, {sig})")
-        ape, success = figs.get("ape_cm"), figs.get("success_rate")
-        decided = "no difference established"
-        for t, higher_better in ((success, True), (ape, False)):
-            if t is not None and t.p_holm is not None and t.p_holm < 0.05 and t.a != t.b:
-                decided = f"{a} {'wins' if (t.a > t.b) == higher_better else 'loses'}"
-                break
+        decided = "no difference established" if winner is None else f"{a} {'wins' if winner == a else 'loses'}"
         lines.append(f"{group}: {a} against {b}: {'; '.join(words)}: **{decided}**")
     return lines

@@ -14,6 +14,11 @@ Holm's correction over the page.
 Rows are named in a page of the ``conf/teacher/`` group (``experts``, ``students``, ``guided``: MLflow experiment and
 run name): ``teacher=main`` (the default) writes ``teacher.md``, ``teacher=width`` the width lever's
 ``teacher_width.md``; each page's ``page`` setting names its files.
+
+The page reads run records (:mod:`spade.experiments.run_records`), one folder per MLflow experiment under its
+``records_dir`` (the drives' in ``closed_loop/``, the experts' training runs in ``_training/``), exported from the
+store first when the store exists: once its rows are rerun, the page regenerates from the committed records without
+the store. A page without records keeps its committed copy under the lost-store notice.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from spade.experiments.reporting.results import holm, welch
+from spade.experiments.run_records import RunRecord
 from spade.metrics import catalog
 from spade.metrics.catalog import BASELINE_ROW_LABELS
 
@@ -49,6 +55,16 @@ TARGET_PLAUSIBILITY_CM = 1.0
 TARGET_APE_RATIO = 0.8
 TARGET_SPREAD = 0.2
 TESTED = ("planner/ape_cm", "planner/plausibility_cm")
+PARAMS = ("cfg/seed", "cfg/data/test_dir", "cfg/data/encoding", "cfg/model/preset", "cfg/trainer/max_epochs",
+          "cfg/model/ema_decay", "cfg/model/test_samples")
+"""The parameters the page's records keep (its rows' settings and the experts' training records)."""
+TRAINING = "_training"
+"""The folder of ``records_dir`` that holds the experts' training runs (any status: one may fail after its test)."""
+RERUN_COMMAND = ("the commands of its row in docs/results/README.md (the experts, the guided rows and their twins, "
+                 "their drives), then python -m spade.report table=teacher scale=quickstart output_dir=docs/results")
+"""What reruns a teacher page's rows and rewrites it, for the lost-store notice."""
+Records = dict[tuple[str, str], list[RunRecord]]
+"""Run records by (MLflow experiment, run name)."""
 
 
 @dataclass
@@ -72,11 +88,6 @@ class Row:
         return statistics.fmean(v) if v else None
 
 
-def _test_sets(run: Any) -> set[str]:
-    inputs = getattr(getattr(run, "inputs", None), "dataset_inputs", None) or []
-    return {f"{d.dataset.name} ({d.dataset.digest})" for d in inputs if any(t.value == "test" for t in d.tags)}
-
-
 def _cell(row: Row, key: str, fmt: str) -> str:
     values = row.values(key)
     if not values:
@@ -87,25 +98,77 @@ def _cell(row: Row, key: str, fmt: str) -> str:
     return f"{format(statistics.fmean(values), fmt)} ± {format(sd, fmt)}"
 
 
-def _rows(client: Any, sources: Sequence[Mapping[str, str]], kind: str, scale: str | None) -> list[Row]:
-    from spade.experiments.closed_loop_table import source_runs
-
+def _rows(records: Records, sources: Sequence[Mapping[str, str]], kind: str) -> list[Row]:
     rows = []
     for source in sources:
-        runs = source_runs(client, str(source["table"]), str(source["row"]), scale)
+        runs = records.get((str(source["table"]), str(source["row"])), [])
         if not runs:
             rows.append(Row(str(source.get("label", source["row"])), kind, "?"))
             continue
-        runs = sorted(runs, key=lambda r: str(r.data.params.get("cfg/seed", "")))
-        encoding = {r.data.tags.get("encoding") or r.data.params.get("cfg/data/encoding", "binary") for r in runs}
+        runs = sorted(runs, key=lambda r: str(r.seed))
+        encoding = {r.tags.get("encoding") or r.params.get("cfg/data/encoding", "binary") for r in runs}
         rows.append(Row(
             label=str(source.get("label", source["row"])), kind=kind, encoding=",".join(sorted(encoding)),
-            runs=[dict(r.data.metrics) for r in runs], seeds=[str(r.data.params.get("cfg/seed", "?")) for r in runs],
-            params={k: v for k, v in runs[0].data.params.items() if k in ("cfg/data/test_dir", "cfg/model/preset",
+            runs=[dict(r.metrics) for r in runs], seeds=[str(r.seed if r.seed is not None else "?") for r in runs],
+            params={k: v for k, v in runs[0].params.items() if k in ("cfg/data/test_dir", "cfg/model/preset",
                     "cfg/trainer/max_epochs", "cfg/model/ema_decay", "cfg/model/test_samples")},
-            seconds=sum(((r.info.end_time or 0) - (r.info.start_time or 0)) / 1000.0 for r in runs),
-            test_sets=set().union(*(_test_sets(r) for r in runs))))
+            seconds=sum(r.wall_s or 0.0 for r in runs), test_sets=set().union(*(r.test_sets for r in runs))))
     return rows
+
+
+def _sources(settings: Mapping[str, Any]) -> dict[str, set[str]]:
+    """The run names the page reads, by MLflow experiment: experts, students, guided rows and their twins (each
+    also as ``<row>_real`` unless the item says ``real: false``)."""
+    wanted: dict[str, set[str]] = {}
+    for source in [*(settings.get("experts") or []), *(settings.get("students") or [])]:
+        wanted.setdefault(str(source["table"]), set()).add(str(source["row"]))
+    for item in settings.get("guided") or []:
+        against = dict(item.get("against") or {})
+        for suffix in ("",) if item.get("real", True) is False else ("", "_real"):
+            wanted.setdefault(str(item["table"]), set()).add(f"{item['row']}{suffix}")
+            wanted.setdefault(str(against.get("table", "")), set()).add(f"{against.get('row', '')}{suffix}")
+    return wanted
+
+
+def _drive_names(settings: Mapping[str, Any]) -> list[str]:
+    """The drives the guidance section shows: each guided row's and twin's clean drives of both scenario sets."""
+    rows = {str(r) for item in settings.get("guided") or [] for r in (item["row"], (item.get("against") or {}).get("row"))
+            if r}
+    return sorted(f"{row}__{dataset}__clean" for row in rows for dataset in ("heldout", "real"))
+
+
+def export_teacher_records(tracking_uri: str, records_dir: Path, settings: Mapping[str, Any],
+                           scale: str | None) -> int:
+    """The page's runs as records in ``records_dir``: ``<experiment>/`` per experiment of its rows, ``closed_loop/``
+    for its guided rows' drives, ``_training/<experiment>/`` for the experts' training runs. Returns the count."""
+    from spade.experiments.closed_loop_table import CLOSED_LOOP_TABLE, export_drives
+    from spade.experiments.run_records import export_records
+
+    count = 0
+    for experiment, names in sorted(_sources(settings).items()):
+        count += export_records(tracking_uri, experiment, records_dir / experiment, sorted(names), scale=scale,
+                                params=PARAMS, tags=("encoding", "scale"))
+    if settings.get("guided"):
+        count += export_drives(tracking_uri, records_dir / CLOSED_LOOP_TABLE, scale, _drive_names(settings))
+    for source in settings.get("experts") or []:
+        trained = source.get("trained_by")
+        if trained:
+            count += export_records(tracking_uri, str(trained["table"]), records_dir / TRAINING / str(trained["table"]),
+                                    [str(trained["row"])], params=PARAMS, statuses=None, instances=False)
+    return count
+
+
+def _load(records_dir: Path) -> Records:
+    """Every experiment folder's records of ``records_dir``, by (experiment, run name)."""
+    from spade.experiments.run_records import load_records
+
+    out: Records = {}
+    if not records_dir.is_dir():
+        return out
+    for folder in sorted(p for p in records_dir.iterdir() if p.is_dir() and p.name != TRAINING):
+        for run in load_records(folder)[0]:
+            out.setdefault((folder.name, run.row), []).append(run)
+    return out
 
 
 def _parameters(row: Row) -> str:
@@ -130,12 +193,12 @@ GUIDED_TESTED = tuple((n, catalog.figure(n).fmt) for n in ("planner/ape_cm", "pl
                                                              "planner/plausibility_cm", "planner/commit_rate"))
 
 
-def _guided(client: Any, guided: Sequence[Mapping[str, Any]], scale: str | None,
+def _guided(records: Records, guided: Sequence[Mapping[str, Any]],
             drives: Mapping[tuple[str, str, str], Any] | None = None, seconds: dict[str, float] | None = None
             ) -> tuple[list[str], list[tuple[str, str, str, float, float, float | None]]]:
     """The guided students against their BC twins, on the held-out map and (runs ``<row>_real``) the unseen real
     maps (unless the item says ``real: false``): a table of the deciding figures, the closed loop where the rows were
-    driven (``drives``: :func:`spade.experiments.closed_loop_table.fetch_drives`, the clean condition of the same
+    driven (``drives``: :func:`spade.experiments.closed_loop_table.drive_cells`, the clean condition of the same
     scenario set) and the margin's activity, and Welch tests (what, figure, format, guided mean, twin mean, p).
     ``seconds`` receives each counted row's and drive's wall time (by name, so a twin shared by rows counts once)."""
     lines = ["| student | test set | seeds | " + " | ".join(c[0] for c in COLUMNS) + " | "
@@ -147,11 +210,11 @@ def _guided(client: Any, guided: Sequence[Mapping[str, Any]], scale: str | None,
         for where, suffix, dataset in (("held-out map", "", "heldout"), ("unseen real maps", "_real", "real")):
             if suffix and item.get("real", True) is False:  # a row that is never tested on the real maps
                 continue
-            row = _rows(client, [{"table": item["table"], "row": f"{item['row']}{suffix}",
-                                  "label": item.get("label", item["row"])}], "student", scale)[0]
-            twin = _rows(client, [{"table": against.get("table", ""), "row": f"{against.get('row', '')}{suffix}",
-                                   "label": against.get("label") or f"BC twin ({against.get('row', '?')})"}],
-                         "student", scale)[0]
+            row = _rows(records, [{"table": item["table"], "row": f"{item['row']}{suffix}",
+                                   "label": item.get("label", item["row"])}], "student")[0]
+            twin = _rows(records, [{"table": against.get("table", ""), "row": f"{against.get('row', '')}{suffix}",
+                                    "label": against.get("label") or f"BC twin ({against.get('row', '?')})"}],
+                         "student")[0]
             driven = {}
             for r, source in ((row, item["row"]), (twin, against.get("row", ""))):
                 cell = (drives or {}).get((str(source), dataset, "clean"))
@@ -185,45 +248,98 @@ def _guided(client: Any, guided: Sequence[Mapping[str, Any]], scale: str | None,
     return lines, tests
 
 
-def _training_lines(client: Any, experts: Sequence[Mapping[str, Any]]) -> list[str]:
+def _training_lines(training: Records, experts: Sequence[Mapping[str, Any]]) -> list[str]:
     """One line per expert whose entry names its training run (``trained_by: {table, row}``): its status, epochs,
-    steps and wall time, read from MLflow (a run that failed after its training still carries them)."""
+    steps and wall time, from its record (a run that failed after its training still carries them)."""
     lines = []
     for source in experts:
         trained = source.get("trained_by")
         if not trained:
             continue
-        experiment = client.get_experiment_by_name(str(trained["table"]))
-        runs = [] if experiment is None else client.search_runs(
-            [experiment.experiment_id], f"attributes.run_name = '{trained['row']}'",
-            order_by=["attributes.start_time DESC"], max_results=1)
+        runs = training.get((str(trained["table"]), str(trained["row"])), [])
         if not runs:
             lines.append(f"- {source.get('label', source['row'])}: its training run `{trained['table']}/{trained['row']}` "
                          "is not in this store")
             continue
-        run = runs[0]
-        minutes = ((run.info.end_time or run.info.start_time) - run.info.start_time) / 60000.0
+        run = max(runs, key=lambda r: r.start_time or 0)
+        minutes = ((run.end_time or run.start_time or 0) - (run.start_time or 0)) / 60000.0
         lines.append(f"- {source.get('label', source['row'])}: run `{trained['table']}/{trained['row']}` "
-                     f"({run.info.run_id[:8]}), status {run.info.status}"
+                     f"({run.run_id[:8]}), status {run.status}"
                      + (f" ({trained['note']})" if trained.get("note") else "")
                      + f", {minutes:.0f} min; params as trained: "
-                     + ", ".join(f"{k.split('/', 1)[1]}={v}" for k, v in sorted(run.data.params.items())
+                     + ", ".join(f"{k.split('/', 1)[1]}={v}" for k, v in sorted(run.params.items())
                                  if k in ("cfg/model/preset", "cfg/trainer/max_epochs", "cfg/model/ema_decay",
                                           "cfg/data/encoding", "cfg/seed")))
     return lines
 
 
+def _significant_first(table: list[str], what: str) -> list[str]:
+    """A tests table (header, rule, rows ending in their verdict) as the significant rows, then the rest collapsed
+    (pymdownx.details: the docs site shows them closed)."""
+    header, rows = table[:2], table[2:]
+    significant = [r for r in rows if r.endswith("| significant |")]
+    rest = [r for r in rows if r not in significant]
+    out = [*header, *significant, ""] if significant else [f"No {what[:-1]} is significant.", ""]
+    if rest:
+        out += [f'??? note "The other {len(rest)} {what} (not significant, or no test)"', "",
+                *(f"    {line}" for line in [*header, *rest]), ""]
+    return out
+
+
+def summary(expert_tests: Sequence[tuple[str, float, float, float | None]],
+            guided_tests: Sequence[tuple[str, float, float, float | None]]) -> list[str]:
+    """The page's finding in two sentences, by the deciding figure (planner APE): the experts against their
+    students ((what, expert, student mean, Holm p)), then the guided students against their BC twins ((what,
+    guided, twin, Holm p)). Its first sentence is the page's one-line finding in the results index."""
+    out = []
+    if expert_tests:
+        better = [t for t in expert_tests if t[1] < t[2] and t[3] is not None and t[3] < 0.05]
+        worse = [t for t in expert_tests if t[1] > t[2] and t[3] is not None and t[3] < 0.05]
+        closest = min(expert_tests, key=lambda t: t[1] - t[2])
+        out.append((f"{len(better)} of {len(expert_tests)} experts plan better than their student by the planner's APE"
+                    if better else f"No expert plans better than its student by the planner's APE")
+                   + f" (the closest, {closest[0].split(' vs ')[0]}, at {closest[1]:.2f} cm against {closest[2]:.2f} "
+                   f"cm){f'; {len(worse)} plan significantly worse' if worse else ''}.")
+    if guided_tests:
+        told = [t for t in guided_tests if t[3] is not None and t[3] < 0.05]
+        out.append((f"{len(told)} of {len(guided_tests)} guided students are told apart from their BC twins by the "
+                    "planner's APE: " + "; ".join(f"{t[0]} ({t[1]:.2f} vs {t[2]:.2f} cm)" for t in told) if told else
+                    f"Guidance from the teacher does not change the planner's APE: none of the {len(guided_tests)} "
+                    "guided students is told apart from its BC twin")
+                   + " (Welch over seeds, Holm's correction over the page).")
+    if not out:
+        return ["No comparison can be tested yet."]
+    return [" ".join(out)]
+
+
 def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: Mapping[str, Any],
                    scale: str | None = None) -> tuple[str, dict[str, Path]]:
-    """Render the teacher page from MLflow (module docstring); with ``output_dir`` also write ``teacher.md`` and
-    ``teacher.csv`` there. Returns the markdown and the files written."""
-    from spade.tracking.client import mlflow_client
+    """Render the teacher page from its run records (module docstring), exported from the store first when it
+    exists (into ``settings["records_dir"]``; a temporary folder without one); with ``output_dir`` also write
+    ``teacher.md`` and ``teacher.csv`` there. Without records the committed page (``settings["committed"]``) is
+    kept under the lost-store notice. Returns the markdown and the files written."""
+    import tempfile
 
+    from spade.experiments.closed_loop_table import CLOSED_LOOP_TABLE, drive_cells
+    from spade.experiments.run_records import has_records, keep_committed_page, load_records, store_exists
     from spade.utils.provenance import command_line, commit, machine, shown_path
 
-    client = mlflow_client(str(tracking_uri))
-    experts = _rows(client, list(settings.get("experts") or []), "expert", scale)
-    students = _rows(client, list(settings.get("students") or []), "student", scale)
+    with tempfile.TemporaryDirectory() as tmp:
+        records_dir = Path(str(settings["records_dir"])) if settings.get("records_dir") else Path(tmp)
+        if store_exists(str(tracking_uri)):  # a lost store is never created empty: the records alone are read
+            export_teacher_records(str(tracking_uri), records_dir, settings, scale)
+        if not has_records(records_dir):
+            kept = keep_committed_page(settings.get("committed"), RERUN_COMMAND, records_dir, output_dir,
+                                       teacher_files(settings.get("page"))[0])
+            if kept is not None:
+                return kept
+        records = _load(records_dir)
+        training = _load(records_dir / TRAINING)
+        drive_records = load_records(records_dir / CLOSED_LOOP_TABLE)[0] \
+            if (records_dir / CLOSED_LOOP_TABLE).is_dir() else []
+        record_count = sum(len(v) for v in records.values())
+    experts = _rows(records, list(settings.get("experts") or []), "expert")
+    students = _rows(records, list(settings.get("students") or []), "student")
     guided = list(settings.get("guided") or [])  # a lever page of experts alone names none
     header = ("| predictor | markers | seeds | " + " | ".join(c[0] for c in COLUMNS)
               + " | spread / generator's | ms per sample | parameters |")
@@ -299,17 +415,16 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
             value = expert.mean("test/" + key)
             if value is not None:
                 tests.append((f"{expert.label} vs {student.label}", key, value, student.values("test/" + key)))
-    from spade.experiments.closed_loop_table import fetch_drives
-
     guided_seconds: dict[str, float] = {}
-    guided_lines, guided_tests = _guided(client, guided, scale,
-                                         fetch_drives(str(tracking_uri), scale), guided_seconds)
+    guided_lines, guided_tests = _guided(records, guided, drive_cells(drive_records, scale), guided_seconds)
     ps = [_one_sample_p(values, value) for _, _, value, values in tests]
     adjusted = holm(ps + [t[5] for t in guided_tests])
     guided_holm = adjusted[len(ps):]
     test_lines = ["| comparison | figure | expert | student (mean of seeds) | p | p (Holm) | verdict |",
                   "|---|---|---:|---:|---:|---:|---|"]
     verdicts = []
+    expert_ape: list[tuple[str, float, float, float | None]] = []  # (what, expert, student, Holm p): the summary's
+    guided_ape: list[tuple[str, float, float, float | None]] = []
     for (what, key, value, values), p, ph in zip(tests, ps, adjusted):
         mean = statistics.fmean(values) if values else float("nan")
         sig = "no test" if ph is None else ("significant" if ph < 0.05 else "not significant")
@@ -317,6 +432,7 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
                           f"{'n/a' if ph is None else f'{ph:.3g}'} | {sig} |")
         if key == "planner/ape_cm":
             word = "better" if value < mean else "worse"
+            expert_ape.append((what, value, mean, ph))
             verdicts.append(f"- {what}: the expert plans {word} than its student by planner APE ({value:.2f} vs "
                             f"{mean:.2f} cm), {sig}" + (f" (Holm p {ph:.3g})" if ph is not None else ""))
 
@@ -328,10 +444,11 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
                                  f"{'n/a' if p is None else f'{p:.3g}'} | {'n/a' if ph is None else f'{ph:.3g}'} | {sig} |")
         if key == "planner/ape_cm":
             word = "better" if a < b else "worse" if a > b else "the same"
+            guided_ape.append((what, a, b, ph))
             verdicts.append(f"- {what}: the first plans {word} by planner APE ({a:.2f} vs {b:.2f} cm), {sig}"
                             + (f" (Holm p {ph:.3g})" if ph is not None else ""))
     test_sets = sorted(set().union(*(r.test_sets for r in experts + students)))
-    training = _training_lines(client, list(settings.get("experts") or []))
+    training_lines = _training_lines(training, list(settings.get("experts") or []))
     seconds = sum(r.seconds for r in experts)
     guidance_part = [
         "Guidance from the teacher: each guided student against its BC twin (the same student, data and test without "
@@ -343,11 +460,15 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
         "",
         *guided_lines,
         "",
-        *(guided_test_lines if guided_tests else []),
-        "",
+        *(_significant_first(guided_test_lines, "guided tests") if guided_tests else []),
     ] if guided else []
     parts = [
         f"# {settings.get('title') or DEFAULT_TITLE}",
+        "",
+        *summary(expert_ape, guided_ape),
+        "",
+        "The figure that decides is the planner's APE with its tail (the [metrics reference]"
+        "(../reference/metrics.md#which-figure-decides) states it for open and closed loop).",
         "",
         "Each expert's test samples every test instance K times (DDIM) and decodes each sample with the planner a "
         "robot would run (`spade.metrics.decoding`): *one sample* is what a robot asking the expert once would "
@@ -371,17 +492,19 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
         "expert rows have one seed: the test asks whether the expert lies outside the student's seed-to-seed "
         "variation, not whether another expert seed would), Holm's correction over the page, alpha 0.05.",
         "",
-        *(test_lines if tests else ["No comparison can be tested yet."]),
-        "",
+        *(_significant_first(test_lines, "expert tests") if tests else ["No comparison can be tested yet.", ""]),
         *guidance_part,
-        "Verdict:",
+        "Each comparison by the planner's APE:",
         "",
         *(verdicts or ["- no comparison yet"]),
         "",
-        *(["Training records of the experts (their MLflow runs):", "", *training, ""] if training else []),
+        *(["Training records of the experts (their MLflow runs):", "", *training_lines, ""] if training_lines
+          else []),
         "Provenance:",
         "",
         f"- command: `{command_line('spade.report')}`",
+        f"- records: {shown_path(records_dir)} ({record_count} runs; the page regenerates from them without the "
+        "store)" if settings.get("records_dir") else "- records: none kept (no records_dir)",
         f"- commit: {commit() or 'unknown (not a git checkout)'}",
         f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
         f"- machine: {machine()}",

@@ -111,7 +111,9 @@ def report(cfg: DictConfig) -> list[Report]:
         from spade.experiments.closed_loop_table import closed_loop_report
 
         text, files = closed_loop_report(cfg.tracking_uri, cfg.get("output_dir"), cfg.scale.name if cfg.get("scale")
-                                         else None, labels=cfg.get("closed_loop_labels"))
+                                         else None, labels=cfg.get("closed_loop_labels"),
+                                         records_dir=cfg.get("closed_loop_records_dir"),
+                                         committed=cfg.get("closed_loop_committed"))
         return [Report(None, {}, [], text, files)]  # type: ignore[arg-type]
     if str(cfg.table) == "teacher":  # not a paper table: experts as planners (spade/experiments/teacher_table)
         from omegaconf import OmegaConf
