@@ -163,7 +163,7 @@ def test_cli_config_writes_markdown_csv_and_png(store: dict, tmp_path: Path) -> 
     assert float(ape["change_pct"]) == pytest.approx(100 * (4.5 - 6.0) / 6.0)
     with Image.open(rep.files["png"]) as im:
         assert im.size[0] > 300 and im.size[1] > 200
-    assert rep.files["markdown"].read_text().startswith("## Table 2")
+    assert rep.files["markdown"].read_text().startswith("# Table 2")
 
 
 def test_cli_scale_override_filters_runs(store: dict, tmp_path: Path) -> None:

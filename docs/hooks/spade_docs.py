@@ -7,8 +7,10 @@ A page that holds one of these markers gets it replaced by Markdown built from t
 - ``<!-- spade:entry-points -->``: every ``python -m spade...`` entry point (the modules with a ``__main__``
   block), its console script from ``pyproject.toml`` and the first paragraph of its docstring.
 
+- ``<!-- spade:findings PAGE ... -->``: the named results pages' findings (Home's result).
+
 The results index (``docs/results/README.md``) gets a list of links to the pages beside it, each by its title (its
-first heading), at build time only: the file itself is not changed. The results pages (files the code writes,
+first heading) with its finding (the first sentence of its verdict), at build time only: the file itself is not changed. The results pages (files the code writes,
 never edited by hand) get a compact layout on the site: a table cell that packs several figures ``a / b / c / d``
 (the paper's layout, as the terminal and MLflow show it) shows them one per line.
 
@@ -28,6 +30,8 @@ SWEEPS = ROOT / "sweeps"
 SPADE = ROOT / "spade"
 
 CONFIG_MARKER = "<!-- spade:config-reference -->"
+FINDINGS_MARKER = re.compile(r"<!-- spade:findings ([\w ]+) -->")
+"""Home's marker: ``<!-- spade:findings closed_loop teacher -->`` becomes each named results page's finding."""
 ENTRY_MARKER = "<!-- spade:entry-points -->"
 
 _KEY = re.compile(r"^(?P<indent>\s*)(?P<key>[A-Za-z_@/][\w.@/+-]*):(?:\s+(?P<rest>.*))?$")
@@ -276,14 +280,47 @@ def page_title(path: Path) -> str:
     return path.stem
 
 
+def page_finding(path: Path, whole: bool = False) -> str:
+    """A results page's one-line finding: the first sentence of the verdict that follows its title (a ``## Verdict``
+    heading and the lost-store notice, a ``>`` line, are passed over; a verdict list gives its first item).
+    ``whole``: the verdict's whole first paragraph (Home). Every results page leads with its verdict (tests/test_docs_site.py checks it), so the index and Home quote the
+    pages rather than restate them."""
+    lines = path.read_text().splitlines()
+    if not lines or not lines[0].startswith("# "):
+        return ""
+    for line in lines[1:]:
+        text = line.strip()
+        if not text or text.startswith(">") or text.startswith("## "):
+            continue
+        if text.startswith(("|", "#", "!", "???")):
+            return ""
+        text = re.sub(r"\*\*([^*]+)\*\*", r"\1", text.removeprefix("- "))
+        if whole:
+            return text
+        sentence = re.match(r"(.+?[.!?])(?:\s|$)(?![^(]*\))", text)
+        return (sentence.group(1) if sentence else text).strip()
+    return ""
+
+
 def results_listing(results_dir: Path, index: str) -> str:
-    """Links to every results page beside the index, each by its title (the pages are written by spade.report,
-    spade.critic...)."""
+    """Links to every results page beside the index, each by its title and with its one-line finding
+    (:func:`page_finding`; the pages are written by spade.report, spade.critic...)."""
     lines = ["", "## Pages", ""]
     for path in sorted(results_dir.glob("*.md")):
         if path.name != index:
-            lines.append(f"- [{_cell(page_title(path))}]({path.name})")
+            finding = page_finding(path)
+            lines.append(f"- [{_cell(page_title(path))}]({path.name})" + (f": {finding}" if finding else ""))
     return "\n".join(lines) + "\n"
+
+
+def findings(results_dir: Path, pages: list[str], link: str = "results/") -> str:
+    """Home's result: each named results page's finding, linked to its page (generated, never typed)."""
+    out = []
+    for name in pages:
+        path = results_dir / f"{name}.md"
+        if path.is_file() and page_finding(path):
+            out.append(f"- **[{_cell(page_title(path))}]({link}{name}.md)**: {page_finding(path, whole=True)}")
+    return "\n".join(out) + "\n"
 
 
 _TABLE_CELL = re.compile(r"(?<!\\)\|")
@@ -324,6 +361,9 @@ def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ANN001
         markdown += results_listing(Path(config["docs_dir"]) / "results", src.name)
     elif src.parent.as_posix() == "results":
         markdown = stack_figures(markdown)
+    for match in list(FINDINGS_MARKER.finditer(markdown)):
+        markdown = markdown.replace(match.group(0), findings(Path(config["docs_dir"]) / "results",
+                                                              match.group(1).split()))
     if CONFIG_MARKER in markdown:
         markdown = markdown.replace(CONFIG_MARKER, config_reference())
     if ENTRY_MARKER in markdown:

@@ -295,8 +295,8 @@ def _ranking(cells: list[Cell], key: str) -> list[str]:
     return [row for _, row in sorted(means)]
 
 
-RERUN_COMMAND = ("python -m spade.closed_loop, then python -m spade.report table=closed_loop scale=quickstart "
-                 "output_dir=docs/results")
+RERUN_COMMAND = ("`python -m spade.closed_loop`, then `python -m spade.report table=closed_loop scale=quickstart "
+                 "output_dir=docs/results`")
 """What reruns the closed-loop page's rows (its drives) and rewrites it, for the lost-store notice."""
 
 
@@ -505,7 +505,7 @@ def summary(tests: list[Test], labels: Mapping[str, str]) -> list[str]:
     second = (f"Against the classical planners the students win {len(wins)} of {len(against)} comparisons"
               + (f" and lose {len(losses)}" if losses else " and lose none")
               + "; the rest are not told apart."
-              + (f" The wins: {', '.join(sorted({f'{d[0]} against the {d[2]}' for d in wins}))}." if wins else ""))
+              + (f" The wins: {'; '.join(sorted({f'{d[0]}, against the {d[2]}' for d in wins}))}." if wins else ""))
     return [first + " " + second] if against else [first]
 
 

@@ -222,13 +222,13 @@ def has_records(records_dir: str | Path) -> bool:
 
 
 def with_lost_store_notice(text: str, command: str, records_dir: str | Path) -> str:
-    """``text`` (a committed page) with one line under its title saying that its runs' store was lost, which
+    """``text`` (a committed page) with one line under its title (``command``: Markdown, its commands in code spans) saying that its runs' store was lost, which
     command reruns its rows (and writes their records into ``records_dir``), and that the figures below are the lost
     store's. An earlier notice is replaced, so the page carries one however often it is kept."""
     from spade.utils.provenance import shown_path
 
     notice = (f"{LOST_STORE} the MLflow store that held this page's runs was lost, so the figures below are from "
-              f"that store and cannot be regenerated until its rows are rerun: `{command}` (which also writes their "
+              f"that store and cannot be regenerated until its rows are rerun: {command} (which also writes their "
               f"run records into `{shown_path(records_dir)}`, from which the page then regenerates without a store).")
     lines = [line for line in text.splitlines() if not line.startswith(LOST_STORE)]
     while len(lines) > 2 and lines[1] == "" and lines[2] == "":  # the blank line the removed notice left

@@ -60,9 +60,13 @@ PARAMS = ("cfg/seed", "cfg/data/test_dir", "cfg/data/encoding", "cfg/model/prese
 """The parameters the page's records keep (its rows' settings and the experts' training records)."""
 TRAINING = "_training"
 """The folder of ``records_dir`` that holds the experts' training runs (any status: one may fail after its test)."""
-RERUN_COMMAND = ("the commands of its row in docs/results/README.md (the experts, the guided rows and their twins, "
-                 "their drives), then python -m spade.report table=teacher scale=quickstart output_dir=docs/results")
-"""What reruns a teacher page's rows and rewrites it, for the lost-store notice."""
+def rerun_command(page: str | None) -> str:
+    """What reruns a teacher page's rows and rewrites it, for the lost-store notice (``teacher_width``: the
+    ``teacher=width`` page)."""
+    stem = str(page or TEACHER_TABLE)
+    option = "" if stem == TEACHER_TABLE else f" teacher={stem.removeprefix(TEACHER_TABLE + '_')}"
+    return (f"the commands of its row in the [results index](README.md), then `python -m spade.report table=teacher"
+            f"{option} scale=quickstart output_dir=docs/results`")
 Records = dict[tuple[str, str], list[RunRecord]]
 """Run records by (MLflow experiment, run name)."""
 
@@ -329,8 +333,8 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
         if store_exists(str(tracking_uri)):  # a lost store is never created empty: the records alone are read
             export_teacher_records(str(tracking_uri), records_dir, settings, scale)
         if not has_records(records_dir):
-            kept = keep_committed_page(settings.get("committed"), RERUN_COMMAND, records_dir, output_dir,
-                                       teacher_files(settings.get("page"))[0])
+            kept = keep_committed_page(settings.get("committed"), rerun_command(settings.get("page")), records_dir,
+                                       output_dir, teacher_files(settings.get("page"))[0])
             if kept is not None:
                 return kept
         records = _load(records_dir)

@@ -31,7 +31,29 @@ from spade.utils.provenance import command_line, commit, machine, shown_path
 DECIDING_STATEMENT = (
     "Which figure decides: the planner's APE with its tail (the path a robot drives, decoded by search; a row beats "
     "a baseline when its planner APE is lower and its share over 20 cm no longer), then, where the test set has "
-    "alternative demonstrations, plausibility and commitment. The paper's APE is its definition, shown for comparison.")
+    "alternative demonstrations, plausibility and commitment; the [metrics reference]"
+    "(../reference/metrics.md#which-figure-decides) states it for open and closed loop. The paper's APE is its "
+    "definition, shown for comparison.")
+
+
+def summary(pairs: list[ComparisonResult] | None) -> str:
+    """The page's finding in a sentence or two: which pairwise orderings of the table's first (deciding) figure the
+    seeds tell apart after Holm's correction. It leads the page (and is its line in the results index)."""
+    from spade.experiments.tables import METRICS
+
+    tested = [c for c in pairs or [] if c.metric == pairs[0].metric and c.p_holm is not None] if pairs else []
+    if not tested:
+        return "No ordering of the rows can be tested yet (fewer than two seeds a row)."
+    label = METRICS[tested[0].metric].label
+    told = [c for c in tested if c.p_holm < 0.05]
+    if not told:
+        return (f"The seeds tell none of the {len(tested)} pairwise orderings by {label} apart (Welch's test over "
+                "seeds, Holm's correction over the table): the rows plan alike.")
+    fmt = METRICS[tested[0].metric].format
+    return (f"The seeds tell {len(told)} of {len(tested)} pairwise orderings by {label} apart (Welch's test over "
+            "seeds, Holm's correction over the table): "
+            + "; ".join(f"{c.title} ({fmt(c.value)} against {fmt(c.baseline_value)})" for c in told)
+            + ". The rest are not told apart.")
 
 
 @dataclass
@@ -53,7 +75,7 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
     pairs = pairwise(table, results)
     found = sum(r.found for r in results.values())
     seeds = sorted({r.n for r in results.values() if r.found})
-    parts = [f"## {table.title}", ""]
+    parts = [f"# {table.title}", "", summary(pairs), ""]
     if is_tiny(results, scale):
         parts += [tiny_notice(), ""]
     store = shown_path(tracking_uri)  # relative to the project or SPADE_HOME: never the writing machine's path
