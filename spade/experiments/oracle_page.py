@@ -214,19 +214,22 @@ def _verdict(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], agains
     if base_ape is None:
         return [f"No finished run of {labels.get(against, against)}: nothing to compare against."]
     groups: dict[str, list[str]] = {"better": [], "worse": [], "not told apart": [], "one seed": []}
+    winners = []
     for name, test in tests.items():
         ape = _mean(rows[name], DECIDING)
         if ape is None:
             continue
         closed = "" if ceiling is None or base_ape - ceiling <= 0 else \
             f", {100 * (base_ape - ape) / (base_ape - ceiling):.0f} % of the gap"
-        groups[_outcome(rows, name, base_ape, test)].append(
-            f"{labels.get(name, name)} {ape:.2f} cm ({ape - base_ape:+.2f}{closed})")
+        outcome = _outcome(rows, name, base_ape, test)
+        groups[outcome].append(f"{labels.get(name, name)} {ape:.2f} cm ({ape - base_ape:+.2f}{closed})")
+        if outcome == "better":
+            winners.append(f"{labels.get(name, name)} ({ape:.2f} cm against {base_ape:.2f})")
     rule = ("told apart only when Welch's test over seeds (Holm's correction over the page) and the paired "
             "bootstrap over scenarios agree")
-    head = (f"- **Where a teacher teaches here**: {len(groups['better'])} row(s) beat BC by the deciding figure, "
-            f"the planner's APE ({rule})." if groups["better"] else
-            f"- **No row beats BC** by the deciding figure, the planner's APE ({rule}).")
+    head = (f"- **Where a teacher teaches here**: {'; '.join(winners)} beat{'s' if len(winners) == 1 else ''} "
+            f"{labels.get(against, against)} by the deciding figure, the planner's APE ({rule}); no other row does."
+            if winners else f"- **No row beats BC** by the deciding figure, the planner's APE ({rule}).")
     lines = [head]
     if ceiling is not None:
         lines.append(f"- {labels.get(against, against)} plans at {base_ape:.2f} cm; the BC ceiling is {ceiling:.2f} cm: "
