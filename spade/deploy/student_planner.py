@@ -74,7 +74,7 @@ MapLike = Union[OccupancyMap, str, Path]
 # The annotation tool's defaults (conf/annotate.yaml): what a model file that does not record them was trained on.
 DEFAULT_DISC_RADIUS_M = 0.1
 DEFAULT_MARGIN_M = 0.3
-DEFAULT_REPLAN_PRIOR = 0.8
+DEFAULT_REPLAN_PRIOR = 0.9
 """``replan_prior``'s default: the share of ``-log p`` taken off on the previous plan when replanning (measured:
 docs/results/records/replanning/; 0 turns the prior off)."""
 
