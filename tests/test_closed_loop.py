@@ -177,13 +177,13 @@ def test_the_replayed_demonstration_succeeds_and_the_nav2_baseline_drives_to_the
 class StraightThrough:
     """A planner that plans the straight line to the goal, obstacles or not."""
 
-    def plan_batch(self, maps, poses, goals):  # noqa: ANN001, ANN201
+    def plan_batch(self, maps, poses, goals, previous=None):  # noqa: ANN001, ANN201
         return [PlanResult(True, np.linspace(np.asarray(p)[:2], np.asarray(g), 32), subgoal=False)
                 for p, g in zip(poses, goals)]
 
 
 class NeverPlans:
-    def plan_batch(self, maps, poses, goals):  # noqa: ANN001, ANN201
+    def plan_batch(self, maps, poses, goals, previous=None):  # noqa: ANN001, ANN201
         return [PlanResult(False, np.zeros((0, 2)), code="no_free_path", subgoal=False) for _ in poses]
 
 

@@ -70,7 +70,7 @@ def test_a_plan_bag_decodes_with_mcap_ros2_support(tmp_path: Path, name: str) ->
 
 
 class LinePlanner:
-    def plan(self, m, pose, goal):  # noqa: ANN001, ANN201
+    def plan(self, m, pose, goal, previous=None):  # noqa: ANN001, ANN201
         pts = np.linspace(pose[:2], goal, 8)
         return PlanResult(success=True, waypoints=pts, pose=np.asarray(pose), goal=np.asarray(goal), low_share=0.0)
 
@@ -109,7 +109,7 @@ def test_replaying_a_recording_through_the_node_logic(tmp_path: Path, name: str,
     bag = robot_bag(tmp_path / name)
 
     class OffMap(LinePlanner):
-        def plan(self, m, pose, goal):  # noqa: ANN001, ANN201
+        def plan(self, m, pose, goal, previous=None):  # noqa: ANN001, ANN201
             if goal[0] > 50:
                 return PlanResult(success=False, waypoints=np.zeros((0, 2)), code="goal_outside_map", reason="off")
             return super().plan(m, pose, goal)

@@ -149,7 +149,7 @@ class FakePlanner:
 
     resolution = 0.1
 
-    def plan(self, m, pose, goal):  # noqa: ANN001, ANN201
+    def plan(self, m, pose, goal, previous=None):  # noqa: ANN001, ANN201
         if not (0 <= goal[0] <= 10 and 0 <= goal[1] <= 10):
             return NS(success=False, code="goal_outside_map", reason="outside", waypoints=np.zeros((0, 2)))
         if not (0 <= pose[0] <= 10 and 0 <= pose[1] <= 10):
@@ -283,11 +283,11 @@ def test_frames_planner_ids_and_slow_plans_are_errors() -> None:
     core.handle_map(grid())
 
     class Slow(FakePlanner):
-        def plan(self, *a):  # noqa: ANN002, ANN202
+        def plan(self, *a, **kw):  # noqa: ANN002, ANN003, ANN202
             import time
 
             time.sleep(0.01)
-            return super().plan(*a)
+            return super().plan(*a, **kw)
 
     core.planner = Slow()
     send(slow, gid(1), (3.0, 3.0, 0.0), start=(1.0, 1.0, 0.0))

@@ -149,7 +149,7 @@ class FakePlanner:
     def __init__(self) -> None:
         self.calls: list[tuple[np.ndarray, np.ndarray]] = []
 
-    def plan(self, m: OccupancyMap, pose: np.ndarray, goal: np.ndarray) -> NS:
+    def plan(self, m: OccupancyMap, pose: np.ndarray, goal: np.ndarray, previous: np.ndarray | None = None) -> NS:
         self.calls.append((np.array(pose), np.array(goal)))
         if not (0 <= goal[0] <= 10 and 0 <= goal[1] <= 10):
             return NS(success=False, code="goal_outside_map", reason="goal lies outside map",
@@ -204,7 +204,7 @@ def test_the_core_logs_and_survives_what_it_cannot_use(caplog: pytest.LogCapture
     assert "malformed goal ignored" in caplog.text and "malformed pose ignored" in caplog.text
 
     class Broken(FakePlanner):
-        def plan(self, *args):  # noqa: ANN002, ANN202
+        def plan(self, *args, **kwargs):  # noqa: ANN002, ANN003, ANN202
             raise RuntimeError("boom")
 
     core.planner = Broken()

@@ -36,8 +36,10 @@ class BaselinePlanner(WindowPlanner):
     def __repr__(self) -> str:
         return f"BaselinePlanner({self.kind}, {self.frame.size} px windows at {self.resolution} m/px)"
 
-    def plan_windows(self, queries: list[tuple[PlanWindow, np.ndarray, np.ndarray, np.ndarray, bool]]
-                     ) -> list[PlanResult]:
+    def plan_windows(self, queries: list[tuple[PlanWindow, np.ndarray, np.ndarray, np.ndarray, bool]],
+                     priors: Any = None) -> list[PlanResult]:
+        """The classical plans; ``priors`` (the previous plans) are not used: these planners decide the same way
+        from every pose."""
         from spade.metrics.baselines import heading_template, shortest_path
 
         start = np.asarray(self.frame.robot_px, np.float64)
@@ -73,7 +75,9 @@ class DemonstrationPlanner:
         g = np.asarray(goal, np.float64)
         return id(m), round(float(g[0]), 6), round(float(g[1]), 6)
 
-    def plan_batch(self, maps: list[Any], poses: list[Any], goals: list[Any]) -> list[PlanResult]:
+    def plan_batch(self, maps: list[Any], poses: list[Any], goals: list[Any], previous: Any = None
+                   ) -> list[PlanResult]:
+        """The demonstration from the robot on (``previous``, the last plans, is not needed: it is one path)."""
         out = []
         for m, pose, goal in zip(maps, poses, goals):
             demo = self._demos[self._key(m, goal)]

@@ -5,7 +5,8 @@ For every scenario (:mod:`spade.closedloop.scenario_loading`) the robot starts a
 localisation noise, when set) with the planner, exactly as the ROS 2 node calls it; follows the plan with the
 pure-pursuit follower (:mod:`spade.deploy.follower`); and plans again by the node's rule
 (:func:`spade.ros.core.replan_trigger`: off the plan, near a sub-goal, or ``replan_every_m`` driven since the last
-plan). An episode ends:
+plan), passing the episode's previous plan as the node does (``previous``: the planner's ``replan_prior``). An
+episode ends:
 
 - ``success``: the robot's true position within ``goal_tolerance_m`` of the goal;
 - ``collision``: its centre on a cell of the map's inflated costmap that is lethal for the robot (non-free, or closer
@@ -76,6 +77,7 @@ class PlanRecord:
     trigger: str
     code: str | None = None
     step: int = 0  # the control step it was made at (simulated time: step * dt)
+    prior: str | None = None  # what became of the previous plan (PlanResult.prior: None, used, blocked, outside)
 
 
 @dataclass
@@ -148,12 +150,15 @@ class _Run:
 
 def _plan_batch(planner: Any, runs: list[_Run], poses: list[np.ndarray]) -> tuple[list[Any], float]:
     t0 = time.perf_counter()
-    results = planner.plan_batch([r.scenario.map for r in runs], poses, [r.scenario.goal for r in runs])
+    # each episode's last plan, as the node passes its own: the planner's replanning prior (replan_prior)
+    results = planner.plan_batch([r.scenario.map for r in runs], poses, [r.scenario.goal for r in runs],
+                                 previous=[r.plan for r in runs])
     return results, (time.perf_counter() - t0) / max(len(runs), 1)
 
 
 def drive(planner: Any, scenarios: list[Scenario], settings: ClosedLoopSettings | None = None) -> list[Episode]:
-    """Drive every scenario with ``planner`` (anything with the planner's ``plan_batch(maps, poses, goals)``: a
+    """Drive every scenario with ``planner`` (anything with the planner's ``plan_batch(maps, poses, goals,
+    previous)``: a
     :class:`spade.planner.Planner`, a :class:`spade.closedloop.planners.BaselinePlanner`); one
     :class:`Episode` per scenario, in order."""
     s = settings or ClosedLoopSettings()
@@ -194,7 +199,7 @@ def drive(planner: Any, scenarios: list[Scenario], settings: ClosedLoopSettings 
                 r.tried_at, r.tried_time = belief.copy(), r.steps * f.dt_s
                 waypoints = np.asarray(res.waypoints, np.float64) if res.success else np.zeros((0, 2))
                 r.plans.append(PlanRecord(belief.copy(), waypoints, bool(res.subgoal), seconds, reason, res.code,
-                                          r.steps))
+                                          r.steps, getattr(res, "prior", None)))
                 r.plan, r.subgoal = (waypoints, bool(res.subgoal)) if res.success else (None, False)
                 if r.plan is None:
                     r.outcome = "no_plan"

@@ -27,6 +27,13 @@ to map-frame metres (``WindowPose.to_map`` then ``pixel_to_world``). Every way a
 :class:`PlanResult` with ``success=False``, a short ``code`` and a readable ``reason``, keeping whatever was
 computed (window, probabilities) for debugging.
 
+Replanning: a robot plans again as it drives, and a query may pass the robot's previous plan to the same goal
+(``previous``, map metres: the node, the Nav2 action and the closed loop do). Its part ahead of the robot, in the
+new window's pixels (:meth:`WindowPlanner.previous_in_window`), is the search decoder's prior (``replan_prior``,
+:mod:`spade.metrics.decoding`): the plan keeps the turn it chose unless the network now finds that turn far
+less likely than another or the map blocks it. ``replan_prior=0`` turns it off; a query without ``previous`` (a
+single plan, ``spade.plan``) is decoded as before.
+
 Model files: a checkpoint from ``python -m spade.train``, or its ONNX / TorchScript export
 (``python -m spade.export``), opened by :func:`spade.models.modelfile.open_model` (one device policy). Where torch
 is not installed (a deploy install, :mod:`spade.deploy.lean`) ONNX students are opened by
@@ -67,6 +74,9 @@ MapLike = Union[OccupancyMap, str, Path]
 # The annotation tool's defaults (conf/annotate.yaml): what a model file that does not record them was trained on.
 DEFAULT_DISC_RADIUS_M = 0.1
 DEFAULT_MARGIN_M = 0.3
+DEFAULT_REPLAN_PRIOR = 0.9
+"""``replan_prior``'s default: the share of ``-log p`` taken off on the previous plan when replanning (measured:
+docs/results/records/replanning/; 0 turns the prior off)."""
 
 
 class PlannerConfigError(ModelFileError):
@@ -123,7 +133,9 @@ class PlanResult:
     probabilities (``search`` or ``skeleton``). ``low_share``: the share of the path's length through pixels the
     network gave ``p < 0.5``, ``min_probability`` the lowest ``p`` along it (search decoding; NaN otherwise);
     ``low_confidence``: ``low_share`` above the planner's ``low_confidence_share``; ``fallback``: the waypoints are
-    the Nav2-like shortest path that ``fallback="shortest"`` put in place of a low-confidence plan. ``pose``: the
+    the Nav2-like shortest path that ``fallback="shortest"`` put in place of a low-confidence plan. ``prior``:
+    what became of the previous plan a replan was given (:attr:`spade.metrics.decoding.DecodedPath.prior`: None,
+    ``used``, ``blocked``: it crossed a non-free cell and was abandoned, ``outside``). ``pose``: the
     robot pose (x, y, yaw) planned from; ``start`` its (x, y). ``goal``: the goal planned to (the sub-goal when
     ``far_goal="clip"`` moved it; then ``subgoal`` is True). ``window``: where the student's window lies
     (:class:`PlanWindow`). ``probability``: the (S, S) path probabilities of the window and ``state`` the
@@ -151,6 +163,7 @@ class PlanResult:
     min_probability: float = float("nan")
     low_confidence: bool = False
     fallback: bool = False
+    prior: str | None = None
 
     def __bool__(self) -> bool:
         return self.success
@@ -229,21 +242,30 @@ class WindowPlanner:
         return self.margin_m / self.resolution
 
     # -- queries ---------------------------------------------------------------------------------------------
-    def plan(self, map: MapLike, pose: Any, goal: Any) -> PlanResult:
+    def plan(self, map: MapLike, pose: Any, goal: Any, previous: np.ndarray | None = None) -> PlanResult:
         """Plan from the robot ``pose`` (x, y, yaw) to ``goal`` (x, y), both in map-frame metres, on ``map``.
 
         ``map``: an :class:`OccupancyMap` (a whole map, or a local one such as a rolling costmap converted to
         codes, with its origin in the map frame; cells of the window off it are unknown) or a ROS map yaml path.
+        ``previous``: the waypoints (K, 2, map metres) of this robot's last plan to this goal, when it replans
+        (the node, the Nav2 action, the closed loop pass it): the decoder keeps to its turn while the network
+        still finds it plausible (:attr:`Planner.replan_prior`); None plans afresh.
         """
-        return self.plan_batch(map, [pose], [goal])[0]
+        return self.plan_batch(map, [pose], [goal], None if previous is None else [previous])[0]
 
-    def plan_batch(self, maps: MapLike | Sequence[MapLike], poses: Any, goals: Any) -> list[PlanResult]:
+    def plan_batch(self, maps: MapLike | Sequence[MapLike], poses: Any, goals: Any,
+                   previous: Sequence[np.ndarray | None] | None = None) -> list[PlanResult]:
         """:meth:`plan` for N queries at once (a student: one pass of the network): ``maps`` one map for all or
-        one per query, ``poses`` (N, 3) robot poses and ``goals`` (N, 2) in map-frame metres."""
+        one per query, ``poses`` (N, 3) robot poses and ``goals`` (N, 2) in map-frame metres; ``previous`` None
+        or one previous plan (or None) per query."""
         poses = [robot_pose(p) for p in poses]
         goals = [goal_point(g) for g in goals]
         if len(poses) != len(goals):
             raise ValueError(f"plan_batch got {len(poses)} poses and {len(goals)} goals; give one goal per pose")
+        previous = [None] * len(poses) if previous is None else list(previous)
+        if len(previous) != len(poses):
+            raise ValueError(f"plan_batch got {len(previous)} previous plans for {len(poses)} queries; give one "
+                             "(or None) per query, or previous=None")
         if isinstance(maps, (OccupancyMap, str, Path)):
             maps = [maps] * len(poses)
         maps = list(maps)
@@ -264,15 +286,32 @@ class WindowPlanner:
             results.append(None)
             pending.append((i, window, goal_px, goal_m, subgoal))
         if pending:
-            planned = self.plan_windows([(w, poses[i], g_px, g_m, sub) for i, w, g_px, g_m, sub in pending])
+            priors = [self.previous_in_window(w, poses[i], previous[i]) for i, w, *_ in pending]
+            planned = self.plan_windows([(w, poses[i], g_px, g_m, sub) for i, w, g_px, g_m, sub in pending],
+                                        priors if any(p is not None for p in priors) else None)
             for (i, *_), result in zip(pending, planned):
                 results[i] = result
         return results  # type: ignore[return-value]
 
-    def plan_windows(self, queries: list[tuple[PlanWindow, np.ndarray, np.ndarray, np.ndarray, bool]]
-                     ) -> list[PlanResult]:
-        """Plan in prepared windows: one (window, pose, goal window pixel, goal metres, sub-goal) per query."""
+    def plan_windows(self, queries: list[tuple[PlanWindow, np.ndarray, np.ndarray, np.ndarray, bool]],
+                     priors: Sequence[np.ndarray | None] | None = None) -> list[PlanResult]:
+        """Plan in prepared windows: one (window, pose, goal window pixel, goal metres, sub-goal) per query;
+        ``priors``: None, or per query the previous plan in its window's pixels (:meth:`previous_in_window`)."""
         raise NotImplementedError
+
+    @staticmethod
+    def previous_in_window(window: PlanWindow, pose: np.ndarray, previous: Any) -> np.ndarray | None:
+        """A previous plan (K, 2, map metres) as the replanning prior of a query: its part from its point nearest
+        the robot on (what is behind the robot is driven), in ``window``'s pixels; None for none or fewer than
+        two finite points."""
+        if previous is None:
+            return None
+        pts = np.asarray(previous, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2 or not np.isfinite(pts).all():
+            return None
+        nearest = int(np.argmin(np.linalg.norm(pts - np.asarray(pose, np.float64)[:2], axis=1)))
+        ahead = pts[nearest:]
+        return window.to_window(ahead) if len(ahead) >= 2 else None
 
     # -- windows ---------------------------------------------------------------------------------------------
     def window(self, m: OccupancyMap, pose: Any) -> PlanWindow:
@@ -435,6 +474,13 @@ class Planner(WindowPlanner):
         footprint_mismatch: ``refuse`` (default) or ``warn``.
         allow_unsigned: open an export that carries no integrity record (weight digest, parity probe, the digests
             of the fields above), with a warning, instead of refusing it (:mod:`spade.models.onnx_check`).
+        replan_prior: the pull of a replan towards the robot's previous plan, in [0, 1) (search decoding): on the
+            previous plan each pixel's ``-log p`` is scaled by ``1 - replan_prior`` (less farther from it), so a
+            replan keeps the turn it chose while the network still finds it plausible, and changes it where the
+            network gives it a ``-log p`` more than ``1 / (1 - replan_prior)`` times another way's, or where the map
+            blocks it (:mod:`spade.metrics.decoding`, replanning). 0 turns it off: every replan decides afresh. Used
+            only when a query passes ``previous`` (the node, the Nav2 action and the closed loop do; one plan has
+            none).
     """
 
     def __init__(
@@ -460,6 +506,7 @@ class Planner(WindowPlanner):
         inflation_radius_m: float | None = None,
         footprint_mismatch: str = "refuse",
         allow_unsigned: bool = False,
+        replan_prior: float = DEFAULT_REPLAN_PRIOR,
     ) -> None:
         path = Path(model).expanduser()
         if not path.is_file():
@@ -506,18 +553,28 @@ class Planner(WindowPlanner):
                                      "install lacks; use fallback=null or install torch")
         if not 0.0 <= float(low_confidence_share) <= 1.0:
             raise PlannerConfigError(f"low_confidence_share must lie in [0, 1], got {low_confidence_share}")
+        if (isinstance(replan_prior, bool) or not isinstance(replan_prior, (int, float))
+                or not 0 <= float(replan_prior) < 1):
+            raise PlannerConfigError(f"replan_prior={replan_prior!r}: a share in [0, 1), e.g. "
+                                     f"replan_prior={DEFAULT_REPLAN_PRIOR:g} (0: every replan decides afresh)")
         self.decode = decode
         self.fallback = None if fallback in (None, "none") else fallback
         self.low_confidence_share = float(low_confidence_share)
         # The endpoints were checked free on the map; the window's conservative rotation may still mark the robot's
         # or the goal's own cell non-free (2 x 2 footprint), which must not make a feasible plan fail.
-        self.decoder = PathDecoder(num_points=num_waypoints, threshold=threshold, force_endpoints=True)
+        self.decoder = PathDecoder(num_points=num_waypoints, threshold=threshold, force_endpoints=True,
+                                   prior_weight=float(replan_prior))
         self.threshold, self.max_gap = float(threshold), float(max_gap)
         self.goal_tolerance_px = float(goal_tolerance_px)
         self.require_goal, self.collision_check = bool(require_goal), bool(collision_check)
         self.batch_size = int(batch_size)
         self.footprint = check_footprint(data.get("footprint"), robot_radius_m, inflation_radius_m,
                                          footprint_mismatch, path)
+
+    @property
+    def replan_prior(self) -> float:
+        """The pull towards the previous plan when replanning, in [0, 1) (0: off); see the class docstring."""
+        return self.decoder.prior_weight
 
     def __repr__(self) -> str:
         h, w = self.image_size
@@ -533,14 +590,16 @@ class Planner(WindowPlanner):
         out = [self.backend.logits(states[i: i + self.batch_size]) for i in range(0, len(states), self.batch_size)]
         return _sigmoid(np.concatenate(out)[:, 0]) if out else np.zeros((0, *self.image_size), np.float32)
 
-    def plan_windows(self, queries: list[tuple[PlanWindow, np.ndarray, np.ndarray, np.ndarray, bool]]
-                     ) -> list[PlanResult]:
-        """The student's plans in prepared windows: their states through the network in one pass, each decoded."""
+    def plan_windows(self, queries: list[tuple[PlanWindow, np.ndarray, np.ndarray, np.ndarray, bool]],
+                     priors: Sequence[np.ndarray | None] | None = None) -> list[PlanResult]:
+        """The student's plans in prepared windows: their states through the network in one pass, each decoded
+        (towards its previous plan in ``priors``, when given)."""
         robot_px = np.asarray(self.frame.robot_px, dtype=np.float64)
         states = np.stack([self.encode(w.occupancy(), robot_px, g) for w, _, g, _, _ in queries])
         probs = self.predict(states)
-        return [self._extract(window, state, prob, pose, goal_px, goal_m, subgoal)
-                for (window, pose, goal_px, goal_m, subgoal), state, prob in zip(queries, states, probs)]
+        priors = [None] * len(queries) if priors is None else list(priors)
+        return [self._extract(window, state, prob, pose, goal_px, goal_m, subgoal, prior)
+                for (window, pose, goal_px, goal_m, subgoal), state, prob, prior in zip(queries, states, probs, priors)]
 
     # -- steps -----------------------------------------------------------------------------------------------
     def encode(self, occupancy: np.ndarray, start_px: np.ndarray, goal_px: np.ndarray) -> np.ndarray:
@@ -562,18 +621,21 @@ class Planner(WindowPlanner):
         return state
 
     def _extract(self, window: PlanWindow, state: np.ndarray, prob: np.ndarray, pose: np.ndarray,
-                 goal_px: np.ndarray, goal_m: np.ndarray, subgoal: bool) -> PlanResult:
+                 goal_px: np.ndarray, goal_m: np.ndarray, subgoal: bool, prior: np.ndarray | None = None
+                 ) -> PlanResult:
         if self.decode == "search":
-            return self._search(window, state, prob, pose, goal_px, goal_m, subgoal)
+            return self._search(window, state, prob, pose, goal_px, goal_m, subgoal, prior)
         return self._skeleton(window, state, prob, pose, goal_px, goal_m, subgoal)
 
     def _search(self, window: PlanWindow, state: np.ndarray, prob: np.ndarray, pose: np.ndarray,
-                goal_px: np.ndarray, goal_m: np.ndarray, subgoal: bool) -> PlanResult:
+                goal_px: np.ndarray, goal_m: np.ndarray, subgoal: bool, prior: np.ndarray | None = None
+                ) -> PlanResult:
         start_px = np.asarray(self.frame.robot_px, dtype=np.float64)
         codes = np.rint(state[0] * 2).astype(np.uint8)
-        found = self.decoder(prob, codes, start_px, goal_px, self.resolution)
+        found = self.decoder(prob, codes, start_px, goal_px, self.resolution, prior=prior)
         common = dict(pose=pose, start=pose[:2].copy(), goal=np.asarray(goal_m, dtype=np.float64), subgoal=subgoal,
-                      window=window, state=state, probability=prob, extraction=found, decode="search")
+                      window=window, state=state, probability=prob, extraction=found, decode="search",
+                      prior=found.prior)
         if not found.ok:
             what = {"start_blocked": "the robot's cell in the window is not free",
                     "goal_blocked": "the goal's cell in the window is not free"}.get(

@@ -24,6 +24,21 @@ probabilities).
    Douglas-Peucker, then a spline pinned at both ends), kept only where it stays on free cells (else the grid
    path is used), then even resampling by arc length.
 
+**Replanning** (``prior``, the previous plan of the same robot and goal in this window's pixels, with
+``prior_weight`` > 0): a robot replans every half metre, and where the probability map holds two turns about
+equally likely (a sharp and a wide one, both demonstrated) each replan would pick one afresh, so the robot wavers
+between them. The previous plan is a prior: each cell's ``-log p`` is scaled by ``1 - prior_weight x
+exp(-d^2 / 2 prior_sigma_px^2)``, ``d`` its distance to the previous plan (``prior_weight`` in [0, 1): a bounded
+discount, a cell on the previous plan costing at least ``1 - prior_weight`` of what it did). A scale rather than a
+subtraction keeps the network's ordering inside the band (the path still follows the probability ridge, not the
+previous line: a subtracted discount floored at 0 made the band near that line free, pinned replans to it and
+lowered commitment in a probe).
+So the turn it chose is kept while the network still finds it plausible, and changes where the network gives it a
+``-log p`` more than ``1 / (1 - prior_weight)`` times another way's, a move the robot's state called for. A
+previous plan that crosses a non-free cell of the window (the map changed under it: an obstacle on it) is abandoned
+whole (``DecodedPath.prior == "blocked"``): the path is decoded as without one. Without a prior (``None``, or
+``prior_weight`` 0) the cost is exactly the one above.
+
 Its confidence: the share of the path's length through pixels with ``p < 0.5`` and the minimum ``p`` along it.
 A plan through a region the network did not predict is still a path (often the right one: a small dip), but the
 integrator can see it and fall back (``Planner(..., fallback="shortest")``).
@@ -48,7 +63,15 @@ from spade.maps.costmap import build_costmap
 from spade.maps.occupancy import FREE as FREE_CODE  # window occupancy codes 0 unknown, 1 free, 2 occupied
 from spade.metrics.extraction import marker_centre
 
-__all__ = ["DecodedPath", "PathDecoder", "decode_path", "FREE_CODE", "path_confidence"]
+__all__ = ["DecodedPath", "PRIOR_SIGMA_PX", "PathDecoder", "decode_path", "FREE_CODE", "path_confidence"]
+
+PRIOR_SIGMA_PX = 2.0
+"""Reach of the previous plan's discount (:meth:`PathDecoder.prior_discount`): a Gaussian of this many pixels
+about it (20 cm at the students' 0.1 m/px: the follower's offset from its plan; a sharp and a wide turn of an L
+lie farther apart through the turn)."""
+PRIOR_END_PX = 1.5
+"""A previous plan's non-free cells this near the robot or the goal do not block it (their own cells may be
+marked non-free by the window's conservative rotation)."""
 
 DEFAULT_ROBOT: dict[str, float] = {"radius_m": 0.105, "inflation_radius_m": 0.55, "cost_scaling_factor": 3.0}
 """The annotation tool's footprint and inflation (conf/annotate.yaml): TurtleBot3 Burger, Nav2's defaults."""
@@ -63,7 +86,9 @@ class DecodedPath:
     ``start_blocked`` / ``goal_blocked`` (endpoint outside the window or on an impassable cell), ``no_free_path``.
     ``low_share``: share of the path's length through pixels with ``p < threshold``; ``min_prob``: the lowest
     ``p`` along it; ``smoothed``: whether the smoothed curve was kept (False: the grid path was, because the
-    smoothed one cut a non-free cell).
+    smoothed one cut a non-free cell). ``prior``: what became of a previous plan given as a prior: None (none
+    given, or ``prior_weight`` 0), ``used``, ``blocked`` (it crossed a non-free cell: abandoned), ``outside`` (none
+    of it lies in the window).
     """
 
     points: np.ndarray | None
@@ -72,6 +97,7 @@ class DecodedPath:
     low_share: float = float("nan")
     min_prob: float = float("nan")
     smoothed: bool = False
+    prior: str | None = None
 
     @property
     def ok(self) -> bool:
@@ -82,8 +108,8 @@ class DecodedPath:
         return (not self.ok) or self.low_share > max_low_share
 
 
-def _failed(reason: str) -> DecodedPath:
-    return DecodedPath(points=None, pixels=np.zeros((0, 2)), failure=reason)
+def _failed(reason: str, prior: str | None = None) -> DecodedPath:
+    return DecodedPath(points=None, pixels=np.zeros((0, 2)), failure=reason, prior=prior)
 
 
 def _cells_along(points: np.ndarray, shape: tuple[int, int], step_px: float = 0.25
@@ -114,7 +140,8 @@ class PathDecoder:
     def __init__(self, num_points: int = 64, p_min: float = 1e-4, inflation_weight: float = 0.3,
                  lethal_cost: float = 20.0, smoothing_px: float = 0.25, simplify_px: float = 0.0,
                  threshold: float = 0.5, robot: Mapping[str, Any] | None = None,
-                 force_endpoints: bool = False, centre_sigma_px: float = 0.7) -> None:
+                 force_endpoints: bool = False, centre_sigma_px: float = 0.7, prior_weight: float = 0.0,
+                 prior_sigma_px: float = PRIOR_SIGMA_PX) -> None:
         if num_points < 2:
             raise ValueError(f"num_points must be >= 2, got {num_points}")
         if not 0 < p_min < 1:
@@ -129,16 +156,57 @@ class PathDecoder:
         if centre_sigma_px < 0:
             raise ValueError(f"centre_sigma_px must be >= 0, got {centre_sigma_px}")
         self.centre_sigma_px = float(centre_sigma_px)
+        if not (np.isfinite(prior_weight) and 0 <= prior_weight < 1):
+            raise ValueError(f"prior_weight must lie in [0, 1) (the share of -log p taken off on the previous plan; "
+                             f"0: no prior), got {prior_weight}")
+        if not (np.isfinite(prior_sigma_px) and prior_sigma_px > 0):
+            raise ValueError(f"prior_sigma_px must be > 0 pixels, got {prior_sigma_px}")
+        self.prior_weight, self.prior_sigma_px = float(prior_weight), float(prior_sigma_px)
 
-    def cost(self, prob: np.ndarray, grid: np.ndarray, resolution: float) -> np.ndarray:
-        """The per-cell search cost (H, W) (``inf`` on obstacle and unknown cells)."""
+    def prior_discount(self, prior: np.ndarray | None, grid: np.ndarray, start: np.ndarray, goal: np.ndarray
+                       ) -> tuple[np.ndarray | None, str | None]:
+        """The per-cell discount (H, W), the share of ``-log p`` taken off, toward a previous plan ``prior`` (K, 2)
+        (x, y) window pixels, and
+        what became of it (:attr:`DecodedPath.prior`): (None, None) without a prior or with ``prior_weight`` 0;
+        (None, ``blocked``) when it crosses a non-free cell farther than :data:`PRIOR_END_PX` from ``start`` and
+        ``goal`` (whose own cells the window's rotation may mark non-free); (None, ``outside``) when none of it
+        lies in the window."""
+        if prior is None or self.prior_weight == 0:
+            return None, None
+        pts = np.asarray(prior, np.float64).reshape(-1, 2)
+        if len(pts) == 0 or not np.isfinite(pts).all():
+            return None, None
+        h, w = grid.shape
+        if len(pts) > 1 and polyline_length(pts) > 0:
+            pts = resample_polyline(pts, max(2, int(np.ceil(polyline_length(pts) / 0.25)) + 1))
+        cells = np.rint(pts).astype(np.int64)
+        inside = (cells[:, 0] >= 0) & (cells[:, 0] < w) & (cells[:, 1] >= 0) & (cells[:, 1] < h)
+        if not inside.any():
+            return None, "outside"
+        pts, cells = pts[inside], cells[inside]
+        near_end = np.minimum(np.linalg.norm(pts - np.asarray(start, np.float64), axis=1),
+                              np.linalg.norm(pts - np.asarray(goal, np.float64), axis=1)) <= PRIOR_END_PX
+        if np.any((grid[cells[:, 1], cells[:, 0]] != FREE_CODE) & ~near_end):
+            return None, "blocked"
+        off = np.ones(grid.shape, bool)
+        off[cells[:, 1], cells[:, 0]] = False
+        distance = ndimage.distance_transform_edt(off)
+        return self.prior_weight * np.exp(-0.5 * (distance / self.prior_sigma_px) ** 2), "used"
+
+    def cost(self, prob: np.ndarray, grid: np.ndarray, resolution: float, discount: np.ndarray | None = None
+             ) -> np.ndarray:
+        """The per-cell search cost (H, W) (``inf`` on obstacle and unknown cells); ``discount`` (H, W): the share
+        of ``-log p`` taken off (:meth:`prior_discount`), None for none."""
         costmap = build_costmap(grid, resolution, self.robot, cost_weight=1.0)
         free = grid == FREE_CODE
         inflation = np.where(np.isfinite(costmap.cost), costmap.cost - 1.0, 1.0)  # Nav2 decay in [0, 1]
         p = prob.astype(np.float64)
         if self.centre_sigma_px > 0:
             p = ndimage.gaussian_filter(p, self.centre_sigma_px, mode="nearest")
-        cost = -np.log(np.clip(p, self.p_min, 1.0)) + self.inflation_weight * inflation
+        nll = -np.log(np.clip(p, self.p_min, 1.0))
+        if discount is not None:
+            nll = nll * (1.0 - discount)
+        cost = nll + self.inflation_weight * inflation
         cost[free & ~np.isfinite(costmap.cost)] += self.lethal_cost
         # A small step cost keeps the search from wandering over p = 1 plateaus (-log 1 = 0).
         cost += 1e-3
@@ -151,9 +219,10 @@ class PathDecoder:
         return self(prob, grid, marker_centre(state[1], "start"), marker_centre(state[2], "goal"), resolution)
 
     def __call__(self, prob: np.ndarray, grid: np.ndarray, start: np.ndarray, goal: np.ndarray,
-                 resolution: float) -> DecodedPath:
+                 resolution: float, prior: np.ndarray | None = None) -> DecodedPath:
         """Decode one (H, W) probability image on the window's (H, W) uint8 occupancy codes, from ``start`` to
-        ``goal`` (x, y) window pixels; ``resolution`` in metres per pixel (for the robot's footprint)."""
+        ``goal`` (x, y) window pixels; ``resolution`` in metres per pixel (for the robot's footprint); ``prior``:
+        the previous plan (K, 2) in these window pixels, from the robot on (module docstring: replanning)."""
         prob = np.asarray(prob)
         grid = np.asarray(grid)
         if prob.ndim != 2 or prob.shape != grid.shape:
@@ -162,27 +231,28 @@ class PathDecoder:
         if grid.dtype != np.uint8:
             grid = np.ascontiguousarray(grid, dtype=np.uint8)
         h, w = grid.shape
-        cost = self.cost(prob, grid, resolution)
+        discount, prior_state = self.prior_discount(prior, grid, start, goal)
+        cost = self.cost(prob, grid, resolution, discount)
         ends = []
         for xy, name in ((start, "start"), (goal, "goal")):
             xy = np.asarray(xy, np.float64)
             col, row = int(np.rint(xy[0])), int(np.rint(xy[1]))
             if not (0 <= row < h and 0 <= col < w):
-                return _failed(f"{name}_blocked")
+                return _failed(f"{name}_blocked", prior_state)
             if not np.isfinite(cost[row, col]):
                 if not self.force_endpoints:
-                    return _failed(f"{name}_blocked")
+                    return _failed(f"{name}_blocked", prior_state)
                 cost[row, col] = self.lethal_cost - np.log(self.p_min)
             ends.append((row, col))
         a, b = ends
         if a == b:
             pts = np.stack([np.asarray(start, np.float64), np.asarray(goal, np.float64)])
             return DecodedPath(resample_polyline(pts, self.num_points), pts, None, *path_confidence(
-                prob, pts, self.threshold))
+                prob, pts, self.threshold), prior=prior_state)
         mcp = MCP_Geometric(cost, fully_connected=True)
         cum, _ = mcp.find_costs([a], [b], find_all_ends=False)
         if not np.isfinite(cum[b]):
-            return _failed("no_free_path")
+            return _failed("no_free_path", prior_state)
         grid_path = np.asarray(mcp.traceback(b), dtype=np.float64)[:, ::-1]  # (x, y)
         # The exact start and goal (sub-pixel centres) as the ends, as the ground truth has them.
         poly = np.vstack([np.asarray(start, np.float64), grid_path[1:-1], np.asarray(goal, np.float64)])
@@ -198,7 +268,7 @@ class PathDecoder:
         points = resample_polyline(poly, self.num_points)
         low, pmin = path_confidence(prob, poly, self.threshold)
         return DecodedPath(points=points, pixels=grid_path, failure=None, low_share=low, min_prob=pmin,
-                           smoothed=smoothed)
+                           smoothed=smoothed, prior=prior_state)
 
 
 def decode_path(prob: np.ndarray, grid: np.ndarray, start: np.ndarray, goal: np.ndarray, resolution: float,

@@ -13,7 +13,10 @@
   within ``subgoal_replan_m`` of it;
 - a new map arrives while a goal is active (``replan_on_map``; a rolling costmap replans at its own rate).
 
-The goal is dropped once the robot is within ``goal_reached_m`` of it, and after a query that cannot succeed
+Every replan passes the robot's previous plan to the same goal (``previous``; an action goal: the last action
+plan to the same goal) so that the planner's replanning prior (``planner.replan_prior``,
+:class:`spade.deploy.student_planner.Planner`) keeps the turn it chose; a new goal, or a failed attempt, plans
+afresh. The goal is dropped once the robot is within ``goal_reached_m`` of it, and after a query that cannot succeed
 however the robot moves (a goal off the map or on an obstacle). Every message that cannot be used (malformed, in
 another frame than the map's: the node has no TF) is logged and dropped; nothing a message holds raises out of a
 ``handle_*`` method. The DDS node (:mod:`spade.ros.node`) and the offline replay (:mod:`spade.ros.replay`) feed it.
@@ -38,6 +41,8 @@ __all__ = ["CoreSettings", "PlanEvent", "PlannerCore", "check_option", "distance
 
 log = logging.getLogger("spade.ros")
 
+# Two action goals this close (metres) are the same goal: the later query replans the earlier one's plan.
+SAME_GOAL_M = 1e-3
 # A query that fails with one of these fails the same way from any pose: the goal is dropped.
 GOAL_FAILURES = ("goal_outside_map", "goal_not_free")
 
@@ -188,12 +193,14 @@ class _State:
     tried_time: float = -math.inf
     pending: str | None = None          # a pose called for a plan before min_replan_interval_s passed: plan then
     counts: dict[str, int] = field(default_factory=dict)
+    query_goal: np.ndarray | None = None  # the last action (query) goal planned to (x, y) ...
+    query_plan: np.ndarray | None = None  # ... and the waypoints of that plan (None after a failure)
 
 
 class PlannerCore:
     """The node's logic (see the module docstring). ``planner``: a :class:`spade.planner.Planner` (anything with its
-    ``plan(map, pose, goal)``); ``clock``: seconds, monotonic (tests pass their own); ``now_ns``: the stamp of the
-    published paths (wall-clock nanoseconds, as ROS's system time)."""
+    ``plan(map, pose, goal, previous=None)``); ``clock``: seconds, monotonic (tests pass their own); ``now_ns``: the
+    stamp of the published paths (wall-clock nanoseconds, as ROS's system time)."""
 
     def __init__(self, planner: Any, settings: CoreSettings | None = None, *,
                  clock: Callable[[], float] = time.monotonic, now_ns: Callable[[], int] = time.time_ns) -> None:
@@ -327,19 +334,26 @@ class PlannerCore:
 
     def query(self, pose: Any, goal: Any, trigger: str = "query") -> PlanEvent:
         """One plan on the latest map from ``pose`` (x, y, yaw) to ``goal`` (x, y[, yaw]) that leaves the topic
-        goal's state alone (the action server's goals); a planner that raises gives ``error``."""
+        goal's state alone (the action server's goals; Nav2's behaviour tree asks again for the same goal about
+        once a second, so the last query plan to the same goal is passed as ``previous``); a planner that raises
+        gives ``error``."""
         s = self.state
         goal = np.asarray(goal, dtype=np.float64).reshape(-1)
         goal_yaw = float(goal[2]) if goal.size > 2 else None
         t0 = time.perf_counter()
         if s.map is None:
             return PlanEvent(trigger, None, s.frame, self.now_ns(), 0.0, goal_yaw, error="no map yet")
+        same_goal = s.query_goal is not None and float(np.linalg.norm(s.query_goal - goal[:2])) <= SAME_GOAL_M
+        previous = s.query_plan if same_goal else None
+        s.query_goal, s.query_plan = goal[:2].copy(), None
         try:
-            result = self.planner.plan(s.map, np.asarray(pose, dtype=np.float64), goal[:2])
+            result = self.planner.plan(s.map, np.asarray(pose, dtype=np.float64), goal[:2], previous=previous)
         except Exception as err:  # noqa: BLE001 - a query the planner cannot take must not stop the node
             log.error("planning failed (%s): %s: %s", trigger, type(err).__name__, err)
             return PlanEvent(trigger, None, s.frame, self.now_ns(), time.perf_counter() - t0, goal_yaw,
                              error=f"{type(err).__name__}: {err}")
+        if result.success:
+            s.query_plan = np.asarray(result.waypoints, dtype=np.float64)
         return PlanEvent(trigger, result, s.frame, self.now_ns(), time.perf_counter() - t0, goal_yaw)
 
     def handle_goal(self, msg: Any) -> PlanEvent | None:
@@ -370,7 +384,7 @@ class PlannerCore:
         s.tried_at, s.tried_time, s.pending = s.pose.copy(), self.clock(), None
         t0 = time.perf_counter()
         try:
-            result = self.planner.plan(s.map, s.pose, s.goal[:2])
+            result = self.planner.plan(s.map, s.pose, s.goal[:2], previous=s.plan)
         except Exception as err:  # noqa: BLE001 - a query the planner cannot take must not stop the node
             self._count("no_path")
             log.error("planning failed (%s): %s: %s", trigger, type(err).__name__, err)
@@ -389,7 +403,9 @@ class PlannerCore:
             return event
         self._count("plan")
         s.plan, s.subgoal = np.asarray(result.waypoints, dtype=np.float64), bool(result.subgoal)
-        log.info("plan (%s): %d poses, %.2f m%s, confidence %.2f%s, %.0f ms", trigger, len(result.waypoints),
+        log.info("plan (%s): %d poses, %.2f m%s, confidence %.2f%s%s, %.0f ms", trigger, len(result.waypoints),
                  result.length_m, " to a sub-goal" if result.subgoal else "", event.confidence,
-                 " (shortest-path fallback)" if result.fallback else "", 1000 * seconds)
+                 " (shortest-path fallback)" if result.fallback else "",
+                 " (the previous plan is blocked: planned afresh)" if getattr(result, "prior", None) == "blocked"
+                 else "", 1000 * seconds)
         return event
