@@ -140,7 +140,9 @@ def test_log_records_are_printed_once_and_wrapped_within_120_columns(capsys) -> 
     lightning_logger.addHandler(plain)
     console = ConsoleHandler(sys.stdout)
     console.setFormatter(ConsoleFormatter())
-    old_level = root.level
+    old_level, old_handlers = root.level, list(root.handlers)
+    for handler in old_handlers:  # an earlier test's handlers (a command's task) may hold a stream closed since
+        root.removeHandler(handler)
     root.addHandler(console)
     root.setLevel(logging.INFO)
     try:
@@ -156,6 +158,8 @@ def test_log_records_are_printed_once_and_wrapped_within_120_columns(capsys) -> 
         rank_zero.info("Loaded model weights from the checkpoint at /runs/x/epoch001.ckpt")  # the same path again
     finally:
         root.removeHandler(console)
+        for handler in old_handlers:
+            root.addHandler(handler)
         root.setLevel(old_level)
         lightning_logger.removeHandler(plain)
     captured = capsys.readouterr()

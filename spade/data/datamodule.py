@@ -188,9 +188,10 @@ class PathDataModule(L.LightningDataModule):
             if self.max_train_instances:
                 train = train[: self.max_train_instances]
                 val = val[: max(1, self.max_train_instances // 4)] if val else val
-            self.train_set, self.val_set = Subset(full, train), Subset(full, val)
-            if self.unlabelled_dir is not None:
-                self.train_set = self._with_unlabelled(self.train_set)
+            train_set, self.val_set = Subset(full, train), Subset(full, val)
+            if self.unlabelled_dir is not None:  # set only once whole: a refusal leaves the module unset, not half-set
+                train_set = self._with_unlabelled(train_set)
+            self.train_set = train_set
             if self.test_set is not None and self.test_dir is not None:  # tested alone first (test_untrained)
                 self._check_compatible(self.test_set.dataset)
         if self.test_set is None:

@@ -1,6 +1,6 @@
 """A teacher's committed plans as labels: the states of a site nobody sketched, labelled by a diffusion expert.
 
-Diffusion-based augmentation read literally (issue 58, item 3c): for each state of an unlabelled dataset the expert
+Diffusion-based augmentation read literally (docs/method.md, "What can a teacher teach?"): for each state of an unlabelled dataset the expert
 draws ``samples`` (K) paths, the planner decodes each, and their medoid (the minimum-Bayes-risk reading,
 :func:`spade.metrics.preference.medoid_path`, the same reading as the teacher's planner figures) becomes the state's
 demonstration. A student then trains by BC on its own demonstrations plus these labels
