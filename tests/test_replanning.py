@@ -287,3 +287,30 @@ def test_the_desk_simulators_robot_and_the_closed_loop_drive_replan_from_their_p
     for before, previous in zip(episode.plans[:-1], planner.previous[1:]):
         np.testing.assert_array_equal(previous, before.waypoints)
     assert [p.prior for p in episode.plans[1:]] == ["used"] * (len(episode.plans) - 1)
+
+
+def test_the_replanning_page_compares_each_prior_with_off_on_the_same_students(tmp_path) -> None:
+    """spade.perf.replanning_page: a paired t-test over the students, Holm over the page, the targets said met or
+    missed, the followed demonstration beside; written from the drive records alone."""
+    import json
+
+    from spade.perf.replanning_page import load_drive_records, replanning_page
+
+    for i, student in enumerate(("a", "b", "c")):
+        for prior, ape, switches in ((0.0, 15.0 + i, 1.0 + 0.1 * i), (0.9, 6.0 + 0.9 * i, 0.2 + 0.01 * i)):
+            metrics = {"closed_loop/ape_cm": ape, "closed_loop/mode_switches": switches,
+                       "closed_loop/commit_rate": 0.8, "closed_loop/success_rate": 1.0,
+                       "closed_loop/followed/ape_cm": 4.5, "closed_loop/followed/mode_switches": 0.1,
+                       "closed_loop/followed/commit_rate": 1.0, "closed_loop/followed/success_rate": 1.0}
+            (tmp_path / f"{student}_{prior}.json").write_text(json.dumps({
+                "run": student, "condition": "clean", "replan_prior": prior, "metrics": metrics, "scenarios": 10,
+                "command": "python -m spade.perf.replanning --ckpt x", "commit": "abc", "seconds": 6.0}))
+    (tmp_path / "summary.json").write_text("[]")  # not a drive record
+    records = load_drive_records(tmp_path)
+    assert len(records) == 6
+    page = replanning_page(records)
+    assert page.startswith("# Replanning") and "(Holm's correction over the page's 2 tests)" in page
+    verdict = [line for line in page.splitlines() if line.startswith("- **clean**")][0]
+    assert "closed-loop APE (cm) 16.00 → 6.90" in verdict and "Every target met." in verdict
+    assert "| clean | 0.9 | 6.90 ± 0.90 |" in page and "| clean | the demonstration, followed | 4.50 |" in page
+    assert page.index("- **clean**") < page.index("| condition |")  # the verdict before the table

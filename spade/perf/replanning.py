@@ -39,6 +39,14 @@ FIGURES = ("ape_cm", "mode_switches", "commit_rate", "success_rate", "replan_cha
 """What :func:`summarise` reports (every ``closed_loop/*`` figure is in the records)."""
 
 
+def _shown(value: str) -> str:
+    """A path as a committed record keeps it: relative to the project, or its last parts, never the writing
+    machine's folders (:func:`spade.experiments.run_records._shown`, the run records' rule)."""
+    from spade.experiments.run_records import _shown as shown
+
+    return shown(value)
+
+
 def _git_commit() -> str | None:
     try:
         return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True,
@@ -84,12 +92,12 @@ def drive_records(ckpts: list[str], weights: list[float], conditions: list[str],
                         key = str(getattr(plan, "prior", None))
                         priors[key] = priors.get(key, 0) + 1
                 records.append({
-                    "checkpoint": str(ckpt), "run": Path(ckpt).parent.parent.name, "condition": condition,
+                    "checkpoint": _shown(str(ckpt)), "run": Path(ckpt).parent.parent.name, "condition": condition,
                     "replan_prior": float(weight), "scenarios": len(chosen), "data": data, "scale": scale,
                     "seed": seed, "settings": {k: drive[k] for k in sorted(drive) if k not in ("pictures", "mcap")},
                     "metrics": {k: (None if not math.isfinite(v) else round(v, 6)) for k, v in sorted(metrics.items())},
                     "priors": dict(sorted(priors.items())), "seconds": round(time.perf_counter() - t0, 1),
-                    "commit": _git_commit(), "command": command,
+                    "commit": _git_commit(), "command": " ".join(_shown(w) for w in command.split(" ")),
                 })
                 m = records[-1]["metrics"]
                 print(f"{records[-1]['run']} {condition} replan_prior={weight:g}: APE {m['closed_loop/ape_cm']:.2f} "

@@ -1,0 +1,164 @@
+"""The replanning page (``docs/results/replanning.md``): what the decoder's prior toward the previous plan
+(``replan_prior``, :class:`spade.metrics.decoding.PathDecoder`) buys in closed loop, written from the drive records of
+``python -m spade.perf.replanning`` (``docs/results/records/replanning/``).
+
+The same students are driven with the prior off and on, so each setting is compared with the prior off by a paired
+t-test over the students (Holm's correction over the page's tests). The page leads with its verdict, beside the
+followed demonstration (the follower's own cost) and the targets the deployment asks of a planner.
+
+Usage: ``python -m spade.perf.replanning_page RECORDS_DIR OUT.md``.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import math
+import statistics
+import sys
+from pathlib import Path
+from typing import Any
+
+__all__ = ["TARGETS", "load_drive_records", "replanning_page"]
+
+FIGURES: tuple[tuple[str, str, bool], ...] = (
+    ("ape_cm", "closed-loop APE (cm)", False),
+    ("mode_switches", "mode switches / scenario", False),
+    ("commit_rate", "commits", True),
+    ("success_rate", "success", True),
+)
+"""(closed_loop/<key>, header, shown as a percent) of the page's table."""
+TARGETS: dict[str, dict[str, tuple[str, float]]] = {
+    "clean": {"ape_cm": ("<=", 7.0), "mode_switches": ("<=", 0.25), "commit_rate": (">=", 0.70),
+              "success_rate": (">=", 1.0)},
+    "perturbed": {"ape_cm": ("<=", 20.0), "success_rate": (">=", 0.99)},
+}
+"""What a robot operator asks of a replanning student (the deployment's targets, set before any measurement)."""
+TESTED = ("ape_cm", "mode_switches")
+
+
+def load_drive_records(records_dir: str | Path) -> list[dict[str, Any]]:
+    """Every drive record (one student, condition and prior) of ``records_dir``."""
+    return [json.loads(p.read_text()) for p in sorted(Path(records_dir).glob("*.json")) if p.name != "summary.json"]
+
+
+def _fmt(value: float, percent: bool) -> str:
+    return f"{100 * value:.0f} %" if percent else f"{value:.2f}"
+
+
+def _cell(values: list[float], percent: bool) -> str:
+    if not values:
+        return "n/a"
+    if len(values) == 1:
+        return _fmt(values[0], percent)
+    return f"{_fmt(statistics.fmean(values), percent)} ± {_fmt(statistics.stdev(values), percent)}"
+
+
+def _paired(a: dict[str, float], b: dict[str, float]) -> float | None:
+    """Two-sided paired t-test p of ``a`` against ``b`` over the students both hold (None below two or no spread)."""
+    from scipy.stats import ttest_rel
+
+    keys = sorted(set(a) & set(b))
+    if len(keys) < 2:
+        return None
+    diffs = [a[k] - b[k] for k in keys]
+    if statistics.pvariance(diffs) == 0:
+        return None
+    return float(ttest_rel([a[k] for k in keys], [b[k] for k in keys]).pvalue)
+
+
+def replanning_page(records: list[dict[str, Any]], command: str = "") -> str:
+    """The page's markdown from the drive records."""
+    from spade.experiments.reporting.results import holm
+    from spade.utils.provenance import commit, machine
+
+    groups: dict[tuple[str, float], dict[str, dict[str, float]]] = {}
+    followed: dict[str, list[dict[str, float]]] = {}
+    for r in records:
+        metrics = r["metrics"]
+        per_student = groups.setdefault((r["condition"], float(r["replan_prior"])), {})
+        per_student[r["run"]] = {k: metrics[f"closed_loop/{k}"] for k, _, _ in FIGURES
+                                 if f"closed_loop/{k}" in metrics}
+        if "closed_loop/followed/ape_cm" in metrics:
+            followed.setdefault(r["condition"], []).append(
+                {k: metrics.get(f"closed_loop/followed/{k}") for k, _, _ in FIGURES})
+    conditions = sorted({c for c, _ in groups}, key=lambda c: (c != "clean", c))
+    tests: list[tuple[str, float, str, float | None]] = []
+    for (condition, prior), students in sorted(groups.items()):
+        off = groups.get((condition, 0.0))
+        if prior == 0.0 or off is None:
+            continue
+        for key in TESTED:
+            tests.append((condition, prior, key, _paired({s: v[key] for s, v in students.items() if key in v},
+                                                        {s: v[key] for s, v in off.items() if key in v})))
+    adjusted = dict(zip([(c, p, k) for c, p, k, _ in tests], holm([p for *_, p in tests])))
+
+    def mean(condition: str, prior: float, key: str) -> float | None:
+        values = [v[key] for v in groups.get((condition, prior), {}).values() if key in v]
+        return statistics.fmean(values) if values else None
+
+    verdict = []
+    for condition in conditions:
+        priors = sorted(p for c, p in groups if c == condition and p > 0)
+        if not priors or (condition, 0.0) not in groups:
+            continue
+        best = min(priors, key=lambda p: mean(condition, p, "ape_cm") or math.inf)
+        parts = []
+        for key in TESTED:
+            label = next(h for k, h, _ in FIGURES if k == key)
+            p = adjusted.get((condition, best, key))
+            told = "no test" if p is None else (f"Holm p {p:.2g}, " + ("significant" if p < 0.05 else "not significant"))
+            parts.append(f"{label} {mean(condition, 0.0, key):.2f} → {mean(condition, best, key):.2f} ({told})")
+        targets = TARGETS.get(condition, {})
+        missed = [next(h for k, h, _ in FIGURES if k == key) for key, (op, goal) in targets.items()
+                  if (value := mean(condition, best, key)) is not None
+                  and not (value <= goal + 1e-9 if op == "<=" else value >= goal - 1e-9)]
+        verdict.append(f"- **{condition}**, replan_prior={best:g} against off: " + "; ".join(parts) + ". "
+                       + (f"Targets missed: {', '.join(missed)}." if missed else "Every target met."))
+    students = max((len(v) for v in groups.values()), default=0)
+    lines = ["# Replanning that keeps its turn: the decoder's prior toward the previous plan", "",
+             f"The prior changes what a replanning student drives; each setting is compared with the prior off on the "
+             f"same {students} students by a paired t-test (Holm's correction over the page's "
+             f"{sum(p is not None for *_, p in tests)} tests). The deciding figures in closed loop are success, then "
+             "closed-loop APE (the [metrics reference](../reference/metrics.md) says why); mode switches and "
+             "commitment say whether the plan holds its turn.", "", *verdict, "",
+             "| condition | replan_prior | " + " | ".join(h for _, h, _ in FIGURES) + " |",
+             "|---|---|" + "---|" * len(FIGURES)]
+    for condition in conditions:
+        for (c, prior), group in sorted(groups.items()):
+            if c != condition:
+                continue
+            cells = [_cell([v[k] for v in group.values() if k in v], pct) for k, _, pct in FIGURES]
+            lines.append(f"| {condition} | {'off' if prior == 0 else f'{prior:g}'} | " + " | ".join(cells) + " |")
+        if followed.get(condition):
+            cells = [_cell([f[k] for f in followed[condition] if f.get(k) is not None][:1], pct) for k, _, pct in FIGURES]
+            lines.append(f"| {condition} | the demonstration, followed | " + " | ".join(cells) + " |")
+    lines += ["", "Targets: " + "; ".join(f"{c}: " + ", ".join(f"{next(h for k, h, _ in FIGURES if k == key)} {op} "
+                                                                  f"{_fmt(goal, key.endswith('rate'))}"
+                                                                  for key, (op, goal) in t.items())
+                                      for c, t in TARGETS.items()) + ".", "",
+              "## Provenance", "",
+              f"- drives: `{records[0].get('command', '').split(' --ckpt')[0] if records else ''} --ckpt ... "
+              f"--weights ...` ({len(records)} records in docs/results/records/replanning/, "
+              f"{records[0].get('scenarios') if records else 0} scenarios each)",
+              f"- page: `{command or 'python -m spade.perf.replanning_page'}`",
+              f"- commit: {commit() or 'unknown'}; drives at {sorted({str(r.get('commit'))[:7] for r in records})}",
+              f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
+              f"- machine: {machine()}",
+              f"- drive wall time: {sum(float(r.get('seconds') or 0) for r in records) / 60:.0f} min in all", ""]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = list(sys.argv[1:] if argv is None else argv)
+    if len(args) != 2:
+        raise SystemExit("usage: python -m spade.perf.replanning_page RECORDS_DIR OUT.md")
+    records = load_drive_records(args[0])
+    if not records:
+        raise SystemExit(f"error: no drive records in {args[0]}; make them with python -m spade.perf.replanning")
+    Path(args[1]).write_text(replanning_page(records, "python -m spade.perf.replanning_page " + " ".join(args)))
+    print(f"wrote {args[1]}")
+
+
+if __name__ == "__main__":
+    main()
