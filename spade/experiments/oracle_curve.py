@@ -175,6 +175,9 @@ def plot_curve(series: CurveSeries, runs: Mapping[str, list[RunRecord]], floor: 
     if baseline is not None:
         ax.axhline(baseline[1], color="grey", linestyle="-.", linewidth=1, label=f"{baseline[0]} ({baseline[1]:.2f} cm)")
     ax.set_xscale("log")
+    sizes = sorted({size for points in series.values() for size in points})
+    ax.set_xticks(sizes, [f"{size:,}" for size in sizes])
+    ax.minorticks_off()
     ax.set_xlabel("site demonstrations (log scale)")
     ax.set_ylabel("planner APE (cm), mean ± sd over seeds")
     ax.set_ylim(bottom=0)
