@@ -1,0 +1,57 @@
+"""Reliability, sixth round (issue 63, item 4): the unclear rows of the probe, one line each instead of a
+traceback, and the slow ones bounded (a refusal names the limit).
+
+- ``spade.critic``: ``model.margin.t_max`` beyond the expert's training timesteps refused before any work, naming
+  the expert's T; ``critic.bands`` (and its draws) bounded;
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+
+from factories import write_synthetic
+from test_reliability_outputs import one_error_line, run_main  # noqa: F401 - a fixture
+from test_reliability_round4 import checkpoint
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def expert_with_timesteps(path: Path, timesteps: int) -> Path:
+    """An expert checkpoint (:func:`checkpoint`'s) whose hyper-parameters record ``timesteps`` training steps."""
+    import torch
+
+    checkpoint(path, "expert")
+    data = torch.load(path, weights_only=False)
+    data["hyper_parameters"] = {"num_train_timesteps": timesteps}
+    torch.save(data, path)
+    return path
+
+
+# -- 1, 2. spade.critic: the expert's timesteps, and bounded bands -----------------------------------------------------
+def test_critic_refuses_t_max_beyond_the_expert_and_bounds_its_bands(tmp_path: Path, run_main) -> None:
+    """``model.margin.t_max`` beyond the expert's T failed with a traceback once the expert was loaded;
+    ``critic.bands=100000`` ran for minutes. Both are refused before the expert is loaded, naming the limit."""
+    test = tmp_path / "test"
+    write_synthetic(test, n=4)
+    expert = expert_with_timesteps(tmp_path / "expert.ckpt", 50)
+    base = [f"ckpt_path={expert}", f"data.test_dir={test}", "data.test_shape=null", f"output_dir={tmp_path / 'out'}"]
+    cases = {
+        ("model.margin.t_max=80",): "model.margin.t_max=80 exceeds the 50 training timesteps of the expert",
+        ("critic.bands=100000",): "critic.bands=100000 exceeds the 50 timesteps",
+        ("model.margin.t_min=10", "model.margin.t_max=20", "critic.bands=11"): "set critic.bands <= 10",
+        ("critic.bands=40", "critic.draws_per_band=10"): "exceed the limit of 200",
+    }
+    for overrides, expected in cases.items():
+        start = time.monotonic()
+        code, err = run_main("spade.critic", [*base, *overrides])
+        assert code == 2, (overrides, err)
+        assert expected in one_error_line(err), (overrides, err)
+        assert time.monotonic() - start < 30
+    assert not (tmp_path / "out").exists() and not (tmp_path / "home" / "logs" / "mlflow.db").exists()
+    from spade.config.checkpoint_checks import expert_timesteps
+
+    assert expert_timesteps(expert) == 50
+    assert expert_timesteps(checkpoint(tmp_path / "plain.ckpt", "expert")) == 1000  # none recorded: the default
