@@ -3,6 +3,8 @@ traceback, and the slow ones bounded (a refusal names the limit).
 
 - ``spade.critic``: ``model.margin.t_max`` beyond the expert's training timesteps refused before any work, naming
   the expert's T; ``critic.bands`` (and its draws) bounded;
+- ``warehouse:abc`` (a procedural spec whose seed is not an integer) wherever a map spec is taken: one line, with
+  the fix;
 """
 
 from __future__ import annotations
@@ -55,3 +57,21 @@ def test_critic_refuses_t_max_beyond_the_expert_and_bounds_its_bands(tmp_path: P
 
     assert expert_timesteps(expert) == 50
     assert expert_timesteps(checkpoint(tmp_path / "plain.ckpt", "expert")) == 1000  # none recorded: the default
+
+
+# -- 3. a procedural map spec with a non-integer seed ---------------------------------------------------------------
+@pytest.mark.parametrize("module, args", [
+    ("spade.plan", ["map=warehouse:abc", "start=[0.0,1.0,0.0]", "goal=[2.0,1.0]"]),
+    ("spade.plan", ["warehouse:abc", "start=0,1,0", "goal=2,1"]),  # the map as the leading positional
+    ("spade.annotate", ["maps=[warehouse:abc]", "num_instances=5", "out_dir={tmp}/ds"]),
+    ("spade.annotate", ["maps=warehouse:abc", "num_instances=5", "out_dir={tmp}/ds"]),
+    ("spade.sketch", ["map=warehouse:abc"]),
+])
+def test_a_procedural_spec_with_a_non_integer_seed_is_one_line(tmp_path: Path, run_main, module: str,
+                                                               args: list[str]) -> None:
+    """``warehouse:abc`` wherever a map spec is accepted: one line naming the spec and an integer seed."""
+    code, err = run_main(module, [a.format(tmp=tmp_path) for a in args])
+    assert code == 2, err
+    line = one_error_line(err)
+    assert "warehouse:abc" in line and "is not an integer" in line and "warehouse:3" in line, line
+    assert not (tmp_path / "ds").exists()
