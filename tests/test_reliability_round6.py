@@ -5,6 +5,7 @@ traceback, and the slow ones bounded (a refusal names the limit).
   the expert's T; ``critic.bands`` (and its draws) bounded;
 - ``warehouse:abc`` (a procedural spec whose seed is not an integer) wherever a map spec is taken: one line, with
   the fix;
+- ``models:/NAME/99``: one line naming the versions and aliases NAME has (or the names registered);
 """
 
 from __future__ import annotations
@@ -75,3 +76,34 @@ def test_a_procedural_spec_with_a_non_integer_seed_is_one_line(tmp_path: Path, r
     line = one_error_line(err)
     assert "warehouse:abc" in line and "is not an integer" in line and "warehouse:3" in line, line
     assert not (tmp_path / "ds").exists()
+
+
+# -- 4. a registry version that does not exist ---------------------------------------------------------------------
+def test_a_missing_registry_version_names_the_versions_that_exist(tmp_path: Path, run_main) -> None:
+    """``model=models:/NAME/99`` answered MLflow's error for an unknown version; now one line naming the versions
+    (and aliases) NAME has, and an unknown name is answered with the names that are registered."""
+    from factories import site_map
+    from spade.deploy.mlflow_models import mlflow_client
+    from spade.deploy.mlflow_store import ensure_store
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    ensure_store(uri)
+    client = mlflow_client(uri)
+    client.create_registered_model("stu")
+    for _ in range(2):
+        client.create_model_version("stu", source=str(tmp_path / "nowhere"))
+    client.set_registered_model_alias("stu", "champion", "2")
+    yaml_path = site_map(tmp_path)
+    query = [f"map={yaml_path}", "start=[0.0,1.0,0.0]", "goal=[2.0,1.0]", f"paths.mlflow_tracking_uri={uri}",
+             f"out={tmp_path / 'plan.png'}"]
+    code, err = run_main("spade.plan", [*query, "model_path=models:/stu/99"])
+    assert code == 2, err
+    line = one_error_line(err)
+    assert "models:/stu/99" in line and "stu has versions [1, 2]" in line and "champion" in line, line
+    code, err = run_main("spade.plan", [*query, "model_path=models:/stu@best"])
+    assert code == 2 and "stu has versions [1, 2]" in one_error_line(err), err
+    code, err = run_main("spade.plan", [*query, "model_path=models:/other/1"])
+    assert code == 2, err
+    line = one_error_line(err)
+    assert "no model is registered as 'other'" in line and "['stu']" in line, line
+    assert not (tmp_path / "plan.png").exists()
