@@ -6,6 +6,8 @@ traceback, and the slow ones bounded (a refusal names the limit).
 - ``warehouse:abc`` (a procedural spec whose seed is not an integer) wherever a map spec is taken: one line, with
   the fix;
 - ``models:/NAME/99``: one line naming the versions and aliases NAME has (or the names registered);
+- a log folder that cannot be written (``hydra.run.dir``, ``paths.log_dir``, ``paths.output_dir``): one line naming
+  it and the fix, before Hydra makes it;
 """
 
 from __future__ import annotations
@@ -107,3 +109,26 @@ def test_a_missing_registry_version_names_the_versions_that_exist(tmp_path: Path
     line = one_error_line(err)
     assert "no model is registered as 'other'" in line and "['stu']" in line, line
     assert not (tmp_path / "plan.png").exists()
+
+
+# -- 5. read-only log folders --------------------------------------------------------------------------------------
+def test_a_log_folder_that_cannot_be_written_is_one_line(tmp_path: Path, run_main) -> None:
+    """A run folder Hydra cannot make (a read-only ``hydra.run.dir``, ``SPADE_HOME`` or ``paths.log_dir``) was
+    Hydra's ``PermissionError`` traceback; ``paths.output_dir`` given a folder of its own likewise. Each is now one
+    line naming the folder and the fix, before the command's work. /proc takes no files, whoever runs the test."""
+    query = ["map=warehouse:1", "start=[1.0,1.0,0.0]", "goal=[2.0,1.0]", f"out={tmp_path / 'plan.png'}"]
+    cases = [
+        ("spade.plan", [*query, "hydra.run.dir=/proc/spade_run"], "hydra.run.dir=/proc/spade_run: the folder /proc"),
+        ("spade.plan", [*query, "paths.log_dir=/proc/spade_logs"], "hydra.run.dir=/proc/spade_logs/runs/plan/"),
+        ("spade.plan", [*query, "paths.output_dir=/proc/spade_out", f"hydra.run.dir={tmp_path / 'run'}"],
+         "paths.output_dir=/proc/spade_out: the folder /proc"),
+        ("spade.annotate", ["maps=[warehouse:1]", "num_instances=2", f"out_dir={tmp_path / 'ds'}",
+                            "hydra.run.dir=/proc/spade_run"], "hydra.run.dir=/proc/spade_run: the folder /proc"),
+    ]
+    for module, args, expected in cases:
+        code, err = run_main(module, args, hydra=False)
+        assert code == 2, (args, err)
+        line = one_error_line(err)
+        assert expected in line and "paths.log_dir=DIR" in line, (args, line)
+    assert not (tmp_path / "plan.png").exists() and not (tmp_path / "ds").exists()
+    assert not (tmp_path / "run").exists()
