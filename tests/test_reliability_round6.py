@@ -8,6 +8,7 @@ traceback, and the slow ones bounded (a refusal names the limit).
 - ``models:/NAME/99``: one line naming the versions and aliases NAME has (or the names registered);
 - a log folder that cannot be written (``hydra.run.dir``, ``paths.log_dir``, ``paths.output_dir``): one line naming
   it and the fix, before Hydra makes it;
+- a sketch save keeps ``sketches.yaml``'s mode;
 """
 
 from __future__ import annotations
@@ -132,3 +133,29 @@ def test_a_log_folder_that_cannot_be_written_is_one_line(tmp_path: Path, run_mai
         assert expected in line and "paths.log_dir=DIR" in line, (args, line)
     assert not (tmp_path / "plan.png").exists() and not (tmp_path / "ds").exists()
     assert not (tmp_path / "run").exists()
+
+
+# -- 6. a sketch save keeps the file's mode ------------------------------------------------------------------------
+def test_a_sketch_save_keeps_the_files_mode(tmp_path: Path) -> None:
+    """Every save rewrote ``sketches.yaml`` through ``mkstemp``, leaving it at mode 0600 whatever it was; a save now
+    keeps the file's own mode, and a new file gets the umask's."""
+    import os
+    import stat
+
+    from spade.sketching.storage import SketchStore
+
+    waypoints = [[1.0, 1.0], [1.5, 1.0], [2.0, 1.5]]
+    path = tmp_path / "sk" / "sketches.yaml"
+    old = os.umask(0o022)
+    try:
+        store = SketchStore(path, "warehouse:1")
+        store.append("L", waypoints)
+        assert stat.S_IMODE(path.stat().st_mode) == 0o644
+        path.chmod(0o664)
+        store.append("L", waypoints)
+        assert stat.S_IMODE(path.stat().st_mode) == 0o664
+        path.chmod(0o640)
+        SketchStore(path, "warehouse:1").append("L", waypoints)
+        assert stat.S_IMODE(path.stat().st_mode) == 0o640
+    finally:
+        os.umask(old)
