@@ -9,6 +9,7 @@ traceback, and the slow ones bounded (a refusal names the limit).
 - a log folder that cannot be written (``hydra.run.dir``, ``paths.log_dir``, ``paths.output_dir``): one line naming
   it and the fix, before Hydra makes it;
 - a sketch save keeps ``sketches.yaml``'s mode;
+- an unsigned model at the sketch app's start-up: one line, unless ``allow_unsigned=true``.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import pytest
 
 from factories import write_synthetic
 from test_reliability_outputs import one_error_line, run_main  # noqa: F401 - a fixture
+from test_reliability_round3 import real_export  # noqa: F401 - a fixture
 from test_reliability_round4 import checkpoint
 
 REPO = Path(__file__).resolve().parents[1]
@@ -159,3 +161,29 @@ def test_a_sketch_save_keeps_the_files_mode(tmp_path: Path) -> None:
         assert stat.S_IMODE(path.stat().st_mode) == 0o640
     finally:
         os.umask(old)
+
+
+# -- 7. a forged model at the sketch app's start-up ----------------------------------------------------------------
+def test_the_sketch_app_refuses_an_unsigned_model_unless_allowed(real_export: Path, tmp_path: Path,
+                                                                 run_main) -> None:
+    """A model export without an integrity record given to ``spade.sketch`` at start-up: refused in one line naming
+    the sketch app's own opt-in (``allow_unsigned=true``); with it, the app opens the model, warned."""
+    from test_reliability_round3 import _metadata
+    from test_reliability_round5 import occupancy_graph
+
+    from factories import site_map
+    from spade.models.onnx_check import UncheckedExportWarning
+    from spade.sketching import build_app
+
+    meta = {k: v for k, v in _metadata(real_export).items() if k != "integrity"}
+    forged = occupancy_graph(tmp_path / "forged.onnx", meta)
+    yaml_path = site_map(tmp_path)
+    base = [f"map={yaml_path}", f"out_dir={tmp_path / 'sk'}", f"model_path={forged}"]
+    code, err = run_main("spade.sketch", base)
+    assert code == 2, err
+    line = one_error_line(err)
+    assert "carries no integrity record" in line and "spade.sketch: allow_unsigned=true" in line, line
+    code, err = run_main("spade.sketch", [*base, "allow_unsigned=maybe"])
+    assert code == 2 and "allow_unsigned='maybe' is not a boolean" in one_error_line(err), err
+    with pytest.warns(UncheckedExportWarning, match="opened unchecked"):
+        build_app(str(yaml_path), tmp_path / "sk", model=forged, allow_unsigned=True)
