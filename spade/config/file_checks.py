@@ -178,7 +178,10 @@ def check_run_folder(config: DictConfig, key: str) -> None:
     """The run's log folder (Hydra's ``key``: ``hydra.run.dir``, or ``hydra.sweep.dir`` for a multirun) and
     ``paths.output_dir`` when it is given as a folder of its own: writable, before Hydra makes the folder (a
     read-only one was a ``PermissionError`` traceback from Hydra, before any check of the command)."""
-    folders = [(key, OmegaConf.select(config, key, default=None))]
+    try:
+        folders = [(key, OmegaConf.select(config, key, default=None))]
+    except Exception:  # noqa: BLE001 - an interpolation that does not resolve: Hydra reports it as its own
+        return
     paths = config.get("paths")
     if isinstance(paths, DictConfig) and "output_dir" in paths and not OmegaConf.is_interpolation(paths, "output_dir"):
         folders.append(("paths.output_dir", paths.get("output_dir")))
