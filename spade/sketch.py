@@ -42,7 +42,8 @@ def _checked_app(cfg: DictConfig):  # noqa: ANN202
     validate_sketch_config(cfg)
     annotate = OmegaConf.to_container(cfg.annotate, resolve=True)
     return build_app(str(cfg.map), cfg.out_dir, annotate, cfg.model_path, cfg.device,  # type: ignore[arg-type]
-                     hosts=[str(cfg.host), *(cfg.get("allowed_hosts") or [])], models=cfg.get("models"))
+                     hosts=[str(cfg.host), *(cfg.get("allowed_hosts") or [])], models=cfg.get("models"),
+                     allow_unsigned=bool(cfg.get("allow_unsigned", False)))
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="sketch")

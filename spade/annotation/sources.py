@@ -31,7 +31,8 @@ def parse_procedural(spec: str) -> tuple[str, int] | None:
     try:
         return kind, int(seed)
     except ValueError:
-        raise ValueError(f"procedural map spec {spec!r}: the seed after ':' must be an integer, e.g. {kind}:3") from None
+        raise ValueError(f"procedural map spec {spec!r}: its seed {seed!r} is not an integer; give an integer seed "
+                         f"after ':', e.g. {kind}:3") from None
 
 
 def procedural_id(kind: str, seed: int) -> str:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,21 @@ def checkpoint_info(path: str | Path) -> dict[str, Any]:
     from spade.models.modelfile import read_info  # heavy: spade.models imports diffusers
 
     return read_info(path, checkpoint=True, required=False)
+
+
+def expert_timesteps(path: str | Path) -> int:
+    """The number of training timesteps T of the expert checkpoint at ``path`` (its hyper-parameter
+    ``num_train_timesteps``; the expert's default, 1000, when it records none), read as :func:`checkpoint_info`
+    reads the entry: memory-mapped, no code run."""
+    from spade.models.modelfile import load_checkpoint  # heavy: spade.models imports diffusers
+    from spade.training.module_options import ExpertOptions
+
+    p = Path(path)
+    hyper = load_checkpoint(p, mmap=zipfile.is_zipfile(p)).get("hyper_parameters")
+    value = hyper.get("num_train_timesteps") if isinstance(hyper, Mapping) else None
+    if isinstance(value, int) and not isinstance(value, bool) and value >= 2:
+        return value
+    return int(ExpertOptions.num_train_timesteps)
 
 
 def check_checkpoint(key: str, value: Any, role: str, fix: str) -> dict[str, Any] | None:

@@ -5,10 +5,11 @@ measurement, the store and the results folder."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from omegaconf import DictConfig
 
-from spade.config.checkpoint_checks import check_checkpoint, check_geometry
+from spade.config.checkpoint_checks import check_checkpoint, check_geometry, expert_timesteps
 from spade.config.dataset_checks import check_folder_path
 from spade.config.options import DataOptions, read_options
 from spade.config.file_checks import check_path_value, check_paths, check_writable
@@ -45,6 +46,7 @@ def validate_critic_config(cfg: DictConfig) -> None:
     check_int(cfg, "critic.draws_per_band", 1, fix=", e.g. critic.draws_per_band=2")
     check_int(cfg, "critic.bands", 1, fix=", e.g. critic.bands=5")
     check_int(cfg, "critic.batch_size", 1, fix=", e.g. critic.batch_size=32")
+    _check_timesteps(cfg, ckpt, margin)
     check_int(cfg, "critic.expert_samples", 0, fix=" (0: no planner figures; 2 or more: K samples per instance)")
     if get(cfg, "critic.expert_samples") == 1:
         raise ConfigError("critic.expert_samples=1: two samples at least measure the spread; set it to 0 (no planner "
@@ -70,6 +72,36 @@ def validate_critic_config(cfg: DictConfig) -> None:
                                           label=f"output_dir={out}: {path}")
                 if refusal is not None:
                     raise ConfigError(refusal)
+
+
+#: The most noise/timestep draws the critic measures per instance (``critic.bands`` x ``critic.draws_per_band``): its
+#: time grows with them (the default, 5 x 2, takes seconds on a CPU; 100000 bands ran for minutes).
+MAX_DRAWS = 200
+
+
+def _check_timesteps(cfg: DictConfig, ckpt: Any, margin: Any) -> None:
+    """The margin's timestep range within the expert's training timesteps T (``model.margin.t_max`` beyond T
+    failed with a traceback once the expert was loaded), and the critic's bands and draws bounded: at most one
+    band per timestep of the range, and at most :data:`MAX_DRAWS` draws per instance."""
+    T = expert_timesteps(str(ckpt))
+    t_min = int(getattr(margin, "t_min", 0) or 0)
+    t_max = getattr(margin, "t_max", None)
+    if t_max is not None and t_max > T:
+        raise ConfigError(f"model.margin.t_max={t_max} exceeds the {T} training timesteps of the expert "
+                          f"(ckpt_path={ckpt}, T={T}); set model.margin.t_max <= {T}, or null for all of them")
+    if t_min >= T:
+        raise ConfigError(f"model.margin.t_min={t_min} is not below the {T} training timesteps of the expert "
+                          f"(ckpt_path={ckpt}, T={T}); set model.margin.t_min < {T}, e.g. 0")
+    width = (t_max if t_max is not None else T) - t_min
+    bands, draws = get(cfg, "critic.bands"), get(cfg, "critic.draws_per_band")
+    if bands > width:
+        raise ConfigError(f"critic.bands={bands} exceeds the {width} timesteps of the margin's range "
+                          f"[{t_min}, {t_min + width}) (the expert's T={T}): a band holds one timestep at least; "
+                          f"set critic.bands <= {min(width, MAX_DRAWS)}, e.g. critic.bands=5")
+    if bands * draws > MAX_DRAWS:
+        raise ConfigError(f"critic.bands={bands} x critic.draws_per_band={draws} = {bands * draws} draws per "
+                          f"instance exceed the limit of {MAX_DRAWS} (the critic's time grows with them); lower "
+                          f"them, e.g. critic.bands=5 critic.draws_per_band=2")
 
 
 def _check_test_set(cfg: DictConfig) -> None:

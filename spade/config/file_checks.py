@@ -6,11 +6,13 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig, OmegaConf
 
 from spade.annotation.sources import parse_procedural
 from spade.deploy.outputs import replace_refusal
@@ -143,14 +145,16 @@ def check_map_size(key: str, yaml_path: str | Path, resolution_m: float | None =
                           "window.resolution_m")
 
 
-def check_writable(key: str, path: str | Path, fix: str) -> None:
+def check_writable(key: str, path: str | Path, fix: str, *, is_folder: bool = False) -> None:
     """The folder a file or folder ``path`` would be written into (its nearest existing ancestor) can be written:
     a read-only folder or file system is refused in one line before any work (a ``PermissionError`` traceback at
-    the end of a command before). An existing file at ``path`` must be replaceable too."""
+    the end of a command before). An existing file at ``path`` must be replaceable too. ``is_folder``: ``path``
+    is a folder files are written into (the folder itself, when it exists, must be writable)."""
     import tempfile
 
     target = Path(str(path)).expanduser()
-    folder = next((p for p in (target.parent, *target.parent.parents) if p.exists()), None)
+    start = target if is_folder else target.parent
+    folder = next((p for p in (start, *start.parents) if p.exists()), None)
     if folder is None or not folder.is_dir():
         return  # a file where a folder should be: the callers name it
     problem = None
@@ -164,6 +168,48 @@ def check_writable(key: str, path: str | Path, fix: str) -> None:
             problem = f"cannot be written ({exc.strerror or exc})"
     if problem is not None:
         raise ConfigError(f"{key}={path}: the folder {folder} {problem}; {fix}")
+
+
+RUN_FOLDER_FIX = ("give a folder you can write for the run's logs: paths.log_dir=DIR (or SPADE_HOME=DIR), or "
+                  "hydra.run.dir=DIR")
+
+
+def check_run_folder(config: DictConfig, key: str) -> None:
+    """The run's log folder (Hydra's ``key``: ``hydra.run.dir``, or ``hydra.sweep.dir`` for a multirun) and
+    ``paths.output_dir`` when it is given as a folder of its own: writable, before Hydra makes the folder (a
+    read-only one was a ``PermissionError`` traceback from Hydra, before any check of the command)."""
+    try:
+        folders = [(key, OmegaConf.select(config, key, default=None))]
+    except Exception:  # noqa: BLE001 - an interpolation that does not resolve: Hydra reports it as its own
+        return
+    paths = config.get("paths")
+    if isinstance(paths, DictConfig) and "output_dir" in paths and not OmegaConf.is_interpolation(paths, "output_dir"):
+        folders.append(("paths.output_dir", paths.get("output_dir")))
+    for name, folder in folders:
+        if not unset(folder):
+            check_writable(name, str(folder), RUN_FOLDER_FIX, is_folder=True)
+
+
+class RunFolderCheck(Callback):
+    """Hydra callback (``conf/hydra/default.yaml``, ``conf/annotate.yaml``): :func:`check_run_folder` before the
+    run's folder is made; a refusal is one ``error:`` line and exit status 2, as every user error
+    (``HYDRA_FULL_ERROR=1``: the traceback instead)."""
+
+    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self._check(config, "hydra.run.dir")
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self._check(config, "hydra.sweep.dir")
+
+    @staticmethod
+    def _check(config: DictConfig, key: str) -> None:
+        try:
+            check_run_folder(config, key)
+        except ConfigError as exc:
+            if os.environ.get("HYDRA_FULL_ERROR") == "1":
+                raise
+            print(f"error: {exc}", file=sys.stderr, flush=True)
+            raise SystemExit(2) from None
 
 
 def map_files(key: str, spec: Any) -> list[Path]:

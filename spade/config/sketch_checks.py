@@ -17,7 +17,7 @@ from spade.config.file_checks import (
     check_paths,
     check_writable,
 )
-from spade.config.values import check_int, get
+from spade.config.values import check_bool, check_int, get
 from spade.config.window_checks import check_window_holds_manoeuvre
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import MISSING, unset
@@ -31,6 +31,7 @@ def validate_sketch_config(cfg: DictConfig) -> None:
     host = get(cfg, "host")
     if not isinstance(host, str) or not host:
         raise ConfigError(f"host={host!r} is not an address; use host=127.0.0.1")
+    check_bool(cfg, "allow_unsigned")
     model = get(cfg, "model_path")
     if not unset(model):
         path = input_file("model_path", model, "pass model=PATH: a student .ckpt or its .onnx / .pt export",

@@ -104,6 +104,9 @@ def resolve_model(value: str | Path, tracking_uri: str | None = None, cache_dir:
         if text.startswith("runs:/"):
             raise RegistryError(f"{text}: cannot be fetched from the MLflow store at {uri} ({reason}): the run is not "
                                 f"in the store looked in. {OTHER_STORE}") from None
+        held = registry_holdings(mlflow, text)
+        if held is not None:
+            raise RegistryError(f"{text}: cannot be fetched from the MLflow registry at {uri}: {held}") from None
         raise RegistryError(f"{text}: cannot be fetched from the MLflow registry at {uri} ({reason}); register the "
                             "student with python -m spade.export ... register=NAME, point MLFLOW_TRACKING_URI (or "
                             "paths.mlflow_tracking_uri) at the store it is registered in, or pass a model "
@@ -113,6 +116,32 @@ def resolve_model(value: str | Path, tracking_uri: str | None = None, cache_dir:
         raise RegistryError(f"{text}: the model holds {len(files)} .onnx files, expected one (an MLflow ONNX model "
                             "logged by python -m spade.export register=NAME)")
     return files[0]
+
+
+def registry_holdings(mlflow: Any, text: str) -> str | None:
+    """What the registry holds under the name of ``text`` (``models:/NAME/VERSION`` or ``models:/NAME@ALIAS``), as
+    the refusal's cause and fix: the versions and aliases that exist (``models:/NAME/99`` named none of them), or
+    that no model is registered under NAME with the names that are. None when it cannot tell (another kind of
+    URI, or the registry does not answer)."""
+    if not text.startswith("models:/"):
+        return None
+    rest = text[len("models:/"):]
+    name, sep, alias = rest.partition("@")
+    if not sep:
+        name = rest.rsplit("/", 1)[0] if "/" in rest else rest
+    try:
+        client = mlflow_client(mlflow.get_tracking_uri())
+        versions = sorted(int(v.version) for v in client.search_model_versions(f"name='{name}'"))
+        if not versions:
+            names = sorted(m.name for m in client.search_registered_models())
+            return (f"no model is registered as {name!r} (registered: {names or 'none'}); give one of those names, "
+                    "or register the student with python -m spade.export ... register=NAME")
+        aliases = dict(getattr(client.get_registered_model(name), "aliases", None) or {})
+    except Exception:  # noqa: BLE001 - the registry did not answer: the caller's generic refusal
+        return None
+    held = f"{name} has versions {versions}" + (f" and aliases {aliases}" if aliases else " and no aliases")
+    example = f"models:/{name}/{versions[-1]}" + (f" or models:/{name}@{next(iter(aliases))}" if aliases else "")
+    return f"{held}; give one of them, e.g. {example}"
 
 
 OTHER_STORE = ("Point MLFLOW_TRACKING_URI (or paths.mlflow_tracking_uri=..., or SPADE_HOME) at the store the run was "

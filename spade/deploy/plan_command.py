@@ -51,7 +51,12 @@ def rewrite_argv(args: list[str]) -> list[str]:
 def _looks_like_map(arg: str) -> bool:
     from spade.annotation.sources import parse_procedural
 
-    return arg.endswith((".yaml", ".yml")) or parse_procedural(arg) is not None
+    if arg.endswith((".yaml", ".yml")):
+        return True
+    try:
+        return parse_procedural(arg) is not None
+    except ValueError:  # a generator's kind with a bad seed (warehouse:abc): the map, refused by the config check
+        return True
 
 
 def run_plan(cfg: DictConfig) -> tuple[PlanResult, Path]:

@@ -60,7 +60,7 @@ PROBE_ATOL = PROBE_RTOL = 1e-2
 between PyTorch, onnxruntime and devices (TF32 included) stay well inside it; another network's logits do not."""
 REEXPORT = "re-export it from its student checkpoint: python -m spade.export ckpt_path=<student .ckpt>"
 ALLOW_UNSIGNED = ("allow_unsigned=true to use it unchecked (Planner(..., allow_unsigned=True); spade.plan and "
-                  "spade.ros: planner.allow_unsigned=true)")
+                  "spade.ros: planner.allow_unsigned=true; spade.sketch: allow_unsigned=true)")
 COVERED_KEYS = ("role", "config", "format", "input", "output")
 """Top-level metadata fields the ``fields`` record covers; with them every entry of ``data`` (``data.<key>``) and
 the :data:`PLANNER_DATA_KEYS` even where absent (a planner falls back to a default for a missing one, so adding

@@ -123,14 +123,15 @@ def create_app(workspace: SketchWorkspace, hosts: Sequence[str] = ()) -> FastAPI
 
 def build_app(map_spec: str, out_dir: str | Path, annotate: Sequence[str] | Mapping[str, Any] = (),
               model: str | Path | None = None, device: str = "cpu", hosts: Sequence[str] = (),
-              models: Sequence[str | Path] | None = None) -> FastAPI:
+              models: Sequence[str | Path] | None = None, allow_unsigned: bool = False) -> FastAPI:
     """Workspace and app in one call. ``annotate``: overrides of conf/annotate.yaml, as ``key=value`` strings
     (``["window.size_px=64"]``) or a nested mapping (``{"window": {"size_px": 64}}``); ``hosts``: host names
     the app answers to besides the loopback ones; ``models``: the folders ``POST /api/model`` may load from
-    (default: the working directory, the map's folder, ``out_dir`` and ``model``'s folder)."""
+    (default: the working directory, the map's folder, ``out_dir`` and ``model``'s folder); ``allow_unsigned``: open
+    model exports that carry no integrity record (the Planner's opt-in), at start-up and through ``POST /api/model``."""
     overrides = flatten_overrides(annotate) if isinstance(annotate, Mapping) else list(annotate)
     workspace = SketchWorkspace(map_spec, out_dir, annotation_config(overrides), model, device, overrides,
-                                model_dirs=models)
+                                model_dirs=models, allow_unsigned=allow_unsigned)
     return create_app(workspace, hosts)
 
 

@@ -13,6 +13,7 @@ import contextlib
 import fcntl
 import os
 import re
+import stat
 import tempfile
 import threading
 from collections.abc import Iterator
@@ -26,6 +27,17 @@ from spade.annotation.sketch_file import load_sketch_file
 from spade.utils.errors import UserError
 
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+
+
+def _file_mode(path: Path) -> int:
+    """The permission bits a rewrite of ``path`` keeps: the existing file's own (a save used to leave every
+    ``sketches.yaml`` at 0600, mkstemp's mode), or for a new file what ``open`` gives one (0666 less the umask)."""
+    try:
+        return stat.S_IMODE(path.stat().st_mode)
+    except FileNotFoundError:
+        umask = os.umask(0o022)  # read it (Python has no getter) and put it back at once
+        os.umask(umask)
+        return 0o666 & ~umask
 
 
 class StorageError(UserError, ValueError):
@@ -113,11 +125,13 @@ class SketchStore:
         text = f"# Sketches saved by python -m spade.sketch; build a dataset with\n#   {self.build_command}\n"
         text += yaml.safe_dump({"map": doc["map"], "scenarios": doc["scenarios"]}, sort_keys=False,
                                default_flow_style=None, width=200)
+        mode = _file_mode(self.path)
         fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
         try:
             with os.fdopen(fd, "w") as f:
                 f.write(text)
                 f.flush()
+                os.fchmod(f.fileno(), mode)  # mkstemp's 0600 would replace the file's own mode on every save
                 os.fsync(f.fileno())
             os.replace(tmp, self.path)
         except BaseException:

@@ -33,6 +33,7 @@ from spade.annotation.templates import SHAPES, check_shape
 from spade.maps import FREE, OCCUPIED
 from spade.sketching.storage import SketchStore, StorageError
 from spade.utils import palette
+from spade.utils.errors import ConfigError
 from spade.utils.provenance import shown_path
 
 log = logging.getLogger(__name__)
@@ -137,11 +138,13 @@ class SketchWorkspace:
         model: a student checkpoint or ONNX export for "Try the policy" (optional).
         model_dirs: the folders :meth:`load_model` may load model files from (``POST /api/model``); default: the
             working directory, the map's folder and ``out_dir``. ``model``'s folder is always added.
+        allow_unsigned: open model exports without an integrity record (:class:`~spade.deploy.student_planner.Planner`'s
+            opt-in, the operator's for the session); refused otherwise.
     """
 
     def __init__(self, map_spec: str, out_dir: str | Path, annotation: Mapping[str, Any],
                  model: str | Path | None = None, device: str = "cpu", overrides: Sequence[str] = (),
-                 model_dirs: Sequence[str | Path] | None = None) -> None:
+                 model_dirs: Sequence[str | Path] | None = None, allow_unsigned: bool = False) -> None:
         self.cfg = dict(annotation)
         self.overrides = list(overrides)
         self.resolution = float(self.cfg["window"]["resolution_m"])
@@ -164,12 +167,16 @@ class SketchWorkspace:
         self.device = device
         self.planner: Any = None
         self.model_path: str | None = None
+        self.allow_unsigned = allow_unsigned
         if model_dirs is None:
             model_dirs = [Path.cwd(), self.out_dir, *([] if parse_procedural(spec) else [Path(spec).parent])]
         self.model_dirs = list(dict.fromkeys(Path(d).expanduser().resolve() for d in model_dirs))
         if model:
             self.model_dirs.append(Path(str(model)).expanduser().resolve().parent)  # the operator's own choice
-            self.load_model(model)
+            try:
+                self.load_model(model)
+            except RequestError as exc:  # at start-up the operator's own file: a user error, one line
+                raise ConfigError(f"model_path={model}: {exc}") from None
         self._exec_lock = threading.Lock()
         self._plan_lock = threading.Lock()
         self._build_lock = threading.Lock()
@@ -470,7 +477,7 @@ class SketchWorkspace:
             raise RequestError(f"model {p.name} cannot be read as a student checkpoint or export; give a .ckpt "
                                "written by python -m spade.train or its .onnx / .pt export", status=422)
         try:
-            planner = Planner(resolved, device=self.device)
+            planner = Planner(resolved, device=self.device, allow_unsigned=self.allow_unsigned)
         except PlannerConfigError as exc:  # a model file, read: what SPADE found in it (its role, its window)
             raise RequestError(f"model {p.name}: {exc}", status=422) from None
         except Exception as exc:  # not a model at all: say so, never what a parser made of its bytes
