@@ -61,7 +61,8 @@ def test_the_quickstart_run_its_model_and_the_runs_view_read_at_a_glance(served_
     out = served_home.train("+experiment=quickstart", "scale=tiny", *FAST)  # the server boots while the run trains
     run_url, experiment_url = printed(out, "this run"), printed(out, "experiment's runs")
     run_id = re.search(r"/runs/([0-9a-f]{32})\?", run_url).group(1)
-    model_id = re.search(r"logged the student as runs:/\w+/model \(models:/(m-[0-9a-f]+)\)", out)
+    # the console wraps a long log line at 120 columns (spade.utils.console): the words may sit on two lines
+    model_id = re.search(r"logged the student as\s+runs:/\w+/model\s+\(models:/(m-[0-9a-f]+)\)", out)
     assert model_id, f"the run logged no model:\n{out[-3000:]}"
     model_id = model_id.group(1)
 
