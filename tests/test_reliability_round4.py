@@ -158,6 +158,18 @@ def test_annotation_settings_are_ranged_wherever_a_dataset_is_made(tmp_path: Pat
         validate_sketch_config(cfg)
 
 
+def assert_critic_refuses(run_main, tmp_path: Path, base: list[str], cases: dict[tuple[str, ...], str]) -> None:  # noqa: ANN001
+    """Each of ``cases`` (overrides -> the text its one ``error:`` line holds) refused by ``spade.critic`` with exit
+    status 2 within 30 s, before any output folder or store is made."""
+    for overrides, expected in cases.items():
+        start = time.monotonic()
+        code, err = run_main("spade.critic", [*base, *overrides])
+        assert code == 2, (overrides, err)
+        assert expected in one_error_line(err), (overrides, err)
+        assert time.monotonic() - start < 30
+    assert not (tmp_path / "out").exists() and not (tmp_path / "home" / "logs" / "mlflow.db").exists()
+
+
 def test_critic_checks_every_input_in_one_line(tmp_path: Path, run_main) -> None:
     """``spade.critic`` had no config check: a garbage store failed after a minute of measuring, and
     every bad input was a traceback. Each is now one line, before the expert is loaded."""
@@ -180,13 +192,7 @@ def test_critic_checks_every_input_in_one_line(tmp_path: Path, run_main) -> None
         ("model.margin.lambda_dm=-1",): "model.margin.lambda_dm",
         (f"output_dir={garbage}",): "is a file",
     }
-    for overrides, expected in cases.items():
-        start = time.monotonic()
-        code, err = run_main("spade.critic", [*base, *overrides])
-        assert code == 2, (overrides, err)
-        assert expected in one_error_line(err), (overrides, err)
-        assert time.monotonic() - start < 30
-    assert not (tmp_path / "out").exists() and not (tmp_path / "home" / "logs" / "mlflow.db").exists()
+    assert_critic_refuses(run_main, tmp_path, base, cases)
 
 
 def test_evaluate_refuses_source_seed_before_the_evaluation(tmp_path: Path, run_main) -> None:

@@ -76,6 +76,15 @@ def store_lock(tracking_uri: str | None) -> Iterator[None]:
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
+def _read_only(path: Path) -> sqlite3.Connection:
+    """The SQLite file ``path`` opened read-only (``mode=ro``): a check never writes into the file it checks."""
+    return sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=30)
+
+
+def _tables(db: sqlite3.Connection) -> set[str]:
+    return {row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+
+
 def foreign_file_problem(path: Path) -> str | None:
     """Why the existing, non-empty file ``path`` is no MLflow store (not SQLite, or SQLite without MLflow's core
     tables), read-only and before MLflow opens it (MLflow creates its tables in any SQLite file it is given); None
@@ -83,9 +92,9 @@ def foreign_file_problem(path: Path) -> str | None:
     if not path.is_file() or path.stat().st_size == 0:
         return None
     try:
-        db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=30)
+        db = _read_only(path)
         try:
-            tables = {row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+            tables = _tables(db)
         finally:
             db.close()
     except sqlite3.DatabaseError as exc:
@@ -118,9 +127,9 @@ def store_problem(path: Path) -> str | None:
     if not path.is_file() or path.stat().st_size == 0:
         return None
     try:
-        db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=30)
+        db = _read_only(path)
         try:
-            tables = {row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+            tables = _tables(db)
             if not tables & CORE_TABLES:
                 return None  # not an MLflow store: the store check says so
             revision = (db.execute("SELECT version_num FROM alembic_version").fetchone() or [None])[0] \
