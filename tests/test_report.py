@@ -305,7 +305,7 @@ def test_tiny_scale_report_says_pipeline_check(seeded: dict) -> None:
 
 
 def test_holm_correction_against_hand_computed_values() -> None:
-    from spade.experiments.reporting.results import holm
+    from spade.experiments.reporting.stats import holm
 
     # sorted: 0.01 x 3 = 0.03; 0.03 x 2 = 0.06; 0.04 x 1 = 0.04 -> kept monotone at 0.06; None stays out
     assert holm([0.01, 0.04, None, 0.03]) == pytest.approx([0.03, 0.06, None, 0.06])
@@ -343,17 +343,17 @@ def test_a_cell_with_a_nan_seed_says_how_many_seeds_it_is_over() -> None:
     it were the row's, with no spread and no count."""
     import math
 
-    from spade.experiments.reporting.render import mean_sd
+    from spade.experiments.reporting.render import seed_cell
     from spade.experiments.reporting.results import RowResult, SeedRun
     from spade.experiments.tables import METRICS
 
     row = RowResult("r", runs=[SeedRun(1, "a", 1, {"ape_cm": 294.14}), SeedRun(2, "b", 2, {"ape_cm": math.nan})],
                     run_id="b")
     row.metrics = {"ape_cm": 294.14}
-    assert mean_sd(METRICS["ape_cm"], row, "ape_cm").endswith("(1 of 2 seeds; NaN counted as failure)")
+    assert seed_cell(METRICS["ape_cm"], row, "ape_cm").endswith("(1 of 2 seeds; NaN counted as failure)")
     whole = RowResult("r", runs=[SeedRun(1, "a", 1, {"ape_cm": 4.0}), SeedRun(2, "b", 2, {"ape_cm": 6.0})],
                       run_id="b", metrics={"ape_cm": 5.0})
-    assert "of 2 seeds" not in mean_sd(METRICS["ape_cm"], whole, "ape_cm")
+    assert "of 2 seeds" not in seed_cell(METRICS["ape_cm"], whole, "ape_cm")
 
 
 def test_a_rows_seeds_share_their_data_and_runs_on_other_data_are_left_out_and_said(tmp_path: Path) -> None:
@@ -425,3 +425,102 @@ def test_the_page_renders_its_lists_and_shows_paths_relative_to_spade_home(tmp_p
     assert "Notes:\n\n- " in page and "Provenance:\n\n- command: `python -m spade.report" in page
     html = markdown.markdown(page, extensions=["tables"])
     assert "<p>Notes:</p>\n<ul>" in html and "<p>Provenance:</p>\n<ul>" in html
+
+
+# -- the statistics and page kernel ------------------------------------------------------------------------------
+KERNEL = Path(__file__).resolve().parents[1] / "spade" / "experiments" / "reporting" / "stats.py"
+KERNEL_FUNCTIONS = ("holm", "welch", "paired", "one_sample", "one_sample_p", "mean_sd", "markdown_table", "padded",
+                    "collapsed", "provenance_lines", "significance")
+"""The kernel's functions (spade.experiments.reporting.stats, spade.utils.markdown, spade.utils.provenance), under
+any number of leading underscores: each may be defined once in spade/."""
+
+
+def _spade_sources() -> list[tuple[Path, "ast.Module"]]:
+    import ast
+
+    package = KERNEL.parents[2]
+    return [(p, ast.parse(p.read_text(), str(p))) for p in sorted(package.rglob("*.py"))]
+
+
+def test_the_statistics_and_table_writers_are_defined_once() -> None:
+    """Holm, Welch, the paired and one-sample tests, mean ± sd, the markdown table and the provenance block each
+    have one definition in spade/; a page that needs one imports it."""
+    import ast
+
+    found: dict[str, list[str]] = {}
+    for path, tree in _spade_sources():
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.name.lstrip("_") in KERNEL_FUNCTIONS:
+                found.setdefault(node.name.lstrip("_"), []).append(f"{path.name}:{node.lineno}")
+    twins = {name: where for name, where in found.items() if len(where) > 1}
+    assert not twins, f"defined more than once (use the kernel's): {twins}"
+    assert {"holm", "welch", "paired", "one_sample", "mean_sd", "markdown_table", "provenance_lines"} <= set(found)
+
+
+def test_scipy_t_tests_are_called_in_the_kernel_alone() -> None:
+    """Every t-test of a results page goes through spade.experiments.reporting.stats (its degenerate samples, its
+    NaN p-values handled once): no other module names scipy.stats.ttest_*."""
+    import ast
+
+    outside = []
+    for path, tree in _spade_sources():
+        if path == KERNEL:
+            continue
+        for node in ast.walk(tree):
+            names = [a.name for a in node.names] if isinstance(node, ast.ImportFrom) else []
+            if isinstance(node, ast.Attribute):
+                names.append(node.attr)
+            outside += [f"{path.name}:{node.lineno} {n}" for n in names if n.startswith("ttest_")]
+    assert not outside, f"scipy t-tests outside the kernel: {outside}"
+
+
+def test_the_kernels_tests_agree_with_scipy_and_refuse_degenerate_samples() -> None:
+    from scipy import stats as scipy_stats
+
+    from spade.experiments.reporting.stats import NO_TEST, one_sample, paired, welch
+
+    a, b = [4.0, 4.1, 4.3], [5.0, 5.2, 5.5]
+    p, wording = welch(a, b)
+    assert p == pytest.approx(scipy_stats.ttest_ind(a, b, equal_var=False).pvalue) and wording == f"p = {p:.3g}"
+    assert welch([1.0], b) == (None, NO_TEST) and welch([1.0, 1.0], [2.0, 2.0]) == (None, "no test (no spread)")
+    assert welch([1.0, 2.0], [1.0, 2.0])[1] == "p = 1, not significant"
+    assert paired(a, b) == pytest.approx(scipy_stats.ttest_rel(a, b).pvalue)
+    assert paired([1.0, 2.0], [0.0, 1.0]) is None and paired([1.0], [2.0]) is None  # constant differences, one pair
+    assert one_sample(a, 5.0) == pytest.approx(scipy_stats.ttest_1samp(a, 5.0).pvalue)
+    assert one_sample([3.0, 3.0], 5.0) is None and one_sample([3.0], 5.0) is None
+
+
+def test_mean_sd_writes_the_sample_sd_and_the_value_alone_for_one_seed() -> None:
+    from spade.experiments.reporting.stats import mean_sd, significance
+
+    assert mean_sd([1.0, 2.0, 3.0]) == "2.00 ± 1.00"  # ddof=1
+    assert mean_sd([0.5, 0.7], ".0%", lambda sd: f"{sd * 100:.0f} pt") == "60% ± 14 pt"
+    assert mean_sd([2.0]) == "2.00" and mean_sd([]) == "n/a" and mean_sd([], empty="-") == "-"
+    assert mean_sd([1.0, 3.0], lambda v: f"{v:.1f} cm", sep=" +- ") == "2.0 cm +- 1.4 cm"
+    assert [significance(p) for p in (None, 0.01, 0.05)] == ["no test", "significant", "not significant"]
+
+
+def test_the_markdown_table_writer() -> None:
+    from spade.utils.markdown import markdown_table
+
+    assert markdown_table(["a", "b"], [[1, "x"]]) == ["| a | b |", "|---|---|", "| 1 | x |"]
+    assert markdown_table(["a", "b", "c"], [], "lr") == ["| a | b | c |", "|---|---:|---|"]
+    assert markdown_table(["row", "n"], [["long row", "3"]], padded=True) == [
+        "| row      | n |", "|----------|--:|", "| long row | 3 |"]
+
+
+def test_every_page_is_registered_and_names_its_files() -> None:
+    """spade.report's config checks learn a page's files from the registry, never from the page's module."""
+    from spade.experiments.reporting.pages import PAGES, page, report_files
+
+    assert set(PAGES) == {"closed_loop", "teacher", "oracle"}
+    assert report_files("closed_loop") == ["closed_loop.md", "closed_loop.csv"]
+    assert report_files("oracle") == ["oracle.md", "oracle_curve.png"]
+    assert report_files("table2", chart=False) == ["table2.md", "table2.csv", "table2_comparisons.csv"]
+    assert report_files("2") == report_files("table2") and "table1.png" in report_files("all")
+    assert page("teacher").offline == ("teacher.records_dir", "teacher.committed")
+    with pytest.raises(ValueError, match="unknown table 'nope'"):
+        page("nope")
+    source = (KERNEL.parents[2] / "config" / "report_checks.py").read_text()
+    assert "spade.experiments" not in "".join(line for line in source.splitlines()
+                                              if line.lstrip().startswith(("import", "from")))

@@ -113,7 +113,7 @@ def test_the_teacher_page_checks_each_expert_against_its_student_and_guidance_ag
 
 def test_the_teacher_page_is_a_report_table(tmp_path: Path) -> None:
     """spade.report table=teacher composes, checks its output files and names them."""
-    from spade.config.report_checks import report_files
+    from spade.experiments.reporting.pages import page, report_files
     from spade.utils.config import compose_config
 
     assert report_files("teacher") == ["teacher.md", "teacher.csv"]
@@ -129,7 +129,7 @@ def test_the_teacher_page_is_a_report_table(tmp_path: Path) -> None:
 
     bad = compose_config("report", ["table=teacher", "teacher.page=../teacher", f"paths.root_dir={tmp_path}"])
     with pytest.raises(ConfigError, match=r"teacher.page='../teacher' is not a file name; set teacher.page=NAME"):
-        validate_report_config(bad)
+        validate_report_config(bad, page)
     pytest.importorskip("scipy")
 
 

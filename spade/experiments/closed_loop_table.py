@@ -19,7 +19,6 @@ a row and a baseline over the seeds) with Holm's correction over the page; and w
 
 from __future__ import annotations
 
-import datetime
 import json
 import logging
 import math
@@ -31,9 +30,11 @@ from typing import Any
 
 import numpy as np
 
-from spade.experiments.reporting.results import holm, welch
+from spade.experiments.reporting.stats import holm, mean_sd, paired, significance, welch
 from spade.metrics import catalog
 from spade.metrics.catalog import BASELINE_LABELS
+from spade.utils.markdown import collapsed, markdown_table
+from spade.utils.provenance import provenance_lines
 
 __all__ = ["CLOSED_LOOP_TABLE", "closed_loop_report", "launch"]
 
@@ -255,14 +256,9 @@ def fetch_drives(tracking_uri: str, scale: str | None = None) -> dict[tuple[str,
         return drive_cells(load_records(tmp)[0], scale)
 
 
-def _mean_sd(values: list[float], fmt: str) -> str:
-    if not values:
-        return "n/a"
-    if fmt.endswith("%"):
-        mean = format(float(np.mean(values)), fmt)
-        return mean if len(values) == 1 else f"{mean} ± {float(np.std(values, ddof=1)) * 100:.0f} pt"
-    mean = format(float(np.mean(values)), fmt)
-    return mean if len(values) == 1 else f"{mean} ± {format(float(np.std(values, ddof=1)), fmt)}"
+def _seeds_cell(values: list[float], fmt: str) -> str:
+    """A cell over seeds; a share's spread in percentage points."""
+    return mean_sd(values, fmt, (lambda sd: f"{sd * 100:.0f} pt") if fmt.endswith("%") else None)
 
 
 @dataclass
@@ -274,20 +270,6 @@ class Test:
     p: float | None
     kind: str
     p_holm: float | None = None
-
-
-def _paired(a: list[float], b: list[float]) -> float | None:
-    from scipy import stats
-
-    d = np.asarray(a) - np.asarray(b)
-    if len(d) < 2 or np.std(d) == 0:
-        return None
-    return float(stats.ttest_rel(a, b).pvalue)
-
-
-def _holm(tests: list[Test]) -> None:
-    for t, adjusted in zip(tests, holm([t.p for t in tests])):
-        t.p_holm = adjusted
 
 
 def _ranking(cells: list[Cell], key: str) -> list[str]:
@@ -312,7 +294,7 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
     import tempfile
 
     from spade.experiments.run_records import has_records, keep_committed_page, load_records, store_exists
-    from spade.utils.provenance import command_line, commit, machine, shown_path
+    from spade.utils.provenance import command_line, shown_path
 
     labels = dict(labels or {})
     with tempfile.TemporaryDirectory() as tmp:
@@ -356,13 +338,13 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
         parts += [f"### {dataset}, {condition} ({n_scen} scenarios)", ""]
         header = ["planner", "runs", *[f[0] for f in FIGURES], f"open-loop {catalog.label(OPEN_LOOP)}",
                   catalog.label(MARGIN_ACTIVE)]
-        parts += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        body = []
         for c in here:
             cols = [labels.get(c.row, c.row), str(len(c.seeds))]
-            cols += [_mean_sd(c.values(f"closed_loop/{key}"), fmt) for _, key, fmt, _ in FIGURES]
-            cols.append(_mean_sd(c.values(catalog.mlflow_key(OPEN_LOOP)), catalog.figure(OPEN_LOOP).fmt))
-            cols.append(_mean_sd(c.values(MARGIN_ACTIVE), ".1%") if c.values(MARGIN_ACTIVE) else "no margin")
-            parts.append("| " + " | ".join(cols) + " |")
+            cols += [_seeds_cell(c.values(f"closed_loop/{key}"), fmt) for _, key, fmt, _ in FIGURES]
+            cols.append(_seeds_cell(c.values(catalog.mlflow_key(OPEN_LOOP)), catalog.figure(OPEN_LOOP).fmt))
+            cols.append(_seeds_cell(c.values(MARGIN_ACTIVE), ".1%") if c.values(MARGIN_ACTIVE) else "no margin")
+            body.append(cols)
             csv_rows.append([dataset, condition, c.row, len(c.seeds)]
                             + [float(np.mean(c.values(f"closed_loop/{k}"))) if c.values(f"closed_loop/{k}") else ""
                                for _, k, _, _ in FIGURES])
@@ -373,10 +355,9 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
             if not pooled.values(f"closed_loop/{prefix}success_rate"):
                 continue
             cols = [f"*{name}*", str(len(pooled.seeds))]
-            cols += [_mean_sd(pooled.values(f"closed_loop/{prefix}{key}"), fmt) for _, key, fmt, _ in FIGURES]
-            cols += ["", ""]
-            parts.append("| " + " | ".join(cols) + " |")
-        parts.append("")
+            cols += [_seeds_cell(pooled.values(f"closed_loop/{prefix}{key}"), fmt) for _, key, fmt, _ in FIGURES]
+            body.append([*cols, "", ""])
+        parts += [*markdown_table(header, body), ""]
         # tests: every pair of rows (Welch), every row against the Nav2-like and heading baselines (paired by seed)
         for i, a in enumerate(here):
             for b in here[i + 1:]:
@@ -394,7 +375,7 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
                         va, vb = [p[0] for p in pairs], [p[1] for p in pairs]
                         tests.append(Test(f"{dataset}, {condition}: {labels.get(a.row, a.row)} vs "
                                           f"{REFERENCES[prefix]}", key, float(np.mean(va)), float(np.mean(vb)),
-                                          _paired(va, vb), "paired t"))
+                                          paired(va, vb), "paired t"))
         open_rank = _ranking(here, catalog.mlflow_key(OPEN_LOOP))
         closed_rank = _ranking(here, "closed_loop/ape_cm")
         if len(open_rank) > 1 and condition == "clean":
@@ -402,7 +383,8 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
             parts += [f"Ranking by open-loop planner APE: {' < '.join(labels.get(r, r) for r in open_rank)}; by "
                       f"closed-loop APE: {' < '.join(labels.get(r, r) for r in closed_rank)}: "
                       + ("they agree." if agree else "**they disagree**."), ""]
-    _holm(tests)
+    for t, adjusted in zip(tests, holm([t.p for t in tests])):  # one family: every test of the page
+        t.p_holm = adjusted
     significant = [t for t in tests if t.p_holm is not None and t.p_holm < 0.05]
     if tests:
         parts += [f"## Tests ({len(significant)} of {len(tests)} significant)", "",
@@ -411,7 +393,7 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
                   *(_test_table(significant) if significant else ["No test is significant."]), ""]
         rest = [t for t in tests if t not in significant]
         if rest:
-            parts += [*_collapsed(f"The other {len(rest)} tests (not significant, or no test)", _test_table(rest)),
+            parts += [*collapsed(f"The other {len(rest)} tests (not significant, or no test)", _test_table(rest)),
                       ""]
     parts += ["## Every comparison in words", "", *[f"- {line}" for line in verdict_lines(tests, labels)], ""]
     head = [f"# {TITLE}", "", *summary(tests, labels), "",
@@ -420,10 +402,7 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
     parts = head + parts[2:]
     seconds = sum(c.seconds for c in cells.values())
     driving = sum(m.get("closed_loop/seconds", 0.0) for c in cells.values() for m in c.seeds.values())
-    parts += ["## Provenance", "", f"- command: `{command_line('spade.report')}` (launch: `python -m spade.closed_loop`)",
-              f"- commit: {commit() or 'unknown (not a git checkout)'}",
-              f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
-              f"- machine: {machine()}",
+    parts += ["## Provenance", "", *provenance_lines(command_line("spade.report"), "python -m spade.closed_loop"),
               f"- wall time of the {sum(len(c.seeds) for c in cells.values())} drives counted: {driving / 60:.1f} min "
               f"driving (every planner, closed_loop/seconds); their MLflow runs {seconds / 60:.0f} min (the clean "
               "drives' open-loop tests included)",
@@ -449,19 +428,12 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
 
 
 def _test_table(tests: list[Test]) -> list[str]:
-    lines = ["| comparison | figure | A | B | test | p (Holm) | verdict |", "|---|---|---:|---:|---|---:|---|"]
+    body = []
     for t in tests:
         fmt = next(f for _, k, f, _ in FIGURES if k == t.figure)
-        ph = "n/a" if t.p_holm is None else f"{t.p_holm:.3g}"
-        verdict = ("no test" if t.p_holm is None else "significant" if t.p_holm < 0.05 else "not significant")
-        lines.append(f"| {t.what} | {t.figure} | {format(t.a, fmt)} | {format(t.b, fmt)} | {t.kind} | {ph} | "
-                     f"{verdict} |")
-    return lines
-
-
-def _collapsed(title: str, lines: list[str]) -> list[str]:
-    """A block the docs site shows closed (pymdownx.details)."""
-    return [f'??? note "{title}"', "", *(f"    {line}" if line else "" for line in lines)]
+        body.append([t.what, t.figure, format(t.a, fmt), format(t.b, fmt), t.kind,
+                     "n/a" if t.p_holm is None else f"{t.p_holm:.3g}", significance(t.p_holm)])
+    return markdown_table(["comparison", "figure", "A", "B", "test", "p (Holm)", "verdict"], body, "llrrlrl")
 
 
 def _decisions(tests: list[Test]) -> list[tuple[str, str, str, dict[str, Test], str | None]]:
@@ -522,7 +494,7 @@ def verdict_lines(tests: list[Test], labels: Mapping[str, str]) -> list[str]:
                 continue
             unit = "" if figure == "success_rate" else " cm"
             order = "equal" if t.a == t.b else ("higher" if t.a > t.b else "lower")
-            sig = "no test" if t.p_holm is None else ("significant" if t.p_holm < 0.05 else "not significant")
+            sig = significance(t.p_holm)
             words.append(f"{name} {format(t.a, fmt)}{unit} vs {format(t.b, fmt)}{unit} ({order}, {sig})")
         decided = "no difference established" if winner is None else f"{a} {'wins' if winner == a else 'loses'}"
         lines.append(f"{group}: {a} against {b}: {'; '.join(words)}: **{decided}**")

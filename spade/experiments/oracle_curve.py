@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from spade.experiments.reporting.intervals import paired_difference
-from spade.experiments.reporting.results import welch
+from spade.experiments.reporting.stats import mean_sd, welch
 from spade.experiments.run_records import RunRecord
 
 __all__ = ["CurveSeries", "curve_series", "curve_tests", "curve_section", "curve_rows", "plot_curve"]
@@ -83,12 +83,11 @@ def curve_tests(series: CurveSeries, runs: Mapping[str, list[RunRecord]],
     return out
 
 
-def _mean_sd(values: list[float]) -> str:
+def _seeds_cell(values: list[float]) -> str:
+    """The series' planner APE over its seeds, with their count (``not run`` without one)."""
     if not values:
         return "not run"
-    if len(values) == 1:
-        return f"{values[0]:.2f} (1 seed)"
-    return f"{statistics.fmean(values):.2f} ± {statistics.stdev(values):.2f} ({len(values)} seeds)"
+    return mean_sd(values) + f" ({len(values)} seed{'s' if len(values) > 1 else ''})"
 
 
 def curve_section(series: CurveSeries, runs: Mapping[str, list[RunRecord]],
@@ -106,7 +105,7 @@ def curve_section(series: CurveSeries, runs: Mapping[str, list[RunRecord]],
         cells = []
         for size in sizes:
             row = series[label].get(size)
-            cell = _mean_sd(_values(runs.get(row, []))) if row else "—"
+            cell = _seeds_cell(_values(runs.get(row, []))) if row else "—"
             test = tests.get((label, size))
             base_values = _values(runs.get(base.get(size, ""), []))
             if test is not None and base_values and row:

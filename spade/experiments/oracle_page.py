@@ -15,7 +15,6 @@ has the page's experiment: the page regenerates from the committed records once 
 
 from __future__ import annotations
 
-import datetime
 import math
 import statistics
 from collections.abc import Mapping
@@ -24,10 +23,11 @@ from typing import Any
 
 from spade.experiments.oracle_curve import curve_rows, curve_section, curve_series, curve_tests, plot_curve
 from spade.experiments.reporting.intervals import Interval, paired_difference, scenario_interval
-from spade.experiments.reporting.results import holm, welch
-from spade.experiments.run_records import RunRecord, export_records, load_records
+from spade.experiments.reporting.stats import ALPHA, holm, mean_sd, welch
+from spade.experiments.run_records import RunRecord, export_records, load_records, store_exists
 from spade.metrics import catalog
 from spade.metrics.catalog import BASELINE_ROW_LABELS
+from spade.utils.markdown import collapsed, markdown_table
 
 __all__ = ["oracle_report"]
 
@@ -68,16 +68,12 @@ def _by_scenario(instances: list[Mapping[str, Any]], column: str) -> dict[str, l
     return out
 
 
-def _mean_sd(values: list[float], metric: str) -> str:
-    if not values:
-        return "n/a"
+def _figure_cell(values: list[float], metric: str) -> str:
+    """A figure over seeds as the catalog writes it (a share's spread in per cent, the unit once)."""
     figure = catalog.figure(metric)
-    if len(values) == 1:
-        return figure.format(values[0])
-    mean, sd = statistics.fmean(values), statistics.stdev(values)
-    if figure.unit == "share":
-        return f"{100 * mean:.0f} ± {100 * sd:.0f} %"
-    return f"{figure.format(mean)} ± {figure.format(sd)}"
+    if figure.unit == "share" and len(values) > 1:
+        return mean_sd(values, lambda v: f"{100 * v:.0f}") + " %"
+    return mean_sd(values, figure.format)
 
 
 def _values(runs: list[RunRecord], metric: str) -> list[float]:
@@ -85,7 +81,7 @@ def _values(runs: list[RunRecord], metric: str) -> list[float]:
 
 
 def _cell(runs: list[RunRecord], metric: str, column: str | None) -> str:
-    text = _mean_sd(_values(runs, metric), metric)
+    text = _figure_cell(_values(runs, metric), metric)
     if column is None or text == "n/a":
         return text
     instances = [i for r in runs for i in r.instances]
@@ -190,7 +186,7 @@ def _significant(test: dict[str, Any]) -> bool:
     holm_p, paired = test.get("holm"), test.get("paired")
     checks = []
     if holm_p is not None:
-        checks.append(holm_p < 0.05)
+        checks.append(holm_p < ALPHA)
     if paired is not None and not math.isnan(paired.low):
         checks.append(paired.excludes_zero())
     return bool(checks) and all(checks)
@@ -260,12 +256,11 @@ def _headline(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], again
     """One short table: each row's deciding figure with its interval, tail, preference figures, closed loop and its
     outcome against BC."""
     base_ape = _mean(rows.get(against, []), DECIDING)
-    lines = ["| row | seeds | " + " | ".join(h for h, _, _ in HEADLINE) + " | against BC |",
-             "|---|---|" + "---|" * len(HEADLINE) + "---|"]
+    body = []
     for name, runs in rows.items():
         cells = []
         for _, metric, column in HEADLINE:
-            text = _mean_sd(_values(runs, metric), metric.replace("test/", ""))
+            text = _figure_cell(_values(runs, metric), metric.replace("test/", ""))
             if column is not None and text != "n/a":
                 instances = [i for r in runs for i in r.instances]
                 interval = _interval(instances, column) if instances else None
@@ -278,8 +273,8 @@ def _headline(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], again
             ape = _mean(runs, DECIDING)
             outcome = f"{ape - base_ape:+.2f} cm, {_outcome(rows, name, base_ape, tests.get(name, {}))}" \
                 if ape is not None else "n/a"
-        lines.append(f"| {labels.get(name, name)} | {len(runs)} | " + " | ".join(cells) + f" | {outcome} |")
-    return lines
+        body.append([labels.get(name, name), len(runs), *cells, outcome])
+    return markdown_table(["row", "seeds", *(h for h, _, _ in HEADLINE), "against BC"], body)
 
 
 def _tests_table(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], against: str,
@@ -288,8 +283,7 @@ def _tests_table(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], ag
     base_ape = _mean(rows.get(against, []), DECIDING)
     if base_ape is None or not tests:
         return []
-    lines = ["| row | difference (cm) | Welch p | Holm p | paired over scenarios (cm) [95 % CI] | outcome |",
-             "|---|---|---|---|---|---|"]
+    body = []
     order = sorted(tests, key=lambda n: (not _significant(tests[n]), tests[n].get("holm") or 2.0))
     for name in order:
         test, ape = tests[name], _mean(rows[name], DECIDING)
@@ -298,15 +292,10 @@ def _tests_table(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], ag
         p, holm_p, paired = test.get("p"), test.get("holm"), test.get("paired")
         paired_text = "n/a" if paired is None or math.isnan(paired.low) else \
             f"{paired.mean:+.2f} [{paired.low:+.2f}, {paired.high:+.2f}]"
-        lines.append(f"| {labels.get(name, name)} | {ape - base_ape:+.2f} | {'n/a' if p is None else f'{p:.3g}'} | "
-                     f"{'n/a' if holm_p is None else f'{holm_p:.3g}'} | {paired_text} | "
-                     f"{_outcome(rows, name, base_ape, test)} |")
-    return lines
-
-
-def _collapsed(title: str, lines: list[str]) -> list[str]:
-    """A block the docs site shows closed (pymdownx.details): the full tables below the headline."""
-    return [f'??? note "{title}"', "", *(f"    {line}" if line else "" for line in lines)]
+        body.append([labels.get(name, name), f"{ape - base_ape:+.2f}", "n/a" if p is None else f"{p:.3g}",
+                     "n/a" if holm_p is None else f"{holm_p:.3g}", paired_text, _outcome(rows, name, base_ape, test)])
+    return markdown_table(["row", "difference (cm)", "Welch p", "Holm p", "paired over scenarios (cm) [95 % CI]",
+                           "outcome"], body)
 
 
 def _teacher_verdict(teachers: Mapping[str, str], teacher_runs: dict[str, list[RunRecord]],
@@ -334,16 +323,13 @@ def _teacher_verdict(teachers: Mapping[str, str], teacher_runs: dict[str, list[R
 
 
 def _provenance(runs: list[RunRecord], records_dir: Path) -> list[str]:
-    from spade.utils.provenance import command_line, commit, machine, shown_path
+    from spade.utils.provenance import command_line, provenance_lines, shown_path
 
-    lines = [f"- command: `{command_line('spade.report')}`",
-             "- launch: `python -m spade.train -m +experiment=ROW seed=42,1,2,3,4` for each row below "
-             "(conf/experiment/site_*.yaml)",
-             f"- commit: {commit() or 'unknown (not a git checkout)'}",
-             f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
-             f"- machine: {machine()}",
-             f"- records: {shown_path(records_dir)} ({len(runs)} runs; the page regenerates from them without the "
-             "store)"]
+    lines = provenance_lines(command_line("spade.report"))
+    lines[1:1] = ["- launch: `python -m spade.train -m +experiment=ROW seed=42,1,2,3,4` for each row below "
+                  "(conf/experiment/site_*.yaml)"]
+    lines.append(f"- records: {shown_path(records_dir)} ({len(runs)} runs; the page regenerates from them without "
+                 "the store)")
     walls = [r.wall_s for r in runs if r.wall_s]
     if walls:
         lines.append(f"- wall time of the {len(walls)} runs: {sum(walls) / 60:.0f} min in all, "
@@ -358,7 +344,7 @@ def oracle_report(tracking_uri: str, output_dir: str | Path | None, settings: Ma
     against = str(settings.get("against", "site_bc_L"))
     curve = curve_series(settings.get("curve"))
     records_dir = Path(str(settings["records_dir"]))
-    if _store_exists(tracking_uri):
+    if store_exists(tracking_uri):
         export_records(tracking_uri, str(settings.get("experiment", "oracle")), records_dir,
                        [*labels, *teachers, *curve_rows(curve)] or None)
     runs, references = load_records(records_dir) if records_dir.is_dir() else ([], {})
@@ -395,12 +381,10 @@ def oracle_report(tracking_uri: str, output_dir: str | Path | None, settings: Ma
     header = ["row", "seeds", *(catalog.label(m.split('/', 1)[1]) for m, _ in COLUMNS),
               *(("closed-loop " if m.startswith("closed_loop/") and not catalog.label(m).startswith("closed")
                  else "") + catalog.label(m.replace('test/', '')) for m in SEED_ONLY)]
-    full = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for name, runs_ in rows.items():
-        cells = [labels.get(name, name), str(len(runs_)), *(_cell(runs_, m, c) for m, c in COLUMNS),
-                 *(_mean_sd(_values(runs_, m), m.replace("test/", "")) for m in SEED_ONLY)]
-        full.append("| " + " | ".join(cells) + " |")
-    parts += [*_collapsed("Every figure of every row (mean ± sd over seeds, 95 % interval over scenarios)", full), ""]
+    full = markdown_table(header, [[labels.get(name, name), len(runs_), *(_cell(runs_, m, c) for m, c in COLUMNS),
+                                     *(_figure_cell(_values(runs_, m), m.replace("test/", "")) for m in SEED_ONLY)]
+                                    for name, runs_ in rows.items()])
+    parts += [*collapsed("Every figure of every row (mean ± sd over seeds, 95 % interval over scenarios)", full), ""]
     every = [r for v in rows.values() for r in v]
     parts += ["", "## Between the floor and the ceiling, beside the baselines", "",
               "The same test set for every row: these predictors learn nothing, so one run's figures hold for all.", "",
@@ -457,10 +441,3 @@ def _seed_counts(counts: list[int]) -> str:
     if not counts:
         return "none"
     return str(counts[0]) if counts[0] == counts[-1] else f"{counts[0]} to {counts[-1]}"
-
-
-def _store_exists(tracking_uri: str) -> bool:
-    """Whether the store holds anything to export (a SQLite file that exists, or a server URI)."""
-    if tracking_uri.startswith("sqlite:///"):
-        return Path(tracking_uri[len("sqlite:///"):]).is_file()
-    return tracking_uri.startswith(("http://", "https://"))

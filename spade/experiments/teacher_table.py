@@ -23,7 +23,6 @@ the store. A page without records keeps its committed copy under the lost-store 
 
 from __future__ import annotations
 
-import datetime
 import math
 import statistics
 from collections.abc import Mapping, Sequence
@@ -31,22 +30,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from spade.experiments.reporting.results import holm, welch
+from spade.experiments.reporting.pages import TEACHER_TABLE, teacher_files
+from spade.experiments.reporting.stats import holm, mean_sd, one_sample, significance, welch
 from spade.experiments.run_records import RunRecord
 from spade.metrics import catalog
 from spade.metrics.catalog import BASELINE_ROW_LABELS
+from spade.utils.markdown import collapsed, markdown_table
 
 __all__ = ["TEACHER_TABLE", "teacher_files", "teacher_report"]
 
-TEACHER_TABLE = "teacher"
 DEFAULT_TITLE = "The teacher: each expert as a planner beside its student"
 
-
-def teacher_files(page: str | None = None) -> tuple[str, str]:
-    """The files a teacher page writes into ``output_dir``: ``<page>.md`` and ``<page>.csv`` (``teacher`` unless the
-    page's ``page`` setting names it otherwise)."""
-    stem = str(page or TEACHER_TABLE)
-    return f"{stem}.md", f"{stem}.csv"
 
 COLUMNS: tuple[tuple[str, str, str], ...] = tuple((catalog.label(n), n, catalog.figure(n).fmt) for n in catalog.TEACHER)
 """(label, metric after ``test/`` [and the prefix of the reading], format) of the page's columns."""
@@ -93,13 +87,9 @@ class Row:
 
 
 def _cell(row: Row, key: str, fmt: str) -> str:
+    """The row's mean ± sd over its seeds; the value alone when its seeds agree."""
     values = row.values(key)
-    if not values:
-        return "n/a"
-    if len(set(values)) == 1:
-        return format(values[0], fmt)
-    sd = statistics.stdev(values)
-    return f"{format(statistics.fmean(values), fmt)} ± {format(sd, fmt)}"
+    return mean_sd(values if len(set(values)) > 1 else values[:1], fmt)
 
 
 def _rows(records: Records, sources: Sequence[Mapping[str, str]], kind: str) -> list[Row]:
@@ -179,15 +169,6 @@ def _parameters(row: Row) -> str:
     """The row's network size (``model/params``, logged by every training and evaluation run), in millions."""
     value = row.mean("model/params")
     return "n/a" if value is None else f"{value / 1e6:.2f} M"
-
-
-def _one_sample_p(values: list[float], value: float) -> float | None:
-    """Two-sided one-sample t-test of ``values`` (a student's seeds) against ``value`` (an expert's figure)."""
-    if len(values) < 2 or statistics.pstdev(values) == 0:
-        return None
-    from scipy.stats import ttest_1samp
-
-    return float(ttest_1samp(values, value).pvalue)
 
 
 CLOSED_LOOP_COLUMNS: tuple[tuple[str, str, str], ...] = tuple(
@@ -277,6 +258,10 @@ def _training_lines(training: Records, experts: Sequence[Mapping[str, Any]]) -> 
     return lines
 
 
+def _p(p: float | None) -> str:
+    return "n/a" if p is None else f"{p:.3g}"
+
+
 def _significant_first(table: list[str], what: str) -> list[str]:
     """A tests table (header, rule, rows ending in their verdict) as the significant rows, then the rest collapsed
     (pymdownx.details: the docs site shows them closed)."""
@@ -285,8 +270,7 @@ def _significant_first(table: list[str], what: str) -> list[str]:
     rest = [r for r in rows if r not in significant]
     out = [*header, *significant, ""] if significant else [f"No {what[:-1]} is significant.", ""]
     if rest:
-        out += [f'??? note "The other {len(rest)} {what} (not significant, or no test)"', "",
-                *(f"    {line}" for line in [*header, *rest]), ""]
+        out += [*collapsed(f"The other {len(rest)} {what} (not significant, or no test)", [*header, *rest]), ""]
     return out
 
 
@@ -326,7 +310,7 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
 
     from spade.experiments.closed_loop_table import CLOSED_LOOP_TABLE, drive_cells
     from spade.experiments.run_records import has_records, keep_committed_page, load_records, store_exists
-    from spade.utils.provenance import command_line, commit, machine, shown_path
+    from spade.utils.provenance import command_line, provenance_lines, shown_path
 
     with tempfile.TemporaryDirectory() as tmp:
         records_dir = Path(str(settings["records_dir"])) if settings.get("records_dir") else Path(tmp)
@@ -421,36 +405,36 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
                 tests.append((f"{expert.label} vs {student.label}", key, value, student.values("test/" + key)))
     guided_seconds: dict[str, float] = {}
     guided_lines, guided_tests = _guided(records, guided, drive_cells(drive_records, scale), guided_seconds)
-    ps = [_one_sample_p(values, value) for _, _, value, values in tests]
+    ps = [one_sample(values, value) for _, _, value, values in tests]
     adjusted = holm(ps + [t[5] for t in guided_tests])
     guided_holm = adjusted[len(ps):]
-    test_lines = ["| comparison | figure | expert | student (mean of seeds) | p | p (Holm) | verdict |",
-                  "|---|---|---:|---:|---:|---:|---|"]
+    test_rows = []
     verdicts = []
     expert_ape: list[tuple[str, float, float, float | None]] = []  # (what, expert, student, Holm p): the summary's
     guided_ape: list[tuple[str, float, float, float | None]] = []
     for (what, key, value, values), p, ph in zip(tests, ps, adjusted):
         mean = statistics.fmean(values) if values else float("nan")
-        sig = "no test" if ph is None else ("significant" if ph < 0.05 else "not significant")
-        test_lines.append(f"| {what} | {key} | {value:.2f} | {mean:.2f} | {'n/a' if p is None else f'{p:.3g}'} | "
-                          f"{'n/a' if ph is None else f'{ph:.3g}'} | {sig} |")
+        sig = significance(ph)
+        test_rows.append([what, key, f"{value:.2f}", f"{mean:.2f}", _p(p), _p(ph), sig])
         if key == "planner/ape_cm":
             word = "better" if value < mean else "worse"
             expert_ape.append((what, value, mean, ph))
             verdicts.append(f"- {what}: the expert plans {word} than its student by planner APE ({value:.2f} vs "
                             f"{mean:.2f} cm), {sig}" + (f" (Holm p {ph:.3g})" if ph is not None else ""))
 
-    guided_test_lines = ["| comparison | figure | guided | BC twin | Welch p | p (Holm) | verdict |",
-                         "|---|---|---:|---:|---:|---:|---|"]
+    test_lines = markdown_table(["comparison", "figure", "expert", "student (mean of seeds)", "p", "p (Holm)",
+                                 "verdict"], test_rows, "llrrrrl")
+    guided_rows = []
     for (what, key, fmt, a, b, p), ph in zip(guided_tests, guided_holm):
-        sig = "no test" if ph is None else ("significant" if ph < 0.05 else "not significant")
-        guided_test_lines.append(f"| {what} | {key} | {format(a, fmt)} | {format(b, fmt)} | "
-                                 f"{'n/a' if p is None else f'{p:.3g}'} | {'n/a' if ph is None else f'{ph:.3g}'} | {sig} |")
+        sig = significance(ph)
+        guided_rows.append([what, key, format(a, fmt), format(b, fmt), _p(p), _p(ph), sig])
         if key == "planner/ape_cm":
             word = "better" if a < b else "worse" if a > b else "the same"
             guided_ape.append((what, a, b, ph))
             verdicts.append(f"- {what}: the first plans {word} by planner APE ({a:.2f} vs {b:.2f} cm), {sig}"
                             + (f" (Holm p {ph:.3g})" if ph is not None else ""))
+    guided_test_lines = markdown_table(["comparison", "figure", "guided", "BC twin", "Welch p", "p (Holm)",
+                                        "verdict"], guided_rows, "llrrrrl")
     test_sets = sorted(set().union(*(r.test_sets for r in experts + students)))
     training_lines = _training_lines(training, list(settings.get("experts") or []))
     seconds = sum(r.seconds for r in experts)
@@ -466,6 +450,7 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
         "",
         *(_significant_first(guided_test_lines, "guided tests") if guided_tests else []),
     ] if guided else []
+    provenance = provenance_lines(command_line("spade.report"))
     parts = [
         f"# {settings.get('title') or DEFAULT_TITLE}",
         "",
@@ -506,12 +491,10 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
           else []),
         "Provenance:",
         "",
-        f"- command: `{command_line('spade.report')}`",
+        *provenance[:1],
         f"- records: {shown_path(records_dir)} ({record_count} runs; the page regenerates from them without the "
         "store)" if settings.get("records_dir") else "- records: none kept (no records_dir)",
-        f"- commit: {commit() or 'unknown (not a git checkout)'}",
-        f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
-        f"- machine: {machine()}",
+        *provenance[1:],
         f"- wall time of the expert test runs counted: {seconds / 60:.0f} min",
         *([f"- wall time of the guided rows, their BC twins and their drives counted: "
            f"{sum(guided_seconds.values()) / 3600:.1f} h (their training, tests and re-tests, one process each)"]

@@ -128,17 +128,17 @@ def compare(dataset: str, scenarios: int = 4, states: int = 6, shape: str = "L",
             rows.append({"scenario": result.scenario_id, "state": int(s),
                          "sampler": _figures(demo, sampled[int(s)], centre, res * 100),
                          "reference": _figures(demo, exact[int(s)], centre, res * 100)})
-    from scipy import stats
+    from spade.experiments.reporting.stats import paired
 
     summary = {}
     for key in ("floor_cm", "nearest_cm", "spread_cm", "count"):
         a = np.array([r["sampler"][key] for r in rows], float)
         b = np.array([r["reference"][key] for r in rows], float)
         ok = np.isfinite(a) & np.isfinite(b)
-        diff = a[ok] - b[ok]
-        p = float(stats.ttest_rel(a[ok], b[ok]).pvalue) if ok.sum() > 1 and diff.std() > 0 else float("nan")
+        p = paired(a[ok].tolist(), b[ok].tolist())
         summary[key] = {"sampler": float(a[ok].mean()), "reference": float(b[ok].mean()),
-                        "ratio": float(a[ok].mean() / b[ok].mean()) if b[ok].mean() else float("nan"), "p": p}
+                        "ratio": float(a[ok].mean() / b[ok].mean()) if b[ok].mean() else float("nan"),
+                        "p": float("nan") if p is None else p}
     return {"dataset": str(dataset), "shape": shape, "states": len(rows), "summary": summary, "timing": timing,
             "capture": {"kept": capture[0], "accepted": capture[1]},
             "settings": settings.to_json(), "reference": reference.to_json(), "rows": rows}

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from spade.metrics import catalog
+from spade.utils.markdown import markdown_table
 
 STUDENT_ONNX_TARGET_MS = 15.0  # medium student, batch 1, ONNX Runtime
 COND_DBC_RATIO_TARGET = 2.5  # Cond-DBC step / BC step
@@ -21,9 +22,7 @@ def _table(header: list[str], rows: list[list[Any]]) -> str:
             return f"{v:,.3g}" if abs(v) < 100 else f"{v:,.0f}"
         return str(v)
 
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in rows]
-    return "\n".join(lines)
+    return "\n".join(markdown_table(header, [[cell(v) for v in row] for row in rows]))
 
 
 def check_targets(results: dict[str, Any]) -> list[dict[str, Any]]:

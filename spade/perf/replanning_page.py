@@ -11,13 +11,15 @@ Usage: ``python -m spade.perf.replanning_page RECORDS_DIR OUT.md``.
 
 from __future__ import annotations
 
-import datetime
 import json
 import math
 import statistics
 import sys
 from pathlib import Path
 from typing import Any
+
+from spade.experiments.reporting.stats import holm, mean_sd, paired, significance
+from spade.utils.markdown import markdown_table
 
 __all__ = ["TARGETS", "load_drive_records", "replanning_page"]
 
@@ -47,30 +49,18 @@ def _fmt(value: float, percent: bool) -> str:
 
 
 def _cell(values: list[float], percent: bool) -> str:
-    if not values:
-        return "n/a"
-    if len(values) == 1:
-        return _fmt(values[0], percent)
-    return f"{_fmt(statistics.fmean(values), percent)} ± {_fmt(statistics.stdev(values), percent)}"
+    return mean_sd(values, lambda v: _fmt(v, percent))
 
 
-def _paired(a: dict[str, float], b: dict[str, float]) -> float | None:
+def _paired_by_student(a: dict[str, float], b: dict[str, float]) -> float | None:
     """Two-sided paired t-test p of ``a`` against ``b`` over the students both hold (None below two or no spread)."""
-    from scipy.stats import ttest_rel
-
     keys = sorted(set(a) & set(b))
-    if len(keys) < 2:
-        return None
-    diffs = [a[k] - b[k] for k in keys]
-    if statistics.pvariance(diffs) == 0:
-        return None
-    return float(ttest_rel([a[k] for k in keys], [b[k] for k in keys]).pvalue)
+    return paired([a[k] for k in keys], [b[k] for k in keys])
 
 
 def replanning_page(records: list[dict[str, Any]], command: str = "") -> str:
     """The page's markdown from the drive records."""
-    from spade.experiments.reporting.results import holm
-    from spade.utils.provenance import commit, machine
+    from spade.utils.provenance import provenance_lines
 
     groups: dict[tuple[str, float], dict[str, dict[str, float]]] = {}
     followed: dict[str, list[dict[str, float]]] = {}
@@ -89,8 +79,9 @@ def replanning_page(records: list[dict[str, Any]], command: str = "") -> str:
         if prior == 0.0 or off is None:
             continue
         for key in TESTED:
-            tests.append((condition, prior, key, _paired({s: v[key] for s, v in students.items() if key in v},
-                                                        {s: v[key] for s, v in off.items() if key in v})))
+            tests.append((condition, prior, key,
+                          _paired_by_student({s: v[key] for s, v in students.items() if key in v},
+                                             {s: v[key] for s, v in off.items() if key in v})))
     adjusted = dict(zip([(c, p, k) for c, p, k, _ in tests], holm([p for *_, p in tests])))
 
     def mean(condition: str, prior: float, key: str) -> float | None:
@@ -107,7 +98,7 @@ def replanning_page(records: list[dict[str, Any]], command: str = "") -> str:
         for key in TESTED:
             label = next(h for k, h, _ in FIGURES if k == key)
             p = adjusted.get((condition, best, key))
-            told = "no test" if p is None else (f"Holm p {p:.2g}, " + ("significant" if p < 0.05 else "not significant"))
+            told = "no test" if p is None else f"Holm p {p:.2g}, {significance(p)}"
             parts.append(f"{label} {mean(condition, 0.0, key):.2f} → {mean(condition, best, key):.2f} ({told})")
         targets = TARGETS.get(condition, {})
         missed = [next(h for k, h, _ in FIGURES if k == key) for key, (op, goal) in targets.items()
@@ -116,23 +107,25 @@ def replanning_page(records: list[dict[str, Any]], command: str = "") -> str:
         verdict.append(f"- **{condition}**, replan_prior={best:g} against off: " + "; ".join(parts) + ". "
                        + (f"Targets missed: {', '.join(missed)}." if missed else "Every target met."))
     students = max((len(v) for v in groups.values()), default=0)
+    provenance = provenance_lines(None)
+    provenance[0] += f"; drives at {sorted({str(r.get('commit'))[:7] for r in records})}"
+    body = []
+    for condition in conditions:
+        for (c, prior), group in sorted(groups.items()):
+            if c == condition:
+                body.append([condition, "off" if prior == 0 else f"{prior:g}",
+                             *(_cell([v[k] for v in group.values() if k in v], pct) for k, _, pct in FIGURES)])
+        if followed.get(condition):
+            body.append([condition, "the demonstration, followed",
+                         *(_cell([f[k] for f in followed[condition] if f.get(k) is not None][:1], pct)
+                           for k, _, pct in FIGURES)])
     lines = ["# Replanning that keeps its turn: the decoder's prior toward the previous plan", "",
              f"The prior changes what a replanning student drives; each setting is compared with the prior off on the "
              f"same {students} students by a paired t-test (Holm's correction over the page's "
              f"{sum(p is not None for *_, p in tests)} tests). The deciding figures in closed loop are success, then "
              "closed-loop APE (the [metrics reference](../reference/metrics.md) says why); mode switches and "
              "commitment say whether the plan holds its turn.", "", *verdict, "",
-             "| condition | replan_prior | " + " | ".join(h for _, h, _ in FIGURES) + " |",
-             "|---|---|" + "---|" * len(FIGURES)]
-    for condition in conditions:
-        for (c, prior), group in sorted(groups.items()):
-            if c != condition:
-                continue
-            cells = [_cell([v[k] for v in group.values() if k in v], pct) for k, _, pct in FIGURES]
-            lines.append(f"| {condition} | {'off' if prior == 0 else f'{prior:g}'} | " + " | ".join(cells) + " |")
-        if followed.get(condition):
-            cells = [_cell([f[k] for f in followed[condition] if f.get(k) is not None][:1], pct) for k, _, pct in FIGURES]
-            lines.append(f"| {condition} | the demonstration, followed | " + " | ".join(cells) + " |")
+             *markdown_table(["condition", "replan_prior", *(h for _, h, _ in FIGURES)], body)]
     lines += ["", "Targets: " + "; ".join(f"{c}: " + ", ".join(f"{next(h for k, h, _ in FIGURES if k == key)} {op} "
                                                                   f"{_fmt(goal, key.endswith('rate'))}"
                                                                   for key, (op, goal) in t.items())
@@ -142,9 +135,7 @@ def replanning_page(records: list[dict[str, Any]], command: str = "") -> str:
               f"--weights ...` ({len(records)} records in docs/results/records/replanning/, "
               f"{records[0].get('scenarios') if records else 0} scenarios each)",
               f"- page: `{command or 'python -m spade.perf.replanning_page'}`",
-              f"- commit: {commit() or 'unknown'}; drives at {sorted({str(r.get('commit'))[:7] for r in records})}",
-              f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
-              f"- machine: {machine()}",
+              *provenance,
               f"- drive wall time: {sum(float(r.get('seconds') or 0) for r in records) / 60:.0f} min in all", ""]
     return "\n".join(lines)
 

@@ -115,9 +115,7 @@ SCIENCE_KEYS: tuple[str, ...] = ("test/planner/ape_cm", "test/planner/plausibili
 def science_table(rows: list[dict[str, Any]]) -> str:
     """Mean +- sd of each test figure per precision over seeds, and Welch's test of each against the first
     precision (the fp32 reference)."""
-    import statistics
-
-    from spade.experiments.reporting.results import welch
+    from spade.experiments.reporting.stats import mean_sd, welch
 
     precisions = list(dict.fromkeys(r["precision"] for r in rows))
     keys = [k for k in SCIENCE_KEYS if any(k in r["metrics"] for r in rows)]
@@ -126,10 +124,7 @@ def science_table(rows: list[dict[str, Any]]) -> str:
         return [r["metrics"][key] for r in rows if r["precision"] == precision and key in r["metrics"]]
 
     def cell(v: list[float]) -> str:
-        if not v:
-            return "-"
-        sd = f" +- {statistics.stdev(v):.2f}" if len(v) > 1 else ""
-        return f"{statistics.mean(v):.2f}{sd} (n={len(v)})"
+        return mean_sd(v, sep=" +- ") + f" (n={len(v)})" if v else "-"
 
     table = []
     for key in [*keys, "fit + test s"]:

@@ -25,6 +25,7 @@ from spade.metrics import catalog
 from spade.paths import CONF_DIR
 from spade.tracking.dataset_inputs import DatasetUse
 from spade.tracking.links import artifact_url, relative_run_link
+from spade.utils.markdown import markdown_table
 
 log = logging.getLogger(__name__)
 
@@ -63,18 +64,6 @@ THIS_MODEL = "this model"
 FIGURES_MEANING = "Lower is better, except commit. " + catalog.meaning(FIGURES)
 
 
-def _padded(rows: list[list[str]]) -> list[str]:
-    """Markdown table lines with aligned columns: the first left-aligned, the figures right-aligned."""
-    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
-
-    def line(cells: list[str]) -> str:
-        return "| " + " | ".join(c.ljust(w) if i == 0 else c.rjust(w)
-                                 for i, (c, w) in enumerate(zip(cells, widths))) + " |"
-
-    rule = "|" + "|".join(("-" * (w + 2)) if i == 0 else ("-" * (w + 1) + ":") for i, w in enumerate(widths)) + "|"
-    return [line(rows[0]), rule, *(line(r) for r in rows[1:])]
-
-
 def figures_table(metrics: dict[str, float]) -> str:
     """The test figures next to the baselines and the untrained model as a markdown table with aligned columns,
     followed by one line saying what each figure means ('' when the run has no test figures)."""
@@ -85,7 +74,7 @@ def figures_table(metrics: dict[str, float]) -> str:
     cells = [["test set", *(catalog.header(k) for k in shown)]]
     for label, figs in rows:
         cells.append([f"**{label}**" if label == THIS_MODEL else label, *(_fmt(k, figs.get(k)) for k in shown)])
-    return "\n".join(_padded(cells)) + "\n\n" + FIGURES_MEANING
+    return "\n".join(markdown_table(cells[0], cells[1:], padded=True)) + "\n\n" + FIGURES_MEANING
 
 
 @dataclass(frozen=True)

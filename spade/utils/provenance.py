@@ -4,6 +4,7 @@ absolute path)."""
 
 from __future__ import annotations
 
+import datetime
 import os
 import platform
 import shlex
@@ -13,7 +14,7 @@ from pathlib import Path
 
 from spade.utils.timing import cpu_model
 
-__all__ = ["command_line", "commit", "machine", "shown_path", "shown_roots"]
+__all__ = ["command_line", "commit", "machine", "provenance_lines", "shown_path", "shown_roots"]
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 # URI prefixes whose rest is a filesystem path: what stays in front of the shown path ("file://" is dropped, since a
@@ -98,3 +99,13 @@ def commit() -> str | None:
 def machine() -> str:
     """Host, CPU model and count, operating system."""
     return f"{platform.node()}: {cpu_model()}, {os.cpu_count()} cores, {platform.system()} {platform.release()}"
+
+
+def provenance_lines(command: str | None, launch: str | None = None) -> list[str]:
+    """A results page's provenance block, as Markdown list items: the command that wrote it (with the one that
+    launches its runs, when given), the code's commit, the date and the machine. A page adds its own items (its
+    records, the wall time of its runs); the caller puts a blank line before the block (Markdown starts no list
+    inside a paragraph)."""
+    lines = [f"- command: `{command}`" + (f" (launch: `{launch}`)" if launch else "")] if command else []
+    return [*lines, f"- commit: {commit() or 'unknown (not a git checkout)'}",
+            f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC", f"- machine: {machine()}"]

@@ -1,10 +1,12 @@
 """A paper table's report from its MLflow runs (what ``python -m spade.report`` prints and writes).
 
-Modules, one job each: ``results`` (each row's runs over seeds at one scale, :func:`fetch_results`, the headline
-comparisons with Welch's t-test, :func:`compare`, and the pairwise tests, :func:`pairwise`), ``render`` (the
-markdown), ``files`` (the CSV files), ``chart`` (the PNG) and
-``build`` (:func:`build_report` puts one table's report together, :func:`report` those a config asks for). The
-tables themselves are :mod:`spade.experiments.tables`; publishing into MLflow is
+Modules, one job each: ``stats`` (the one statistics kernel of every results page: Welch's, paired and
+one-sample tests, Holm's correction, ``mean ± sd``), ``pages`` (the pages ``spade.report`` writes, by name: what
+builds each and which files it writes), ``results`` (each row's runs over seeds at one scale,
+:func:`fetch_results`, the headline comparisons with Welch's t-test, :func:`compare`, and the pairwise tests,
+:func:`pairwise`), ``render`` (the markdown), ``files`` (the CSV files), ``chart`` (the PNG) and ``build``
+(:func:`build_report` puts one table's report together, :func:`report` those a config asks for). The tables
+themselves are :mod:`spade.experiments.tables`; publishing into MLflow is
 :func:`spade.tracking.report.publish_report`.
 """
 
@@ -20,7 +22,6 @@ from spade.experiments.reporting.render import (
     render_table,
 )
 from spade.experiments.reporting.results import (
-    ALPHA,
     MISSING,
     ComparisonResult,
     RowResult,
@@ -28,8 +29,8 @@ from spade.experiments.reporting.results import (
     compare,
     fetch_results,
     pairwise,
-    welch,
 )
+from spade.experiments.reporting.stats import ALPHA, holm, mean_sd, welch
 
 __all__ = [
     "ALPHA",
@@ -41,6 +42,8 @@ __all__ = [
     "build_report",
     "compare",
     "fetch_results",
+    "holm",
+    "mean_sd",
     "pairwise",
     "losses_to_baselines",
     "plot_table",

@@ -24,8 +24,8 @@ from spade.experiments.reporting.render import (
     tiny_notice,
 )
 from spade.experiments.reporting.results import ComparisonResult, RowResult, compare, fetch_results, pairwise
-from spade.experiments.tables import TABLES, Table, get_table
-from spade.utils.provenance import command_line, commit, machine, shown_path
+from spade.experiments.tables import Table
+from spade.utils.provenance import command_line, shown_path
 
 
 DECIDING_STATEMENT = (
@@ -97,7 +97,7 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
     if pairs:
         parts += ["", "Pairwise (which orderings the seeds tell apart), the deciding figure first; Holm's correction "
                   "over every test of the table:", "", render_pairwise(pairs)]
-    parts += ["", "Provenance:", "", *provenance(table, results, command_line("spade.report"), commit(), machine())]
+    parts += ["", "Provenance:", "", *provenance(table, results, command_line("spade.report"))]
     if paper and any(line.paper for line in table.lines):
         parts += ["", "The paper's figures (its dataset; compare orderings and ratios, not values):", "",
                   render_paper_table(table)]
@@ -124,38 +124,11 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
 
 
 def report(cfg: DictConfig) -> list[Report]:
-    """The reports of ``cfg.table`` (one table, or every table with ``table=all``); a store that does not exist is
-    refused (:class:`~spade.utils.errors.ConfigError`), never created empty and reported all missing."""
+    """The reports of ``cfg.table`` (one table, every table with ``table=all``, or a registered page:
+    :mod:`spade.experiments.reporting.pages`); a store that does not exist is refused
+    (:class:`~spade.utils.errors.ConfigError`), never created empty and reported all missing."""
     from spade.config.report_checks import validate_report_config
+    from spade.experiments.reporting.pages import page
 
-    validate_report_config(cfg)
-    if str(cfg.table) == "closed_loop":  # not a paper table: drives of trained rows (spade/experiments/closed_loop_table)
-        from spade.experiments.closed_loop_table import closed_loop_report
-
-        text, files = closed_loop_report(cfg.tracking_uri, cfg.get("output_dir"), cfg.scale.name if cfg.get("scale")
-                                         else None, labels=cfg.get("closed_loop_labels"),
-                                         records_dir=cfg.get("closed_loop_records_dir"),
-                                         committed=cfg.get("closed_loop_committed"))
-        return [Report(None, {}, [], text, files)]  # type: ignore[arg-type]
-    if str(cfg.table) == "teacher":  # not a paper table: experts as planners (spade/experiments/teacher_table)
-        from omegaconf import OmegaConf
-
-        from spade.experiments.teacher_table import teacher_report
-
-        settings = OmegaConf.to_container(cfg.teacher, resolve=True) if cfg.get("teacher") else {}
-        text, files = teacher_report(cfg.tracking_uri, cfg.get("output_dir"), settings,
-                                     cfg.scale.name if cfg.get("scale") else None)
-        return [Report(None, {}, [], text, files)]  # type: ignore[arg-type]
-    if str(cfg.table) == "oracle":  # not a paper table: where a teacher teaches (spade/experiments/oracle_page)
-        from omegaconf import OmegaConf
-
-        from spade.experiments.oracle_page import oracle_report
-
-        settings = OmegaConf.to_container(cfg.oracle, resolve=True)
-        text, files = oracle_report(cfg.tracking_uri, cfg.get("output_dir"), settings)
-        return [Report(None, {}, [], text, files)]  # type: ignore[arg-type]
-    tables = list(TABLES.values()) if str(cfg.table) == "all" else [get_table(cfg.table)]
-    # `scale` is the config group of conf/scale (so that scale=cpu reads as everywhere else); its name filters runs.
-    scale = cfg.scale.name if cfg.get("scale") else None
-    return [build_report(t, cfg.tracking_uri, cfg.get("output_dir"), scale, cfg.get("paper", True),
-                         cfg.get("chart", True), cfg.get("log_to_runs", False) is True) for t in tables]
+    validate_report_config(cfg, page)
+    return page(cfg.table).build(cfg)

@@ -5,6 +5,7 @@ their significance test, the pairwise tests, and the notes on missing or odd row
 from __future__ import annotations
 
 from spade.experiments.reporting.results import MISSING, TEST_NAME, ComparisonResult, RowResult
+from spade.experiments.reporting.stats import mean_sd, significance
 from spade.experiments.tables import (
     BASELINE_LABELS,
     CELL_METRICS,
@@ -14,22 +15,23 @@ from spade.experiments.tables import (
     Metric,
     Table,
 )
+from spade.utils.markdown import markdown_table
+from spade.utils.provenance import provenance_lines
 
 
-def mean_sd(metric: Metric, result: RowResult, key: str) -> str:
-    """``12.34 ± 1.20`` over two or more seeds, the value alone over one (or for a baseline, which has no spread);
-    ``(1 of 2 seeds; ...)`` when some seeds logged NaN (an APE without any extracted path), never a silent mean."""
-    mean, sd = result.value(key), result.sd(key)
-    text = metric.format(mean)
+def seed_cell(metric: Metric, result: RowResult, key: str) -> str:
+    """A row's cell over its seeds: ``12.34 ± 1.20`` over two or more seeds (:func:`~spade.experiments.reporting.
+    stats.mean_sd`; a share's ``%`` written once), the value alone over one (or for a baseline, which has no
+    spread); ``(1 of 2 seeds; ...)`` when some seeds logged NaN (an APE without any extracted path), never a silent
+    mean."""
+    values = result.samples(key)
     logged = sum(1 for r in result.runs if key in r.metrics)
-    undefined = logged - len(result.samples(key))  # seeds whose value is NaN (for APE: no path extracted at all)
+    undefined = logged - len(values)  # seeds whose value is NaN (for APE: no path extracted at all)
     of = f" ({logged - undefined} of {logged} seeds; NaN counted as failure)" if undefined else ""
-    if mean is None or sd is None:
-        return text + of
-    spread = metric.format(sd)
-    if spread.endswith("%") and text.endswith("%"):
-        return f"{text[:-1]} ± {spread}{of}"
-    return f"{text} ± {spread}{of}"
+    sd = result.sd(key)
+    once = sd is not None and metric.format(sd).endswith("%") and metric.format(result.value(key)).endswith("%")
+    return mean_sd(values, (lambda v: metric.format(v)[:-1]) if once else metric.format, metric.format,
+                   empty=metric.format(None)) + of
 
 
 def _cell(result: RowResult, prefix: str = "") -> str:
@@ -37,7 +39,7 @@ def _cell(result: RowResult, prefix: str = "") -> str:
         return MISSING
     if prefix:  # a classical baseline: the same test set for every seed, so one figure
         return " / ".join(METRICS[k].format(result.value(prefix + k)) for k in CELL_METRICS)
-    return " / ".join(mean_sd(METRICS[k], result, k) for k in CELL_METRICS)
+    return " / ".join(seed_cell(METRICS[k], result, k) for k in CELL_METRICS)
 
 
 def _baseline_source(table: Table, results: dict[str, RowResult], shape: str) -> RowResult | None:
@@ -78,7 +80,7 @@ def render_preference(table: Table, results: dict[str, RowResult]) -> str | None
             r = results.get(line.cells.get(shape, ""), None)
             if r is None or not r.found:
                 continue
-            body.append([*line.labels, shape, *(mean_sd(METRICS[k], r, k) for k in keys)])
+            body.append([*line.labels, shape, *(seed_cell(METRICS[k], r, k) for k in keys)])
     for name, label in BASELINE_LABELS.items():
         for shape in table.shapes:
             src = _baseline_source(table, results, shape)
@@ -88,7 +90,7 @@ def render_preference(table: Table, results: dict[str, RowResult]) -> str | None
             if len(table.label_columns) == 1:
                 labels = [f"reference: {label}"]
             body.append([*labels, shape, *(METRICS[k].format(src.value(f"{name}/{k}")) for k in keys)])
-    return _markdown_table(header, body)
+    return "\n".join(markdown_table(header, body))
 
 
 def _paper_cell(figures: dict[str, float]) -> str:
@@ -98,12 +100,6 @@ def _paper_cell(figures: dict[str, float]) -> str:
 def _params_cell(values: list[float | None]) -> str:
     shown = sorted({METRICS["params"].format(v) for v in values if v is not None})
     return " / ".join(shown) if shown else "n/a"
-
-
-def _markdown_table(header: list[str], body: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    lines += ["| " + " | ".join(r) + " |" for r in body]
-    return "\n".join(lines)
 
 
 def _header(table: Table, seeds: bool = False) -> list[str]:
@@ -136,7 +132,7 @@ def render_table(table: Table, results: dict[str, RowResult]) -> str:
             labels = [f"reference: {label}"]
         cells = [_cell(src, f"{name}/") if src else "n/a" for src in sources.values()]
         body.append([*labels, *cells, "0 (no learning)", "(no seed)"])
-    return _markdown_table(_header(table, seeds=True), body)
+    return "\n".join(markdown_table(_header(table, seeds=True), body))
 
 
 def render_paper_table(table: Table) -> str:
@@ -146,7 +142,7 @@ def render_paper_table(table: Table) -> str:
         cells = [_paper_cell(line.paper.get(s, {})) if s in line.cells else "" for s in table.shapes]
         params = [line.paper.get(s, {}).get("params") for s in table.shapes]
         body.append([*line.labels, *cells, _params_cell(params)])
-    return _markdown_table(_header(table), body)
+    return "\n".join(markdown_table(_header(table), body))
 
 
 def _pct(value: float | None) -> str:
@@ -170,24 +166,22 @@ def render_comparisons(comparisons: list[ComparisonResult]) -> str:
         m = METRICS[c.metric]
         body.append([c.title, m.label, m.format(c.value), m.format(c.baseline_value), _change(c), c.test,
                      f"{c.n} / {c.baseline_n}", _pct(c.paper) + ("" if c.paper is None else f" ({c.paper_source})")])
-    return _markdown_table(["comparison", "metric", "row (mean)", "baseline (mean)", "change", "Welch test",
-                            "seeds", "paper"], body)
+    return "\n".join(markdown_table(["comparison", "metric", "row (mean)", "baseline (mean)", "change", "Welch test",
+                                          "seeds", "paper"], body))
 
 
-def _holm(c: ComparisonResult) -> str:
-    if c.p_holm is None:
-        return "-"
-    return f"p = {c.p_holm:.3g}" + (", significant" if c.p_holm < 0.05 else ", not significant")
+def _holm_cell(c: ComparisonResult) -> str:
+    return "-" if c.p_holm is None else f"p = {c.p_holm:.3g}, {significance(c.p_holm)}"
 
 
 def render_pairwise(pairs: list[ComparisonResult]) -> str:
     """The pairwise tests: the means, their change, Welch's test and the same p after Holm's correction over every
     pairwise test of the table (significant only when that adjusted p is below 0.05)."""
     body = [[c.title, METRICS[c.metric].label, METRICS[c.metric].format(c.value),
-             METRICS[c.metric].format(c.baseline_value), _change(c), c.test, _holm(c), f"{c.n} / {c.baseline_n}"]
+             METRICS[c.metric].format(c.baseline_value), _change(c), c.test, _holm_cell(c), f"{c.n} / {c.baseline_n}"]
             for c in pairs]
-    return _markdown_table(["rows", "metric", "first (mean)", "second (mean)", "change", "Welch test",
-                            "Holm-corrected", "seeds"], body)
+    return "\n".join(markdown_table(["rows", "metric", "first (mean)", "second (mean)", "change", "Welch test",
+                                          "Holm-corrected", "seeds"], body))
 
 
 def significance_statement() -> str:
@@ -255,19 +249,14 @@ def render_notes(table: Table, results: dict[str, RowResult]) -> list[str]:
     return notes
 
 
-def provenance(table: Table, results: dict[str, RowResult], command: str, commit: str | None, machine: str) -> list[str]:
-    """Where the page comes from, as Markdown list items: the command that printed it (its paths shown relative to
-    the project: :func:`spade.utils.provenance.command_line`) and the one that launches the table, the code's
-    commit, the date, the machine, and the wall time of the runs counted (their sum, and first start to last end).
-    The caller puts a blank line before them (Markdown starts no list inside a paragraph)."""
-    import datetime
-
+def provenance(table: Table, results: dict[str, RowResult], command: str) -> list[str]:
+    """Where the page comes from, as Markdown list items (:func:`spade.utils.provenance.provenance_lines`: the
+    command that printed it and the one that launches the table, the code's commit, the date, the machine), with
+    the wall time of the runs counted (their sum, and first start to last end). The caller puts a blank line
+    before them (Markdown starts no list inside a paragraph)."""
     runs = [r for res in results.values() for r in res.runs]
     spans = [(r.start_time, r.end_time) for r in runs if r.start_time and r.end_time]
-    lines = [f"- command: `{command}` (launch: `python -m spade.train +experiment={table.composition}`)",
-             f"- commit: {commit or 'unknown (not a git checkout)'}",
-             f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
-             f"- machine: {machine}"]
+    lines = provenance_lines(command, f"python -m spade.train +experiment={table.composition}")
     if spans:
         total = sum(end - start for start, end in spans) / 1000.0
         span = (max(e for _, e in spans) - min(s for s, _ in spans)) / 1000.0

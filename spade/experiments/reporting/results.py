@@ -9,7 +9,7 @@ sample standard deviation (``ddof=1``; none for one seed). A row without a finis
 :class:`RowResult` that is not ``found``.
 
 The headline comparisons (:func:`compare`) give the relative change of the means and Welch's t-test of the
-per-seed values (:func:`welch`: ``scipy.stats.ttest_ind(equal_var=False)``, two-sided, alpha :data:`ALPHA`);
+per-seed values (:func:`spade.experiments.reporting.stats.welch`, two-sided, alpha :data:`ALPHA`);
 with fewer than two seeds on either side there is no test ("n=1, no test").
 """
 
@@ -20,6 +20,7 @@ import statistics
 from dataclasses import dataclass, field
 from typing import Any
 
+from spade.experiments.reporting.stats import ALPHA, NO_TEST, holm, welch
 from spade.experiments.tables import (
     BASELINE_LABELS,
     CELL_METRICS,
@@ -31,9 +32,7 @@ from spade.experiments.tables import (
 )
 
 MISSING = "missing"  # how a row without a finished run reads in every output
-ALPHA = 0.05  # significance level of the two-sided Welch t-test between compared rows
 TEST_NAME = "Welch's t-test (two-sided, unequal variances, alpha 0.05) over the per-seed values"
-NO_TEST = "n=1, no test"
 
 
 @dataclass
@@ -117,25 +116,6 @@ class ComparisonResult:
     def significant(self) -> bool | None:
         """True / False at :data:`ALPHA`; None when there is no test."""
         return None if self.p_value is None else self.p_value < ALPHA
-
-
-def welch(a: list[float], b: list[float]) -> tuple[float | None, str]:
-    """Welch's two-sided t-test of ``a`` against ``b``: ``(p, wording)``; ``(None, "n=1, no test")`` with fewer than
-    two values on either side, ``(None, "no test (no spread)")`` when both sides are constant."""
-    if len(a) < 2 or len(b) < 2:
-        return None, NO_TEST
-    if statistics.pvariance(a) == 0 and statistics.pvariance(b) == 0:
-        return None, "no test (no spread)"
-    import warnings
-
-    from scipy.stats import ttest_ind
-
-    with warnings.catch_warnings():  # nearly constant samples: scipy warns, the p-value says what it can
-        warnings.simplefilter("ignore", RuntimeWarning)
-        p = float(ttest_ind(a, b, equal_var=False).pvalue)
-    if math.isnan(p):
-        return None, "no test (no spread)"
-    return p, f"p = {p:.3g}" + ("" if p < ALPHA else ", not significant")
 
 
 def _search_all_runs(client: Any, experiment_id: str, filter_string: str) -> list[Any]:
@@ -259,19 +239,6 @@ def compare(table: Table, results: dict[str, RowResult]) -> list[ComparisonResul
             out.append(ComparisonResult(comp.title, comp.row, comp.baseline, key, value, baseline,
                                         relative_change(value, baseline), comp.paper.get(key), comp.paper_source,
                                         row.n, base.n, p, test))
-    return out
-
-
-def holm(p_values: list[float | None]) -> list[float | None]:
-    """Holm's step-down adjustment of a family of p-values (None: no test, left out of the family and kept None):
-    the i-th smallest of m is multiplied by (m - i), made monotone and capped at 1. A test is significant at
-    :data:`ALPHA` after the correction when its adjusted p is below it."""
-    tested = sorted((p, i) for i, p in enumerate(p_values) if p is not None)
-    out: list[float | None] = [None] * len(p_values)
-    running = 0.0
-    for rank, (p, i) in enumerate(tested):
-        running = max(running, min(1.0, (len(tested) - rank) * p))
-        out[i] = running
     return out
 
 
