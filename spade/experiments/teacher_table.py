@@ -186,9 +186,7 @@ def _guided(records: Records, guided: Sequence[Mapping[str, Any]],
     driven (``drives``: :func:`spade.experiments.closed_loop_table.drive_cells`, the clean condition of the same
     scenario set) and the margin's activity, and Welch tests (what, figure, format, guided mean, twin mean, p).
     ``seconds`` receives each counted row's and drive's wall time (by name, so a twin shared by rows counts once)."""
-    lines = ["| student | test set | seeds | " + " | ".join(c[0] for c in COLUMNS) + " | "
-             + " | ".join(c[0] for c in CLOSED_LOOP_COLUMNS) + " | margin active (last epoch) |",
-             "|---|---|---:|" + "---:|" * (len(COLUMNS) + len(CLOSED_LOOP_COLUMNS) + 1)]
+    body: list[list[Any]] = []
     tests = []
     for item in guided:
         against = dict(item.get("against") or {})
@@ -209,16 +207,13 @@ def _guided(records: Records, guided: Sequence[Mapping[str, Any]],
                         seconds[f"{source}__{dataset}__clean"] = cell.seconds
                 driven[id(r)] = [m for _, m in sorted(cell.seeds.items())] if cell is not None else []
                 loop = Row(r.label, r.kind, r.encoding, runs=driven[id(r)])
-                loop_cells = " | ".join(_cell(loop, key, fmt) if loop.runs else "not driven"
-                                        for _, key, fmt in CLOSED_LOOP_COLUMNS)
+                loop_cells = [_cell(loop, key, fmt) if loop.runs else "not driven" for _, key, fmt in CLOSED_LOOP_COLUMNS]
                 if not r.runs:
-                    lines.append(f"| {r.label} | {where} | 0 | " + " | ".join("missing" for _ in range(len(COLUMNS)))
-                                 + f" | {loop_cells} | missing |")
+                    body.append([r.label, where, 0, *(["missing"] * len(COLUMNS)), *loop_cells, "missing"])
                     continue
                 active = _cell(r, "margin/active", ".0%") if r is row else "-"
-                lines.append(f"| {r.label} | {where} | {len(r.runs)} | "
-                             + " | ".join(_cell(r, "test/" + key, fmt) for _, key, fmt in COLUMNS)
-                             + f" | {loop_cells} | {active} |")
+                body.append([r.label, where, len(r.runs), *(_cell(r, "test/" + key, fmt) for _, key, fmt in COLUMNS),
+                             *loop_cells, active])
             for key, fmt in GUIDED_TESTED:
                 a, b = row.values("test/" + key), twin.values("test/" + key)
                 if a and b:
@@ -230,7 +225,9 @@ def _guided(records: Records, guided: Sequence[Mapping[str, Any]],
                 if a and b:
                     tests.append((f"{row.label} vs {twin.label}, {where}", key, fmt, statistics.fmean(a),
                                   statistics.fmean(b), welch(a, b)[0]))
-    return lines, tests
+    header = ["student", "test set", "seeds", *(c[0] for c in COLUMNS), *(c[0] for c in CLOSED_LOOP_COLUMNS),
+              "margin active (last epoch)"]
+    return markdown_table(header, body, "llr" + "r" * (len(header) - 3)), tests
 
 
 def _training_lines(training: Records, experts: Sequence[Mapping[str, Any]]) -> list[str]:
