@@ -42,20 +42,20 @@ def main(cfg: DictConfig) -> None:
     from spade.perf.training import LEVERS
 
     # a bad value: one `error:` line, exit 2, before any section
-    exit_on_user_error(validate_bench_config)(cfg, SECTIONS, list(LEVERS))
+    options = exit_on_user_error(validate_bench_config)(cfg, SECTIONS, list(LEVERS))
     from spade.utils.provenance import command_line, commit
 
     t0, command, checkout = time.perf_counter(), command_line("spade.bench"), commit()  # the code that runs
     results = bench(cfg)
-    path = write_json(results, cfg.out_json)
+    path = write_json(results, options.out_json)
     print(format_report(results))
     print(f"\nJSON: {path}")
-    if cfg.get("speed_page"):
+    if options.speed_page:
         from spade.perf.speed_page import read_science, write_speed_page
 
-        results["speed_science"] = read_science(cfg.get("speed_science") or [])
+        results["speed_science"] = read_science(options.speed_science or [])
 
-        page = write_speed_page(results, cfg.speed_page, command, checkout, time.perf_counter() - t0)
+        page = write_speed_page(results, options.speed_page, command, checkout, time.perf_counter() - t0)
         print(f"Page: {page}")
 
 

@@ -15,49 +15,49 @@ import logging
 from pathlib import Path
 
 import hydra
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
 from spade.utils.errors import ConfigError, run_entry_point, task
 from spade.deploy.export import ExportReport, export_student
-from spade.config.export_checks import validate_export_config
+from spade.config.export_checks import ExportOptions, validate_export_config
 from spade.config.refusals import exit_on_user_error
 
 log = logging.getLogger(__name__)
-OPTIONS = ("ckpt_path", "out_path", "format", "opset", "parity_batch", "tolerance", "latency_runs", "latency_batches",
-           "threads", "report_path", "register", "alias")
 
 
 def export(cfg: DictConfig) -> ExportReport:
     """Check the config (:func:`~spade.config.export_checks.validate_export_config`: a student checkpoint in, an
-    output that is neither it nor a folder), then run :func:`~spade.deploy.export.export_student` with it."""
-    validate_export_config(cfg)
-    # Only this task's keys are resolved: paths.output_dir needs a running Hydra app, and export() works without.
-    options = {k: OmegaConf.to_container(cfg[k], resolve=True) if OmegaConf.is_config(cfg[k]) else cfg[k]
-               for k in OPTIONS if k in cfg}
+    output that is neither it nor a folder), then run :func:`export_with` with its options."""
+    return export_with(validate_export_config(cfg))
+
+
+def export_with(options: ExportOptions) -> ExportReport:
+    """:func:`~spade.deploy.export.export_student` with checked ``options``; with ``register``, the ONNX export
+    logged and registered in the store, and with ``report_path`` the report written as JSON."""
     report = export_student(
-        options["ckpt_path"],
-        options.get("out_path"),
-        options.get("format", "onnx"),
-        opset=int(options.get("opset", 17)),
-        parity_batch=int(options.get("parity_batch", 4)),
-        tolerance=options.get("tolerance"),
-        latency_runs=int(options.get("latency_runs", 20)),
-        latency_batches=tuple(options.get("latency_batches") or (1,)),
-        threads=options.get("threads"),
+        options.ckpt_path,
+        options.out_path,
+        options.fmt,
+        opset=int(options.opset),
+        parity_batch=int(options.parity_batch),
+        tolerance=options.tolerance,
+        latency_runs=int(options.latency_runs),
+        latency_batches=tuple(options.latency_batches or (1,)),
+        threads=options.threads,
     )
-    if options.get("register"):
+    if options.register:
         if report.format != "onnx":
-            raise ConfigError(f"register={options['register']}: only ONNX exports are registered as MLflow Models; "
+            raise ConfigError(f"register={options.register}: only ONNX exports are registered as MLflow Models; "
                               "pass format=onnx")
         from spade.deploy.mlflow_models import register_onnx_student
 
-        registered = register_onnx_student(report.out_path, str(options["register"]), options.get("alias") or None,
-                                           tracking_uri=OmegaConf.select(cfg, "paths.mlflow_tracking_uri"))
+        registered = register_onnx_student(report.out_path, str(options.register), options.alias or None,
+                                           tracking_uri=options.store_uri)
         log.info("registered as %s (version %s)", registered.model_uri, registered.version)
         print(f"registered: {registered.model_uri} (version {registered.version}, run {registered.run_id})")
-    if options.get("report_path"):
-        path = Path(options["report_path"])
+    if options.report_path:
+        path = Path(options.report_path)
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(report.to_dict(), indent=2))
         log.info("report written to %s", path)

@@ -35,15 +35,16 @@ def rewrite_argv(args: list[str]) -> list[str]:
 
 
 def _checked_app(cfg: DictConfig):  # noqa: ANN202
-    """The config and inputs checked first (one ``error:`` line, exit 2), then the app."""
+    """The config and inputs checked first (one ``error:`` line, exit 2), then the app and the options it serves
+    with."""
     from spade.config.sketch_checks import validate_sketch_config
     from spade.sketching import build_app
 
-    validate_sketch_config(cfg)
-    annotate = OmegaConf.to_container(cfg.annotate, resolve=True)
-    return build_app(str(cfg.map), cfg.out_dir, annotate, cfg.model_path, cfg.device,  # type: ignore[arg-type]
-                     hosts=[str(cfg.host), *(cfg.get("allowed_hosts") or [])], models=cfg.get("models"),
-                     allow_unsigned=bool(cfg.get("allow_unsigned", False)))
+    options = validate_sketch_config(cfg)
+    app = build_app(str(options.map), options.out_dir, options.annotate or {}, options.model_path, options.device,
+                    hosts=[str(options.host), *(options.allowed_hosts or [])], models=options.models,
+                    allow_unsigned=bool(options.allow_unsigned))
+    return app, options
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="sketch")
@@ -52,8 +53,8 @@ def main(cfg: DictConfig) -> None:
     from spade.config.refusals import exit_on_user_error
     from spade.sketching import serve
 
-    app = exit_on_user_error(_checked_app)(cfg)
-    serve(app, cfg.host, int(cfg.port))
+    app, options = exit_on_user_error(_checked_app)(cfg)
+    serve(app, options.host, int(options.port))
 
 
 if __name__ == "__main__":

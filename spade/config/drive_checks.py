@@ -8,15 +8,16 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 from omegaconf import DictConfig
 
-from spade.config.values import check_int, get
+from spade.config.options import read_options
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import MISSING, check_int_value, check_number_value
 
-__all__ = ["check_drive", "validate_closed_loop_config"]
+__all__ = ["ClosedLoopOptions", "EvaluateDrive", "check_drive", "check_drive_config", "validate_closed_loop_config"]
 
 DRIVE_DEFAULTS = "conf/drive/default.yaml"
 _NONNEGATIVE = ("noise_xy_m", "noise_yaw_rad", "initial_offset_m", "initial_offset_rad", "budget_extra_s",
@@ -63,63 +64,93 @@ def check_drive(drive: Mapping[str, Any], prefix: str = "drive") -> None:
                           f"{prefix}.planner={{threshold: 0.5}}")
 
 
-def check_drive_config(cfg: DictConfig) -> None:
+@dataclass(frozen=True)
+class EvaluateDrive:
+    """``spade.evaluate``'s choice of tests and, with ``closed_loop=true``, the ``drive`` section (every option
+    checked by :func:`check_drive`)."""
+
+    node: ClassVar[str] = ""
+    open_loop: bool | None = None
+    closed_loop: bool | None = None
+    drive: Any = None
+
+    def __post_init__(self) -> None:
+        if self.open_loop is False and self.closed_loop is False:
+            raise ConfigError("open_loop=false closed_loop=false leaves nothing to evaluate; set open_loop=true (the "
+                              "test set's figures), closed_loop=true (drive its scenarios), or both")
+        if self.closed_loop is True:
+            if not isinstance(self.drive, Mapping):
+                raise ConfigError(f"drive={self.drive!r} is not the drive section; use conf/drive/default.yaml's keys")
+            check_drive(self.drive)
+
+
+def check_drive_config(cfg: DictConfig) -> EvaluateDrive:
     """``spade.evaluate``'s drive checks: something to run (``open_loop`` or ``closed_loop``), and with
     ``closed_loop=true`` every ``drive.*`` option (:func:`check_drive`)."""
-    open_loop, closed_loop = get(cfg, "open_loop"), get(cfg, "closed_loop")
-    if open_loop is False and closed_loop is False:
-        raise ConfigError("open_loop=false closed_loop=false leaves nothing to evaluate; set open_loop=true (the "
-                          "test set's figures), closed_loop=true (drive its scenarios), or both")
-    if closed_loop is True:
-        drive = get(cfg, "drive")
-        if not isinstance(drive, Mapping):
-            raise ConfigError(f"drive={drive!r} is not the drive section; use conf/drive/default.yaml's keys")
-        check_drive(drive)
+    return read_options(cfg, EvaluateDrive)
 
 
-def validate_closed_loop_config(cfg: DictConfig) -> None:
-    """``spade.closed_loop``'s checks before any drive: ``sources`` a list of ``{table, row}`` names, ``datasets``
-    a mapping of ``{data, scenarios}``, ``conditions`` a mapping of drive settings (each checked as
-    ``drive.*``, merged over the defaults), and ``seed``."""
+@dataclass(frozen=True)
+class ClosedLoopOptions:
+    """``spade.closed_loop``'s options (conf/closed_loop.yaml): ``sources`` a list of ``{table, row}`` names,
+    ``datasets`` a mapping of ``{data, scenarios}``, ``conditions`` a mapping of drive settings by name (each
+    checked against the drive defaults by :func:`validate_closed_loop_config`), and ``seed``."""
+
+    node: ClassVar[str] = ""
+    seed: int = 42
+    sources: Any = None
+    datasets: Any = None
+    conditions: Any = None
+
+    def __post_init__(self) -> None:
+        check_int_value("seed", self.seed, 0, 2**32 - 1, fix=", e.g. seed=42")
+        sources = self.sources
+        example = "sources=[{table: guidance, row: g_full_bc_L}]"
+        if not isinstance(sources, list) or not sources:
+            raise ConfigError(f"sources={sources!r} is not a non-empty list of {{table, row}}; e.g. {example}")
+        for i, source in enumerate(sources):
+            if not isinstance(source, Mapping) or set(source) != {"table", "row"}:
+                raise ConfigError(f"sources[{i}]={source!r} is not {{table: NAME, row: NAME}}; e.g. {example}")
+            for key in ("table", "row"):
+                value = source[key]
+                if not isinstance(value, str) or not _NAME.match(value):
+                    raise ConfigError(f"sources[{i}].{key}={value!r} is not a {key} name (letters, digits, _ . -); "
+                                      f"e.g. {example}")
+        datasets = self.datasets
+        if not isinstance(datasets, Mapping) or not datasets:
+            raise ConfigError(f"datasets={datasets!r} is not a mapping of scenario sets; e.g. "
+                              "datasets={heldout: {data: lshape, scenarios: 100}}")
+        for name, spec in datasets.items():
+            if not isinstance(spec, Mapping) or not isinstance(spec.get("data"), str) or not _NAME.match(spec["data"]):
+                raise ConfigError(f"datasets.{name}={spec!r} needs data: a data config name (conf/data), e.g. "
+                                  f"datasets.{name}={{data: lshape, scenarios: 100}}")
+            check_int_value(f"datasets.{name}.scenarios", spec.get("scenarios"), 1, none_ok=True,
+                            fix=": null (the test set's scenarios) or how many to drive, e.g. 100")
+        conditions = self.conditions
+        if not isinstance(conditions, Mapping) or not conditions:
+            raise ConfigError(f"conditions={conditions!r} is not a mapping of drive settings; e.g. conditions={{clean: "
+                              "{}}")
+        for name, settings in conditions.items():
+            if not _NAME.match(str(name)):
+                raise ConfigError(f"conditions.{name}: not a condition name (letters, digits, _ . -)")
+            if not isinstance(settings, Mapping):
+                raise ConfigError(f"conditions.{name}={settings!r} is not a mapping of drive settings "
+                                  f"({DRIVE_DEFAULTS})")
+
+
+def validate_closed_loop_config(cfg: DictConfig) -> ClosedLoopOptions:
+    """``spade.closed_loop``'s checks before any drive: :class:`ClosedLoopOptions`, and each condition's drive
+    settings merged over the defaults and checked as ``drive.*``; returns the options."""
     from omegaconf import OmegaConf
 
     from spade.utils.config import compose_config
 
-    check_int(cfg, "seed", 0, 2**32 - 1, fix=", e.g. seed=42")
-    sources = get(cfg, "sources")
-    example = "sources=[{table: guidance, row: g_full_bc_L}]"
-    if not isinstance(sources, list) or not sources:
-        raise ConfigError(f"sources={sources!r} is not a non-empty list of {{table, row}}; e.g. {example}")
-    for i, source in enumerate(sources):
-        if not isinstance(source, Mapping) or set(source) != {"table", "row"}:
-            raise ConfigError(f"sources[{i}]={source!r} is not {{table: NAME, row: NAME}}; e.g. {example}")
-        for key in ("table", "row"):
-            value = source[key]
-            if not isinstance(value, str) or not _NAME.match(value):
-                raise ConfigError(f"sources[{i}].{key}={value!r} is not a {key} name (letters, digits, _ . -); "
-                                  f"e.g. {example}")
-    datasets = get(cfg, "datasets")
-    if not isinstance(datasets, Mapping) or not datasets:
-        raise ConfigError(f"datasets={datasets!r} is not a mapping of scenario sets; e.g. "
-                          "datasets={heldout: {data: lshape, scenarios: 100}}")
-    for name, spec in datasets.items():
-        if not isinstance(spec, Mapping) or not isinstance(spec.get("data"), str) or not _NAME.match(spec["data"]):
-            raise ConfigError(f"datasets.{name}={spec!r} needs data: a data config name (conf/data), e.g. "
-                              f"datasets.{name}={{data: lshape, scenarios: 100}}")
-        check_int_value(f"datasets.{name}.scenarios", spec.get("scenarios"), 1, none_ok=True,
-                        fix=": null (the test set's scenarios) or how many to drive, e.g. 100")
-    conditions = get(cfg, "conditions")
-    if not isinstance(conditions, Mapping) or not conditions:
-        raise ConfigError(f"conditions={conditions!r} is not a mapping of drive settings; e.g. conditions={{clean: "
-                          "{}}")
+    options = read_options(cfg, ClosedLoopOptions)
     defaults = OmegaConf.to_container(compose_config("evaluate", []).drive, resolve=True)
-    for name, settings in conditions.items():
-        if not _NAME.match(str(name)):
-            raise ConfigError(f"conditions.{name}: not a condition name (letters, digits, _ . -)")
-        if not isinstance(settings, Mapping):
-            raise ConfigError(f"conditions.{name}={settings!r} is not a mapping of drive settings ({DRIVE_DEFAULTS})")
+    for name, settings in options.conditions.items():
         unknown = sorted(set(settings) - set(defaults))  # type: ignore[arg-type]
         if unknown:
             raise ConfigError(f"conditions.{name}.{unknown[0]}: no such drive setting; the keys are those of "
                               f"{DRIVE_DEFAULTS}")
         check_drive({**defaults, **settings}, f"conditions.{name}")  # type: ignore[dict-item]
+    return options

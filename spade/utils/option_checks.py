@@ -17,8 +17,8 @@ from typing import Any
 
 from spade.utils.errors import ConfigError
 
-__all__ = ["MISSING", "check_choice_value", "check_int_value", "check_number_value", "is_int", "is_number",
-           "range_text", "unset"]
+__all__ = ["MISSING", "check_bool_value", "check_choice_value", "check_int_list_value", "check_int_value",
+           "check_number_value", "is_int", "is_number", "range_text", "unset"]
 
 MISSING = object()
 
@@ -72,6 +72,28 @@ def check_choice_value(key: str, value: Any, choices: list[str], *, none_ok: boo
         return
     if value not in choices:
         raise ConfigError(f"{key}={value!r} is not one of {choices}; set {key}={choices[0]} (or another of them)")
+
+
+def check_bool_value(key: str, value: Any) -> None:
+    """``true`` / ``false`` (null or unset: the default), nothing else (Hydra reads ``maybe`` or ``1`` as a string
+    or a number, which Python would take as true); ``key`` names it in the message."""
+    if value is not MISSING and value is not None and not isinstance(value, bool):
+        raise ConfigError(f"{key}={value!r} is not a boolean; set {key}=true or {key}=false")
+
+
+def check_int_list_value(key: str, value: Any, low: int | None = 1, *, none_ok: bool = False, fix: str = "") -> None:
+    """A non-empty list of integers, each >= ``low`` (e.g. batch sizes: ``[0]`` is refused)."""
+    if value is MISSING or (value is None and none_ok):
+        return
+    rng = range_text(low, None, ())
+    fix = fix or f", e.g. {key}=[1,8]"
+    if not isinstance(value, (list, tuple)) or not value:
+        raise ConfigError(f"{key}={value!r} is not a non-empty list of integers; set it to a list of integers "
+                          f"{rng}{fix}")
+    for item in value:
+        if not is_int(item) or (low is not None and item < low):
+            raise ConfigError(f"{key}={value!r} holds {item!r}, which is not an integer {rng}; set it to a list of "
+                              f"integers {rng}{fix}")
 
 
 def range_text(low: int | None, high: int | None, extra: tuple[int, ...]) -> str:
