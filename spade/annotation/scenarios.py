@@ -22,7 +22,7 @@ from scipy.cluster.vq import kmeans2
 
 from spade.annotation.execution import ExecutedPath, Rejection, execute_sketch
 from spade.annotation.split import CROSSING, AreaLine, area_line, parse_split
-from spade.annotation.templates import SHAPES, check_shape, place_template, sample_template
+from spade.annotation.templates import SHAPES, check_shape, place_template, sample_template, sketch_fits
 from spade.data.rasterize import Instance, fits_robot_frame, robot_instance, state_indices
 from spade.maps.costmap import Costmap, build_costmap
 from spade.maps.frame import RobotFrame, yaw_from_heading
@@ -162,19 +162,6 @@ def scenario_area(ctx: MapContext, index: int, cfg: Mapping[str, Any]) -> int:
         raise ValueError(f"scenario.areas={areas} on map {ctx.map_id!r}: areas are numbered 0..{ctx.n_areas - 1} "
                          f"(scenario.areas_per_map={cfg['scenario']['areas_per_map']}); use indices in that range")
     return areas[index % len(areas)]
-
-
-def sketch_fits(costmap: Costmap, dense: np.ndarray, frame: RobotFrame, margin_px: float, clearance_px: float
-                ) -> bool:
-    """Whether a placed sketch's ideal curve (map pixels) fits the robot-frame window of its start, lies on the
-    map and keeps ``clearance_px`` from non-free space: the checks a template passes before it is executed."""
-    if not fits_robot_frame(dense, frame, margin_px):
-        return False
-    cells = np.rint(dense).astype(np.int64)
-    h, w = costmap.grid.shape
-    if (cells < 0).any() or (cells[:, 0] >= w).any() or (cells[:, 1] >= h).any():
-        return False
-    return bool(costmap.clearance_px[cells[:, 1], cells[:, 0]].min() >= clearance_px)
 
 
 def _placement(ctx: MapContext, shape: str, goal: np.ndarray, cfg: Mapping[str, Any], rng: np.random.Generator,
