@@ -20,6 +20,7 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 from scipy.cluster.vq import kmeans2
 
+from spade.annotation.alternative_demonstrations import AlternativesSettings, scenario_alternatives
 from spade.annotation.execution import ExecutedPath, Rejection, execute_sketch
 from spade.annotation.split import CROSSING, AreaLine, area_line, parse_split
 from spade.annotation.templates import SHAPES, check_shape, place_template, sample_template, sketch_fits
@@ -290,8 +291,6 @@ def plan_alternatives(ctx: MapContext, result: ScenarioResult, cfg: Mapping[str,
     """Alternative demonstrations of every robot state of a planned scenario (``cfg.alternatives``; see
     :mod:`spade.annotation.alternative_demonstrations`): {state index: (k, num_waypoints, 2)} and the sampler's
     counters."""
-    from spade.annotation.alternative_demonstrations import AlternativesSettings, scenario_alternatives
-
     settings = AlternativesSettings.from_cfg(cfg.get("alternatives"))
     if not settings.wanted(result.shape) or result.executed is None or result.sketch is None:
         return {}, {}

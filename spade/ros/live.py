@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from spade.ros import messages as M
+from spade.ros.convert import quaternion_to_yaw
 from spade.ros.window_messages import WINDOW_FRAME, window_grids
 from spade.utils.errors import ConfigError
 
@@ -297,8 +298,6 @@ class FoxgloveLive:
                 pose = msg.pose.pose
             else:
                 pose = msg.pose
-            from spade.ros.convert import quaternion_to_yaw
-
             q = pose.orientation
             yaw = quaternion_to_yaw(q.x, q.y, q.z, q.w)
             self._tf((pose.position.x, pose.position.y, yaw), msg.header.frame_id or "map", "base_link")

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from spade.ros.convert import grid_fields, path_yaws, split_stamp, yaw_to_quaternion
+from spade.ros.convert import grid_fields, path_yaws, pose_from_msg, split_stamp, yaw_to_quaternion
 from spade.ros.window_messages import WINDOW_FRAME, window_grids, window_map, window_to_base_link
 from spade.utils.errors import ConfigError
 
@@ -239,7 +239,6 @@ class NodeRecorder:
             self.bag.write(self.topics[name], self.types[name], bytes(sample.serialize()), ns)
             if name == "pose":  # the robot in /tf too (map -> base_link), for Foxglove's 3D panel
                 from spade.ros import messages as M
-                from spade.ros.convert import pose_from_msg
 
                 frame, pose = pose_from_msg(sample)
                 self._extra("tf", M.tf_message(pose, frame or "map", "base_link"), ns)
