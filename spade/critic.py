@@ -31,7 +31,8 @@ def _test_loader(cfg: DictConfig, encoding: str = "binary"):
     start and goal drawn with ``encoding``, the expert's (:attr:`ExpertModule.marker_encoding`)."""
     from torch.utils.data import DataLoader, Subset
 
-    from spade.data import DatasetError, PathDataset
+    from spade.data import DatasetError
+    from spade.data.path_dataset import PathDataset
 
     test_dir = cfg.data.get("test_dir")
     if not test_dir or not (Path(str(test_dir)) / "manifest.json").is_file():

@@ -10,6 +10,8 @@
 Implementation: :mod:`spade.deploy.student_planner`.
 """
 
-from spade.deploy.student_planner import PlannerConfigError, PlanResult, Planner, PlanWindow
+from spade.deploy.plan_result import PlannerConfigError, PlanResult
+from spade.deploy.robot_window import PlanWindow
+from spade.deploy.student_planner import Planner
 
 __all__ = ["PlanResult", "PlanWindow", "Planner", "PlannerConfigError"]

@@ -86,7 +86,7 @@ def hand_made_checkpoint(path: Path, role: str = "student", data: dict | None = 
     untrained weights, BatchNorm statistics moved off their defaults so that eval mode is exercised."""
     import torch
 
-    from spade.models import build_model
+    from spade.models.builders import build_model
 
     torch.manual_seed(0)
     net = build_model("student", size)

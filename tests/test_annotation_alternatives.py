@@ -23,7 +23,7 @@ from spade.annotation.pipeline import build_contexts
 from spade.annotation.scenarios import plan_scenario, state_indices_along
 from spade.annotation.sources import load_map_sources
 from spade.annotation.templates import SHAPES, turn_curve, place_template, sample_template
-from spade.data import PathDataset
+from spade.data.path_dataset import PathDataset
 from spade.maps.frame import RobotFrame, path_heading
 
 from test_annotation_pipeline import small_cfg

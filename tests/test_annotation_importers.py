@@ -96,7 +96,7 @@ def test_rosbag_round_trip(tmp_path: Path, storage: str) -> None:
     assert summary["instances"] == n_poses and summary["rejections"] == {}  # one instance per pose sample
     manifest = check_dataset(tmp_path / "ds", {"L"}, 30.0)
     assert manifest["labels"]["scenario_id"]["values"] == [f"run_{storage}/L000"]
-    from spade.data import PathDataset
+    from spade.data.path_dataset import PathDataset
 
     item = PathDataset(tmp_path / "ds")[0]
     wp = item["waypoints"].numpy()
@@ -160,7 +160,7 @@ def test_skipp_layout_import(tmp_path: Path) -> None:
     assert summary["instances"] == 4
     manifest = check_dataset(tmp_path / "ds", {"U"}, 30.0)
     assert manifest["resolution"] == pytest.approx(0.02) and manifest["image_size"] == [128, 128]
-    from spade.data import PathDataset
+    from spade.data.path_dataset import PathDataset
 
     item = PathDataset(tmp_path / "ds")[0]
     wp = item["waypoints"].numpy()

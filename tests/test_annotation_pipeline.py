@@ -16,7 +16,8 @@ from spade.annotation.invariants import instance_problems
 from spade.annotation.execution import total_turn_deg
 from spade.annotation.pipeline import NotEnoughInstancesError
 from spade.annotation.templates import SHAPES, UnknownShapeError
-from spade.data import PathDataset, read_manifest
+from spade.data import read_manifest
+from spade.data.path_dataset import PathDataset
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -21,7 +21,7 @@ from spade.annotation.split import (
     read_split,
     split_pair_problems,
 )
-from spade.data import PathDataset
+from spade.data.path_dataset import PathDataset
 from spade.data.checks import settings_difference
 from spade.data.datamodule import leaked_scenarios
 from spade.data.fingerprint import NON_SHAPING_KEYS, settings_fingerprint, shaping_settings

@@ -13,7 +13,7 @@ from spade.closedloop.planners import BaselinePlanner, DemonstrationPlanner
 from spade.closedloop.scenario_loading import Scenario, scenario_starts
 from spade.closedloop.simulate import ClosedLoopSettings, Episode, PlanRecord, drive, replay
 from spade.data.polyline import resample_polyline
-from spade.deploy.student_planner import PlanResult
+from spade.deploy.plan_result import PlanResult
 from spade.maps.costmap import build_costmap
 from spade.maps.frame import RobotFrame
 from spade.maps.occupancy import FREE, OCCUPIED, OccupancyMap

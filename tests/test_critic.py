@@ -250,7 +250,7 @@ def test_the_run_summary_says_whether_guidance_acted_to_the_end() -> None:
 
 def test_the_run_description_says_in_words_whether_guidance_acted(spade_home) -> None:
     """Once, whether guidance acted was hidden in the 10th chart section; the MLflow description says it."""
-    from spade.tracking import run_description
+    from spade.tracking.descriptions import run_description
     from training_helpers import compose_row
 
     cfg = compose_row("t1_small_conddbc_L", spade_home, "logger=none")

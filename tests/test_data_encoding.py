@@ -66,7 +66,7 @@ def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_the_dataset_redraws_its_markers_at_the_polylines_ends(dataset: Path) -> None:
-    from spade.data import PathDataset
+    from spade.data.path_dataset import PathDataset
 
     binary, aa = PathDataset(dataset), PathDataset(dataset, encoding="aa_disc")
     for i in range(len(binary)):
@@ -82,7 +82,7 @@ def test_the_floor_loses_the_rounding_under_a_sub_pixel_encoding(dataset: Path) 
     """The floor's path ends on the goal as the input shows it: binary discs leave the rounding in the floor."""
     from torch.utils.data import DataLoader
 
-    from spade.data import PathDataset
+    from spade.data.path_dataset import PathDataset
     from spade.metrics.preference import PreferenceMetrics
 
     floors = {}
@@ -98,7 +98,8 @@ def test_the_floor_loses_the_rounding_under_a_sub_pixel_encoding(dataset: Path) 
 def test_the_planner_draws_the_markers_its_model_was_trained_on(tmp_path: Path) -> None:
     from test_planner import FRAME, RES, ROBOT_DATA, fresh_checkpoint
 
-    from spade.deploy.student_planner import Planner, PlannerConfigError
+    from spade.deploy.plan_result import PlannerConfigError
+    from spade.deploy.student_planner import Planner
 
     goal = np.array([40.3, 20.6])
     robot = np.asarray(FRAME.robot_px)

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from spade.data import DatasetError, DatasetWriter, PathDataset, read_manifest
+from spade.data import DatasetError, DatasetWriter, read_manifest
+from spade.data.path_dataset import PathDataset
 from spade.data.packing import pack_bits, pack_two_bit, unpack_bits, unpack_two_bit
 from spade.data.verify import main as verify_main
 

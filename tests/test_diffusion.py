@@ -5,7 +5,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from spade.models import NoiseSchedule, build_cond_expert, build_uncond_expert, from_model_range, to_model_range
+from spade.models.cond_expert import build_cond_expert
+from spade.models.diffusion import NoiseSchedule, from_model_range, to_model_range
+from spade.models.uncond_expert import build_uncond_expert
 
 
 def test_add_noise_matches_closed_form() -> None:

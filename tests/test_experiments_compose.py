@@ -261,7 +261,7 @@ def test_table_estimate_scales_with_the_speed_measured_on_this_machine(spade_hom
 
 def test_tiny_run_summary_says_pipeline_check(spade_home: Path) -> None:
     from spade.experiments.tables import TINY_NOTICE
-    from spade.tracking import run_summary
+    from spade.tracking.summary import run_summary
 
     metrics = {"test/ape_cm": 12.0}
     assert TINY_NOTICE in run_summary(compose_row("smoke", spade_home, "logger=none"), metrics)
@@ -324,7 +324,7 @@ def test_guidance_composition_launches_its_six_rows(spade_home: Path) -> None:
 def test_run_summary_says_when_a_student_did_not_learn_and_how_to_use_its_checkpoint(spade_home: Path) -> None:
     """A student that extracted nothing (failures 100 %) or lost to the heading template was reported
     like any other; the end of a run did not name the checkpoint that evaluate, export and plan need."""
-    from spade.tracking import run_summary
+    from spade.tracking.summary import run_summary
 
     cfg = compose_row("t1_small_bc_L", spade_home, "logger=none")
     # the verdict names its figure (the planner's APE and tail) and judges every baseline
@@ -357,7 +357,7 @@ def test_the_evaluate_command_names_a_rows_data_config(spade_home: Path, monkeyp
 
     from hydra.core.hydra_config import HydraConfig
 
-    from spade.tracking import run_summary
+    from spade.tracking.summary import run_summary
 
     cfg = compose_row("sz_n300_e3_L", spade_home, "logger=none")
     monkeypatch.setattr(HydraConfig, "initialized", staticmethod(lambda: True))

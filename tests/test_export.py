@@ -15,7 +15,7 @@ import torch
 
 from spade.deploy.export import ExportError, example_states, export_student, read_metadata
 from spade.maps.frame import RobotFrame
-from spade.models import build_model
+from spade.models.builders import build_model
 from spade.models.modelfile import INPUT_ENCODING, open_model
 from factories import hand_made_checkpoint
 

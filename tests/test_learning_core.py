@@ -9,7 +9,8 @@ import torch
 
 from spade.data.rasterize import robot_instance
 from spade.maps.frame import RobotFrame
-from spade.metrics import APE, HausdorffCount
+from spade.metrics.ape import APE
+from spade.metrics.hausdorff import HausdorffCount
 from spade.metrics.baselines import BASELINES, baseline_images, baseline_polylines, heading_template, shortest_path
 from spade.training.expert_module import WarmupEMA, ema_decay_at
 from spade.training.margin import DiffusionMargin, MarginConfig

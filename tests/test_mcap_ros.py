@@ -204,7 +204,8 @@ def hand_made_instances() -> dict:
 
 
 def test_a_test_set_bag_decodes_with_mcap_ros2_support(tmp_path: Path) -> None:
-    from spade.ros.recording import window_to_base_link, write_test_bag
+    from spade.ros.recording import write_test_bag
+    from spade.ros.window_messages import window_to_base_link
 
     data = hand_made_instances()
     t0 = 1_700_000_000_000_000_000

@@ -7,7 +7,9 @@ import pytest
 import torch
 
 from spade.data.polyline import resample_polyline
-from spade.metrics import APE, extract_path, polyline_ape
+from spade.metrics.ape import APE
+from spade.metrics.extraction import extract_path
+from spade.metrics.geometry import polyline_ape
 from spade.metrics.synthetic import rasterise_polyline, synthetic_batch
 
 evo_metrics = pytest.importorskip("evo.core.metrics")

@@ -11,7 +11,9 @@ import torch
 import torch.distributed as dist
 import torch.multiprocessing as mp
 
-from spade.metrics import APE, FID, HausdorffCount
+from spade.metrics.ape import APE
+from spade.metrics.fid import FID
+from spade.metrics.hausdorff import HausdorffCount
 from spade.metrics.synthetic import degrade, synthetic_batch
 
 N = 260  # FID needs > 240 samples per set

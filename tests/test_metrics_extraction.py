@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from skimage.draw import disk
 
-from spade.metrics import extract_path, polyline_ape
+from spade.metrics.extraction import extract_path
+from spade.metrics.geometry import polyline_ape
 from spade.metrics.synthetic import rasterise_polyline
 
 # '#' path, 'S' start (on the path), 'G' goal (on the path), '*' a blob or spur pixel (also predicted).

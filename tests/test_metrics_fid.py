@@ -8,8 +8,8 @@ import pytest
 import torch
 from scipy import linalg
 
-from spade.metrics import FID, RandomConvFeatures, build_feature_extractor, frechet_distance
-from spade.metrics.features import DEFAULT_RANDCONV_SHA256
+from spade.metrics.features import DEFAULT_RANDCONV_SHA256, RandomConvFeatures, build_feature_extractor
+from spade.metrics.fid import FID, frechet_distance
 from spade.metrics.shape_features import DEFAULT_SHAPE_SHA256, SHAPE_WEIGHTS_FILE, ShapeFeatures, weights_sha256
 from spade.metrics.shape_paths import render_paths, rotate_paths, sample_paths, straight_paths
 from spade.metrics.synthetic import degrade, synthetic_batch

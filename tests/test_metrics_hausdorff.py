@@ -7,7 +7,8 @@ import pytest
 import torch
 from scipy.spatial.distance import directed_hausdorff
 
-from spade.metrics import HausdorffCount, Hd19, mask_hausdorff
+from spade.metrics.geometry import mask_hausdorff
+from spade.metrics.hausdorff import HausdorffCount, Hd19
 
 
 def scipy_hausdorff(a: np.ndarray, b: np.ndarray) -> float:

@@ -101,9 +101,11 @@ def test_mlflow_ui_shows_a_spade_run_from_the_printed_urls(tmp_path: Path, monke
     from omegaconf import OmegaConf
 
     from factories import write_synthetic
-    from spade.tracking import (
-        DatasetUse, bind_experiment, log_dataset_inputs, log_predictor_runs, run_description, ui_lines,
-    )
+    from spade.tracking.dataset_inputs import DatasetUse, log_dataset_inputs
+    from spade.tracking.descriptions import run_description
+    from spade.tracking.links import ui_lines
+    from spade.tracking.predictors import log_predictor_runs
+    from spade.tracking.runs import bind_experiment
 
     port = free_port()
     base = f"http://127.0.0.1:{port}"
@@ -156,7 +158,7 @@ def test_mlflow_ui_opens_the_smoke_run_from_the_urls_it_printed(served_home) -> 
 
 # -- the pieces, without training or a browser (fast) ---------------------------------------------------------
 def test_printed_urls_open_runs_views(monkeypatch: pytest.MonkeyPatch) -> None:
-    from spade.tracking import ui_lines
+    from spade.tracking.links import ui_lines
 
     monkeypatch.delenv("SPADE_MLFLOW_UI_URL", raising=False)
     command, run, experiment, switch = ui_lines("sqlite:////x/mlflow.db", "3", "ab12")
@@ -184,7 +186,8 @@ def _logger(tmp_path: Path, experiment: str):
 def test_experiments_are_tagged_as_training_with_a_description(tmp_path: Path) -> None:
     import json
 
-    from spade.tracking import KIND_TAG, NOTE_TAG, VIEW_TAG, bind_experiment
+    from spade.tracking.experiment_tags import KIND_TAG, NOTE_TAG, VIEW_TAG
+    from spade.tracking.runs import bind_experiment
 
     ml = _logger(tmp_path, "table2")
     bind_experiment(ml)
@@ -210,7 +213,8 @@ def test_an_experiment_a_parallel_job_creates_first_is_bound_and_tagged(tmp_path
     job's create fails; the run still opens (one run, in that experiment) and the experiment is tagged."""
     from mlflow import MlflowClient
 
-    from spade.tracking import KIND_TAG, NOTE_TAG, VIEW_TAG, bind_experiment
+    from spade.tracking.experiment_tags import KIND_TAG, NOTE_TAG, VIEW_TAG
+    from spade.tracking.runs import bind_experiment
 
     create = MlflowClient.create_experiment
 
@@ -237,7 +241,8 @@ def test_a_tag_a_parallel_job_writes_at_the_same_moment_is_not_an_error(tmp_path
     from mlflow import MlflowClient
     from mlflow.exceptions import MlflowException
 
-    from spade.tracking import KIND_TAG, NOTE_TAG, VIEW_TAG, bind_experiment
+    from spade.tracking.experiment_tags import KIND_TAG, NOTE_TAG, VIEW_TAG
+    from spade.tracking.runs import bind_experiment
 
     set_tag = MlflowClient.set_experiment_tag
     raced: list[str] = []
@@ -270,7 +275,7 @@ def test_datasets_are_run_inputs_with_fingerprint_source_context_and_profile(tmp
     from types import SimpleNamespace
 
     from factories import write_synthetic
-    from spade.tracking import dataset_fingerprint, dataset_uses, log_dataset_inputs
+    from spade.tracking.dataset_inputs import dataset_fingerprint, dataset_uses, log_dataset_inputs
 
     for name, seed in (("lshape", 0), ("test", 1), ("lshape_again", 0)):
         write_synthetic(tmp_path / "tiny" / name, n=9, seed=seed)
@@ -306,7 +311,7 @@ def test_a_dataset_a_parallel_job_logs_at_the_same_moment_is_linked_not_an_error
     from mlflow.exceptions import MlflowException
 
     from factories import write_synthetic
-    from spade.tracking import dataset_uses, log_dataset_inputs
+    from spade.tracking.dataset_inputs import dataset_uses, log_dataset_inputs
 
     for name, seed in (("lshape", 0), ("test", 1)):
         write_synthetic(tmp_path / "tiny" / name, n=9, seed=seed)
@@ -348,7 +353,8 @@ def test_a_dataset_a_parallel_job_logs_at_the_same_moment_is_linked_not_an_error
 def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(tmp_path: Path) -> None:
     from omegaconf import OmegaConf
 
-    from spade.tracking import DatasetUse, prerequisite_uses, run_description
+    from spade.tracking.dataset_inputs import DatasetUse
+    from spade.tracking.descriptions import prerequisite_uses, run_description
 
     ml = _logger(tmp_path, "table1")
     client = ml.experiment

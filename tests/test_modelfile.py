@@ -16,7 +16,7 @@ import torch
 from omegaconf import OmegaConf
 
 from spade.maps.frame import RobotFrame
-from spade.models import build_model
+from spade.models.builders import build_model
 from spade.models.modelfile import (
     INPUT_ENCODING,
     ModelFileError,

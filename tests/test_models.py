@@ -6,21 +6,11 @@ import pytest
 import torch
 from torch import nn
 
-from spade.models import (
-    PAPER_PARAMETER_COUNTS,
-    ROLES,
-    STUDENT_PRESETS,
-    CondExpertUNet,
-    StudentUNet,
-    build_cond_expert,
-    build_model,
-    build_student,
-    build_uncond_expert,
-    count_parameters,
-    model_from_config,
-    presets,
-)
-from spade.models.paper_sizes import PAPER_COND_EXPERT_PARAMETERS
+from spade.models.builders import ROLES, build_model, count_parameters, model_from_config, presets
+from spade.models.cond_expert import CondExpertUNet, build_cond_expert
+from spade.models.paper_sizes import PAPER_COND_EXPERT_PARAMETERS, PAPER_PARAMETER_COUNTS
+from spade.models.student import STUDENT_PRESETS, StudentUNet, build_student
+from spade.models.uncond_expert import build_uncond_expert
 
 # Exact counts of the chosen presets (regression guard on the widths); the paper's figures are in PAPER_PARAMETER_COUNTS.
 STUDENT_COUNTS = {"small": 118_165, "medium": 1_926_209, "large": 31_114_785}

@@ -18,7 +18,7 @@ from spade.annotation.scenarios import generate_scenario, prepare_map
 from spade.data.rasterize import render, robot_instance, state_indices
 from spade.maps import FREE, OCCUPIED, OccupancyMap, generate_map, load_ros_map
 from spade.maps.frame import RobotFrame, heading_from_yaw, path_heading, yaw_from_heading
-from spade.models import build_model
+from spade.models.builders import build_model
 from spade.planner import Planner, PlannerConfigError, PlanResult
 from spade.utils.config import compose_config
 from factories import LineOracle
@@ -351,10 +351,13 @@ def test_checkpoint_onnx_and_torchscript_plan_alike(ckpt: Path, warehouse: Occup
 
 
 def test_public_path() -> None:
+    import spade.deploy.plan_result as result
+    import spade.deploy.robot_window as window
     import spade.deploy.student_planner as impl
     import spade.planner as public
 
-    assert public.Planner is impl.Planner and public.PlanResult is impl.PlanResult and PlanResult is impl.PlanResult
+    assert public.Planner is impl.Planner and public.PlanResult is result.PlanResult and PlanResult is result.PlanResult
+    assert public.PlanWindow is window.PlanWindow and public.PlannerConfigError is result.PlannerConfigError
 
 
 # ------------------------------------------------------------------------------------------------ trained

@@ -60,7 +60,7 @@ def test_the_worst_panels_come_from_distinct_scenarios() -> None:
 
 
 def test_run_description_figures_are_rounded_to_a_tenth_of_a_centimetre() -> None:
-    from spade.tracking import figures_table
+    from spade.tracking.descriptions import figures_table
 
     text = figures_table({"test/ape_cm": 10.1234, "test/baseline/straight/ape_cm": 25.0149, "test/hd19": 3.0})
     import re

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from spade.data import DatasetWriter, PathDataset, read_manifest
+from spade.data import DatasetWriter, read_manifest
+from spade.data.path_dataset import PathDataset
 from spade.data.verify import verify
 from spade.data.writer import process_owner as _owner, remove_stale_partials
 
@@ -153,7 +154,8 @@ def test_a_tampered_manifest_is_refused_by_verify_and_by_loading(tmp_path: Path)
     checksum was recomputed after the edit is still refused where its geometry disagrees with its own records."""
     import json
 
-    from spade.data import DatasetError, PathDataset
+    from spade.data import DatasetError
+    from spade.data.path_dataset import PathDataset
     from spade.data.format import MANIFEST_CHECKSUM, manifest_checksum
     from spade.data.verify import verify
 

@@ -20,7 +20,8 @@ import pytest
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import open_dict
 
-from spade.data import DatasetWriter, PathDataset
+from spade.data import DatasetWriter
+from spade.data.path_dataset import PathDataset
 from spade.config.preflight import validate_train_config
 from spade.utils.errors import ConfigError
 
@@ -46,7 +47,7 @@ def student_checkpoint(path: Path, role: str = "student", size: int = 64) -> Pat
     import torch
 
     from spade.maps.frame import RobotFrame
-    from spade.models import build_model
+    from spade.models.builders import build_model
 
     net = build_model("student", "small")
     info = {"role": role, "config": dict(net.config),
@@ -404,7 +405,7 @@ def test_a_registry_expert_of_the_wrong_kind_is_refused_before_training(spade_ho
     from spade.experiments import prerequisites
     from spade.experiments import run as run_module
     from spade.tracking.registry import RegisteredCheckpoint
-    from spade.models import build_model
+    from spade.models.builders import build_model
 
     net = build_model("uncond_expert", "tiny")
     uncond = tmp_path / "cache" / "uncond.ckpt"

@@ -38,7 +38,8 @@ def _strip_checksum(root: Path) -> Path:
 def test_a_manifest_without_its_checksum_is_refused_by_verify_and_loading(tmp_path: Path) -> None:
     """A manifest whose resolution and generator record were edited and whose ``manifest_sha256`` was
     deleted verified "OK" and loaded. Now both refuse it, naming the file and the fix (regenerate)."""
-    from spade.data import DatasetError, PathDataset
+    from spade.data import DatasetError
+    from spade.data.path_dataset import PathDataset
     from spade.data.verify import verify
 
     root = tmp_path / "ds"
@@ -250,7 +251,8 @@ def test_a_forged_onnx_graph_is_refused_wherever_a_student_is_opened(real_export
     spade.export."""
     import warnings
 
-    from spade.deploy.student_planner import Planner, PlannerConfigError
+    from spade.deploy.plan_result import PlannerConfigError
+    from spade.deploy.student_planner import Planner
     from spade.models.modelfile import ModelFileError, open_model
     from spade.models.onnx_check import UncheckedExportWarning
 

@@ -39,7 +39,8 @@ def test_a_model_without_an_integrity_record_is_refused_unless_allowed(real_expo
     with a warning that it "was exported before SPADE recorded a weight digest". Now it is refused by the Planner
     API and ``spade.plan``, saying what is missing and naming the opt-in; with ``allow_unsigned`` it opens, warned."""
     from factories import site_map
-    from spade.deploy.student_planner import Planner, PlannerConfigError
+    from spade.deploy.plan_result import PlannerConfigError
+    from spade.deploy.student_planner import Planner
     from spade.models.onnx_check import UncheckedExportWarning
 
     meta = {k: v for k, v in _metadata(real_export).items() if k != "integrity"}
@@ -69,7 +70,7 @@ def test_a_model_without_an_integrity_record_is_refused_unless_allowed(real_expo
 def test_the_ros_node_takes_the_opt_in_from_its_planner_options(real_export: Path, tmp_path: Path) -> None:
     """The ROS node builds its planner from ``conf/ros.yaml``'s ``planner`` block: refused by default, opened with
     ``planner.allow_unsigned=true``."""
-    from spade.deploy.student_planner import PlannerConfigError
+    from spade.deploy.plan_result import PlannerConfigError
     from spade.models.onnx_check import UncheckedExportWarning
     from spade.ros.launch import build_planner
     from spade.utils.config import compose_config
@@ -91,7 +92,8 @@ def test_an_edited_field_of_a_real_export_is_refused_by_name(real_export: Path, 
     """Wrong 2: editing ``resolution_m`` 0.1 -> 0.05 (every plan rescaled) or the footprint to 0.5 m (a student of
     a 0.105 m robot planning for a 0.5 m one) was trusted. Now every field a planner acts on is in the record, and
     an edit is refused naming the field; so is one added since export."""
-    from spade.deploy.student_planner import Planner, PlannerConfigError
+    from spade.deploy.plan_result import PlannerConfigError
+    from spade.deploy.student_planner import Planner
     from spade.models.modelfile import ModelFileError, open_model
 
     meta = _metadata(real_export)
@@ -191,7 +193,8 @@ def test_verify_and_the_loaders_refuse_the_same_absurd_values(tmp_path: Path, na
     """Wrong 3: ``spade.data.verify`` reported OK for a dataset whose every pose is NaN (``spade.evaluate`` refused
     it); finite absurd waypoints (1e30) failed late in evaluation and training. Now one check (value_problems)
     refuses them in both, with the same line naming the file, the first instance and the fix."""
-    from spade.data import DatasetError, PathDataset
+    from spade.data import DatasetError
+    from spade.data.path_dataset import PathDataset
     from spade.data.verify import verify
 
     path = poisoned(tmp_path / "ds", name, value, column=column)

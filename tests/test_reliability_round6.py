@@ -81,8 +81,7 @@ def test_a_missing_registry_version_names_the_versions_that_exist(tmp_path: Path
     """``model=models:/NAME/99`` answered MLflow's error for an unknown version; now one line naming the versions
     (and aliases) NAME has, and an unknown name is answered with the names that are registered."""
     from factories import site_map
-    from spade.deploy.mlflow_models import mlflow_client
-    from spade.deploy.mlflow_store import ensure_store
+    from spade.deploy.mlflow_store import ensure_store, mlflow_client
 
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     ensure_store(uri)

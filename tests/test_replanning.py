@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from spade.closedloop.simulate import ClosedLoopSettings, drive
-from spade.deploy.student_planner import DEFAULT_REPLAN_PRIOR, Planner, PlannerConfigError
+from spade.deploy.plan_result import PlannerConfigError
+from spade.deploy.student_planner import DEFAULT_REPLAN_PRIOR, Planner
 from spade.maps import FREE, OCCUPIED, OccupancyMap
 from spade.metrics.decoding import PathDecoder
 from spade.metrics.synthetic import rasterise_polyline

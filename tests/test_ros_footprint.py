@@ -12,13 +12,15 @@ from types import SimpleNamespace as NS
 import pytest
 import torch
 
-from spade.deploy.student_planner import Planner, PlannerConfigError, check_footprint, describe_footprint
+from spade.deploy.footprint import check_footprint, describe_footprint
+from spade.deploy.plan_result import PlannerConfigError
+from spade.deploy.student_planner import Planner
 from spade.models.modelfile import DEFAULT_FOOTPRINT, checkpoint_entry, export_metadata
 
 
 def student_ckpt(folder: Path, footprint: dict | None) -> Path:
     from spade.maps.frame import RobotFrame
-    from spade.models import build_model
+    from spade.models.builders import build_model
 
     torch.manual_seed(0)
     net = build_model("student", "small")
@@ -33,7 +35,7 @@ def student_ckpt(folder: Path, footprint: dict | None) -> Path:
 
 def test_the_checkpoint_entry_records_the_annotations_robot() -> None:
     from spade.maps.frame import RobotFrame
-    from spade.models import build_model
+    from spade.models.builders import build_model
 
     net = build_model("student", "small")
     dm = NS(image_size=(64, 64), resolution=0.1, encoding="binary", frame=RobotFrame.for_size(64).to_json(),

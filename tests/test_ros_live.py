@@ -120,10 +120,10 @@ def test_a_foxglove_client_receives_the_map_and_a_plan() -> None:
 
 
 def test_the_plan_window_and_probabilities_are_grids_in_the_window_frame() -> None:
-    from spade.deploy.student_planner import PlanWindow
+    from spade.deploy.robot_window import PlanWindow
     from spade.maps import FREE, OCCUPIED, OccupancyMap
     from spade.maps.frame import RobotFrame
-    from spade.ros.live import window_grids
+    from spade.ros.window_messages import window_grids
 
     grid = np.full((100, 100), FREE, np.uint8)
     grid[10, 50] = OCCUPIED
@@ -163,7 +163,7 @@ def test_the_shipped_layout_is_a_foxglove_layout_of_spades_channels() -> None:
 
 def test_recordings_carry_tf_and_the_students_window(tmp_path: Path) -> None:
     mcap_ros2 = pytest.importorskip("mcap_ros2.reader")
-    from spade.deploy.student_planner import PlanWindow
+    from spade.deploy.robot_window import PlanWindow
     from spade.maps import FREE, OccupancyMap
     from spade.maps.frame import RobotFrame
     from spade.ros.node import Topics

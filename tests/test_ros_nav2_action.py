@@ -67,7 +67,7 @@ def test_compute_path_to_pose_over_dds(tmp_path: Path, student: tuple[Path, Path
     from spade.ros import messages as M
     from spade.ros.action import ActionClient
     from spade.ros.action_types import CANCEL, ERROR, STATUS
-    from spade.ros.node import make_qos
+    from spade.ros.dds import make_qos
 
     m = load_ros_map(room_map(tmp_path))
     domain = unique_domain() + (1 if distro == "humble" else 0)

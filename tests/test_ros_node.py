@@ -35,7 +35,7 @@ def student_files(folder: Path) -> tuple[Path, Path]:
 
     from spade.deploy.export import export_student
     from spade.maps.frame import RobotFrame
-    from spade.models import build_model
+    from spade.models.builders import build_model
 
     torch.manual_seed(0)
     net = build_model("student", "small")
@@ -86,7 +86,7 @@ class Robot:
         from cyclonedds.topic import Topic
 
         from spade.ros import messages as M
-        from spade.ros.node import make_qos
+        from spade.ros.dds import make_qos
 
         self.M = M
         p = self.participant = DomainParticipant(domain)

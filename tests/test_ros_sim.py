@@ -135,7 +135,7 @@ def quickstart_student(folder: Path) -> Path:
     import torch
 
     from spade.maps.frame import RobotFrame
-    from spade.models import build_model
+    from spade.models.builders import build_model
 
     torch.manual_seed(0)
     net = build_model("student", "medium")

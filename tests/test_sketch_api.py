@@ -46,7 +46,7 @@ def student_checkpoint(path: Path, role: str = "student", footprint: dict | None
     """A checkpoint as spade.train writes it (untrained small student), without training."""
     import torch
 
-    from spade.models import build_model
+    from spade.models.builders import build_model
 
     from spade.maps.frame import RobotFrame
 
@@ -313,7 +313,7 @@ def test_build_dataset_from_the_saved_sketches(setup) -> None:
     job = client.get("/api/build").json()
     assert job["state"] == "done" and job["progress"] == 1.0, job
     assert job["summary"]["scenarios_accepted"] == 2 and job["summary"]["rejections"] == {}
-    from spade.data import PathDataset
+    from spade.data.path_dataset import PathDataset
 
     ds = PathDataset(out / "dataset")
     assert len(ds) == job["instances"] > 20

@@ -46,7 +46,7 @@ def student_checkpoint(path: Path) -> Path:
     import torch
 
     from spade.maps.frame import RobotFrame
-    from spade.models import build_model
+    from spade.models.builders import build_model
 
     net = build_model("student", "small")
     info = {"role": "student", "config": dict(net.config),
@@ -253,7 +253,7 @@ def test_sketch_execute_save_build_and_plan_in_the_browser(server: tuple[str, Pa
         status = page.inner_text("#build-status")
         assert "from 2 of 2 sketches" in status, status
         screenshot(page, "sketch_5_dataset.png")
-        from spade.data import PathDataset
+        from spade.data.path_dataset import PathDataset
 
         ds = PathDataset(out / "dataset")
         manifest = json.loads((out / "dataset" / "manifest.json").read_text())

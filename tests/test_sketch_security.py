@@ -26,7 +26,7 @@ def student_checkpoint(path: Path) -> Path:
     import torch
 
     from spade.maps.frame import RobotFrame
-    from spade.models import build_model
+    from spade.models.builders import build_model
 
     net = build_model("student", "small")
     info = {"role": "student", "config": dict(net.config),

@@ -108,7 +108,7 @@ def _check_summary(text: str, checkpoint: str) -> None:
 
 
 def test_the_closing_summary_fits_120_columns_and_leads_with_the_deciding_figure(spade_home: Path) -> None:
-    from spade.tracking import run_summary
+    from spade.tracking.summary import run_summary
     from spade.tracking.runs import RunRef
     from training_helpers import compose_row
 

@@ -82,7 +82,8 @@ def test_the_description_opens_with_the_table_and_states_composition_and_wall_ti
     from omegaconf import OmegaConf
 
     from factories import write_synthetic
-    from spade.tracking import DatasetUse, run_description
+    from spade.tracking.dataset_inputs import DatasetUse
+    from spade.tracking.descriptions import run_description
 
     root = tmp_path / "tiny" / "test"
     write_synthetic(root, n=12, seed=1)

@@ -53,7 +53,7 @@ def test_params_describe_the_method_without_bookkeeping_or_copies(tmp_path: Path
     (``cfg/model/margin/lambda_dm`` beside Lightning's ``margin/lambda_dm``, the recipe's and the scale's copies)."""
     from omegaconf import OmegaConf
 
-    from spade.tracking import run_params
+    from spade.tracking.params import run_params
     from training_helpers import compose_row
 
     cfg = compose_row("quickstart", tmp_path)
@@ -84,9 +84,9 @@ def test_params_describe_the_method_without_bookkeeping_or_copies(tmp_path: Path
 
 # -- predictors as child runs ------------------------------------------------------------------------------------
 def test_baselines_and_the_untrained_model_are_child_runs_with_the_model_metric_names(tmp_path: Path) -> None:
-    from spade.tracking import PREDICTOR_TAG, TOP_LEVEL_FILTER, VIEW_TAG, log_predictor_runs
-    from spade.tracking.experiment_tags import ensure_experiment_tags
-    from spade.tracking.predictors import PARENT_TAG, is_predictor_run
+    from spade.tracking.experiment_tags import VIEW_TAG, ensure_experiment_tags
+    from spade.tracking.predictors import (PARENT_TAG, PREDICTOR_TAG, TOP_LEVEL_FILTER, is_predictor_run,
+                                           log_predictor_runs)
 
     client = _client(tmp_path)
     experiment_id = client.create_experiment("table3", artifact_location=str(tmp_path / "artifacts"))
@@ -135,7 +135,7 @@ def test_report_and_run_summary_do_not_take_child_runs_for_seeds_of_a_row(tmp_pa
 
     from spade.experiments.reporting import fetch_results
     from spade.experiments.tables import TABLES
-    from spade.tracking import log_predictor_runs
+    from spade.tracking.predictors import log_predictor_runs
     from spade.tracking.summary import find_run
 
     client = _client(tmp_path)
@@ -283,7 +283,7 @@ def tracked_run(spade_home: Path):
 def test_a_tested_run_has_its_predictors_report_picture_and_lean_params(tracked_run) -> None:
     from mlflow import MlflowClient
 
-    from spade.tracking import PREDICTOR_TAG
+    from spade.tracking.predictors import PREDICTOR_TAG
 
     cfg, _ = tracked_run
     client = MlflowClient(tracking_uri=str(cfg.paths.mlflow_tracking_uri))

@@ -38,8 +38,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from spade.annotation.execution import Rejection, execute_sketch
-from spade.annotation.scenarios import sketch_fits
-from spade.annotation.templates import SHAPES, turn_curve, place_curves
+from spade.annotation.templates import SHAPES, place_curves, sketch_fits, turn_curve
 from spade.data.polyline import resample_polyline
 from spade.data.rasterize import fits_robot_frame
 from spade.maps.frame import RobotFrame, path_heading

@@ -23,6 +23,7 @@ from typing import Any, Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 
+from spade.annotation.alternative_demonstrations import ALTERNATIVES_VERSION, ESTIMATOR, AlternativesSettings
 from spade.annotation.execution import ExecutedPath, Rejection, execute_sketch
 from spade.annotation.scenarios import (
     MapContext,
@@ -90,8 +91,6 @@ def states_per_task(cfg: Mapping[str, Any]) -> int:
 
 def alternatives_count(cfg: Mapping[str, Any]) -> int:
     """``alternatives.count``: alternative demonstrations drawn per instance (0 when the config has none)."""
-    from spade.annotation.alternative_demonstrations import AlternativesSettings
-
     return AlternativesSettings.from_cfg(cfg.get("alternatives")).count
 
 
@@ -557,8 +556,6 @@ def write_dataset(out_dir: str | Path, items: Iterable[tuple[Instance, str, str,
 
 def _alternatives_info(cfg: Mapping[str, Any]) -> dict[str, Any]:
     """The manifest's record of how the alternatives were drawn."""
-    from spade.annotation.alternative_demonstrations import ALTERNATIVES_VERSION, ESTIMATOR, AlternativesSettings
-
     return {"version": ALTERNATIVES_VERSION, "estimator": ESTIMATOR,
             "settings": AlternativesSettings.from_cfg(cfg.get("alternatives")).to_json()}
 

@@ -45,7 +45,7 @@ def contact_sheet(images: Sequence[np.ndarray], columns: int = 4, scale: int = 2
 
 def write_preview(root: str | Path, count: int, seed: int, scale: int = 2, filename: str = "preview.png") -> Path:
     """Contact sheet of ``count`` random instances of the dataset at ``root``, saved as ``root/filename``."""
-    from spade.data import PathDataset  # torch-backed reader; imported here so the tool's core stays light
+    from spade.data.path_dataset import PathDataset  # torch-backed reader; imported here so the tool's core stays light
 
     ds = PathDataset(root, verify=False)
     n = len(ds)

@@ -20,9 +20,10 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 from scipy.cluster.vq import kmeans2
 
+from spade.annotation.alternative_demonstrations import AlternativesSettings, scenario_alternatives
 from spade.annotation.execution import ExecutedPath, Rejection, execute_sketch
 from spade.annotation.split import CROSSING, AreaLine, area_line, parse_split
-from spade.annotation.templates import SHAPES, check_shape, place_template, sample_template
+from spade.annotation.templates import SHAPES, check_shape, place_template, sample_template, sketch_fits
 from spade.data.rasterize import Instance, fits_robot_frame, robot_instance, state_indices
 from spade.maps.costmap import Costmap, build_costmap
 from spade.maps.frame import RobotFrame, yaw_from_heading
@@ -164,19 +165,6 @@ def scenario_area(ctx: MapContext, index: int, cfg: Mapping[str, Any]) -> int:
     return areas[index % len(areas)]
 
 
-def sketch_fits(costmap: Costmap, dense: np.ndarray, frame: RobotFrame, margin_px: float, clearance_px: float
-                ) -> bool:
-    """Whether a placed sketch's ideal curve (map pixels) fits the robot-frame window of its start, lies on the
-    map and keeps ``clearance_px`` from non-free space: the checks a template passes before it is executed."""
-    if not fits_robot_frame(dense, frame, margin_px):
-        return False
-    cells = np.rint(dense).astype(np.int64)
-    h, w = costmap.grid.shape
-    if (cells < 0).any() or (cells[:, 0] >= w).any() or (cells[:, 1] >= h).any():
-        return False
-    return bool(costmap.clearance_px[cells[:, 1], cells[:, 0]].min() >= clearance_px)
-
-
 def _placement(ctx: MapContext, shape: str, goal: np.ndarray, cfg: Mapping[str, Any], rng: np.random.Generator,
                frame: RobotFrame, margin_px: float) -> tuple[np.ndarray, np.ndarray] | str:
     """Try ``scenario.headings_per_goal`` sampled templates at ``goal``; return the first whose ideal curve lies
@@ -303,8 +291,6 @@ def plan_alternatives(ctx: MapContext, result: ScenarioResult, cfg: Mapping[str,
     """Alternative demonstrations of every robot state of a planned scenario (``cfg.alternatives``; see
     :mod:`spade.annotation.alternative_demonstrations`): {state index: (k, num_waypoints, 2)} and the sampler's
     counters."""
-    from spade.annotation.alternative_demonstrations import AlternativesSettings, scenario_alternatives
-
     settings = AlternativesSettings.from_cfg(cfg.get("alternatives"))
     if not settings.wanted(result.shape) or result.executed is None or result.sketch is None:
         return {}, {}

@@ -2,7 +2,8 @@
 
 A template is one straight leg, one circular turn and one straight tail into the goal. The L-shape turns by
 90 degrees, the U-shape by 180 degrees (so its tail runs back parallel to the way out). All sizes are in
-metres and all angles in degrees, so the same config works at any map resolution.
+metres and all angles in degrees, so the same config works at any map resolution. A placed template is checked
+against the map and the robot-frame window (:func:`sketch_fits`) before it is executed.
 """
 
 from __future__ import annotations
@@ -12,6 +13,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from spade.data.rasterize import fits_robot_frame
+from spade.maps.costmap import Costmap
+from spade.maps.frame import RobotFrame
 from spade.metrics.shape_paths import template_curve
 from spade.utils.errors import UserError
 
@@ -121,3 +125,16 @@ def place_curves(keypoints: np.ndarray, dense: np.ndarray, heading_rad: float, g
         return np.asarray(goal_px, dtype=np.float64) + np.stack([metres[:, 0], -metres[:, 1]], axis=1) / resolution
 
     return move(keypoints), move(dense)
+
+
+def sketch_fits(costmap: Costmap, dense: np.ndarray, frame: RobotFrame, margin_px: float, clearance_px: float
+                ) -> bool:
+    """Whether a placed sketch's ideal curve (map pixels) fits the robot-frame window of its start, lies on the
+    map and keeps ``clearance_px`` from non-free space: the checks a template passes before it is executed."""
+    if not fits_robot_frame(dense, frame, margin_px):
+        return False
+    cells = np.rint(dense).astype(np.int64)
+    h, w = costmap.grid.shape
+    if (cells < 0).any() or (cells[:, 0] >= w).any() or (cells[:, 1] >= h).any():
+        return False
+    return bool(costmap.clearance_px[cells[:, 1], cells[:, 0]].min() >= clearance_px)

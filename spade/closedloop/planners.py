@@ -13,7 +13,8 @@ import numpy as np
 from typing import Any
 
 from spade.data.polyline import resample_polyline
-from spade.deploy.student_planner import DEFAULT_MARGIN_M, PlanResult, PlanWindow, WindowPlanner
+from spade.deploy.plan_result import PlanResult
+from spade.deploy.robot_window import DEFAULT_MARGIN_M, PlanWindow, WindowPlanner
 from spade.maps.frame import RobotFrame
 
 __all__ = ["BASELINE_PLANNERS", "BaselinePlanner", "DemonstrationPlanner"]

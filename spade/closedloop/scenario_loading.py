@@ -118,8 +118,9 @@ def _radius_boundary(generator: dict[str, Any], shape: str) -> float | None:
 
 
 def load_scenarios(dataset: Any, indices: Sequence[int] | None = None, limit: int | None = None) -> list[Scenario]:
-    """The scenarios of a :class:`~spade.data.PathDataset` (restricted to ``indices``, e.g. a test subset), at
-    most ``limit`` (the first ones), each from its first state (module docstring)."""
+    """The scenarios of a :class:`~spade.data.path_dataset.PathDataset` (restricted to
+    ``indices``, e.g. a test subset), at most ``limit`` (the first ones), each from its first state (module
+    docstring)."""
     manifest = dataset.manifest
     records = _map_records(manifest)
     frame = RobotFrame.from_json(manifest.frame)

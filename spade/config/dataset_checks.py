@@ -67,7 +67,8 @@ def check_existing_dataset(key: str, root: Path) -> Any:
     ``key``, the file and the fix (:class:`~spade.data.format.DatasetError`, a user error). The hashes are
     remembered (:func:`spade.utils.hashing.file_sha256`), so the data module's own opening does not read the files
     again."""
-    from spade.data import DatasetError, PathDataset
+    from spade.data import DatasetError
+    from spade.data.path_dataset import PathDataset
 
     try:
         return PathDataset(root)

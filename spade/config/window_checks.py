@@ -61,7 +61,9 @@ def model_downsampling(cfg: DictConfig) -> tuple[int, str] | None:
     role = model_role(cfg)
     if role not in ("student", "expert"):
         return None
-    from spade.models import COND_EXPERT_PRESETS, STUDENT_PRESETS, UNCOND_EXPERT_PRESETS  # heavy: diffusers
+    from spade.models.cond_expert import COND_EXPERT_PRESETS  # heavy: diffusers
+    from spade.models.student import STUDENT_PRESETS
+    from spade.models.uncond_expert import UNCOND_EXPERT_PRESETS
 
     try:
         if role == "student":

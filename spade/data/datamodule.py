@@ -13,7 +13,8 @@ import numpy as np
 from lightning.pytorch.overrides.distributed import UnrepeatedDistributedSampler
 from torch.utils.data import DataLoader, Subset
 
-from spade.data import DatasetError, PathDataset, read_manifest
+from spade.data import DatasetError, read_manifest
+from spade.data.path_dataset import PathDataset
 from spade.data.augment import augment_batch, check_augmentation, widen_path
 from spade.data.checks import check_dataset, split_pair_problems
 from spade.data.datamodule_options import DataOptions

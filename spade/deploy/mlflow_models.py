@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from spade.deploy.mlflow_store import ensure_store, foreign_file_problem, mlflow_client, store_path
 from spade.utils.errors import ConfigError
 
 __all__ = ["MODEL_NAME", "RegisteredModel", "RegistryError", "is_model_uri", "log_onnx_student",
@@ -33,14 +34,6 @@ class RegistryError(ConfigError):
     user error: the entry points report it as one line)."""
 
 
-def mlflow_client(tracking_uri: str | None = None) -> Any:
-    """An ``MlflowClient`` on the store at ``tracking_uri`` (MLflow's current store when None): the one place SPADE
-    builds one (:mod:`spade.tracking.client` re-exports it)."""
-    from mlflow import MlflowClient
-
-    return MlflowClient(tracking_uri=str(tracking_uri) if tracking_uri else None)
-
-
 def is_model_uri(value: str) -> bool:
     return str(value).startswith(URI_SCHEMES)
 
@@ -54,8 +47,6 @@ def _mlflow(tracking_uri: str | None) -> Any:
     except ImportError:
         raise RegistryError("model URIs need MLflow (pip install mlflow), or pass the model file itself") from None
     if tracking_uri:
-        from spade.deploy.mlflow_store import ensure_store
-
         ensure_store(str(tracking_uri))
         mlflow.set_tracking_uri(str(tracking_uri))
         mlflow.set_registry_uri(str(tracking_uri))
@@ -156,8 +147,6 @@ def _check_existing_store(text: str, uri: str) -> None:
     run's left an empty ``logs/mlflow.db`` there and answered that the run was not found. A server answers for
     itself; an SQLite file that is no MLflow store is refused unopened
     (:func:`spade.deploy.mlflow_store.foreign_file_problem`)."""
-    from spade.deploy.mlflow_store import foreign_file_problem, store_path
-
     path = store_path(uri)
     if path is None:
         return

@@ -29,8 +29,8 @@ from urllib.parse import urlparse
 
 from spade.utils.errors import ConfigError
 
-__all__ = ["StoreError", "ensure_store", "foreign_file_problem", "sqlite_store_path", "store_lock", "store_path",
-           "store_problem"]
+__all__ = ["StoreError", "ensure_store", "foreign_file_problem", "mlflow_client", "sqlite_store_path", "store_lock",
+           "store_path", "store_problem"]
 
 #: The tables every MLflow store has: an SQLite file without them is not (or not yet) an MLflow store.
 CORE_TABLES = frozenset({"experiments", "runs", "metrics", "alembic_version"})
@@ -39,6 +39,14 @@ CORE_TABLES = frozenset({"experiments", "runs", "metrics", "alembic_version"})
 class StoreError(ConfigError):
     """An existing SQLite store that cannot be used as it is (half-made, or of another MLflow schema); the message
     names it and the fix (a user error: one line, exit status 2)."""
+
+
+def mlflow_client(tracking_uri: str | None = None) -> Any:
+    """An ``MlflowClient`` on the store at ``tracking_uri`` (MLflow's current store when None): the one place SPADE
+    builds one (:mod:`spade.tracking.client` re-exports it)."""
+    from mlflow import MlflowClient
+
+    return MlflowClient(tracking_uri=str(tracking_uri) if tracking_uri else None)
 
 
 def store_path(uri: str) -> Path | None:
@@ -171,8 +179,6 @@ def _create(path: Path) -> None:
     """Create a complete MLflow store at ``path``: made in a temporary file beside it (MLflow creates its tables
     and the Default experiment there) and moved into place in one ``os.replace``. Interrupted (Ctrl+C, an error),
     the temporary file is removed and nothing is at ``path``."""
-    from spade.deploy.mlflow_models import mlflow_client
-
     for stale in _stale_partials(path):
         stale.unlink(missing_ok=True)  # under the lock: no other creation is running
     tmp = path.with_name(f".{path.name}.partial-{socket.gethostname()}-{os.getpid()}-{secrets.token_hex(4)}")

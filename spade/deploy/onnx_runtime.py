@@ -16,13 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from spade.deploy.lean import LEAN, defer_package_inits
-
-if LEAN:  # spade.models' __init__ imports torch: only its torch-free onnx_check is used here
-    defer_package_inits("spade.models")
-
-from spade.models.onnx_check import check_onnx_student  # noqa: E402 - after the deploy install's package set-up
-from spade.models.onnx_session import OnnxSession  # noqa: E402
+from spade.models.onnx_check import check_onnx_student
+from spade.models.onnx_session import OnnxSession
 
 __all__ = ["ModelFileError", "OnnxRunner", "UnsafeModelFileError", "open_model", "robot_frame"]
 

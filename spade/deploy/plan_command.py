@@ -10,7 +10,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from spade.deploy.outputs import save_png
 from spade.deploy.plan_picture import load_map, plan_image
-from spade.deploy.student_planner import Planner, PlanResult
+from spade.deploy.plan_result import PlanResult
+from spade.deploy.student_planner import Planner
 
 __all__ = ["rewrite_argv", "run_plan"]
 

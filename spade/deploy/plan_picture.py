@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-from spade.deploy.student_planner import PlanResult
+from spade.deploy.plan_result import PlanResult
 from spade.maps import FREE, OCCUPIED, OccupancyMap, generate_map, load_ros_map
 from spade.utils import palette
 

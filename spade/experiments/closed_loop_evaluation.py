@@ -77,7 +77,7 @@ def scenario_set(datamodule: Any, count: int | None) -> list[Scenario]:
     if datamodule.test_dir is None or datamodule.test_generate is None or datamodule.generator is None:
         raise ClosedLoopConfigError("drive.scenarios=N needs a data config with a test_dir and its test_generate "
                                     "(conf/data/lshape.yaml); use drive.scenarios=null for the test set's own")
-    from spade.data import PathDataset
+    from spade.data.path_dataset import PathDataset
     from spade.data.checks import check_dataset
 
     root = Path(datamodule.test_dir).with_name(f"{Path(datamodule.test_dir).name}_scenarios{count}")

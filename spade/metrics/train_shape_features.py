@@ -131,7 +131,7 @@ def build_samples(roots: list[Path], seed: int, straight_every: int, gap_prob: f
     import torch
     import torch.nn.functional as F
 
-    from spade.data import PathDataset
+    from spade.data.path_dataset import PathDataset
     from spade.metrics.baselines import draw_polyline
     from spade.metrics.shape_paths import cut_gap
 

@@ -50,3 +50,8 @@ def model_from_config(config: dict[str, Any]) -> nn.Module:
     model = cls(**{k: v for k, v in config.items() if k in params and k != "self"})
     model.preset = config.get("preset")
     return model
+
+
+def count_parameters(model: Any, trainable_only: bool = True) -> int:
+    """Number of (trainable) parameters; works for models built on the ``meta`` device."""
+    return sum(p.numel() for p in model.parameters() if p.requires_grad or not trainable_only)

@@ -63,7 +63,7 @@ __all__ = [
 ]
 
 INPUT_ENCODING = "occupancy code * 0.5 (unknown 0, free 0.5, occupied 1), start, goal"
-"""The network input, as every model file records it (``spade.data.PathDataset`` builds it); how the start and goal
+"""The network input, as every model file records it (``PathDataset`` builds it); how the start and goal
 are drawn is ``data.marker_encoding`` (:mod:`spade.data.encoding`; ``binary`` where a model file predates it)."""
 DEFAULT_FOOTPRINT = {"radius_m": 0.105, "inflation_radius_m": 0.55}
 """conf/annotate.yaml's ``robot`` (a TurtleBot3 Burger with Nav2's default inflation): what a model file that

@@ -152,7 +152,7 @@ def independent_floor(dataset: str, shape: str | None = None) -> dict[str, Any]:
     beside what :class:`~spade.metrics.preference.PreferenceMetrics` computes from the same set."""
     import torch
 
-    from spade.data import PathDataset
+    from spade.data.path_dataset import PathDataset
     from spade.data.format import read_manifest
     from spade.metrics.preference import PreferenceMetrics
 

@@ -268,7 +268,7 @@ def _quality(q: dict[str, Any], expert_ckpt: str | None, datasets: dict[str, Any
     import torch
     from torch.utils.data import default_collate
 
-    from spade.data import PathDataset
+    from spade.data.path_dataset import PathDataset
     from spade.perf.experts import sampler_quality
 
     if expert_ckpt:

@@ -22,7 +22,7 @@ def closed_loop_costs(ckpt: str | Path, dataset: str | Path, scenarios: int | No
     from spade.closedloop.planners import BaselinePlanner
     from spade.closedloop.scenario_loading import load_scenarios
     from spade.closedloop.simulate import ClosedLoopSettings, drive
-    from spade.data import PathDataset
+    from spade.data.path_dataset import PathDataset
     from spade.deploy.student_planner import Planner
 
     t0 = time.perf_counter()

@@ -165,7 +165,7 @@ def expert_step(conditional: bool, preset: str, image_size: int, batch_size: int
                 prediction_type: str = "sample", peak_tflops: float | None = None) -> dict[str, Any]:
     """One AdamW step of an expert's denoising loss (``ExpertModule.denoising_loss``) with its EMA update; on
     CUDA out-of-memory the batch halves until it fits (reported as ``batch_size``)."""
-    from spade.models import count_parameters
+    from spade.models.builders import count_parameters
     from spade.training.expert_module import ExpertModule
 
     row: dict[str, Any] = {"expert": "cond" if conditional else "uncond", "preset": preset, "image_size": image_size}

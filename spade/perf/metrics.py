@@ -19,7 +19,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from spade.metrics import APE, FID, HausdorffCount, RandomConvFeatures, build_feature_extractor, marker_centre
+from spade.metrics.ape import APE
+from spade.metrics.extraction import marker_centre
+from spade.metrics.features import RandomConvFeatures, build_feature_extractor
+from spade.metrics.fid import FID
+from spade.metrics.hausdorff import HausdorffCount
 from spade.metrics.shape_features import ShapeFeatures
 from spade.metrics.synthetic import degrade, synthetic_batch, synthetic_predictions
 
@@ -281,7 +285,7 @@ def shape_validity(images: int, image_size: int = 64, seed: int = 0,
 
 
 def _load_paths(root: str | Path, shape: str | None) -> dict[str, Any]:
-    from spade.data import PathDataset
+    from spade.data.path_dataset import PathDataset
 
     ds = PathDataset(root)
     keep = [i for i, s in enumerate(ds.labels("shape")) if shape is None or s == shape]

@@ -11,7 +11,7 @@ import torch
 from torch import nn
 from torch.utils.flop_counter import FlopCounterMode
 
-from spade.models import build_model, count_parameters
+from spade.models.builders import build_model, count_parameters
 from spade.utils.timing import measure
 
 

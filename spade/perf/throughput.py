@@ -16,7 +16,7 @@ def dataset_read_throughput(root: str | Path, batch_size: int = 32) -> dict[str,
     """Open a dataset (manifest and sha256 of every file), one pass item by item, one pass through a DataLoader."""
     from torch.utils.data import DataLoader
 
-    from spade.data import PathDataset
+    from spade.data.path_dataset import PathDataset
 
     t0 = time.perf_counter()
     dataset = PathDataset(root)

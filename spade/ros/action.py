@@ -40,6 +40,7 @@ import numpy as np
 from spade.ros import messages as M
 from spade.ros.action_types import CANCEL, ERROR, STATUS, action_topics, types_for
 from spade.ros.convert import MessageError, pose_from_msg, split_stamp
+from spade.ros.dds import make_qos
 
 __all__ = ["ActionClient", "ActionServer", "ActionSettings", "GoalLogic", "PLANNER_ERRORS"]
 
@@ -282,15 +283,11 @@ def _duration(seconds: float) -> tuple[int, int]:
 # -- DDS -----------------------------------------------------------------------------------------------------------
 def service_qos() -> Any:
     """ROS 2's services default: reliable, volatile, keep last 10."""
-    from spade.ros.node import make_qos
-
     return make_qos(True, False, 10)
 
 
 def status_qos() -> Any:
     """``rcl_action``'s status topic: reliable, transient-local, keep last 1."""
-    from spade.ros.node import make_qos
-
     return make_qos(True, True, 1)
 
 

@@ -39,9 +39,11 @@ from typing import Any
 import numpy as np
 
 from spade.ros import messages as M
+from spade.ros.convert import quaternion_to_yaw
+from spade.ros.window_messages import WINDOW_FRAME, window_grids
 from spade.utils.errors import ConfigError
 
-__all__ = ["CHANNELS", "LAYOUT", "PROTOCOLS", "SIM_CHANNELS", "FoxgloveLive", "ProtocolFront", "window_grids"]
+__all__ = ["CHANNELS", "LAYOUT", "PROTOCOLS", "SIM_CHANNELS", "FoxgloveLive", "ProtocolFront"]
 
 log = logging.getLogger("spade.ros")
 
@@ -57,7 +59,6 @@ CHANNELS = {
 }
 #: What the desk simulator's own server carries (the plans it reads from the node; the windows are the node's).
 SIM_CHANNELS = ("map", "pose", "goal", "plan", "tf")
-WINDOW_FRAME = "spade_window"
 #: The Foxglove layout for the node, its recordings and the simulator (shipped in the package; on the site too).
 LAYOUT = Path(__file__).with_name("foxglove_layout.json")
 #: The WebSocket subprotocols accepted: the SDK's name, then the same protocol's older name.
@@ -71,32 +72,6 @@ def _msgdef(typename: str, store: list = []) -> bytes:  # noqa: B006 - the types
 
         store.append(get_typestore(Stores.ROS2_HUMBLE))
     return store[0].generate_msgdef(typename, ros_version=2)[0].encode()
-
-
-def window_grids(result: Any, ns: int | None = None) -> tuple[Any, Any] | None:
-    """The student's window and its path probabilities of a plan result as ``nav_msgs/OccupancyGrid`` messages in
-    the frame ``spade_window`` (the robot at its origin, x ahead: ``map -> spade_window`` is the plan's pose), or
-    None when the result has no window."""
-    from spade.maps.occupancy import OccupancyMap
-    from spade.ros.recording import window_map
-
-    window = getattr(result, "window", None)
-    if window is None:
-        return None
-    codes = window.occupancy()
-    robot_px = window.pose.frame.robot_px
-    resolution = float(window.map.resolution)
-    geometry = window_map(codes, robot_px, resolution)
-    grids = [M.occupancy_grid(geometry, WINDOW_FRAME, ns)]
-    prob = getattr(result, "probability", None)
-    if prob is not None and np.shape(prob) == codes.shape:
-        costs = np.clip(np.rint(np.asarray(prob, np.float64) * 100), 0, 100).astype(np.int8)
-        rotated = np.ascontiguousarray(costs[::-1, ::-1].T[::-1])
-        pm = OccupancyMap(geometry.grid, resolution, geometry.origin, costs=rotated, name="probability")
-        grids.append(M.occupancy_grid(pm, WINDOW_FRAME, ns))
-    else:
-        grids.append(None)
-    return grids[0], grids[1]
 
 
 # -- the protocol names -------------------------------------------------------------------------------------------
@@ -323,8 +298,6 @@ class FoxgloveLive:
                 pose = msg.pose.pose
             else:
                 pose = msg.pose
-            from spade.ros.convert import quaternion_to_yaw
-
             q = pose.orientation
             yaw = quaternion_to_yaw(q.x, q.y, q.z, q.w)
             self._tf((pose.position.x, pose.position.y, yaw), msg.header.frame_id or "map", "base_link")

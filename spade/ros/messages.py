@@ -19,6 +19,8 @@ import cyclonedds.idl.annotations as annotate
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import array, float32, float64, int8, int32, sequence, uint32
 
+from spade.ros.convert import grid_fields, path_yaws, split_stamp, yaw_to_quaternion
+
 __all__ = [
     "Float32", "Header", "MapMetaData", "OccupancyGrid", "Path", "Point", "Pose", "PoseStamped", "PoseWithCovariance",
     "PoseWithCovarianceStamped", "Quaternion", "ROS_TYPES", "Time", "occupancy_grid", "path", "pose", "pose_stamped",
@@ -158,15 +160,11 @@ ROS_TYPES = {
 # -- builders -------------------------------------------------------------------------------------------------------
 def stamp(ns: int | None = None) -> Time:
     """A ``builtin_interfaces/Time`` of ``ns`` nanoseconds since the epoch (now when None)."""
-    from spade.ros.convert import split_stamp
-
     sec, nanosec = split_stamp(ns)
     return Time(sec, nanosec)
 
 
 def pose(x: float, y: float, yaw: float) -> Pose:
-    from spade.ros.convert import yaw_to_quaternion
-
     return Pose(Point(float(x), float(y), 0.0), Quaternion(*yaw_to_quaternion(float(yaw))))
 
 
@@ -184,8 +182,6 @@ def pose_with_covariance(xy_yaw: Sequence[float], frame_id: str = "map", ns: int
 
 def occupancy_grid(m: Any, frame_id: str = "map", ns: int | None = None) -> OccupancyGrid:
     """The ``nav_msgs/OccupancyGrid`` of an :class:`~spade.maps.OccupancyMap` (as map_server publishes it)."""
-    from spade.ros.convert import grid_fields
-
     f = grid_fields(m)
     t = stamp(ns)
     info = MapMetaData(t, f.resolution, f.width, f.height, pose(f.origin[0], f.origin[1], f.origin[2]))
@@ -196,8 +192,6 @@ def path(waypoints: Any, frame_id: str = "map", ns: int | None = None, goal_yaw:
     """A ``nav_msgs/Path`` through ``waypoints`` (K, 2) metres: every pose stamped ``ns`` in ``frame_id``, oriented
     towards the next one (the last one at ``goal_yaw`` when given), as Nav2's planners publish theirs."""
     import numpy as np
-
-    from spade.ros.convert import path_yaws
 
     pts = np.asarray(waypoints, dtype=np.float64).reshape(-1, 2)
     t = stamp(ns)
@@ -210,8 +204,6 @@ def tf_message(xy_yaw: Sequence[float], parent: str = "map", child: str = "base_
                ) -> TFMessage:
     """A ``tf2_msgs/TFMessage`` with one transform ``parent`` -> ``child`` at pose ``xy_yaw`` (as ``/tf`` carries
     the robot's pose; the desk simulator and recordings publish ``map`` -> ``base_link``)."""
-    from spade.ros.convert import yaw_to_quaternion
-
     x, y, yaw = (float(v) for v in xy_yaw)
     return TFMessage([TransformStamped(Header(stamp(ns), parent), child,
                                        Transform(Vector3(x, y, 0.0), Quaternion(*yaw_to_quaternion(yaw))))])

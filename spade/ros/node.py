@@ -28,36 +28,23 @@ from typing import Any
 from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.pub import DataWriter
-from cyclonedds.qos import Policy, Qos
+from cyclonedds.qos import Qos
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from spade.ros import messages as M
+from spade.ros.action import ActionServer, GoalLogic
 from spade.ros.core import PlanEvent, PlannerCore
+from spade.ros.dds import make_qos, ros_topic
 from spade.ros.node_options import QOS_KEYS, check_qos
 
-__all__ = ["PlannerNode", "QOS_KEYS", "Topics", "check_qos", "make_qos", "ros_topic"]
+__all__ = ["PlannerNode", "QOS_KEYS", "Topics", "check_qos"]
 
 log = logging.getLogger("spade.ros")
 
 POSE_TYPES = {"amcl": M.PoseWithCovarianceStamped, "PoseWithCovarianceStamped": M.PoseWithCovarianceStamped,
               "stamped": M.PoseStamped, "PoseStamped": M.PoseStamped}
-
-
-def ros_topic(name: str) -> str:
-    """The DDS topic of a ROS 2 topic name: ``/plan`` and ``plan`` -> ``rt/plan``; ``rt/plan`` stays."""
-    name = str(name).strip()
-    if name.startswith("rt/"):
-        return name
-    return "rt/" + name.lstrip("/")
-
-
-def make_qos(reliable: bool = True, transient_local: bool = False, depth: int = 1) -> Qos:
-    """A DDS QoS as a ROS 2 profile states it: reliability, durability, keep-last depth."""
-    return Qos(Policy.Reliability.Reliable(duration(seconds=1)) if reliable else Policy.Reliability.BestEffort,
-               Policy.Durability.TransientLocal if transient_local else Policy.Durability.Volatile,
-               Policy.History.KeepLast(int(depth)))
 
 
 @dataclass(frozen=True)
@@ -124,8 +111,6 @@ class PlannerNode:
         self._conditions = [ReadCondition(r, mask) for _, r, _ in self._readers]
         self.action = None
         if action is not None and action.enabled:
-            from spade.ros.action import ActionServer, GoalLogic
-
             self.action = ActionServer(p, GoalLogic(core, action, on_path=self._publish_path,
                                                     on_goal=lambda goal: self._notify("goal", goal)))
             self._conditions += self.action.conditions

@@ -34,11 +34,12 @@ from typing import Any
 
 import numpy as np
 
-from spade.ros.convert import grid_fields, path_yaws, split_stamp, yaw_to_quaternion
+from spade.ros.convert import grid_fields, path_yaws, pose_from_msg, split_stamp, yaw_to_quaternion
+from spade.ros.window_messages import WINDOW_FRAME, window_grids, window_map, window_to_base_link
 from spade.utils.errors import ConfigError
 
 __all__ = ["BagError", "BagMessages", "BagWriter", "NodeRecorder", "PLAN_TOPICS", "TEST_TOPICS", "check_recording_path",
-           "replay_bag", "window_to_base_link", "write_plan_bag", "write_test_bag"]
+           "replay_bag", "write_plan_bag", "write_test_bag"]
 
 log = logging.getLogger("spade.ros")
 
@@ -238,7 +239,6 @@ class NodeRecorder:
             self.bag.write(self.topics[name], self.types[name], bytes(sample.serialize()), ns)
             if name == "pose":  # the robot in /tf too (map -> base_link), for Foxglove's 3D panel
                 from spade.ros import messages as M
-                from spade.ros.convert import pose_from_msg
 
                 frame, pose = pose_from_msg(sample)
                 self._extra("tf", M.tf_message(pose, frame or "map", "base_link"), ns)
@@ -254,7 +254,6 @@ class NodeRecorder:
         ``spade_window``) and where that window lies (``/tf``: map -> spade_window)."""
         try:
             from spade.ros import messages as M
-            from spade.ros.live import WINDOW_FRAME, window_grids
 
             grids = window_grids(event.result, event.stamp_ns)
             pose = getattr(event.result, "pose", None)
@@ -343,29 +342,6 @@ TEST_TOPICS = {"window": "/window", "ground_truth": "/ground_truth", "prediction
 """Topics of :func:`write_test_bag` (``baseline`` is the prefix of ``/baseline/<name>``)."""
 
 
-def window_to_base_link(points_px: np.ndarray, robot_px: Sequence[float], resolution: float) -> np.ndarray:
-    """Robot-frame window pixels (x = column, y = row; the robot at ``robot_px`` heading up the image, its left the
-    image's left: :mod:`spade.maps.frame`) -> ``base_link`` metres (x ahead, y to the left, REP 103)."""
-    pts = np.asarray(points_px, dtype=np.float64)
-    rx, ry = (float(v) for v in robot_px)
-    return np.stack([(ry - pts[..., 1]) * resolution, (rx - pts[..., 0]) * resolution], axis=-1)
-
-
-def window_map(codes: np.ndarray, robot_px: Sequence[float], resolution: float) -> Any:
-    """The window's occupancy codes (H, W) as an :class:`~spade.maps.OccupancyMap` in ``base_link``: its cells along
-    +x (ahead) and +y (left), origin unrotated (what :func:`~spade.ros.convert.grid_to_map` reads back): map row ``r``
-    column ``i`` is window row ``H - 1 - i``, column ``r``."""
-    from spade.maps.occupancy import OccupancyMap
-
-    codes = np.asarray(codes, dtype=np.uint8)
-    h, w = codes.shape
-    # data[j, i] (j along +y from the origin, i along +x) = window[h-1-i, w-1-j]; the map's row 0 is its top (+y end)
-    grid = codes[::-1, ::-1].T[::-1]
-    corner = window_to_base_link(np.array([w - 1, h - 1], dtype=np.float64), robot_px, resolution) - 0.5 * resolution
-    return OccupancyMap(np.ascontiguousarray(grid), float(resolution), (float(corner[0]), float(corner[1]), 0.0),
-                        name="window")
-
-
 def write_test_bag(path: str | Path, occupancy: np.ndarray, ground_truth: np.ndarray, goals: np.ndarray, *,
                    resolution: float | Sequence[float], robot_px: Sequence[float],
                    predictions: Sequence[np.ndarray | None] | None = None,
@@ -376,7 +352,7 @@ def write_test_bag(path: str | Path, occupancy: np.ndarray, ground_truth: np.nda
                    topics: Mapping[str, str] | None = None) -> Path:
     """Write test instances as a ROS 2 MCAP bag, one instance every ``period_ns`` from ``start_ns`` (now), each in
     the robot's frame (``frame_id``, the robot at the origin heading +x; window pixels converted with
-    :func:`window_to_base_link`):
+    :func:`~spade.ros.window_messages.window_to_base_link`):
 
     - ``/window`` (``nav_msgs/OccupancyGrid``): ``occupancy`` (N, H, W) codes (0 unknown, 1 free, 2 obstacle);
     - ``/ground_truth`` (``nav_msgs/Path``): the demonstration, ``ground_truth`` (N, K, 2) window pixels;

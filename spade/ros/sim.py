@@ -247,7 +247,7 @@ def _run(cfg: Any, c: dict, m: OccupancyMap, robot: SimRobot, goals: list[np.nda
     from cyclonedds.topic import Topic
 
     from spade.ros import messages as M
-    from spade.ros.node import make_qos, ros_topic
+    from spade.ros.dds import make_qos, ros_topic
 
     s = robot.settings
     p = DomainParticipant(domain)

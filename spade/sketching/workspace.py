@@ -450,7 +450,8 @@ class SketchWorkspace:
 
     def load_model(self, path: str | Path) -> dict[str, Any]:
         """Load a student (checkpoint or ONNX) as the planner; a wrong file is a :class:`RequestError`."""
-        from spade.deploy.student_planner import Planner, PlannerConfigError
+        from spade.deploy.plan_result import PlannerConfigError
+        from spade.deploy.student_planner import Planner
 
         if "\x00" in str(path):  # the OS refuses such a path (ValueError: embedded null byte): a 400, not a 500
             raise RequestError("model path holds a NUL byte, which no file name can; give the path of a student "

@@ -1,4 +1,4 @@
-"""The one way SPADE opens an MLflow store: :func:`mlflow_client` (defined in :mod:`spade.deploy.mlflow_models`, the
+"""The one way SPADE opens an MLflow store: :func:`mlflow_client` (defined in :mod:`spade.deploy.mlflow_store`, the
 lowest package that opens a store, and re-exported here), and the registry alias a run resolves by default.
 
 A local SQLite store is created by the first client that opens it (MLflow runs its schema migrations then), and two
@@ -10,8 +10,8 @@ temporary file moved into place once complete: every path that may create a stor
 
 from __future__ import annotations
 
-from spade.deploy.mlflow_models import DEFAULT_ALIAS, mlflow_client
-from spade.deploy.mlflow_store import ensure_store, store_lock
+from spade.deploy.mlflow_models import DEFAULT_ALIAS
+from spade.deploy.mlflow_store import ensure_store, mlflow_client, store_lock
 
 __all__ = ["CHAMPION_ALIAS", "ensure_store", "mlflow_client", "store_lock"]
 

@@ -6,7 +6,7 @@ import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback
 
-from spade.models import count_parameters
+from spade.models.builders import count_parameters
 from spade.utils.timing import measure
 
 

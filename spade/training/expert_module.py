@@ -11,7 +11,7 @@ import torch
 import torch.nn.functional as F
 from torch.optim.swa_utils import AveragedModel
 
-from spade.models import build_model
+from spade.models.builders import build_model
 from spade.models.diffusion import NoiseSchedule, to_model_range
 from spade.training.base import PathPlanningModule
 from spade.training.module_options import ExpertOptions

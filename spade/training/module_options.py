@@ -28,7 +28,7 @@ def _check_optimizer(optimizer: Any) -> None:
 
 
 def _preset_names(kind: str) -> list[str]:
-    from spade.models import presets  # heavy: spade.models imports diffusers
+    from spade.models.builders import presets  # heavy: spade.models imports diffusers
 
     return presets(kind)
 
@@ -42,7 +42,7 @@ class StudentOptions:
     role: ClassVar[str] = "student"
     target: ClassVar[str] = "spade.training.student_module.StudentModule"
 
-    size: str = "medium"  # a student preset (spade.models.presets("student"))
+    size: str = "medium"  # a student preset (spade.models.builders.presets("student"))
     bc_pos_weight: float | None = None  # weight of the path pixels in the BCE; None: plain BCE
     init_ckpt: str | None = None
     margin: Mapping[str, Any] | None = None

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import torch
 import torch.nn.functional as F
 
-from spade.models import build_model
+from spade.models.builders import build_model
 from spade.models.modelfile import load_lightning
 from spade.training.base import PathPlanningModule
 from spade.training.expert_mismatch import ExpertMismatchError  # noqa: F401  (raised by ExpertModule.check_compatible)

@@ -55,7 +55,8 @@ def overlay(state: torch.Tensor, target: torch.Tensor, prob: torch.Tensor | None
 def _instance_ape(prob: np.ndarray, state: np.ndarray, waypoints: np.ndarray, resolution: float
                   ) -> tuple[float, np.ndarray | None, str | None]:
     """(APE cm or inf, extracted polyline or None, failure reason or None) of one prediction."""
-    from spade.metrics import extract_path, polyline_ape
+    from spade.metrics.extraction import extract_path
+    from spade.metrics.geometry import polyline_ape
 
     result = extract_path(prob, state[1], state[2], len(waypoints))
     if not result.ok:

@@ -7,6 +7,5 @@ use it:
 - :mod:`spade.utils.processes` - whether a process id is still alive (and is still the same process);
 - :mod:`spade.utils.config` - composing the project's Hydra configs from code (:func:`compose_config`);
 - :mod:`spade.utils.errors` - :class:`ConfigError` and the entry points' one-line report of user errors;
-- :mod:`spade.utils.hashing` - a file's sha256, read in chunks;
-- :mod:`spade.utils.lazy_exports` - a package's names imported on first use (its module ``__getattr__``).
+- :mod:`spade.utils.hashing` - a file's sha256, read in chunks.
 """
