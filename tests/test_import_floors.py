@@ -2,7 +2,7 @@
 and no import cycle runs between spade packages at module level.
 
 Read from the source (AST), so a function-level import that only runs on some path counts as much as one at the
-top of a file (issue 19, "One home per concept": code that a lower floor needs lives on that floor).
+top of a file (one home per concept: code that a lower floor needs lives on that floor).
 """
 
 from __future__ import annotations
