@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 import os
+import runpy
+import sys
 from pathlib import Path
 
 import pytest
+from hydra.core.global_hydra import GlobalHydra
+
+from factories import student_checkpoint
 
 
 @pytest.fixture(scope="session")
@@ -102,3 +107,38 @@ def _environment_left_as_found():
     if changed:
         pytest.fail(f"the test left os.environ changed ({', '.join(changed)}); set variables with "
                     "monkeypatch.setenv so that they are undone")
+
+
+@pytest.fixture
+def run_main(monkeypatch, tmp_path: Path, capsys):
+    """``run_main("spade.plan", [...])`` -> (exit status, stderr): the entry point's Hydra main in this process."""
+    monkeypatch.delenv("HYDRA_FULL_ERROR", raising=False)
+    monkeypatch.setenv("SPADE_HOME", str(tmp_path / "home"))
+    monkeypatch.setenv("OMP_WAIT_POLICY", "PASSIVE")  # what spade.train sets as a command (undone after the test)
+
+    def run(module: str, args: list[str], hydra: bool = True) -> tuple[int, str]:
+        GlobalHydra.instance().clear()
+        extra = [f"hydra.run.dir={tmp_path / 'hydra'}"] if hydra else []
+        monkeypatch.setattr(sys, "argv", [module, *args, *extra])
+        capsys.readouterr()
+        code = 0
+        try:  # as python -m runs it (Hydra finds conf/ from the module's file when it runs as __main__)
+            runpy.run_module(module, run_name="__main__", alter_sys=True)
+        except SystemExit as exc:
+            code = exc.code
+        finally:
+            GlobalHydra.instance().clear()
+        return int(code or 0), capsys.readouterr().err
+
+    return run
+
+
+@pytest.fixture(scope="module")
+def real_export(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A real ONNX export of an untrained small student (64 px robot-frame windows)."""
+    pytest.importorskip("onnxruntime")
+    from spade.deploy.export import export_student
+
+    folder = tmp_path_factory.mktemp("export")
+    return export_student(student_checkpoint(folder / "student.ckpt"), folder / "student.onnx", "onnx",
+                          latency_runs=0).out_path

@@ -1,7 +1,7 @@
 """What the MLflow UI tests share: ``mlflow server`` on a free local port in front of a temporary SPADE home's store,
 and ``spade.train`` run into that home, told the server's address so that the URLs it prints point there.
 
-:func:`served_home` is the fixture (``test_mlflow_ui.py``, ``test_surfaces_mlflow.py``): it skips before any work
+:func:`served_home` is the fixture (``test_mlflow_ui.py``): it skips before any work
 when there is no browser, creates the store before the server opens it and stops the server at the end.
 """
 

@@ -26,7 +26,7 @@ from spade.annotation.templates import SHAPES, turn_curve, place_template, sampl
 from spade.data.path_dataset import PathDataset
 from spade.maps.frame import RobotFrame, path_heading
 
-from test_annotation_pipeline import small_cfg
+from annotation_support import small_cfg
 
 TEMPLATE = small_cfg(Path("unused"))["template"]
 

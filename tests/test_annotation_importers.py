@@ -11,7 +11,7 @@ from PIL import Image
 from spade.annotate import annotate
 from spade.annotation.importers.rosbag import RosbagImportError
 from spade.annotation.importers.skipp import SkippImportError
-from test_annotation_pipeline import check_dataset, small_cfg
+from annotation_support import check_dataset, small_cfg
 
 RES = 0.1
 SIZE = 64

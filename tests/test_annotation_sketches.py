@@ -11,7 +11,7 @@ import yaml
 from spade.annotate import annotate
 from spade.annotation.sketch_file import SketchFileError, load_sketch_file
 from factories import site_map
-from test_annotation_pipeline import check_dataset, small_cfg
+from annotation_support import check_dataset, small_cfg
 
 
 def write_sketches(tmp_path: Path, scenarios: list[dict]) -> Path:

@@ -3,7 +3,9 @@ figures against hand-computed values, and whole episodes on a hand-made map: suc
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,18 +21,7 @@ from spade.maps.frame import RobotFrame
 from spade.maps.occupancy import FREE, OCCUPIED, OccupancyMap
 from spade.metrics.closed_loop import CLOSED_LOOP_KEYS, ClosedLoopMetrics, episode_figures, plan_mode, smoothness
 from spade.ros.core import CoreSettings, replan_trigger
-
-ROBOT = {"radius_m": 0.105, "inflation_radius_m": 0.55, "cost_scaling_factor": 3.0}
-
-
-def arc_l(start: np.ndarray, leg: float, radius: float, tail: float, left: bool = True, n: int = 64) -> np.ndarray:
-    """An L along +x from ``start``: a leg, a quarter circle of ``radius`` (to the left or right), a tail."""
-    sign = 1.0 if left else -1.0
-    phi = np.linspace(0, math.pi / 2, 40)
-    leg_pts = np.stack([np.linspace(0, leg, 20), np.zeros(20)], axis=1)
-    arc = np.stack([leg + radius * np.sin(phi), sign * radius * (1 - np.cos(phi))], axis=1)
-    tail_pts = arc[-1] + np.stack([np.zeros(20), sign * np.linspace(0, tail, 20)], axis=1)
-    return resample_polyline(np.vstack([leg_pts, arc[1:], tail_pts[1:]]) + start, n)
+from factories import arc_l, scenario
 
 
 def open_map(block: tuple[slice, slice] | None = None) -> OccupancyMap:
@@ -40,14 +31,6 @@ def open_map(block: tuple[slice, slice] | None = None) -> OccupancyMap:
     if block is not None:
         grid[block] = OCCUPIED
     return OccupancyMap(grid, 0.1, (0.0, 0.0, 0.0), "room")
-
-
-def scenario(m: OccupancyMap, demo: np.ndarray, alternatives: np.ndarray | None = None, sid: str = "room/L000"
-             ) -> Scenario:
-    yaw = math.atan2(demo[1, 1] - demo[0, 1], demo[1, 0] - demo[0, 0])
-    return Scenario(sid, m.name, "L", m, build_costmap(m.grid, m.resolution, ROBOT, 4.0),
-                    np.array([demo[0, 0], demo[0, 1], yaw]), demo[-1].copy(), demo,
-                    np.zeros((0, len(demo), 2)) if alternatives is None else alternatives, 0.6)
 
 
 FRAME = RobotFrame.for_size(64)
@@ -374,3 +357,67 @@ def test_a_training_run_drives_its_best_checkpoint_when_the_scale_says_so(spade_
     metrics, _ = train(cfg)
     assert metrics["closed_loop/demonstration/success_rate"] == 1.0
     assert 0.0 <= metrics["closed_loop/success_rate"] <= 1.0 and "test/ape_cm" in metrics
+
+
+def test_a_changed_condition_reruns_its_drives_and_the_page_drops_the_old_numbers(tmp_path: Path,
+                                                                                  monkeypatch) -> None:
+    """Drives were matched by name and source run only, and recorded no noise or offset: a changed
+    perturbation printed "0 drives run" and the page kept the old numbers under "perturbed". Now each drive is
+    keyed by its full settings (recorded with it): a changed setting reruns exactly the drives it changes, and the
+    page shows each cell's latest settings only. The drive itself (spade.evaluate) is replaced by a stand-in that
+    records a finished run with the tags it is given."""
+    from types import SimpleNamespace
+
+    from mlflow import MlflowClient
+
+    import spade.experiments.closed_loop_table as table
+    import spade.experiments.evaluation as evaluation
+    from spade.utils.config import compose_config
+
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    client = MlflowClient(tracking_uri=uri)
+    experiment = client.create_experiment(table.CLOSED_LOOP_TABLE)
+    driven: list[dict] = []
+
+    def drive(cfg) -> dict:  # noqa: ANN001 - spade.evaluate's stand-in
+        noise = float(cfg.drive.noise_xy_m)
+        tags = {k: str(v) for k, v in cfg.tags.items()}
+        run = client.create_run(experiment, run_name=str(cfg.run_name), tags=tags)
+        client.log_param(run.info.run_id, "cfg/seed", int(cfg.seed))
+        client.log_metric(run.info.run_id, "closed_loop/ape_cm", 100.0 * noise + 1.0)
+        client.log_metric(run.info.run_id, "closed_loop/success_rate", 1.0)
+        client.set_terminated(run.info.run_id, "FINISHED")
+        driven.append({"condition": tags["condition"], "noise": noise, "settings": json.loads(tags["drive_settings"])})
+        return {"closed_loop/success_rate": 1.0, "closed_loop/ape_cm": 100.0 * noise + 1.0}
+
+    source = SimpleNamespace(info=SimpleNamespace(run_id="source-run-1"), data=SimpleNamespace(params={"cfg/seed": "0"}))
+    monkeypatch.setattr(evaluation, "evaluate", drive)
+    monkeypatch.setattr(table, "source_runs", lambda *args: [source])
+    monkeypatch.setattr(table, "_best_checkpoint", lambda *args: tmp_path / "best.ckpt")
+
+    def launch(noise: float) -> list[dict]:
+        from omegaconf import OmegaConf
+
+        cfg = compose_config("closed_loop", [f"tracking_uri={uri}", f"paths.output_dir={tmp_path}/out"])
+        cfg.sources = [{"table": "guidance", "row": "bc"}]
+        cfg.datasets = {"heldout": {"data": "lshape", "scenarios": 3}}
+        cfg.conditions = OmegaConf.create({"clean": {}, "perturbed": {"noise_xy_m": noise}})
+        return table.launch(cfg)
+
+    assert [r["run"] for r in launch(0.03)] == ["bc__heldout__clean", "bc__heldout__perturbed"]
+    assert driven[-1]["settings"]["drive"]["noise_xy_m"] == 0.03  # the settings are recorded with the drive
+    assert launch(0.03) == []  # the same settings: nothing to run
+    assert [r["run"] for r in launch(0.1)] == ["bc__heldout__perturbed"]  # the changed condition alone reruns
+    assert driven[-1]["noise"] == 0.1
+    cells = table.fetch_drives(uri)
+    assert cells[("bc", "heldout", "perturbed")].values("closed_loop/ape_cm") == [pytest.approx(11.0)]
+    assert cells[("bc", "heldout", "clean")].values("closed_loop/ape_cm") == [pytest.approx(1.0)]
+    # a second seed driven under the earlier settings, finishing last: its settings are now the cell's latest, and
+    # the cell shows the drives of those settings alone (both seeds at 0.03), never the 0.1 drive beside them
+    old = next(r for r in client.search_runs([experiment], "attributes.run_name = 'bc__heldout__perturbed'")
+               if r.data.tags["drive_settings"] and json.loads(r.data.tags["drive_settings"])["drive"]["noise_xy_m"] == 0.03)
+    late = client.create_run(experiment, run_name="bc__heldout__perturbed", tags=old.data.tags)
+    client.log_param(late.info.run_id, "cfg/seed", 1)
+    client.log_metric(late.info.run_id, "closed_loop/ape_cm", 4.0)
+    client.set_terminated(late.info.run_id, "FINISHED")
+    assert table.fetch_drives(uri)[("bc", "heldout", "perturbed")].values("closed_loop/ape_cm") == [4.0, 4.0]

@@ -56,7 +56,7 @@ def test_unknown_encoding_is_refused_with_the_choices() -> None:
 def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from spade.annotate import annotate
 
-    from test_annotation_pipeline import small_cfg
+    from annotation_support import small_cfg
 
     root = tmp_path_factory.mktemp("encoding") / "set"
     cfg = small_cfg(root, num_instances=12, shape="L")
@@ -96,7 +96,7 @@ def test_the_floor_loses_the_rounding_under_a_sub_pixel_encoding(dataset: Path) 
 
 
 def test_the_planner_draws_the_markers_its_model_was_trained_on(tmp_path: Path) -> None:
-    from test_planner import FRAME, RES, ROBOT_DATA, fresh_checkpoint
+    from factories import FRAME, RES, ROBOT_DATA, fresh_checkpoint
 
     from spade.deploy.plan_result import PlannerConfigError
     from spade.deploy.student_planner import Planner

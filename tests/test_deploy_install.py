@@ -14,23 +14,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from factories import HIDDEN, HIDE
 
 REPO = Path(__file__).resolve().parents[1]
-HIDDEN = ("torch", "torchmetrics", "torchvision", "diffusers", "lightning", "pytorch_lightning", "onnx")
 
-# Run before anything else in the subprocess: the hidden packages raise ModuleNotFoundError, as when not installed.
-HIDE = textwrap.dedent(f"""
-    import sys
-    HIDDEN = {HIDDEN!r}
-
-    class NotInstalled:
-        def find_spec(self, name, path=None, target=None):
-            if name.split(".")[0] in HIDDEN:
-                raise ModuleNotFoundError(f"No module named {{name!r}}", name=name)
-            return None
-
-    sys.meta_path.insert(0, NotInstalled())
-""")
 
 PLAN = textwrap.dedent("""
     import json, sys, time
@@ -52,14 +39,14 @@ PLAN = textwrap.dedent("""
 @pytest.fixture(scope="module")
 def onnx_student(tmp_path_factory: pytest.TempPathFactory) -> Path:
     pytest.importorskip("onnxruntime")
-    from test_ros_node import student_files
+    from ros_support import student_files
 
     return student_files(tmp_path_factory.mktemp("deploy"))[1]
 
 
 def a_query() -> tuple[list[float], list[float]]:
     """A robot pose and a goal 2 m ahead in open space of warehouse:4."""
-    from test_planner import facing, open_segment
+    from factories import facing, open_segment
 
     from spade.maps import generate_map
 
@@ -114,7 +101,7 @@ def test_without_torch_a_checkpoint_is_refused_with_the_fix(onnx_student: Path, 
 
 def test_the_node_replays_without_torch(onnx_student: Path, tmp_path: Path) -> None:
     """python -m spade.ros (Hydra, the node's logic, rosbags) imports no torch: a replay of a recording."""
-    from test_mcap_ros import robot_bag
+    from ros_support import robot_bag
 
     bag = robot_bag(tmp_path / "robot.mcap")
     code = textwrap.dedent("""
@@ -163,7 +150,7 @@ def test_a_fresh_venv_without_torch_plans_with_onnx(onnx_student: Path, tmp_path
     print(f"fresh deploy venv: import spade.planner {got['import_s']:.2f} s, first plan "
           f"{1000 * got['first_plan_s']:.0f} ms")
 
-    from test_mcap_ros import robot_bag
+    from ros_support import robot_bag
 
     bag = robot_bag(tmp_path / "robot.mcap")
     node = subprocess.run([str(venv / "bin" / "spade-ros"), f"model={onnx_student}", f"replay={bag}"],

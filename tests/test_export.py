@@ -18,9 +18,9 @@ from spade.maps.frame import RobotFrame
 from spade.models.builders import build_model
 from spade.models.modelfile import INPUT_ENCODING, open_model
 from factories import hand_made_checkpoint
+from factories import PARITY_BOUND
 
 REPO = Path(__file__).resolve().parents[1]
-PARITY_BOUND = 1e-4  # float32 reorderings in the runtimes stay near 1e-5 for logits of order 1-10
 
 
 def robot_data(size: int = 32, resolution_m: float = 0.2) -> dict:

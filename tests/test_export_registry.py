@@ -19,7 +19,7 @@ REPO = Path(__file__).resolve().parents[1]
 def test_export_registers_and_plan_loads_models_uri(tmp_path: Path, maps_dir: Path,
                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     pytest.importorskip("onnxruntime")
-    from test_ros_node import GOAL, MAP, POSE, student_files
+    from ros_support import GOAL, MAP, POSE, student_files
 
     ckpt, _ = student_files(tmp_path)
     store = f"sqlite:///{tmp_path / 'mlflow.db'}"

@@ -3,7 +3,7 @@ no import cycle runs between spade packages at module level; and no import cycle
 counting the imports inside functions.
 
 Read from the source (AST), so a function-level import that only runs on some path counts as much as one at the
-top of a file (issue 19, "One home per concept": code that a lower floor needs lives on that floor).
+top of a file (one home per concept: code that a lower floor needs lives on that floor).
 """
 
 from __future__ import annotations

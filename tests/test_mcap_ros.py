@@ -16,7 +16,8 @@ from spade.maps import generate_map
 from spade.planner import PlanResult
 from spade.ros.convert import grid_to_map, quaternion_to_yaw
 from spade.ros.core import CoreSettings, PlannerCore
-from spade.ros.recording import BagError, BagMessages, BagWriter, replay_bag, write_plan_bag
+from spade.ros.recording import BagError, replay_bag, write_plan_bag
+from ros_support import robot_bag
 
 mcap_ros2 = pytest.importorskip("mcap_ros2.reader")
 REPO = Path(__file__).resolve().parents[1]
@@ -75,33 +76,6 @@ class LinePlanner:
         return PlanResult(success=True, waypoints=pts, pose=np.asarray(pose), goal=np.asarray(goal), low_share=0.0)
 
 
-def robot_bag(path: Path, frame: str = "map") -> Path:
-    """A recording as a robot makes one: a latched map, AMCL poses at 10 Hz driving off the plan, two goals."""
-    m = generate_map("warehouse", 2)
-    t0 = 1_700_000_000_000_000_000
-    with BagWriter(path) as bag:
-        msgs = BagMessages(bag.typestore)
-        T = bag.typestore.types
-        bag.write("/map", "nav_msgs/msg/OccupancyGrid", msgs.grid(m, "map", t0), t0)
-
-        def amcl(x: float, y: float, ns: int) -> object:
-            cov = np.zeros(36)
-            return T["geometry_msgs/msg/PoseWithCovarianceStamped"](
-                msgs.header(frame, ns), T["geometry_msgs/msg/PoseWithCovariance"](msgs.pose(x, y, 0.0), cov))
-
-        bag.write("/amcl_pose", "geometry_msgs/msg/PoseWithCovarianceStamped", amcl(2.0, 3.0, t0), t0)
-        bag.write("/goal_pose", "geometry_msgs/msg/PoseStamped", msgs.pose_stamped([4.0, 3.0, 0.0], "map", t0 + 1),
-                  t0 + 1)
-        for i in range(1, 10):  # drifting sideways: 0.1 m per second, off the plan by > 0.5 m after 6 s
-            ns = t0 + i * 1_000_000_000
-            bag.write("/amcl_pose", "geometry_msgs/msg/PoseWithCovarianceStamped", amcl(2.0 + 0.1 * i, 3.0 + 0.1 * i,
-                                                                                        ns), ns)
-        bag.write("/goal_pose", "geometry_msgs/msg/PoseStamped", msgs.pose_stamped([99.0, 3.0, 0.0], "map", ns + 1),
-                  ns + 1)
-        bag.write("/scan_unrelated", "std_msgs/msg/Float32", msgs.float32(1.0), ns + 2)
-    return path
-
-
 @pytest.mark.parametrize("name", ["robot.mcap", "robot_bag"])
 def test_replaying_a_recording_through_the_node_logic(tmp_path: Path, name: str,
                                                      caplog: pytest.LogCaptureFixture) -> None:
@@ -147,7 +121,7 @@ def test_replay_refuses_what_it_cannot_replay(tmp_path: Path) -> None:
 def test_plan_command_writes_an_mcap(tmp_path: Path, maps_dir: Path) -> None:
     """python -m spade.plan ... mcap=plan.mcap: the plan a robotics person opens in Foxglove."""
     pytest.importorskip("onnxruntime")
-    from test_ros_node import GOAL, MAP, POSE, loopback_env, student_files
+    from ros_support import GOAL, MAP, POSE, loopback_env, student_files
 
     _, onnx = student_files(tmp_path)
     env = loopback_env(tmp_path)
@@ -168,7 +142,6 @@ def test_plan_command_writes_an_mcap(tmp_path: Path, maps_dir: Path) -> None:
                            capture_output=True, text=True, timeout=180)
     assert again.returncode == 2 and again.stderr.startswith("error: mcap=") and "never written over" in again.stderr
     assert math.isfinite(got["/plan_confidence"].data)
-
 
 
 # -- a test set's predictions (spade.evaluate ... mcap=) ---------------------------------------------------------------

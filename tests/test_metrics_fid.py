@@ -361,7 +361,7 @@ def test_training_is_deterministic_from_its_seed() -> None:
 
 
 def test_a_garbage_weights_file_is_named_without_numpys_pickle_hint(tmp_path) -> None:
-    """Issue 35: a garbage FID feature file got numpy's "load it unsafely using allow_pickle" hint."""
+    """A garbage FID feature file got numpy's "load it unsafely using allow_pickle" hint."""
     from spade.metrics.shape_features import ShapeFeatures
 
     garbage = tmp_path / "features.npz"

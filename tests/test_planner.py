@@ -22,25 +22,12 @@ from spade.models.builders import build_model
 from spade.planner import Planner, PlannerConfigError, PlanResult
 from spade.utils.config import compose_config
 from factories import LineOracle
+from factories import FRAME, RES, ROBOT_DATA, SIZE, facing, fresh_checkpoint, open_segment
 
-SIZE, RES = 64, 0.1  # scale=tiny's window
-FRAME = RobotFrame.for_size(SIZE)  # robot at (32, 48), heading up
 REAL_MAP = ("aws-robomaker-small-warehouse-world", "small_warehouse_002.yaml")
 
 
 # ------------------------------------------------------------------------------------------------ helpers
-def fresh_checkpoint(path: Path, data: dict | None = None) -> Path:
-    """A student checkpoint as spade.train writes it (untrained weights), without training."""
-    torch.manual_seed(0)
-    net = build_model("student", "small")
-    info = {"role": "student", "config": dict(net.config)}
-    if data is not None:
-        info["data"] = data
-    torch.save({"spade": info, "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}, path)
-    return path
-
-
-ROBOT_DATA = {"image_size": [SIZE, SIZE], "resolution_m": RES, "frame": FRAME.to_json()}
 
 
 class Silent:
@@ -69,30 +56,6 @@ def oracle_planner(ckpt: Path, **kwargs) -> Planner:
     planner = Planner(ckpt, **kwargs)
     planner.backend = LineOracle()
     return planner
-
-
-def open_segment(m: OccupancyMap, length_m: float, seed: int = 0, clearance_m: float = 0.3
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Start and goal (metres) ``length_m`` apart, the segment between them on cells with ``clearance_m``."""
-    coarse = m.resampled(RES)
-    clear = ndimage.distance_transform_edt(coarse.grid == FREE) * RES
-    rows, cols = np.nonzero(clear >= clearance_m)
-    rng = np.random.default_rng(seed)
-    for i in rng.permutation(len(rows)):
-        angle = rng.uniform(0, 2 * np.pi)
-        a = coarse.pixel_to_world(np.array([cols[i], rows[i]], dtype=float))
-        b = a + length_m * np.array([np.cos(angle), np.sin(angle)])
-        px = np.rint(coarse.world_to_pixel(np.linspace(a, b, 50))).astype(int)
-        inside = (px >= 0).all() and (px[:, 0] < coarse.width).all() and (px[:, 1] < coarse.height).all()
-        if inside and (clear[px[:, 1], px[:, 0]] >= clearance_m).all():
-            return a, b
-    raise AssertionError("no open segment found")
-
-
-def facing(a: np.ndarray, b: np.ndarray, turn: float = 0.0) -> np.ndarray:
-    """The pose (x, y, yaw) of a robot at ``a`` facing ``b`` (turned by ``turn`` radians, counter-clockwise)."""
-    d = b - a
-    return np.array([a[0], a[1], math.atan2(d[1], d[0]) + turn])
 
 
 def free_in(m: OccupancyMap, xy: np.ndarray) -> np.ndarray:

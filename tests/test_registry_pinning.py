@@ -1,4 +1,4 @@
-"""Prerequisites resolve a pinned registry version (issue 37): the first registered version is the @champion,
+"""Prerequisites resolve a pinned registry version: the first registered version is the @champion,
 later registrations do not move it unless promoted, and the run records which version it used."""
 
 from __future__ import annotations

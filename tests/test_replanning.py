@@ -20,7 +20,7 @@ from spade.metrics.decoding import PathDecoder
 from spade.metrics.synthetic import rasterise_polyline
 from spade.ros.convert import yaw_to_quaternion
 from spade.ros.core import CoreSettings, PlannerCore
-from test_planner import FRAME, ROBOT_DATA, fresh_checkpoint
+from factories import FRAME, ROBOT_DATA, fresh_checkpoint
 
 H = 64
 START = np.array([32.0, 54.0])
@@ -279,7 +279,7 @@ def test_the_desk_simulators_robot_and_the_closed_loop_drive_replan_from_their_p
         np.testing.assert_array_equal(previous, before.result.waypoints)
     assert all(e.result.prior == "used" for e in events[1:])
     # the closed loop: each episode's previous plan, in the batch
-    from test_closed_loop import arc_l, scenario
+    from factories import arc_l, scenario
 
     planner = Recording(two_ways_planner(tmp_path / "drive.ckpt", far_goal="clip"))
     sc = scenario(m, arc_l(np.array([2.0, 2.0]), 1.5, 0.5, 1.5))

@@ -189,7 +189,7 @@ def test_baselines_are_reference_rows_and_losing_rows_are_named(tmp_path: Path) 
     baselines = {"test/baseline/straight/ape_cm": 24.0, "test/baseline/straight/failure_rate": 0.0,
                  "test/baseline/shortest/ape_cm": 29.0, "test/baseline/heading/ape_cm": 12.5,
                  "test/baseline/heading/hd19": 3.0}
-    # the deciding figure (issue 45): the planner's APE and tail
+    # the deciding figure: the planner's APE and tail
     planners = {"test/baseline/straight/planner/ape_cm": 24.0, "test/baseline/shortest/planner/ape_cm": 29.0,
                 "test/baseline/heading/planner/ape_cm": 12.5, "test/baseline/heading/planner/over_20cm_rate": 0.1}
     _log_run(client, t3, "t3_bc_scratch_U", {"test/ape_cm": 30.0, "test/failure_rate": 0.01, **baselines, **planners,
@@ -207,7 +207,7 @@ def test_baselines_are_reference_rows_and_losing_rows_are_named(tmp_path: Path) 
     assert "Which figure decides: the planner's APE with its tail" in rep.text
 
 
-# -- seeds: mean +/- sd per cell, Welch's t-test between compared rows (issue 24) --------------------------------
+# -- seeds: mean +/- sd per cell, Welch's t-test between compared rows -------------------------------------------
 # Hand-computed: SKIPP BC APE 10, 12, 14 (mean 12, sd 2); Cond-DBC 6, 7, 8 (mean 7, sd 1). Welch: t = -5 /
 # sqrt(4/3 + 1/3) = -3.873, df = (5/3)^2 / ((4/3)^2/2 + (1/3)^2/2) = 50/17 = 2.941, two-sided p = 0.03156.
 # Hd19 30, 34, 32 (mean 32, sd 2) against 28, 33, 32 (mean 31, sd sqrt(7) = 2.6458): t = -0.522, df = 3.723,
@@ -339,7 +339,7 @@ def test_guidance_report_tests_pairs_with_holm_and_states_its_provenance(tmp_pat
 
 
 def test_a_cell_with_a_nan_seed_says_how_many_seeds_it_is_over() -> None:
-    """Issue 32: a cell where one of two seeds logged NaN (no path extracted) showed the other seed's value as if
+    """A cell where one of two seeds logged NaN (no path extracted) showed the other seed's value as if
     it were the row's, with no spread and no count."""
     import math
 
@@ -357,7 +357,7 @@ def test_a_cell_with_a_nan_seed_says_how_many_seeds_it_is_over() -> None:
 
 
 def test_a_rows_seeds_share_their_data_and_runs_on_other_data_are_left_out_and_said(tmp_path: Path) -> None:
-    """Issue 32: a run on other datasets under a row's name (a user's own data, a regenerated dataset) is never
+    """A run on other datasets under a row's name (a user's own data, a regenerated dataset) is never
     averaged into the row's seeds; the report says how many were left out."""
     from mlflow import MlflowClient
     from mlflow.entities import Dataset, DatasetInput, InputTag
@@ -385,7 +385,7 @@ def test_a_rows_seeds_share_their_data_and_runs_on_other_data_are_left_out_and_s
 
 
 def test_pairwise_tests_the_deciding_figure_first_and_corrects_over_every_test(tmp_path: Path) -> None:
-    """Issue 45: the pairwise tests compare the planner's APE (the deciding figure) first, then the paper's APE and
+    """The pairwise tests compare the planner's APE (the deciding figure) first, then the paper's APE and
     the preference figures the runs logged; Holm's correction counts all of them."""
     from mlflow import MlflowClient
 

@@ -7,9 +7,7 @@ package and is linked from the documentation."""
 
 from __future__ import annotations
 
-import base64
 import json
-import os
 import socket
 import struct
 import time
@@ -24,54 +22,10 @@ pytest.importorskip("cyclonedds")
 
 from spade.ros import messages as M  # noqa: E402
 from spade.ros.live import CHANNELS, FoxgloveLive  # noqa: E402
+from ros_support import WsClient, advertised, receive, subscribe
 
 REPO = Path(__file__).resolve().parents[1]
 LAYOUT = REPO / "docs" / "how-to" / "spade-foxglove-layout.json"
-
-
-class WsClient:
-    """The smallest WebSocket client (RFC 6455) that Foxglove's protocol needs: text and binary frames."""
-
-    def __init__(self, port: int, protocols: str = "foxglove.sdk.v1, foxglove.websocket.v1") -> None:
-        self.sock = socket.create_connection(("127.0.0.1", port), timeout=5)
-        key = base64.b64encode(os.urandom(16)).decode()
-        self.sock.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-                           f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
-                           f"Sec-WebSocket-Protocol: {protocols}\r\n\r\n").encode())
-        head = b""
-        while b"\r\n\r\n" not in head:
-            head += self.sock.recv(1)
-        self.head = head.decode(errors="replace")
-        assert b" 101 " in head.split(b"\r\n")[0], head
-        # the protocol the server chose, one of those offered (foxglove.sdk.v1: this SDK's own name)
-        self.protocol = next(line.split(":", 1)[1].strip() for line in self.head.split("\r\n")
-                             if line.lower().startswith("sec-websocket-protocol:"))
-        assert self.protocol in protocols.split(", "), self.head
-
-    def _read(self, n: int) -> bytes:
-        out = b""
-        while len(out) < n:
-            chunk = self.sock.recv(n - len(out))
-            if not chunk:
-                raise ConnectionError("closed")
-            out += chunk
-        return out
-
-    def recv(self) -> tuple[int, bytes]:
-        b0, b1 = self._read(2)
-        n = b1 & 0x7F
-        if n == 126:
-            n = struct.unpack(">H", self._read(2))[0]
-        elif n == 127:
-            n = struct.unpack(">Q", self._read(8))[0]
-        return b0 & 0x0F, self._read(n)
-
-    def send_text(self, text: str) -> None:
-        data = text.encode()
-        mask = os.urandom(4)
-        head = bytes([0x81]) + (bytes([0x80 | len(data)]) if len(data) < 126 else
-                                bytes([0x80 | 126]) + struct.pack(">H", len(data)))
-        self.sock.sendall(head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(data)))
 
 
 def test_a_foxglove_client_receives_the_map_and_a_plan() -> None:
@@ -182,50 +136,6 @@ def test_recordings_carry_tf_and_the_students_window(tmp_path: Path) -> None:
     children = {msg.transforms[0].child_frame_id for t, msg in got if t == "/tf"}
     assert children == {"base_link", "spade_window"}
     assert set(dict(got)["/plan_probability"].data) == {50}
-
-
-def advertised(client: WsClient, topics: set[str] | None = None, seconds: float = 5.0) -> dict[str, dict]:
-    """The channels the server advertises (until ``topics`` are all there, or ``seconds`` pass), by topic."""
-    channels: dict[str, dict] = {}
-    client.sock.settimeout(0.5)
-    end = time.monotonic() + seconds
-    while time.monotonic() < end and (topics is None or not topics <= set(channels)):
-        try:
-            op, data = client.recv()
-        except TimeoutError:
-            if topics is None and channels:
-                break
-            continue
-        if op == 1:
-            msg = json.loads(data)
-            if msg.get("op") == "advertise":
-                channels.update({c["topic"]: c for c in msg["channels"]})
-    client.sock.settimeout(5)
-    return channels
-
-
-def subscribe(client: WsClient, channels: dict[str, dict]) -> dict[int, str]:
-    """Subscribe to every channel; returns subscription id -> topic."""
-    subs = {i: topic for i, topic in enumerate(channels)}
-    client.send_text(json.dumps({"op": "subscribe", "subscriptions": [
-        {"id": i, "channelId": channels[topic]["id"]} for i, topic in subs.items()]}))
-    return subs
-
-
-def receive(client: WsClient, subs: dict[int, str], wanted: set[str], seconds: float) -> dict[str, list[bytes]]:
-    """The messages received (payloads by topic) until every topic of ``wanted`` has one, or ``seconds`` pass."""
-    got: dict[str, list[bytes]] = {}
-    client.sock.settimeout(0.5)
-    end = time.monotonic() + seconds
-    while not wanted <= set(got) and time.monotonic() < end:
-        try:
-            op, data = client.recv()
-        except TimeoutError:
-            continue
-        if op == 2 and data[0] == 0x01:
-            got.setdefault(subs[struct.unpack("<I", data[1:5])[0]], []).append(data[13:])
-    client.sock.settimeout(5)
-    return got
 
 
 @pytest.mark.parametrize("protocols", ["foxglove.websocket.v1", "foxglove.sdk.v1"])

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from test_ros_node import loopback_env, student_files, unique_domain, wait_for
+from ros_support import loopback_env, student_files, unique_domain, wait_for
 
 pytestmark = [pytest.mark.slow]
 

@@ -4,7 +4,6 @@ RViz2's goal) and checks the nav_msgs/Path it receives; a malformed map and a go
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -13,55 +12,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ros_support import GOAL, MAP, POSE, loopback_env, student_files, unique_domain, wait_for
 
 REPO = Path(__file__).resolve().parents[1]
-MAP = ("turtlebot3", "turtlebot3_world.yaml")
-POSE = (-0.55, 2.15, -0.015)  # a free, open stretch of turtlebot3_world (0.3 m clear along the way to the goal)
-GOAL = (0.82, 1.545, 0.3)
-
-LOOPBACK_XML = """<?xml version="1.0" encoding="UTF-8" ?>
-<CycloneDDS><Domain Id="any">
-  <General><Interfaces><NetworkInterface name="lo"/></Interfaces><AllowMulticast>false</AllowMulticast></General>
-  <Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>
-    <Peers><Peer Address="127.0.0.1"/></Peers></Discovery>
-</Domain></CycloneDDS>
-"""
-
-
-def student_files(folder: Path) -> tuple[Path, Path]:
-    """An untrained small student as spade.train writes it (64 px robot-frame windows at 0.1 m/px) and its ONNX
-    export (the search decoder makes an untrained network's plans valid paths all the same)."""
-    import torch
-
-    from spade.deploy.export import export_student
-    from spade.maps.frame import RobotFrame
-    from spade.models.builders import build_model
-
-    torch.manual_seed(0)
-    net = build_model("student", "small")
-    info = {"role": "student", "config": dict(net.config),
-            "data": {"image_size": [64, 64], "resolution_m": 0.1, "frame": RobotFrame.for_size(64).to_json()}}
-    ckpt = folder / "student.ckpt"
-    torch.save({"spade": info, "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}, ckpt)
-    return ckpt, export_student(ckpt, folder / "student.onnx", "onnx", latency_runs=0).out_path
 
 
 @pytest.fixture(scope="module")
 def student(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     """(checkpoint, ONNX export) of an untrained student (module-scoped: exporting sets torch's cache variables)."""
     return student_files(tmp_path_factory.mktemp("student"))
-
-
-def loopback_env(tmp_path: Path) -> dict[str, str]:
-    """CYCLONEDDS_URI: loopback only, no multicast; SPADE_HOME in tmp_path (the node's run folder)."""
-    xml = tmp_path / "cyclonedds.xml"
-    xml.write_text(LOOPBACK_XML)
-    return {**os.environ, "CYCLONEDDS_URI": xml.as_uri(), "SPADE_HOME": str(tmp_path / "home"),
-            "PYTHONPATH": str(REPO), "HYDRA_FULL_ERROR": "0"}
-
-
-def unique_domain() -> int:
-    return 100 + os.getpid() % 100  # 100..199: away from ROS's default 0 and from other test runs' domains
 
 
 def free_along(m, points: np.ndarray, step_m: float = 0.01) -> bool:
@@ -111,16 +70,6 @@ class Robot:
             got = [s for s in self.plan.take(N=10) if s is not None]
             time.sleep(0.05)
         return got
-
-
-def wait_for(log: Path, text: str, seconds: float) -> str:
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        out = log.read_text(errors="replace")
-        if text in out:
-            return out
-        time.sleep(0.1)
-    raise AssertionError(f"{text!r} not in the node's output:\n{log.read_text(errors='replace')}")
 
 
 @pytest.mark.slow

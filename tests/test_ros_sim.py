@@ -154,7 +154,7 @@ def free_port() -> int:
 
 
 def connect(port: int, seconds: float, proc: subprocess.Popen, log: Path):  # noqa: ANN201
-    from test_ros_live import WsClient
+    from ros_support import WsClient
 
     end = time.monotonic() + seconds
     while time.monotonic() < end:
@@ -172,8 +172,8 @@ def test_the_desk_simulator_runs_the_quickstarts_student_on_warehouse_1_and_a_la
         tmp_path: Path) -> None:
     pytest.importorskip("cyclonedds")
     pytest.importorskip("foxglove")
-    from test_ros_live import advertised, receive, subscribe
-    from test_ros_node import loopback_env, unique_domain, wait_for
+    from ros_support import advertised, receive, subscribe
+    from ros_support import loopback_env, unique_domain, wait_for
 
     from spade.ros import messages as M
 

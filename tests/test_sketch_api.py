@@ -22,12 +22,10 @@ from spade.annotation.sketch_file import load_sketch_file  # noqa: E402
 from spade.sketching import build_app  # noqa: E402
 from spade.sketching.app import STATIC_DIR  # noqa: E402
 from factories import LineOracle, site_map  # noqa: E402
+from factories import LOCAL, L_WAYPOINTS, TINY
 
-TINY = ["window.size_px=64", "window.resolution_m=0.1", "instances.spacing_m=0.15", "preview.count=4"]
-L_WAYPOINTS = [[0.0, 1.0], [1.5, 1.0], [2.5, 1.0], [3.1, 1.3], [3.4, 2.0], [3.4, 3.0]]
 L_SECOND = [[0.0, 6.0], [1.5, 6.0], [2.3, 6.0], [2.9, 6.3], [3.2, 7.0], [3.2, 8.0]]
 BLOCK = [4.0, 4.0]  # the middle of the site's obstacle
-LOCAL = "http://127.0.0.1:8765"  # the server answers only to its own host names (spade.sketching.app)
 
 
 @pytest.fixture

@@ -1,6 +1,8 @@
 """The sketching server obeys only its user: a foreign ``Host`` (DNS rebinding) and a cross-site
 ``Origin`` on a state-changing request are refused, and ``POST /api/model`` opens only model files (.ckpt, .onnx,
-.pt) under the folders the server was started with, never echoing what a parser made of another file."""
+.pt) under the folders the server was started with, never echoing what a parser made of another file. Its sketch
+file holds one map's sketches (a file of another map is refused, never written into), a corrupted file or a NUL byte
+is answered 4xx, and a save keeps the file's mode."""
 
 from __future__ import annotations
 
@@ -15,26 +17,7 @@ from fastapi.testclient import TestClient  # noqa: E402
 
 from spade.sketching import build_app  # noqa: E402
 
-from factories import site_map  # noqa: E402
-
-TINY = ["window.size_px=64", "window.resolution_m=0.1", "instances.spacing_m=0.15", "preview.count=4"]
-L_WAYPOINTS = [[0.0, 1.0], [1.5, 1.0], [2.5, 1.0], [3.1, 1.3], [3.4, 2.0], [3.4, 3.0]]
-LOCAL = "http://127.0.0.1:8765"
-
-
-def student_checkpoint(path: Path) -> Path:
-    import torch
-
-    from spade.maps.frame import RobotFrame
-    from spade.models.builders import build_model
-
-    net = build_model("student", "small")
-    info = {"role": "student", "config": dict(net.config),
-            "data": {"image_size": [64, 64], "resolution_m": 0.1, "frame": RobotFrame.for_size(64).to_json()}}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    torch.save({"spade": info, "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}, path)
-    return path
-
+from factories import LOCAL, L_WAYPOINTS, TINY, site_map, student_checkpoint  # noqa: E402
 
 def digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest() if path.exists() else "absent"
@@ -201,3 +184,90 @@ def test_models_load_from_the_started_folders_or_the_models_setting(tmp_path: Pa
                         base_url=LOCAL)
     assert client.get("/api/model").json()["model"]["path"] == str(started.resolve())
     assert client.post("/api/model", json={"path": str(student_checkpoint(other / "d.ckpt"))}).status_code == 200
+
+
+def _sketch_client(yaml_path: Path, out: Path):
+    pytest.importorskip("fastapi")
+    pytest.importorskip("httpx")
+    from fastapi.testclient import TestClient
+
+    from spade.sketching import build_app
+    from factories import LOCAL, TINY
+
+    return TestClient(build_app(str(yaml_path), out, TINY), base_url=LOCAL)
+
+
+def test_one_sketch_file_one_map(tmp_path: Path) -> None:
+    """Two sketch servers on one ``out_dir`` with different maps both saved (``sketches.yaml`` named one
+    map and held the other's sketch), and an edit of the file's ``map:`` while a server ran was ignored. The file's
+    map is checked on every request: a file of another map is refused (409), never written into."""
+    from spade.maps import OccupancyMap, save_ros_map
+    from factories import L_WAYPOINTS
+
+    first = site_map(tmp_path / "a")
+    import numpy as np
+
+    g = np.ones((100, 120), np.uint8)
+    g[[0, -1], :] = 2
+    g[:, [0, -1]] = 2
+    second = save_ros_map(OccupancyMap(g, 0.1, origin=(-2.0, -1.0, 0.0), name="other"), tmp_path / "b" / "other.yaml")
+    out = tmp_path / "sketches"
+    a, b = _sketch_client(first, out), _sketch_client(second, out)  # neither has saved yet: both start
+    r = a.post("/api/sketches", json={"shape": "L", "waypoints": L_WAYPOINTS})
+    assert r.status_code == 201, r.text
+    before = digest(out / "sketches.yaml")
+    r = b.post("/api/sketches", json={"shape": "L", "waypoints": L_WAYPOINTS})
+    assert r.status_code == 409 and "holds sketches of map" in r.json()["error"], r.text
+    assert b.get("/api/sketches").status_code == 409
+    assert digest(out / "sketches.yaml") == before
+    with pytest.raises(ValueError, match="holds sketches of map"):
+        _sketch_client(second, out)  # a second server of another map, started now: refused
+    # the file's map edited while the server runs: refused, not ignored
+    text = (out / "sketches.yaml").read_text()
+    (out / "sketches.yaml").write_text(text.replace(str(first.resolve()), str(second.resolve())))
+    r = a.post("/api/sketches", json={"shape": "L", "waypoints": L_WAYPOINTS})
+    assert r.status_code == 409 and "holds sketches of map" in r.json()["error"]
+
+
+def test_sketch_server_answers_4xx_for_a_nul_byte_and_a_corrupted_file(tmp_path: Path) -> None:
+    """A NUL byte in a model path and a corrupted ``sketches.yaml`` answered 500."""
+    yaml_path = site_map(tmp_path)
+    out = tmp_path / "sk"
+    client = _sketch_client(yaml_path, out)
+    r = client.post("/api/model", json={"path": "stud\x00ent.onnx"})
+    assert r.status_code == 400 and "NUL byte" in r.json()["error"], r.text
+    out.mkdir(exist_ok=True)
+    (out / "sketches.yaml").write_text("map: [unclosed\n  scenarios: {\n")
+    for r in (client.get("/api/sketches"),
+              client.post("/api/sketches", json={"shape": "L", "waypoints": [[0.0, 1.0], [1.5, 1.0]]})):
+        assert r.status_code in (409, 422) and "error" in r.json(), r.text
+    r = client.get("/api/sketches")
+    assert r.status_code == 409 and "is not readable YAML" in r.json()["error"]
+    (out / "sketches.yaml").write_text("map: x\nscenarios: [1, 2]\n")
+    r = client.get("/api/sketches")
+    assert r.status_code == 409 and "not a list of sketches" in r.json()["error"]
+
+
+def test_a_sketch_save_keeps_the_files_mode(tmp_path: Path) -> None:
+    """Every save rewrote ``sketches.yaml`` through ``mkstemp``, leaving it at mode 0600 whatever it was; a save now
+    keeps the file's own mode, and a new file gets the umask's."""
+    import os
+    import stat
+
+    from spade.sketching.storage import SketchStore
+
+    waypoints = [[1.0, 1.0], [1.5, 1.0], [2.0, 1.5]]
+    path = tmp_path / "sk" / "sketches.yaml"
+    old = os.umask(0o022)
+    try:
+        store = SketchStore(path, "warehouse:1")
+        store.append("L", waypoints)
+        assert stat.S_IMODE(path.stat().st_mode) == 0o644
+        path.chmod(0o664)
+        store.append("L", waypoints)
+        assert stat.S_IMODE(path.stat().st_mode) == 0o664
+        path.chmod(0o640)
+        SketchStore(path, "warehouse:1").append("L", waypoints)
+        assert stat.S_IMODE(path.stat().st_mode) == 0o640
+    finally:
+        os.umask(old)

@@ -204,7 +204,7 @@ def test_smoke_experiment_logs_a_run_with_test_metrics(tmp_path: Path) -> None:
     assert client.search_model_versions("name LIKE 'spade-cond_expert-L-tiny-%'")
 
 
-@pytest.mark.slow  # two spade.train processes; resume in-process: test_reliability's resume_continues_the_run test
+@pytest.mark.slow  # two spade.train processes; resume in-process: test_training_runs's resume_continues_the_run test
 def test_killed_run_resumes_into_the_same_mlflow_run(tmp_path: Path) -> None:
     run_dir = tmp_path / "run"
     args = ["+experiment=t1_small_bc_L", "trainer.max_epochs=3", "+trainer.limit_train_batches=4",

@@ -1,11 +1,8 @@
-"""Issue 48, item 6 (part): one progress line per stage on the console, not a bar per validation loader; the
-annotate summary warns when a test part has few scenarios, with the uncertainty that implies.
-
-Issue 62, item 3 (the console): the quickstart's console has no duplicated line (Lightning's lines were printed
-twice, plain and Hydra-formatted) and no line over 120 characters once the run has started; no Lightning test
-table; the closing summary leads with the deciding figure (the planner's APE, then its tail), in per cent
-throughout, with one ``spade.plan`` syntax; ``spade.plan model=runs:/...`` names the store it looked in and never
-creates one."""
+"""The console: one progress line per stage, not a bar per validation loader; the annotate summary warns when a
+test part has few scenarios, with the uncertainty that implies; the quickstart's console has no duplicated line
+(Lightning's lines were printed twice, plain and Hydra-formatted) and no line over 120 characters once the run has
+started; no Lightning test table; the closing summary leads with the deciding figure (the planner's APE, then its
+tail), in per cent throughout, with one ``spade.plan`` syntax."""
 
 from __future__ import annotations
 
@@ -59,7 +56,7 @@ def test_a_small_test_part_gets_a_warning_with_its_uncertainty() -> None:
     assert not is_test_part({}, None, Path("data/own_train"))
 
 
-# -- issue 62: the quickstart's console ------------------------------------------------------------------------------
+# -- the quickstart's console ----------------------------------------------------------------------------------------
 def _bar(line: str) -> bool:
     """A progress bar's redraw (tqdm's: ``Epoch 1:  40%|####  | 4/10 [...]``), which repeats by design."""
     return bool(re.search(r"\d+(/\d+|/\?) \[[\d:?]+<", line)) or line.startswith(("Training:", "Testing"))
@@ -213,36 +210,3 @@ def test_the_quickstart_console_has_no_duplicated_line_and_none_over_120_columns
         assert checkpoint.startswith(home) and Path(checkpoint).is_file()
         _check_summary(summary, checkpoint)
         assert re.search(r"logged model     : runs:/[0-9a-f]{32}/model", summary)
-
-
-# -- issue 62: spade.plan model=runs:/... from another folder ------------------------------------------------------
-def test_a_model_uri_names_the_store_it_looked_in_and_never_creates_one(tmp_path: Path) -> None:
-    from spade.deploy.mlflow_models import RegistryError, resolve_model
-
-    store = f"sqlite:///{tmp_path}/logs/mlflow.db"
-    with pytest.raises(RegistryError) as missing:
-        resolve_model("runs:/0123456789abcdef0123456789abcdef/model", store, tmp_path / "logs" / "registry-cache")
-    message = str(missing.value)
-    assert f"no MLflow store at {store}" in message and "none was created" in message
-    assert "MLFLOW_TRACKING_URI" in message and "paths.mlflow_tracking_uri" in message
-    assert not (tmp_path / "logs").exists()  # neither the store nor the cache folder
-
-    from mlflow import MlflowClient
-
-    MlflowClient(tracking_uri=store).search_experiments()  # an existing store, without that run
-    with pytest.raises(RegistryError) as absent:
-        resolve_model("runs:/0123456789abcdef0123456789abcdef/model", store)
-    message = str(absent.value)
-    assert f"cannot be fetched from the MLflow store at {store}" in message and "MLFLOW_TRACKING_URI" in message
-
-
-@pytest.mark.timeout(300)
-def test_plan_with_a_runs_uri_from_another_folder_creates_no_store(tmp_path: Path) -> None:
-    env = {k: v for k, v in os.environ.items() if k not in ("MLFLOW_TRACKING_URI", "SPADE_HOME")}
-    done = subprocess.run([sys.executable, "-m", "spade.plan", "warehouse:101", "start=3,4,0", "goal=6,6",
-                           "model=runs:/0123456789abcdef0123456789abcdef/model"], cwd=tmp_path, env=env,
-                          capture_output=True, text=True, timeout=240)
-    assert done.returncode == 2, done.stdout + done.stderr
-    assert f"no MLflow store at sqlite:///{tmp_path}/logs/mlflow.db" in done.stderr, done.stderr
-    assert "MLFLOW_TRACKING_URI" in done.stderr
-    assert not (tmp_path / "logs" / "mlflow.db").exists()

@@ -1,5 +1,6 @@
-"""Reliability of training runs: own run folders, data that matches its settings, same seed same
-numbers, early one-line config errors, honest MLflow run status, resume that reproduces the uninterrupted run."""
+"""Training runs: own run folders, data that matches its settings, same seed same numbers, early one-line config
+errors, honest MLflow run status (a run that trains and tests nothing ends FINISHED), the untrained model's metrics
+renamed by prefix only, resume that reproduces the uninterrupted run."""
 
 from __future__ import annotations
 
@@ -29,6 +30,7 @@ from spade.tracking.predictors import TOP_LEVEL_FILTER
 
 REPO = Path(__file__).resolve().parents[1]
 ROW = "t1_small_bc_L"
+FID = "metrics.fid_extractor=randconv"  # the offline extractor whose weights are generated, not shipped
 # Few, small steps, no prediction pictures, path metrics or latency timing: these tests are about the machinery.
 QUICK = ["trainer.enable_progress_bar=false", "model.grid_size=0", "callbacks.model_info.latency_runs=0",
          "model.val_metric_batches=0", "optimized_metric=val/loss_bc", "+trainer.num_sanity_val_steps=0",
@@ -472,3 +474,39 @@ def test_prerequisite_trained_in_the_same_process_does_not_change_the_numbers(tm
     for run in runs:  # a one-epoch run archives best and last
         assert {a.path for a in client.list_artifacts(run.info.run_id, "checkpoints")} == {"checkpoints/best",
                                                                                         "checkpoints/last"}
+
+
+def test_a_run_that_trains_and_tests_nothing_ends_finished(spade_home: Path, tmp_path: Path) -> None:
+    """``train=false test=false`` exited 0 and left its MLflow run RUNNING (later marked KILLED)."""
+    from mlflow import MlflowClient
+
+    from spade.experiments.run import train
+
+    cfg = compose_row(ROW, spade_home, "train=false", "test=false", f"paths.output_dir={tmp_path / 'out'}",
+                      "tags.table=nothing", FID)
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    with open_dict(cfg):
+        cfg.paths.mlflow_tracking_uri = uri
+        cfg.logger.mlflow.tracking_uri = uri
+    train(cfg)
+    client = MlflowClient(tracking_uri=uri)
+    (run,) = client.search_runs([client.get_experiment_by_name("nothing").experiment_id])
+    assert run.info.status == "FINISHED"
+
+
+def test_untrained_metrics_are_renamed_by_prefix_only(monkeypatch) -> None:
+    """``str.replace("test/", "untrained/")`` also rewrote ``shortest/``: 16 metrics of every run with
+    ``test_untrained=true`` were named ``untrained/baseline/shoruntrained/...``."""
+    import hydra
+
+    from spade.experiments import run as run_module
+    from spade.utils.config import compose_config
+
+    class Tester:
+        def test(self, **kwargs):
+            return [{"test/ape_cm": 50.0, "test/baseline/shortest/ape_cm": 19.0, "test/baseline/shortest/hd19": 3.0}]
+
+    monkeypatch.setattr(hydra.utils, "instantiate", lambda *a, **k: Tester())
+    metrics = run_module.untrained_test_metrics(compose_config("train"), None, None)
+    assert metrics == {"untrained/ape_cm": 50.0, "untrained/baseline/shortest/ape_cm": 19.0,
+                       "untrained/baseline/shortest/hd19": 3.0}

@@ -1,4 +1,4 @@
-"""Reliability across processes (slow: each test starts processes, most of them train): a run killed
+"""The commands as processes (slow: each test starts processes, most of them train): a run killed
 with ``kill -9`` and resumed tests the same best checkpoint, with the same numbers, as the uninterrupted run;
 annotation workers end with their parent; the command lines fail in one line with exit status 2."""
 
@@ -31,7 +31,7 @@ QUICK = ["trainer.enable_progress_bar=false", "model.grid_size=0", "callbacks.mo
 class KillAtBatch(L.Callback):
     """``kill -9`` of its own process when training reaches batch ``batch`` of epoch ``epoch``: an interruption at
     a known place, with no sleeps and no polling
-    (``+callbacks.kill._target_=test_reliability_processes.KillAtBatch``)."""
+    (``+callbacks.kill._target_=test_command_processes.KillAtBatch``)."""
 
     def __init__(self, epoch: int, batch: int) -> None:
         self.epoch, self.batch = int(epoch), int(batch)
@@ -81,7 +81,7 @@ def _the_run(home: Path):
 
 
 def test_kill_9_and_resume_tests_the_uninterrupted_runs_best_checkpoint(tmp_path: Path, data_dir: Path) -> None:
-    """Case 5: resuming from ``last.ckpt`` into a new run folder made Lightning drop ``best_model_score`` ("dirpath
+    """Resuming from ``last.ckpt`` into a new run folder made Lightning drop ``best_model_score`` ("dirpath
     has changed"), so the first epoch after the resume became "best" whatever its score. The checkpoint monitor
     is set to *maximise* the falling validation loss, so that the best epoch is an early one, before the kill."""
     args = ["-m", "spade.train", f"+experiment={ROW}", "trainer.max_epochs=4", "+trainer.limit_train_batches=3",
@@ -91,7 +91,7 @@ def test_kill_9_and_resume_tests_the_uninterrupted_runs_best_checkpoint(tmp_path
     run_a, run_b, run_b2 = tmp_path / "run_a", tmp_path / "run_b", tmp_path / "run_b2"
     code, out = _run([*args, f"hydra.run.dir={run_a}"], home_a)
     assert code == 0, out[-4000:]
-    kill = ["+callbacks.kill._target_=test_reliability_processes.KillAtBatch", "+callbacks.kill.epoch=2",
+    kill = ["+callbacks.kill._target_=test_command_processes.KillAtBatch", "+callbacks.kill.epoch=2",
             "+callbacks.kill.batch=1"]
     code, out = _run([*args, *kill, f"hydra.run.dir={run_b}"], home_b)
     assert code == -signal.SIGKILL, out[-4000:]  # killed in epoch 2, after the checkpoints of epochs 0 and 1
@@ -141,7 +141,7 @@ def _alive(pid: int) -> bool:
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["kill-9", "sigterm"])
 def test_annotation_workers_exit_with_their_parent(tmp_path: Path, sig: int) -> None:
-    """Case 7: after ``kill -9`` or SIGTERM of ``spade.annotate workers=2`` the two spawn workers and the resource
+    """After ``kill -9`` or SIGTERM of ``spade.annotate workers=2`` the two spawn workers and the resource
     tracker kept running, orphaned."""
     cmd = [sys.executable, "-m", "spade.annotate", "workers=2", "maps=[warehouse:1,office:1]", "num_instances=200000",
            "scenario.max_per_map=100000", f"out_dir={tmp_path / 'ds'}", "progress=false", "preview.enabled=false",

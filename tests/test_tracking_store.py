@@ -1,18 +1,21 @@
-"""A store that survives a race and an interrupt (issue 63, item 3).
+"""The MLflow store: created once, safely, and never by a reader.
 
-- every path that may create the MLflow store takes the store's lock (``<store>.lock``): training's and
-  evaluation's logger, the critic's (the same logger), ``spade.export register=`` and model URIs (the registry's
-  client), ``spade.closed_loop``; an evaluation, a training and an ``export register=`` started together on a fresh
-  store crashed with ``table ... already exists`` because the registry's client skipped the lock;
+- every path that may create the store takes the store's lock (``<store>.lock``): training's and evaluation's
+  logger, the critic's (the same logger), ``spade.export register=`` and model URIs (the registry's client),
+  ``spade.closed_loop``; an evaluation, a training and an ``export register=`` started together on a fresh store all
+  succeed;
 - a store creation interrupted (Ctrl+C) leaves no half-made store: the store is made in a temporary file beside
   it and moved into place once MLflow's schema is complete; a half-made store left by an older SPADE is refused,
   named, with the fix;
-- a refusal leaves no FAILED run: a run refused before it recorded anything is deleted.
+- a refusal leaves no FAILED run: a run refused before it recorded anything is deleted;
+- a reader (``spade.report``, a model URI) never creates a store: a missing store, a file that is not an MLflow
+  store and an unreachable tracking server are each one line, naming the store it looked in.
 """
 
 from __future__ import annotations
 
 import fcntl
+import os
 import sqlite3
 import subprocess
 import sys
@@ -21,9 +24,12 @@ from pathlib import Path
 
 import pytest
 
-from factories import write_synthetic
-from test_reliability_outputs import one_error_line, run_main  # noqa: F401 - a fixture
-from test_reliability_round4 import checkpoint
+from spade.config.preflight import validate_train_config
+from spade.utils.errors import ConfigError
+
+from factories import checkpoint, write_synthetic
+from refusal_support import UNREACHABLE, one_error_line
+from training_helpers import compose_row
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -93,7 +99,7 @@ def _open_by(mode: str, uri: str, cache: Path) -> None:
 
 @pytest.mark.parametrize("mode", _MODES)
 def test_every_path_that_creates_a_store_waits_for_its_lock(tmp_path: Path, mode: str) -> None:
-    """The probe: an evaluation, a training and an ``export register=`` started together on a fresh store crashed
+    """An evaluation, a training and an ``export register=`` started together on a fresh store crashed
     (``table ... already exists``): the registry's client (and ``spade.closed_loop``'s) created the store without
     the lock. Held here (another open file of ``<store>.lock``: ``flock`` keeps it from this process's threads as
     from other processes), the lock keeps each path from creating the store until it is released."""
@@ -125,7 +131,7 @@ def test_every_path_that_creates_a_store_waits_for_its_lock(tmp_path: Path, mode
 
 @pytest.mark.slow  # three processes racing on fresh stores (a minute on two loaded cores)
 def test_three_paths_create_one_fresh_store_together(tmp_path: Path) -> None:
-    """The probe itself: a logger (training, evaluation), the registry's client (``export register=``) and
+    """A logger (training, evaluation), the registry's client (``export register=``) and
     ``spade.closed_loop`` open one fresh store at once, three times over: all three succeed, every time."""
     for attempt in range(3):
         uri = f"sqlite:///{tmp_path / f'store{attempt}' / 'mlflow.db'}"
@@ -207,3 +213,120 @@ def test_a_refused_evaluation_leaves_no_run(tmp_path: Path, run_main) -> None:
     assert code == 2 and "holds no test instances of that shape" in one_error_line(err), err
     runs = runs_in(tmp_path / "home" / "logs" / "mlflow.db")
     assert runs and all(stage == "deleted" for _, _, stage in runs), runs
+
+
+def test_report_refuses_a_store_that_does_not_exist(tmp_path: Path, run_main) -> None:
+    """``tracking_uri=sqlite:///<missing dir>/mlflow.db`` created an empty store and reported all missing."""
+    from spade.utils.config import compose_config
+    from spade.experiments.reporting import report
+
+    store = tmp_path / "missing" / "mlflow.db"
+    code, err = run_main("spade.report", [f"tracking_uri=sqlite:///{store}", f"output_dir={tmp_path / 'rep'}"])
+    assert code == 2, err
+    assert "no MLflow store" in one_error_line(err)
+    cfg = compose_config("report", [f"tracking_uri=sqlite:///{store}", f"output_dir={tmp_path / 'rep'}",
+                                    "paths.output_dir=."])
+    with pytest.raises(ConfigError, match="no MLflow store"):
+        report(cfg)
+    assert not store.parent.exists() and not (tmp_path / "rep").exists()
+
+
+@pytest.mark.parametrize("kind", ["foreign_sqlite", "garbage"])
+def test_report_reads_without_writing_into_a_file_that_is_not_an_mlflow_store(tmp_path: Path, run_main,
+                                                                              kind: str) -> None:
+    """With SPADE_HOME holding someone else's SQLite file named ``mlflow.db``, ``spade.report`` created
+    about 40 MLflow tables in it. A reader refuses it in one line, the file byte for byte unchanged."""
+    import sqlite3
+
+    store = tmp_path / "mlflow.db"
+    if kind == "foreign_sqlite":
+        db = sqlite3.connect(store)
+        db.execute("CREATE TABLE notes (id INTEGER PRIMARY KEY, text TEXT)")
+        db.execute("INSERT INTO notes (text) VALUES ('mine')")
+        db.commit()
+        db.close()
+        expected = "is an SQLite database but not an MLflow store"
+    else:
+        store.write_bytes(b"not a database at all\n" * 100)
+        expected = "is not an SQLite database"
+    before = store.read_bytes()
+    code, err = run_main("spade.report", [f"tracking_uri=sqlite:///{store}", f"output_dir={tmp_path / 'rep'}"])
+    assert code == 2, err
+    assert expected in one_error_line(err)
+    assert store.read_bytes() == before and not (tmp_path / "rep").exists()
+    # a run logging there is refused the same way, before any work
+    with pytest.raises(ConfigError, match=expected):
+        validate_train_config(compose_row("t1_small_bc_L", tmp_path, f"logger.mlflow.tracking_uri=sqlite:///{store}"))
+    assert store.read_bytes() == before
+
+
+def test_an_unreachable_tracking_server_fails_fast_in_one_line(run_main) -> None:
+    """``spade.report tracking_uri=http://127.0.0.1:9/`` retried silently for 253 s, then a traceback."""
+    start = time.monotonic()
+    code, err = run_main("spade.report", ["table=table1", f"tracking_uri={UNREACHABLE}"])
+    assert code == 2, err
+    assert "no tracking server answers there" in one_error_line(err)
+    assert time.monotonic() - start < 20
+
+
+_RACE = """
+import sys, time
+uri, mode, start = sys.argv[1], sys.argv[2], float(sys.argv[3])
+if mode == "spade":
+    from spade.tracking.client import ensure_store as open_store
+else:
+    from mlflow import MlflowClient
+    open_store = lambda uri: MlflowClient(tracking_uri=uri).search_experiments()
+while time.time() < start:
+    time.sleep(0.001)
+open_store(uri)
+print("ok")
+"""
+
+
+@pytest.mark.slow  # processes racing on a fresh store
+def test_two_processes_create_a_fresh_store_safely(tmp_path: Path) -> None:
+    """Two ``spade.train`` on a fresh store crashed one of them (``duplicate column name: outputs`` while
+    MLflow created its tables). SPADE opens a fresh SQLite store under a file lock: both succeed, every time."""
+    for attempt in range(3):
+        uri = f"sqlite:///{tmp_path / f'store{attempt}' / 'mlflow.db'}"
+        start = time.time() + 15  # both imported and waiting by then
+        procs = [subprocess.Popen([sys.executable, "-c", _RACE, uri, "spade", str(start)], cwd=REPO,
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+        outs = [p.communicate(timeout=300) for p in procs]
+        assert all(p.returncode == 0 for p in procs), [o[1][-2000:] for o in outs]
+        from mlflow import MlflowClient
+
+        assert MlflowClient(tracking_uri=uri).search_experiments()  # the Default experiment: a complete store
+
+
+def test_a_model_uri_names_the_store_it_looked_in_and_never_creates_one(tmp_path: Path) -> None:
+    from spade.deploy.mlflow_models import RegistryError, resolve_model
+
+    store = f"sqlite:///{tmp_path}/logs/mlflow.db"
+    with pytest.raises(RegistryError) as missing:
+        resolve_model("runs:/0123456789abcdef0123456789abcdef/model", store, tmp_path / "logs" / "registry-cache")
+    message = str(missing.value)
+    assert f"no MLflow store at {store}" in message and "none was created" in message
+    assert "MLFLOW_TRACKING_URI" in message and "paths.mlflow_tracking_uri" in message
+    assert not (tmp_path / "logs").exists()  # neither the store nor the cache folder
+
+    from mlflow import MlflowClient
+
+    MlflowClient(tracking_uri=store).search_experiments()  # an existing store, without that run
+    with pytest.raises(RegistryError) as absent:
+        resolve_model("runs:/0123456789abcdef0123456789abcdef/model", store)
+    message = str(absent.value)
+    assert f"cannot be fetched from the MLflow store at {store}" in message and "MLFLOW_TRACKING_URI" in message
+
+
+@pytest.mark.timeout(300)
+def test_plan_with_a_runs_uri_from_another_folder_creates_no_store(tmp_path: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if k not in ("MLFLOW_TRACKING_URI", "SPADE_HOME")}
+    done = subprocess.run([sys.executable, "-m", "spade.plan", "warehouse:101", "start=3,4,0", "goal=6,6",
+                           "model=runs:/0123456789abcdef0123456789abcdef/model"], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=240)
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert f"no MLflow store at sqlite:///{tmp_path}/logs/mlflow.db" in done.stderr, done.stderr
+    assert "MLFLOW_TRACKING_URI" in done.stderr
+    assert not (tmp_path / "logs" / "mlflow.db").exists()
