@@ -17,7 +17,7 @@ from typing import Any
 
 from spade.utils.errors import ConfigError
 
-__all__ = ["MISSING", "check_choice_value", "check_int_value", "check_number_value", "is_int", "is_number",
+__all__ = ["MISSING", "check_bool_value", "check_choice_value", "check_int_value", "check_number_value", "is_int", "is_number",
            "range_text", "unset"]
 
 MISSING = object()
@@ -72,6 +72,13 @@ def check_choice_value(key: str, value: Any, choices: list[str], *, none_ok: boo
         return
     if value not in choices:
         raise ConfigError(f"{key}={value!r} is not one of {choices}; set {key}={choices[0]} (or another of them)")
+
+
+def check_bool_value(key: str, value: Any) -> None:
+    """``true`` / ``false`` (null or unset: the default), nothing else: Hydra reads ``maybe`` or ``1`` as a string
+    or a number, which Python would take as true."""
+    if value is not MISSING and value is not None and not isinstance(value, bool):
+        raise ConfigError(f"{key}={value!r} is not a boolean; set {key}=true or {key}=false")
 
 
 def range_text(low: int | None, high: int | None, extra: tuple[int, ...]) -> str:
