@@ -113,11 +113,11 @@ def test_train_refuses_untyped_values_before_any_work(tmp_path: Path, run_main, 
 
 
 def test_the_optimized_metric_is_one_the_role_logs() -> None:
-    from spade.config.preflight import fit_metrics
+    from spade.config.preflight import fit_metrics, train_options
     from spade.utils.config import compose_config
 
-    student = fit_metrics(compose_config("train", ["+experiment=t1_small_conddbc_L"]))
-    expert = fit_metrics(compose_config("train", ["+experiment=cond_expert_L"]))
+    student = fit_metrics(train_options(compose_config("train", ["+experiment=t1_small_conddbc_L"])))
+    expert = fit_metrics(train_options(compose_config("train", ["+experiment=cond_expert_L"])))
     assert {"val/score_cm", "val/ape_cm", "val/loss_bc", "train/loss_dm", "margin/active"} <= student
     assert "val/loss" in expert and "val/loss_bc" not in expert and "test/ape_cm" not in student
 

@@ -16,10 +16,10 @@ from typing import Any
 
 from omegaconf import DictConfig
 
+from spade.config.dataset_checks import DataSources
+from spade.config.options import read_options
 from spade.data.checks import data_geometry
-from spade.config.values import get
 from spade.utils.errors import ConfigError
-from spade.utils.option_checks import MISSING
 
 
 def checkpoint_info(path: str | Path) -> dict[str, Any]:
@@ -121,16 +121,23 @@ def geometry_mismatch(ckpt: Mapping[str, Any], data: Mapping[str, Any]) -> list[
 
 
 def check_geometry(key: str, value: Any, info: Mapping[str, Any] | None, cfg: DictConfig,
-                    data_keys: tuple[str, ...]) -> None:
+                   data_keys: tuple[str, ...]) -> None:
+    """:func:`check_data_geometry` against a command's config (for the checks that take the config)."""
+    check_data_geometry(key, value, info, read_options(cfg, DataSources), data_keys)
+
+
+def check_data_geometry(key: str, value: Any, info: Mapping[str, Any] | None, sources: DataSources,
+                        data_keys: tuple[str, ...]) -> None:
+    """The checkpoint at ``key`` (its ``spade`` entry ``info``) was trained on windows of the geometry of each
+    dataset ``data_keys`` (``train_dir``, ``test_dir``) holds or would be generated with."""
     if not info or not info.get("data"):
         return
     ckpt = info["data"]
     for data_key in data_keys:
-        root = get(cfg, f"data.{data_key}")
-        if root is MISSING or root is None:
+        root = getattr(sources, data_key)
+        if root is None:
             continue
-        generate = get(cfg, f"data.{data_key.replace('_dir', '_generate')}")
-        geo = data_geometry(root, None if generate is MISSING else generate)
+        geo = data_geometry(root, getattr(sources, data_key.replace("_dir", "_generate")))
         if geo is None:
             continue
         diff = geometry_mismatch(ckpt, geo)

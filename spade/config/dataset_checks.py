@@ -4,59 +4,105 @@ settings against the config's (:func:`spade.data.checks.check_dataset`)."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
-
-from omegaconf import DictConfig
+from typing import Any, ClassVar
 
 from spade.annotation.sources import expand_map_specs
+from spade.config.file_checks import check_path_value
+from spade.config.options import ModelOptions
+from spade.config.window_checks import check_window_holds_manoeuvre, check_window_size
 from spade.data.checks import check_dataset
 from spade.data.settings import dataset_settings
-from spade.config.values import check_int, check_number, folder_value, get, opt
-from spade.config.file_checks import check_path_value
-from spade.config.window_checks import check_window_size, check_window_holds_manoeuvre
 from spade.utils.errors import ConfigError
-from spade.utils.option_checks import MISSING, is_int, unset
+from spade.utils.option_checks import check_int_value, check_number_value, is_int, unset
 
 
-def check_data(cfg: DictConfig) -> None:
-    """The data module's options (:class:`~spade.data.datamodule_options.DataOptions`), the ``scale`` group's
-    numbers, and each dataset's folder and generation settings (window, maps, instance counts) against the model."""
-    from spade.config.options import DataOptions, read_options
+@dataclass(frozen=True)
+class DataSources:
+    """Where a run's datasets are (``data.<name>_dir``) and how a missing one is generated
+    (``data.<name>_generate``, the annotation settings), and the teacher that labels the unlabelled states: what
+    the preflight checks against the disk, the window and the checkpoints. The loader's options are
+    :class:`~spade.data.datamodule_options.DataOptions`."""
 
-    read_options(cfg, DataOptions)
-    for key in ("image_size", "train_instances", "test_instances", "transfer_instances", "batch_size"):
-        check_int(cfg, f"scale.{key}", 1, none_ok=True)
-    check_number(cfg, "scale.resolution_m", 0, low_open=True, none_ok=True)
+    node: ClassVar[str] = "data"
+
+    train_dir: Any = None
+    test_dir: Any = None
+    unlabelled_dir: Any = None
+    train_generate: Mapping[str, Any] | None = None
+    test_generate: Mapping[str, Any] | None = None
+    unlabelled_generate: Mapping[str, Any] | None = None
+    unlabelled_labels: Any = None
+    unlabelled_teacher: Any = None
+
+    def folder(self, name: str) -> str | None:
+        """``data.<name>_dir`` as a folder path, None when unset."""
+        value = getattr(self, f"{name}_dir")
+        return None if value in (None, "") else str(value)
+
+    def generate(self, name: str) -> Mapping[str, Any] | None:
+        return getattr(self, f"{name}_generate")
+
+    def training_sets(self) -> tuple[str, ...]:
+        """The datasets a training run reads: train and test, and the unlabelled states when it has any."""
+        return ("train", "test") + (("unlabelled",) if self.folder("unlabelled") is not None else ())
+
+
+@dataclass(frozen=True)
+class ScaleOptions:
+    """The ``scale`` group's numbers: the window every dataset is cut with, instance counts and batch size."""
+
+    node: ClassVar[str] = "scale"
+
+    name: Any = None
+    image_size: int | None = None
+    resolution_m: float | None = None
+    train_instances: int | None = None
+    test_instances: int | None = None
+    transfer_instances: int | None = None
+    batch_size: int | None = None
+    annotate: Any = None  # the annotation settings the scale sets for every dataset (its key in refusals)
+    train_maps: Any = None
+
+    def __post_init__(self) -> None:
+        for key in ("image_size", "train_instances", "test_instances", "transfer_instances", "batch_size"):
+            check_int_value(f"scale.{key}", getattr(self, key), 1, none_ok=True)
+        check_number_value("scale.resolution_m", self.resolution_m, 0, low_open=True, none_ok=True)
+
+
+def check_data(sources: DataSources, scale: ScaleOptions, model: ModelOptions | None) -> None:
+    """Each dataset's folder and generation settings (window, maps, instance counts) against the scale and the
+    model (the loader's and the scale's own numbers are checked by their options)."""
     for name in ("train", "test"):
-        check_folder_path(f"data.{name}_dir", get(cfg, f"data.{name}_dir"))
-        generate = get(cfg, f"data.{name}_generate")
-        if generate is MISSING or generate is None:
+        check_folder_path(f"data.{name}_dir", getattr(sources, f"{name}_dir"))
+        generate = sources.generate(name)
+        if generate is None:
             continue
-        root = get(cfg, f"data.{name}_dir")
-        settings = dataset_settings(Path(str(root)), generate)
-        scaled = get(cfg, "scale.annotate") not in (MISSING, None)
+        settings = dataset_settings(Path(str(getattr(sources, f"{name}_dir"))), generate)
         from spade.config.annotate_checks import check_annotation_settings
 
+        key = "scale.annotate" if scale.annotate is not None else f"data.{name}_generate"
         check_annotation_settings(settings, f"data.{name}_generate: ")
-        check_window_holds_manoeuvre(settings, "scale.annotate" if scaled else f"data.{name}_generate")
-        check_window_size(cfg, settings, "scale.annotate" if scaled else f"data.{name}_generate")
-        check_map_entries(cfg, name, settings.get("maps"), (settings.get("window") or {}).get("resolution_m"))
+        check_window_holds_manoeuvre(settings, key)
+        check_window_size(scale, model, settings, key)
+        check_map_entries(scale, name, settings.get("maps"), (settings.get("window") or {}).get("resolution_m"))
         num = settings.get("num_instances")
         if num is not None and (not is_int(num) or num < 1):
             raise ConfigError(f"data.{name}_generate num_instances={num!r} must be an integer >= 1; set "
                               f"scale.{name}_instances")
 
 
-def check_datasets(cfg: DictConfig, names: tuple[str, ...] = ("train", "test")) -> None:
+def check_datasets(sources: DataSources, names: tuple[str, ...] = ("train", "test")) -> None:
     """An existing dataset at ``data.train_dir`` / ``data.test_dir`` (those of ``names``) holds the config's
     generation settings (:func:`spade.data.checks.check_dataset`): a dataset is never silently reused for other
     settings; and it opens with the loaders' own checks (:func:`check_existing_dataset`), before any MLflow run:
     a truncated, edited or poisoned dataset is refused in one line without leaving a FAILED run behind."""
     for name in names:
         key = f"data.{name}_dir"
-        root = folder_value(cfg, key)
-        check_dataset(root, opt(cfg, f"data.{name}_generate"), key)
+        root = sources.folder(name)
+        check_dataset(root, sources.generate(name), key)
         if root is not None and (Path(root).expanduser() / "manifest.json").is_file():
             check_existing_dataset(key, Path(root).expanduser())
 
@@ -95,7 +141,7 @@ def check_folder_path(key: str, value: Any) -> None:
             return
 
 
-def check_map_entries(cfg: DictConfig, name: str, maps: Any, resolution_m: Any = None) -> None:
+def check_map_entries(scale: ScaleOptions, name: str, maps: Any, resolution_m: Any = None) -> None:
     """Every map a dataset is generated from exists (a yaml, a folder of them or a ``kind:seed`` generator spec):
     an unknown entry is named before any work, never reported as a dataset "generated with other settings"."""
     if maps is None:
@@ -103,8 +149,7 @@ def check_map_entries(cfg: DictConfig, name: str, maps: Any, resolution_m: Any =
     try:
         specs = expand_map_specs(maps)
     except (FileNotFoundError, ValueError) as exc:
-        where = "scale.train_maps" if name == "train" and get(cfg, "scale.train_maps") not in (MISSING, None) \
-            else f"data.{name}_generate"
+        where = "scale.train_maps" if name == "train" and scale.train_maps is not None else f"data.{name}_generate"
         raise ConfigError(f"{where}: {exc.args[0] if exc.args else exc}; fix that entry, e.g. warehouse:1 or the path "
                           "of a ROS map yaml (nothing was generated or changed)") from None
     from spade.annotation.sources import parse_procedural

@@ -8,15 +8,16 @@ import math
 import os
 import sys
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
 from spade.annotation.sources import parse_procedural
 from spade.deploy.outputs import replace_refusal
-from spade.config.values import get
+from spade.config.options import read_options, resolve
 from spade.maps.ros_io import MapFormatError, read_map_yaml
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import MISSING, is_number, unset
@@ -53,10 +54,25 @@ def check_path_value(key: str, value: Any, fix: str) -> None:
         raise ConfigError(f"{key}={value} is the filesystem root, which SPADE never writes into; {fix}")
 
 
-def check_paths(cfg: DictConfig) -> None:
-    """The ``paths.*`` folders of a command's config (:data:`PATH_KEYS`) are neither empty nor the root."""
-    for key, fix in PATH_KEYS.items():
-        check_path_value(key, get(cfg, key), fix)
+@dataclass(frozen=True)
+class PathOptions:
+    """The folders every command writes under (``paths.*``): neither empty nor the filesystem root
+    (:data:`PATH_KEYS`); None (unset) is the paths group's default."""
+
+    node: ClassVar[str] = "paths"
+
+    root_dir: Any = None
+    data_dir: Any = None
+    log_dir: Any = None
+
+    def __post_init__(self) -> None:
+        for key, fix in PATH_KEYS.items():
+            check_path_value(key, getattr(self, key.split(".", 1)[1]), fix)
+
+
+def check_paths(cfg: DictConfig) -> PathOptions:
+    """:class:`PathOptions` of a command's config, built and so checked (for the checks that take the config)."""
+    return read_options(cfg, PathOptions)
 
 
 def same_file(a: Path, b: Path) -> bool:
@@ -232,7 +248,12 @@ def map_files(key: str, spec: Any) -> list[Path]:
 
 
 def point(cfg: DictConfig, key: str, n: int, example: str) -> list[float]:
-    value = get(cfg, key)
+    """:func:`point_value` of the config's ``key`` (for the checks that take the config)."""
+    return point_value(key, resolve(cfg, key), n, example)
+
+
+def point_value(key: str, value: Any, n: int, example: str) -> list[float]:
+    """``n`` finite numbers (a map-frame point, with a yaw for ``n`` 3) given at ``key``."""
     fix = f"pass {key}={example} (map-frame metres{', yaw in radians' if n == 3 else ''})"
     if unset(value):
         raise ConfigError(f"{key} is not set; {fix}")

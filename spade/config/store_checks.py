@@ -3,9 +3,12 @@ write into) it. Where a store URI points (:func:`store_path`) is :mod:`spade.dep
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
 from omegaconf import DictConfig
 
-from spade.config.values import get
+from spade.config.options import read_options
 from spade.deploy.mlflow_store import foreign_file_problem, store_path, store_problem
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import unset
@@ -54,13 +57,30 @@ def check_server(key: str, uri: str, timeout: float = SERVER_TIMEOUT_S) -> None:
                           "reachable server or a sqlite:/// store") from None
 
 
-def check_logger_store(cfg: DictConfig) -> None:
+@dataclass(frozen=True)
+class StoreOptions:
+    """The MLflow store a run logs to (``logger.mlflow``; unset with ``logger=none``: nothing is logged)."""
+
+    node: ClassVar[str] = "logger.mlflow"
+
+    tracking_uri: Any = None
+
+    @property
+    def uri(self) -> str | None:
+        return None if unset(self.tracking_uri) else str(self.tracking_uri)
+
+
+def check_store(store: StoreOptions) -> None:
     """The store a run logs to, when it is an existing SQLite file, must be an MLflow store
     (:func:`check_store_file`): someone else's database is never written; a tracking server must answer
     (:func:`check_server`)."""
-    if get(cfg, "logger.mlflow") in (None, {}):
-        return  # logger=none: nothing is logged
-    uri = get(cfg, "logger.mlflow.tracking_uri")
-    if not unset(uri):
-        check_store_file("logger.mlflow.tracking_uri", str(uri))
-        check_server("logger.mlflow.tracking_uri", str(uri))
+    if store.uri is not None:
+        check_store_file("logger.mlflow.tracking_uri", store.uri)
+        check_server("logger.mlflow.tracking_uri", store.uri)
+
+
+def check_logger_store(cfg: DictConfig) -> StoreOptions:
+    """:func:`check_store` of a command's config (for the checks that take the config)."""
+    store = read_options(cfg, StoreOptions)
+    check_store(store)
+    return store

@@ -5,14 +5,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from omegaconf import DictConfig
-
-from spade.config.options import model_role
-from spade.config.values import get
+from spade.training.module_options import StudentOptions
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import is_int, is_number
+
+if TYPE_CHECKING:
+    from spade.config.dataset_checks import ScaleOptions
+    from spade.config.options import ModelOptions
 
 
 def range_low(value: Any) -> float:
@@ -56,52 +57,47 @@ def check_window_holds_manoeuvre(settings: Mapping[str, Any], key: str) -> None:
             )
 
 
-def model_downsampling(cfg: DictConfig) -> tuple[int, str] | None:
+def model_downsampling(model: ModelOptions | None) -> tuple[int, str] | None:
     """(the multiple every window side must be of, what says so) for the configured network, from its preset."""
-    role = model_role(cfg)
-    if role not in ("student", "expert"):
+    if model is None:
         return None
     from spade.models.cond_expert import COND_EXPERT_PRESETS  # heavy: diffusers
     from spade.models.student import STUDENT_PRESETS
     from spade.models.uncond_expert import UNCOND_EXPERT_PRESETS
 
-    try:
-        if role == "student":
-            size = get(cfg, "model.size")
-            widths = STUDENT_PRESETS.get(size)
-            what = f"model.size={size}"
-        else:
-            presets = COND_EXPERT_PRESETS if get(cfg, "model.conditional") is not False else UNCOND_EXPERT_PRESETS
-            preset = get(cfg, "model.preset")
-            widths = (presets.get(preset) or {}).get("widths")
-            what = f"model.preset={preset}"
-    except TypeError:  # an unhashable size or preset: _check_model names it
-        return None
+    if isinstance(model, StudentOptions):
+        widths = STUDENT_PRESETS.get(model.size)
+        what = f"model.size={model.size}"
+    else:
+        presets = COND_EXPERT_PRESETS if model.conditional is not False else UNCOND_EXPERT_PRESETS
+        widths = (presets.get(model.preset) or {}).get("widths")
+        what = f"model.preset={model.preset}"
     if not widths:
         return None
     return 2 ** (len(widths) - 1), what
 
 
-def check_window_size(cfg: DictConfig, settings: Mapping[str, Any], key: str) -> None:
+def check_window_size(scale: ScaleOptions, model: ModelOptions | None, settings: Mapping[str, Any],
+                      key: str) -> None:
     """The data's window, ``scale.image_size`` and the U-Net's downsampling agree, before any data or prerequisite
     is made: ``scale.image_size`` alone does not resize the data, and a side the U-Net cannot halve fails only in
     the first forward pass."""
     window = settings.get("window") or {}
     size, res = window.get("size_px"), window.get("resolution_m")
     wkey = f"{key}.window.size_px"
-    image_size = get(cfg, "scale.image_size")
+    image_size = scale.image_size
     if is_int(image_size) and is_int(size) and image_size != size:
         raise ConfigError(
             f"scale.image_size={image_size} differs from {wkey}={size}, the window the data are cut with (the "
             f"data would stay {size} px); set both: scale.image_size={image_size} {wkey}={image_size}"
         )
-    scale_res = get(cfg, "scale.resolution_m")
+    scale_res = scale.resolution_m
     if is_number(scale_res) and is_number(res) and not math.isclose(scale_res, res, rel_tol=1e-9):
         raise ConfigError(
             f"scale.resolution_m={scale_res:g} differs from {key}.window.resolution_m={res:g}, the data's metres per "
             f"pixel; set both: scale.resolution_m={scale_res:g} {key}.window.resolution_m={scale_res:g}"
         )
-    found = model_downsampling(cfg)
+    found = model_downsampling(model)
     if found and is_int(size) and size % found[0]:
         multiple, what = found
         lower, upper = size // multiple * multiple, (size // multiple + 1) * multiple

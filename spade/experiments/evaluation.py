@@ -29,12 +29,12 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     """Test ``cfg.ckpt_path`` on ``cfg.data``'s test set; returns the test metrics. With ``cfg.mcap`` set, then
     writes the test set's first ``cfg.mcap_instances`` instances with the model's paths, the ground truth and the
     classical baselines as a ROS 2 MCAP recording (:mod:`spade.experiments.prediction_recording`)."""
-    from spade.config.evaluate_checks import expert_sampling, validate_evaluate_config
+    from spade.config.evaluate_checks import validate_evaluate_config
 
     from spade.utils.console import lightning_logs_once
 
     lightning_logs_once()  # Lightning's lines printed once, not twice (its own handler and the command's)
-    validate_evaluate_config(cfg)  # role, and the checkpoint's window geometry against the test data's
+    options = validate_evaluate_config(cfg)  # role, and the checkpoint's window geometry against the test data's
     if cfg.get("closed_loop"):
         from spade.experiments.closed_loop_evaluation import closed_loop_settings
 
@@ -44,7 +44,7 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
         check_recording_path(cfg.drive.get("mcap"), "drive.mcap")  # an existing recording is refused now
     mcap, mcap_instances = _recording(cfg)  # refused now, not after the test
     L.seed_everything(cfg.seed, workers=True)
-    model = load_module(cfg.ckpt_path, **expert_sampling(cfg))  # an expert's sampling, where expert_sampling sets it
+    model = load_module(cfg.ckpt_path, **options.sampling.settings)  # an expert's sampling, where expert_sampling sets it
     datamodule = hydra.utils.instantiate(cfg.data)
     _use_models_encoding(datamodule, cfg.ckpt_path)
     with open_dict(cfg):  # the run records the markers the test drew (tag encoding), not the config's default

@@ -1,7 +1,7 @@
 """The one-line checks of an option's value, shared by every floor: the typed options of the configurables
 (:class:`~spade.data.datamodule_options.DataOptions`, :class:`~spade.training.module_options.StudentOptions`,
 :class:`~spade.training.module_options.ExpertOptions`, :class:`~spade.config.options.TrainerBudget`) and the
-commands' checks of a composed config (:mod:`spade.config.values`, which reads a key and checks it here).
+commands' options (each ``spade.config.*_checks`` dataclass, built by :func:`spade.config.options.read_options`).
 
 Each check takes the option's full config key (``data.batch_size``) and its value, and raises
 :class:`~spade.utils.errors.ConfigError` in one line naming the key, its value and the fix; :data:`MISSING` (a
