@@ -273,7 +273,7 @@ def _critic_cfg(spade_home, *overrides: str):
 
 
 def test_critic_command_scores_an_expert_and_a_student_and_writes_its_page(spade_home, tiny_checkpoints) -> None:
-    from spade.critic import critic, format_report
+    from spade.experiments.critic_run import critic, format_report
 
     cfg = _critic_cfg(spade_home, f"ckpt_path={tiny_checkpoints['cond']}", f"student_ckpt={tiny_checkpoints['student']}",
                       "margin=cond_dbc_st")
@@ -304,7 +304,7 @@ def test_critic_command_scores_an_expert_and_a_student_and_writes_its_page(spade
 
 
 def test_critic_command_refuses_a_student_as_expert_and_a_missing_test_set(spade_home, tiny_checkpoints) -> None:
-    from spade.critic import critic
+    from spade.experiments.critic_run import critic
     from spade.data import DatasetError
 
     with pytest.raises(ValueError, match="not an expert checkpoint|expert"):

@@ -6,6 +6,10 @@ the model (no prefix), ``baseline/shortest/`` and ``baseline/heading/`` (:class:
 BaselinePlanner`, on the student's windows, replanned by the same rule), ``demonstration/`` (replayed exactly: the
 reference, success 1 and APE 0 when the scenarios are rebuilt right) and ``followed/`` (the demonstration given to
 the follower as its plan: what the follower itself costs).
+
+:class:`ClosedLoopTest` is the one closed-loop section of a run, ``spade.train``'s (the best checkpoint, after the
+test) and ``spade.evaluate``'s (its checkpoint) alike: the figures, the worst episodes' picture and every
+episode's outcome (``closed_loop/`` artifacts), the model's episodes as a recording when ``drive.mcap`` is set.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import time
 from pathlib import Path
 from typing import Any, Mapping
 
+import lightning as L
 import numpy as np
 
 from spade.deploy.follower import FollowerSettings
@@ -23,7 +28,7 @@ from spade.closedloop.simulate import ClosedLoopSettings, Episode, drive, replay
 from spade.ros.core import CoreSettings
 from spade.utils.errors import UserError
 
-__all__ = ["PREDICTOR_PREFIXES", "closed_loop_settings", "run_closed_loop", "scenario_set"]
+__all__ = ["PREDICTOR_PREFIXES", "ClosedLoopTest", "closed_loop_settings", "run_closed_loop", "scenario_set"]
 
 log = logging.getLogger(__name__)
 
@@ -173,3 +178,73 @@ def episode_summary(episodes: Mapping[str, list[Episode]]) -> dict[str, Any]:
     return {name: [{"scenario": e.scenario.scenario_id, "outcome": e.outcome, "steps": e.steps,
                     "replans": len(e.plans), "end": [float(v) for v in np.asarray(e.path)[-1]]} for e in eps]
             for name, eps in episodes.items()}
+
+
+class ClosedLoopTest(L.Callback):
+    """The closed-loop section of a run (``closed_loop: true``): at the test's end (or, in a run with no stage, at
+    its setup) ``ckpt_path`` (else the run's best checkpoint, else its last) and the baselines drive the test set's
+    scenarios (:func:`run_closed_loop`); logged as ``closed_loop/*`` at the test's step with the worst episodes'
+    picture and ``episodes.json`` (artifacts ``closed_loop/``), before the run's record is completed and the run
+    closed; the model's episodes written to ``drive.mcap`` when set. The figures are :attr:`metrics` afterwards."""
+
+    def __init__(self, drive: Mapping[str, Any], seed: int, ckpt_path: str | None = None,
+                 datamodule: Any = None) -> None:
+        self.drive_cfg = dict(drive)
+        self.seed = int(seed)
+        self.ckpt_path = ckpt_path
+        self.datamodule = datamodule
+        self.metrics: dict[str, float] = {}
+
+    def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self.run(trainer)
+
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        from spade.tracking.callback import NO_STAGE
+
+        if stage == NO_STAGE:
+            self.run(trainer)
+
+    def run(self, trainer: L.Trainer) -> None:
+        """Drive, log the figures and the artifacts (see the class)."""
+        from spade.experiments.lifecycle import best_checkpoint_path, last_checkpoint_path
+
+        ckpt_path = self.ckpt_path or best_checkpoint_path(trainer) or last_checkpoint_path(trainer)
+        if not ckpt_path:
+            log.warning("closed loop: no checkpoint to drive")
+            return
+        drive_cfg = self.drive_cfg
+        scenarios = scenario_set(self.datamodule or trainer.datamodule, drive_cfg.get("scenarios"))
+        self.metrics, episodes = run_closed_loop(ckpt_path, scenarios, drive_cfg, self.seed)
+        for logger in trainer.loggers:
+            logger.log_metrics(self.metrics, step=trainer.global_step)
+        if not trainer.is_global_zero:
+            return
+        if drive_cfg.get("mcap"):
+            from spade.closedloop.episode_recording import write_episodes_bag
+
+            written = write_episodes_bag(drive_cfg["mcap"], episodes["model"][: int(drive_cfg.get("mcap_episodes", 20))],
+                                         float(drive_cfg["follower"]["dt_s"]))
+            print(f"closed loop: the model's episodes written to {written}", flush=True)
+        log_episodes(trainer.loggers, episodes, len(scenarios), int(drive_cfg.get("pictures", 6)))
+
+
+def log_episodes(loggers: list[Any], episodes: Mapping[str, list[Episode]], scenarios: int, pictures: int) -> None:
+    """The worst episodes' picture and every episode's outcome as the MLflow run's ``closed_loop/`` artifacts."""
+    import json
+    import tempfile
+
+    from spade.closedloop.picture import episodes_picture
+    from spade.tracking.runs import mlflow_logger
+
+    ml = mlflow_logger(loggers)
+    if ml is None:
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        worst = worst_episodes(episodes["model"], pictures)
+        if worst:
+            picture = episodes_picture(worst, Path(tmp) / "worst.png",
+                                       f"closed loop: the model's {len(worst)} worst of {scenarios} scenarios")
+            ml.experiment.log_artifact(ml.run_id, str(picture), "closed_loop")
+        summary = Path(tmp) / "episodes.json"
+        summary.write_text(json.dumps(episode_summary(episodes), indent=1))
+        ml.experiment.log_artifact(ml.run_id, str(summary), "closed_loop")

@@ -1,5 +1,7 @@
 """Testing a trained checkpoint on a data config's test set: what ``python -m spade.evaluate`` runs, and what
-``also_test`` runs after a training (:func:`spade.experiments.run.test_elsewhere`)."""
+``also_test`` runs after a training (:func:`spade.experiments.run.test_elsewhere`). The run's MLflow record is kept
+by the callback a training run's is (:class:`spade.tracking.callback.RunRecord`), given the evaluation's identity;
+its closed-loop section is a training run's too (:class:`spade.experiments.closed_loop_evaluation.ClosedLoopTest`)."""
 
 from __future__ import annotations
 
@@ -8,8 +10,11 @@ from typing import Any
 
 import hydra
 import lightning as L
-from omegaconf import DictConfig, open_dict
+from omegaconf import DictConfig, OmegaConf, open_dict
 
+from spade.experiments.lifecycle import run_without_stages
+from spade.tracking.callback import RunRecord, evaluation_identity
+from spade.training.callbacks import ModelInfo
 from spade.training.instantiate import instantiate_loggers
 from spade.training.loading import load_module
 
@@ -52,33 +57,27 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
         if cfg.get("tags") is not None:
             cfg.tags.encoding = datamodule.encoding
     loggers = instantiate_loggers(cfg.get("logger"))  # SPADE's MLflow logger opens a fresh store under a lock
-    from spade.training.callbacks import ModelInfo
+    tested = bool(cfg.get("open_loop", True) or not cfg.get("closed_loop"))  # open_loop=false: the drive alone
+    # the tested network's size (model/params) as a training run records it, with no latency timing; the closed
+    # loop before the run's record (the figures it describes)
+    callbacks: list[L.Callback] = [ModelInfo(latency_runs=0)]
+    drive = None
+    if cfg.get("closed_loop"):
+        from spade.experiments.closed_loop_evaluation import ClosedLoopTest
 
-    # the run records the tested network's size (model/params) as a training run does; no latency timing here
-    trainer = hydra.utils.instantiate(cfg.trainer, logger=loggers or False, callbacks=[ModelInfo(latency_runs=0)])
-    for lg in loggers:  # the run stays open after the test, until its record is written (spade.tracking.logger)
-        lg.hold_open = True
-    try:
-        results_from_test = bool(cfg.get("open_loop", True) or not cfg.get("closed_loop"))
-        if results_from_test:
-            # verbose=False: Lightning's table of every figure, unrounded (over a hundred lines), would bury the
-            # summary that spade.evaluate prints (spade.tracking.summary.evaluation_summary)
-            results = trainer.test(model=model, datamodule=datamodule, verbose=False)[0]
-        else:  # closed loop only (open_loop=false): the instance-by-instance test is not run
-            results = {}
-        if cfg.get("closed_loop"):
-            results.update(_closed_loop(cfg, datamodule, loggers, trainer))
-        from spade.tracking.runs import finish_evaluation
-
-        finish_evaluation(cfg, trainer, loggers)  # MLflow: experiment kind and description, test data input
-        for lg in loggers:  # the record is complete: the run ends
-            lg.hold_open = False
-            lg.finalize("success")
-    except BaseException as exc:  # Ctrl+C or a signal: KILLED, anything else FAILED (as spade.train's runs)
-        from spade.tracking.runs import mark_opened_run_ended
-
-        mark_opened_run_ended(loggers, exc)
-        raise
+        drive = ClosedLoopTest(OmegaConf.to_container(cfg.drive, resolve=True), int(cfg.seed), str(cfg.ckpt_path),
+                               datamodule)
+        callbacks.append(drive)
+    callbacks.append(RunRecord(cfg, evaluation_identity(cfg, tested)))
+    trainer = hydra.utils.instantiate(cfg.trainer, logger=loggers or False, callbacks=callbacks)
+    if tested:
+        # verbose=False: Lightning's table of every figure, unrounded (over a hundred lines), would bury the
+        # summary that spade.evaluate prints (spade.tracking.summary.evaluation_summary)
+        results = trainer.test(model=model, datamodule=datamodule, verbose=False)[0]
+    else:  # closed loop only: the instance-by-instance test is not run
+        results = {}
+        run_without_stages(trainer, model)
+    results.update(drive.metrics if drive is not None else {})
     if mcap is not None and trainer.is_global_zero:
         from spade.experiments.prediction_recording import record_test_set
 
@@ -98,40 +97,3 @@ def _use_models_encoding(datamodule: Any, ckpt_path: str) -> None:
         logging.getLogger(__name__).info("testing with the model's marker encoding %r (data.encoding was %r)",
                                          encoding, datamodule.encoding)
         datamodule.encoding = encoding
-
-
-def _closed_loop(cfg: DictConfig, datamodule: Any, loggers: list[Any], trainer: Any) -> dict[str, float]:
-    """Drive the test scenarios (:mod:`spade.experiments.closed_loop_evaluation`); log ``closed_loop/*`` and the worst
-    episodes' picture to the run."""
-    import json
-    import tempfile
-
-    from omegaconf import OmegaConf
-
-    from spade.closedloop.picture import episodes_picture
-    from spade.experiments.closed_loop_evaluation import episode_summary, run_closed_loop, scenario_set, worst_episodes
-    from spade.tracking.runs import mlflow_logger
-
-    drive = OmegaConf.to_container(cfg.drive, resolve=True)
-    scenarios = scenario_set(datamodule, drive.get("scenarios"))
-    metrics, episodes = run_closed_loop(cfg.ckpt_path, scenarios, drive, int(cfg.seed))
-    for lg in loggers:
-        lg.log_metrics(metrics, step=trainer.global_step)
-    if drive.get("mcap") and trainer.is_global_zero:
-        from spade.closedloop.episode_recording import write_episodes_bag
-
-        written = write_episodes_bag(drive["mcap"], episodes["model"][: int(drive.get("mcap_episodes", 20))],
-                                     float(drive["follower"]["dt_s"]))
-        print(f"closed loop: the model's episodes written to {written}", flush=True)
-    ml = mlflow_logger(loggers)
-    if ml is not None and trainer.is_global_zero:
-        with tempfile.TemporaryDirectory() as tmp:
-            worst = worst_episodes(episodes["model"], int(drive.get("pictures", 6)))
-            if worst:
-                picture = episodes_picture(worst, Path(tmp) / "worst.png",
-                                           f"closed loop: the model's {len(worst)} worst of {len(scenarios)} scenarios")
-                ml.experiment.log_artifact(ml.run_id, str(picture), "closed_loop")
-            summary = Path(tmp) / "episodes.json"
-            summary.write_text(json.dumps(episode_summary(episodes), indent=1))
-            ml.experiment.log_artifact(ml.run_id, str(summary), "closed_loop")
-    return metrics

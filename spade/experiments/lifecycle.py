@@ -10,8 +10,9 @@
 * :class:`CarryBestCheckpoint` (added by ``spade.train`` when it resumes from ``ckpt_path``) keeps the interrupted
   run's best checkpoint and score, which Lightning drops when the run folder changes, so a resumed run tests the
   checkpoint the uninterrupted run would have tested.
-* :func:`run_without_stages`: a run that trains and tests nothing (``train=false test=false``) still gives its
-  callbacks their ``setup`` and ``teardown`` hooks (stage :data:`NO_STAGE`) and closes its loggers, as a stage would.
+* :func:`run_without_stages`: a run that trains and tests nothing (``train=false test=false``, or evaluates in
+  closed loop alone) still gives its callbacks their ``setup`` and ``teardown`` hooks (stage :data:`NO_STAGE`)
+  and closes its loggers, as a stage would.
 * :func:`install_signal_handlers`: SIGTERM and SIGINT end the run through an exception, so that the run's MLflow
   record marks it KILLED (:func:`spade.tracking.runs.mark_run_ended`, which reads :func:`signal_received`; any
   other exception marks it FAILED).
@@ -132,14 +133,23 @@ class DeterministicTraining(Callback):
 
 
 def run_without_stages(trainer: L.Trainer, model: L.LightningModule) -> None:
-    """The hooks Lightning calls around a stage, for a run in which no stage runs (``train=false test=false``):
-    every callback's ``setup`` and ``teardown`` with stage :data:`NO_STAGE`, then every logger closed with
-    ``success``. So a callback that records the run (:class:`spade.tracking.callback.RunRecord`) opens, completes
-    and closes it as after a test, and the caller needs to know none of them."""
-    for callback in trainer.callbacks:
-        callback.setup(trainer, model, stage=NO_STAGE)
-    for callback in trainer.callbacks:
-        callback.teardown(trainer, model, stage=NO_STAGE)
+    """The hooks Lightning calls around a stage, for a run in which no stage runs (``train=false test=false``,
+    ``spade.evaluate``'s closed loop alone): every callback's ``setup`` and ``teardown`` with stage
+    :data:`NO_STAGE`, then every logger closed with ``success``; on an exception, every callback's
+    ``on_exception`` and the loggers closed with ``failed``, as Lightning does. So a callback that records the run
+    (:class:`spade.tracking.callback.RunRecord`) opens, completes and closes it as after a test, and the caller
+    needs to know none of them."""
+    try:
+        for callback in trainer.callbacks:
+            callback.setup(trainer, model, stage=NO_STAGE)
+        for callback in trainer.callbacks:
+            callback.teardown(trainer, model, stage=NO_STAGE)
+    except BaseException as exc:
+        for callback in trainer.callbacks:
+            callback.on_exception(trainer, model, exc)
+        for logger in trainer.loggers:
+            logger.finalize("failed")
+        raise
     for logger in trainer.loggers:
         logger.finalize("success")
 

@@ -35,7 +35,7 @@ from spade.models.modelfile import safe_loading
 from spade.training.instantiate import instantiate_callbacks, instantiate_loggers, run_id_from_checkpoint
 from spade.utils.console import lightning_logs_once
 
-__all__ = ["ClosedLoopTest", "fit_and_test", "from_checkpoint", "optimized_value", "prerequisite_plan", "rename_prefix",
+__all__ = ["fit_and_test", "from_checkpoint", "optimized_value", "prerequisite_plan", "rename_prefix",
            "sweep_result", "test_elsewhere", "train", "untrained_test_metrics"]
 
 log = logging.getLogger(__name__)
@@ -109,8 +109,11 @@ def fit_and_test(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
         callbacks.append(DeterministicTraining(seed))
     if ckpt_path and cfg.get("train", True):
         callbacks.append(CarryBestCheckpoint(str(ckpt_path)))  # the interrupted run's best stays the best
-    drive = ClosedLoopTest(cfg) if cfg.get("closed_loop") and type(model).__name__ == "StudentModule" else None
-    if drive is not None:
+    drive = None
+    if cfg.get("closed_loop") and type(model).__name__ == "StudentModule":  # the best checkpoint, after the test
+        from spade.experiments.closed_loop_evaluation import ClosedLoopTest
+
+        drive = ClosedLoopTest(OmegaConf.to_container(cfg.drive, resolve=True), int(cfg.get("seed") or 0))
         callbacks.append(drive)
     trainer: L.Trainer = hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
 
@@ -141,27 +144,6 @@ def fit_and_test(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
     return metrics, {"cfg": cfg, "datamodule": datamodule, "model": model, "trainer": trainer, "loggers": loggers,
                      "checkpoint": best_checkpoint_path(trainer) or last_checkpoint_path(trainer),
                      "run": next((cb.run for cb in callbacks if hasattr(cb, "run")), None)}
-
-
-class ClosedLoopTest(L.Callback):
-    """The closed-loop section of the test (``closed_loop: true``, the quickstart's scale): at the test's end the
-    best checkpoint and the baselines drive the test set's scenarios (:mod:`spade.experiments.closed_loop_evaluation`), logged
-    as ``closed_loop/*`` at the test's step, before the run's record is completed and the run closed; the figures
-    are :attr:`metrics` afterwards."""
-
-    def __init__(self, cfg: DictConfig) -> None:
-        self.cfg = cfg
-        self.metrics: dict[str, float] = {}
-
-    def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        from spade.experiments.closed_loop_evaluation import run_closed_loop, scenario_set
-
-        ckpt_path = best_checkpoint_path(trainer) or last_checkpoint_path(trainer)
-        drive = OmegaConf.to_container(self.cfg.drive, resolve=True)
-        self.metrics, _ = run_closed_loop(ckpt_path, scenario_set(trainer.datamodule, drive.get("scenarios")), drive,
-                                          int(self.cfg.get("seed") or 0))
-        for logger in trainer.loggers:
-            logger.log_metrics(self.metrics, step=trainer.global_step)
 
 
 def test_elsewhere(cfg: DictConfig, ckpt_path: str, name: str, data: str) -> dict[str, float]:

@@ -1,18 +1,23 @@
-"""A training run's MLflow record, kept by one Lightning callback: :class:`RunRecord`.
+"""A run's MLflow record, kept by one Lightning callback: :class:`RunRecord`, for ``spade.train`` and
+``spade.evaluate`` alike.
 
 ``conf/callbacks/default.yaml`` lists it (``run_record``); ``spade.train`` gives it the run's composed config when
-it builds the callbacks. Without an MLflow logger it does nothing. Its hooks, in the order Lightning calls them:
+it builds the callbacks, ``spade.evaluate`` builds it itself. What it logs beyond the run's own objects comes from
+the run's :class:`RunIdentity` (experiment, run name, tags, parameters, stages), made once from the config
+(:func:`training_identity`, :func:`evaluation_identity`); the config itself feeds what describes the run (its
+description, ``config/train.yaml``, the logged and registered model). Without an MLflow logger it does nothing. Its hooks, in the order Lightning calls them:
 
-* ``setup`` (the first stage): stale RUNNING runs of the row marked KILLED (:func:`~spade.tracking.runs.
-  mark_stale_runs`), the run's experiment tagged (:func:`~spade.tracking.runs.bind_experiment`), its process
-  recorded, its parameters, config and the model's parameter count logged.
+* ``setup`` (the first stage): the run's experiment tagged (:func:`~spade.tracking.runs.bind_experiment`) and its
+  parameters logged; a training run also has the stale RUNNING runs of its row marked KILLED
+  (:func:`~spade.tracking.runs.mark_stale_runs`), its process recorded and its config logged. The run is kept
+  open (:meth:`~spade.tracking.logger.MLFlowLogger.keep_open`) until its last stage's ``teardown``.
 * ``on_test_end``: the classical baselines and the untrained model as child runs (:mod:`~spade.tracking.predictors`).
-* ``teardown`` of the run's last stage (the test, else the fit), before the logger closes the run: the best and
+* ``teardown`` of the run's last stage (the test, else the fit), which then closes the run: a training run's best and
   last checkpoints, the training-progress picture (:mod:`~spade.tracking.progress_picture`), a student's best
   checkpoint as the run's MLflow Model (:mod:`~spade.tracking.logged_model`), the datasets as inputs, the
   description and the report, the process tags dropped, and the checkpoint registered when the row asks
-  (:mod:`~spade.tracking.registry`). Between a fit and its test the run is held open (SPADE's logger,
-  :mod:`~spade.tracking.logger`), so nothing is written into a closed run.
+  (:mod:`~spade.tracking.registry`); an evaluation's, its test data as input, the description and the
+  report.
 * ``on_exception``: the run marked KILLED (a signal, Ctrl+C) or FAILED, with the reason.
 
 A run that trains and tests nothing (``train=false test=false``) gets the same ``setup`` and ``teardown`` from
@@ -25,12 +30,15 @@ Where the finished run lives (:class:`~spade.tracking.runs.RunRef`) is :attr:`Ru
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import lightning as L
 from lightning.pytorch.callbacks import Callback
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
+from spade.tracking.params import run_params
 from spade.tracking.runs import (
     RunRef,
     bind_experiment,
@@ -50,28 +58,70 @@ from spade.tracking.runs import (
 log = logging.getLogger(__name__)
 
 NO_STAGE = "none"  # the stage of a run that trains and tests nothing (its callbacks' setup and teardown)
+EXPERT_SAMPLING = ("sampler", "num_inference_steps", "test_samples", "guidance_scale")  # an evaluated expert's
+
+
+@dataclass(frozen=True)
+class RunIdentity:
+    """Who a run is, as its record logs it: where it goes, its tags and parameters, the stages it runs."""
+
+    experiment: str
+    run_name: str
+    tags: Mapping[str, Any] = field(default_factory=dict)
+    params: Mapping[str, Any] = field(default_factory=dict)  # cfg/<group>/<key>: value
+    stages: tuple[str, ...] = ("fit", "test")  # in the order they run; () for a run with no stage
+    training: bool = True  # spade.train's: stale runs, process, config, checkpoints, model and registry recorded
+    resumed: bool = False  # a resumed training run (ckpt_path): RUNNING again
+
+    @property
+    def last_stage(self) -> str:
+        """The stage whose teardown completes the record (:data:`NO_STAGE` without one)."""
+        return self.stages[-1] if self.stages else NO_STAGE
+
+    @property
+    def role(self) -> str:
+        return str(self.tags.get("role") or "model")
+
+
+def run_identity(cfg: DictConfig, params: Mapping[str, Any], stages: tuple[str, ...] = (), training: bool = False,
+                 resumed: bool = False) -> RunIdentity:
+    """``cfg``'s run (its MLflow experiment, run name and tags) with ``params`` and ``stages``."""
+    tags = dict(OmegaConf.to_container(cfg.tags, resolve=True)) if cfg.get("tags") is not None else {}
+    experiment = OmegaConf.select(cfg, "logger.mlflow.experiment_name", default=None) or tags.get("table") or ""
+    return RunIdentity(str(experiment), str(cfg.get("run_name") or "run"), tags, dict(params), stages, training,
+                       resumed)
+
+
+def training_identity(cfg: DictConfig) -> RunIdentity:
+    """``spade.train``'s run: its parameters by group (:func:`~spade.tracking.params.run_params`), its stages."""
+    train, test = bool(cfg.get("train", True)), bool(cfg.get("test", True))
+    stages = tuple(stage for stage, runs in (("fit", train), ("test", test)) if runs)
+    return run_identity(cfg, run_params(OmegaConf.to_container(cfg, resolve=True)), stages, training=True,
+                        resumed=bool(cfg.get("ckpt_path")))
+
+
+def evaluation_identity(cfg: DictConfig, tested: bool = True) -> RunIdentity:
+    """``spade.evaluate``'s run: a training run's checkpoint tested elsewhere counts under that run's seed
+    (``cfg/seed``); without ``tested`` (closed loop only) no stage runs."""
+    params = {"cfg/seed": int(cfg.source_seed)} if cfg.get("source_seed") is not None else {}
+    return run_identity(cfg, params, ("test",) if tested else ())
 
 
 class RunRecord(Callback):
     """The run's MLflow record from its first stage to its last (see the module)."""
 
-    def __init__(self, cfg: DictConfig | None = None) -> None:
+    def __init__(self, cfg: DictConfig | None = None, identity: RunIdentity | None = None) -> None:
         self.cfg = cfg
+        self.identity = identity if identity is not None or cfg is None else training_identity(cfg)
         self.run: RunRef | None = None  # where the run lives, once its record is complete
         self._opened = False
         self._predictors_logged = False
 
     def _logger(self, trainer: L.Trainer) -> Any:
         """The run's MLflow logger on rank zero; None without one, on other ranks, or without a config."""
-        if self.cfg is None or not trainer.is_global_zero:
+        if self.cfg is None or self.identity is None or not trainer.is_global_zero:
             return None
         return mlflow_logger(trainer.loggers)
-
-    def _last_stage(self) -> str:
-        """The stage whose teardown completes the record: the test, else the fit, else none (see the module)."""
-        if self.cfg.get("test", True):
-            return "test"
-        return "fit" if self.cfg.get("train", True) else NO_STAGE
 
     # -- the run's start ---------------------------------------------------------------------------------------------
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
@@ -80,21 +130,28 @@ class RunRecord(Callback):
             return
         self._opened = True
         self.open(ml, pl_module)
-        if stage != self._last_stage() and hasattr(ml, "hold_open"):
-            ml.hold_open = True  # the fit's end leaves the run open for the test
+        if hasattr(ml, "keep_open"):
+            ml.keep_open()  # the end of a stage leaves the run open: its last stage's teardown closes it
 
     def open(self, ml: Any, model: Any) -> None:
-        """Bind the run and record its start: stale runs of the row closed, experiment tagged, process, config,
-        parameters and the model's parameter count."""
-        cfg = self.cfg
+        """Bind the run and record its start: experiment tagged, parameters; a training run's stale runs closed,
+        process, config and the model's parameter count."""
+        cfg, identity = self.cfg, self.identity
+        if not identity.training:
+            bind_experiment(ml, cfg)
+            hparams = getattr(model, "hparams", None) or {}
+            sampling = {f"cfg/model/{k}": hparams[k] for k in EXPERT_SAMPLING if k in hparams}
+            for key, value in {**identity.params, **sampling}.items():
+                ml.experiment.log_param(ml.run_id, key, value)
+            return
         try:
             for message in mark_stale_runs(cfg):
                 print(message, flush=True)
         except Exception as exc:  # noqa: BLE001 - the check must not stop a run
             log.warning("could not check for stale RUNNING runs: %s", exc)
         bind_experiment(ml, cfg)
-        record_process([ml], resumed=bool(cfg.get("ckpt_path")))
-        log_run_config(cfg, model, ml)
+        record_process([ml], resumed=identity.resumed)
+        log_run_config(cfg, dict(identity.params), model, ml)
 
     # -- the test's references ---------------------------------------------------------------------------------------
     def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
@@ -105,40 +162,46 @@ class RunRecord(Callback):
 
         datamodule = getattr(trainer, "datamodule", None)
         uses = [u for u in (dataset_uses(datamodule) if datamodule is not None else []) if u.context == "test"]
-        log_predictors(self.cfg, ml.experiment, ml.run_id, uses, run_figures(ml))
+        log_predictors(self.identity.tags, ml.experiment, ml.run_id, uses, run_figures(ml))
         self._predictors_logged = True
 
     # -- the run's end -----------------------------------------------------------------------------------------------
     def teardown(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         ml = self._logger(trainer)
-        if ml is None or stage != self._last_stage():
+        if ml is None or stage != self.identity.last_stage:
             return
         self.finish(trainer, ml)
-        if hasattr(ml, "hold_open"):
-            ml.hold_open = False  # the logger's finalize, next, closes the run
+        if hasattr(ml, "close"):
+            ml.close("success")  # the record is complete: the run ends
 
     def finish(self, trainer: L.Trainer, ml: Any) -> None:
         """Complete the record of a run whose last stage ended (see the module); sets :attr:`run`."""
+        cfg, identity = self.cfg, self.identity
+        client, run_id = ml.experiment, ml.run_id
+        datamodule = getattr(trainer, "datamodule", None)
+        if not identity.training:
+            uses, metrics, description, self.run = describe_run(cfg, ml, datamodule, contexts=("test",))
+            if not self._predictors_logged:
+                log_predictors(identity.tags, client, run_id, [u for u in uses if u.context == "test"], metrics)
+            log_report(client, run_id, identity.run_name, identity.role, description, metrics)
+            return
         from spade.experiments.lifecycle import best_checkpoint_path, last_checkpoint_path
         from spade.tracking.logged_model import try_log_student_model
 
-        cfg = self.cfg
-        client, run_id = ml.experiment, ml.run_id
         paths = {kind: path for kind, path in (("best", best_checkpoint_path(trainer)),
                                                ("last", last_checkpoint_path(trainer))) if path}
         for kind, path in paths.items():
             client.log_artifact(run_id, path, artifact_path=f"checkpoints/{kind}")
-        if cfg.get("train", True):
+        if "fit" in identity.stages:
             from spade.tracking.progress_picture import log_progress_picture
 
             nicety("training-progress picture", log_progress_picture, client, run_id,
-                   f"{cfg.get('run_name')}: training by epoch")
+                   f"{identity.run_name}: training by epoch")
         logged = try_log_student_model(cfg, str(client.tracking_uri), run_id, paths.get("best") or paths.get("last"))
-        uses, metrics, description, self.run = describe_run(cfg, ml, getattr(trainer, "datamodule", None),
-                                                            logged_model=logged)
+        uses, metrics, description, self.run = describe_run(cfg, ml, datamodule, logged_model=logged)
         if not self._predictors_logged:  # no test: the run is still tagged with its role
-            log_predictors(cfg, client, run_id, [], metrics)
-        log_report(cfg, client, run_id, description, metrics)
+            log_predictors(identity.tags, client, run_id, [], metrics)
+        log_report(client, run_id, identity.run_name, identity.role, description, metrics)
         nicety("process tags' removal", drop_process_tags, client, run_id, True)
         if paths:
             self.register(ml, "best" if "best" in paths else "last", uses, metrics)
@@ -152,7 +215,7 @@ class RunRecord(Callback):
         name = registry_name(cfg)
         if not name:
             return
-        tags = {**dict(cfg.get("tags") or {}), **dict((cfg.get("registry") or {}).get("tags") or {})}
+        tags = {**dict(self.identity.tags), **dict((cfg.get("registry") or {}).get("tags") or {})}
         register_checkpoint(ml, name, f"checkpoints/{kind}", tags=tags, data_fingerprint=data_fingerprint(cfg),
                             description=model_description(cfg, uses),
                             version_description=version_description(cfg, ml, metrics),
@@ -164,6 +227,5 @@ class RunRecord(Callback):
         if ml is None:
             return
         status = mark_opened_run_ended([ml], exception)  # also a run Lightning opened before setup bound it
-        if status is not None and hasattr(ml, "end_status"):
-            ml.end_status = status  # Lightning's finalize("failed"), next, keeps it
-            ml.hold_open = False
+        if status is not None and hasattr(ml, "ended"):
+            ml.ended(status)  # Lightning's finalize("failed"), next, keeps it

@@ -19,11 +19,12 @@ What a run shows in the MLflow UI is decided here, where every metric passes:
 
 * **The run opens and closes once.** A fresh SQLite store's tables are created under a lock before the logger
   opens it (:func:`~spade.tracking.client.ensure_store`: two runs started together on an empty store both run);
-  the experiment a parallel job created at the same moment is looked up again rather than failing the run. While
-  :attr:`MLFlowLogger.hold_open` is set (by :class:`~spade.tracking.callback.RunRecord`, between a fit and the
-  test that follows it) Lightning's end-of-stage ``finalize("success")`` leaves the run RUNNING, so that the test
-  and the run's record are written into an open run; a run the record marked KILLED (:attr:`end_status`) stays
-  KILLED when Lightning then finalizes it as failed.
+  the experiment a parallel job created at the same moment is looked up again rather than failing the run. A run
+  whose record keeps it (:meth:`MLFlowLogger.keep_open`, :class:`~spade.tracking.callback.RunRecord`: from its first
+  stage until its record is complete) stays RUNNING through Lightning's end-of-stage ``finalize("success")``, so
+  that the test and the run's record are written into an open run; the record then ends it
+  (:meth:`MLFlowLogger.close`). A run the record marked KILLED, FAILED or deleted (:meth:`MLFlowLogger.ended`)
+  keeps that when Lightning then finalizes it as failed.
 
 The class keeps Lightning's name so that code that recognises an MLflow logger by its class name (the model file's
 ``mlflow_run_id``) still does; it is a subclass, so ``isinstance(..., lightning.pytorch.loggers.MLFlowLogger)``
@@ -53,8 +54,9 @@ class MLFlowLogger(LightningMLFlowLogger):
             ensure_store(kwargs.get("tracking_uri"))  # a fresh store's tables, created by one process at a time
         super().__init__(*args, **kwargs)
         self.held: dict[str, float] = {}  # the references' figures, for the child runs and the description
-        self.hold_open = False  # set between a fit and its test: the run stays RUNNING at the fit's end
-        self.end_status: str | None = None  # KILLED / FAILED / DELETED, set when the run was marked ended
+        self._kept_open = False  # the run's record ends the run, not Lightning's end of a stage (keep_open)
+        self._ended_as: str | None = None  # KILLED / FAILED / DELETED: how the run's record ended it (ended)
+        self._closed = False  # ended by its record (close): Lightning's finalize has nothing left to end
         self._epoch_step: dict[int, int] = {}  # epoch -> the last global step logged in it
         self._margin_tagged = False
 
@@ -69,15 +71,31 @@ class MLFlowLogger(LightningMLFlowLogger):
         except MlflowException:
             return super().experiment  # created meanwhile by a parallel job: this lookup finds it
 
+    def keep_open(self) -> None:
+        """Leave the run RUNNING at the end of each stage, until :meth:`close` (the run's record ends it)."""
+        self._kept_open = True
+
+    def close(self, status: str = "success") -> None:
+        """End a run kept open (:meth:`keep_open`): its record is complete."""
+        self._kept_open = False
+        self.finalize(status)
+        self._closed = True
+
+    def ended(self, status: str) -> None:
+        """The run was marked ``status`` (KILLED / FAILED, or deleted: ``DELETED``) by its record: Lightning's
+        ``finalize("failed")``, next, keeps it, and nothing holds the run open any more."""
+        self._ended_as = status
+        self._kept_open = False
+
     @rank_zero_only
     def finalize(self, status: str = "success") -> None:
-        """End the run, unless it is held open for the stage that follows (:attr:`hold_open`); a run marked
-        KILLED or FAILED keeps that status (:attr:`end_status`), a deleted one is left alone."""
-        if status == "success" and self.hold_open:
+        """End the run, unless its record keeps it open (:meth:`keep_open`); a run marked KILLED or FAILED keeps
+        that status (:meth:`ended`), a deleted one is left alone."""
+        if self._closed or (status == "success" and self._kept_open):
             return
-        if self.end_status == "DELETED":
+        if self._ended_as == "DELETED":
             return  # a refused run, deleted (spade.tracking.runs.refused_before_work): nothing to close
-        super().finalize(self.end_status or status)
+        super().finalize(self._ended_as or status)
 
     @rank_zero_only
     def log_metrics(self, metrics: Mapping[str, float], step: int | None = None) -> None:

@@ -1,21 +1,21 @@
-"""A run's MLflow parameters: the settings that describe the method, without bookkeeping or duplicates.
+"""A run's MLflow parameters, logged by config group as lightning-hydra-template's ``log_hyperparameters`` does.
 
-The composed config is flattened to ``cfg/<group>/<key>`` (the names ``spade.report``, the resume check and the
-tests read: ``cfg/seed``, ``cfg/run_name``, ``cfg/model/size``, ``cfg/scale/name``) and then thinned by
-:func:`run_params`:
+Each group of :data:`PARAM_GROUPS` is one node of the composed config, flattened to ``cfg/<group>/<key>`` (the names
+``spade.report``, the resume check and the tests read: ``cfg/seed``, ``cfg/run_name``, ``cfg/model/size``,
+``cfg/scale/name``):
 
-- **kept**: the model's settings (size, learning rate, optimizer and schedule, the margin's formulation and its
-  lambda, BCE weight), the data's (batch size, augmentation, validation fraction, target width, caps), the
-  trainer's budget (epochs, steps, gradient clipping, precision, batches per epoch), the evaluation's thresholds
-  (``cfg/metrics/...``), the recipe's and the scale's names, the scale's data sizes, the seed, the row's name and
-  the metric that picks the best checkpoint; an optimizer or a schedule is named by its function
-  (``cfg/model/optimizer=AdamW``).
-- **dropped**: paths and checkpoints (the description names the prerequisites), Hydra, logger and callback
-  internals, the closed-loop test's settings (``closed_loop``, ``drive/*``: how the model is driven, not trained), the run's tags (they are tags), ``task_name``, the sweep's ``seeds`` / ``rows``, threads,
-  ``_target_`` / ``_partial_`` / ``_convert_`` markers, the trainer's bookkeeping (devices, progress bar,
-  logging cadence), unset values (None, ``max_steps=-1``), and the copies: the recipe's and the scale's values
-  (the model, data and trainer keys hold what the run used), the data generator's settings, the model's copy of
-  ``metrics``.
+- ``model``: the model's settings (size, learning rate, optimizer and schedule, each named by its function:
+  ``cfg/model/optimizer=AdamW``; the margin's formulation and its lambda, BCE weight), less its copy of
+  ``metrics`` and the grid and checkpoints it is handed;
+- ``data``: batch size, augmentation, validation fraction, target width, caps, less paths, generators and loaders;
+- ``trainer``: the training budget (epochs, steps, gradient clipping, precision, batches per epoch);
+- ``metrics``: the evaluation's thresholds; ``recipe`` and ``scale`` by name (the scale's data sizes too);
+- ``seed``, ``run_name`` and ``optimized_metric``, the metric that picks the best checkpoint.
+
+A group not listed is no parameter: paths, Hydra, logger, callbacks, tags (they are tags), the closed-loop test's
+``drive`` (how the model is driven, not trained), a sweep's ``seeds`` / ``rows``. Unset values (None,
+``max_steps=-1``) and Hydra's ``_target_`` / ``_partial_`` markers are left out. A new option of a listed group
+is a parameter without a line here.
 
 The whole config stays in the run as the artifact ``config/train.yaml``. Lightning's own logging of the model's
 hyperparameters (the same settings again, unprefixed: ``margin/lambda_dm`` beside ``cfg/model/margin/lambda_dm``)
@@ -24,27 +24,39 @@ is off: the modules save them with ``save_hyperparameters(logger=False)`` (the c
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from fnmatch import fnmatchcase
 from typing import Any
 
-# flattened config keys (without the cfg/ prefix) left out of the params: fnmatch patterns ("*" crosses "/")
-DROPPED = (
-    "hydra*", "paths/*", "logger/*", "callbacks/*", "tags/*", "requires/*", "registry/*", "also_test*",
-    "task_name", "seeds", "rows", "threads", "prerequisites", "ckpt_path", "train", "test", "test_untrained",
-    "closed_loop", "drive/*",
-    "recipe/*", "scale/*",
-    "data/*_generate/*", "data/generator/*", "data/*_dir", "data/num_workers", "data/pin_memory",
-    "data/persistent_workers", "data/eval_batch_size",
-    "model/metrics/*", "model/grid_size", "model/val_metric_batches", "*_ckpt", "*/_partial_", "*/_convert_",
-    "*/_recursive_", "_target_", "*/_target_",
-    "trainer/accelerator", "trainer/devices", "trainer/num_nodes", "trainer/strategy*", "trainer/default_root_dir",
-    "trainer/enable_*", "trainer/deterministic", "trainer/benchmark", "trainer/log_every_n_steps",
-    "trainer/check_val_every_n_epoch", "trainer/num_sanity_val_steps", "trainer/limit_val_batches",
-    "trainer/limit_test_batches", "trainer/sync_batchnorm", "trainer/use_distributed_sampler",
-)
-# ... except these (the recipe and the scale by name; the scale's data sizes)
-KEPT = ("recipe/name", "scale/name", "scale/train_instances", "scale/test_instances", "scale/image_size",
-        "scale/resolution_m")
+
+@dataclass(frozen=True)
+class Group:
+    """A config node logged as parameters: its keys (``only``, when given) less ``without`` (fnmatch patterns of
+    the flattened key inside the node; ``*`` crosses ``/``)."""
+
+    only: tuple[str, ...] | None = None
+    without: tuple[str, ...] = ()
+
+    def keeps(self, key: str) -> bool:
+        if self.only is not None and key not in self.only:
+            return False
+        return not any(fnmatchcase(key, pattern) for pattern in self.without)
+
+
+WHOLE = Group()
+PARAM_GROUPS: dict[str, Group] = {
+    "seed": WHOLE, "run_name": WHOLE, "optimized_metric": WHOLE,
+    "recipe": Group(only=("name",)),
+    "scale": Group(only=("name", "train_instances", "test_instances", "image_size", "resolution_m")),
+    "model": Group(without=("metrics/*", "grid_size", "val_metric_batches", "*_ckpt")),
+    "data": Group(without=("*_generate/*", "generator/*", "*_dir", "num_workers", "pin_memory", "persistent_workers",
+                           "eval_batch_size")),
+    "trainer": Group(only=("max_epochs", "min_epochs", "max_steps", "max_time", "precision", "channels_last",
+                           "gradient_clip_val", "gradient_clip_algorithm", "accumulate_grad_batches",
+                           "limit_train_batches")),
+    "metrics": WHOLE,
+}
+MARKERS = ("_target_", "_partial_", "_convert_", "_recursive_")  # Hydra's, not settings
 UNSET = {("trainer/max_steps", -1)}  # a value that means "no setting" (the epochs bound the run)
 NAMED_BY_TARGET = ("model/optimizer", "model/lr_scheduler")  # logged as the name of their function / class
 
@@ -63,7 +75,11 @@ def flatten(cfg: dict[str, Any], prefix: str = "") -> dict[str, Any]:
 
 def kept(key: str) -> bool:
     """Whether flattened config key ``key`` (``model/optimizer/lr``) is a parameter of the run."""
-    return key in KEPT or not any(fnmatchcase(key, pattern) for pattern in DROPPED)
+    group, _, inside = key.partition("/")
+    chosen = PARAM_GROUPS.get(group)
+    if chosen is None or key.rsplit("/", 1)[-1] in MARKERS:
+        return False
+    return not inside or chosen.keeps(inside)
 
 
 def run_params(resolved: dict[str, Any]) -> dict[str, Any]:

@@ -6,10 +6,9 @@
   whole config as ``config/train.yaml`` and the FID extractor's identity; :func:`record_process` tags the run with
   its host, process id and process start time while it runs (a resumed run is RUNNING again).
 * :func:`describe_run` logs the datasets as inputs (:mod:`~spade.tracking.dataset_inputs`) and sets the
-  description (:mod:`~spade.tracking.descriptions`); :func:`log_predictors_and_report` logs the classical baselines
+  description (:mod:`~spade.tracking.descriptions`); :func:`log_predictors` logs the classical baselines
   and the untrained model as child runs (:mod:`~spade.tracking.predictors`) and the run's report
   (:mod:`~spade.tracking.run_report`); :func:`drop_process_tags` removes the process tags of a run that finished.
-  :func:`finish_evaluation` does the same for ``spade.evaluate``'s run.
 * A run that does not finish is closed honestly: :func:`mark_run_ended` marks it KILLED (a signal, Ctrl+C:
   :func:`spade.experiments.lifecycle.install_signal_handlers`) or FAILED (any other exception), or deletes it when
   a refusal (a user error) came before it recorded any metric (:func:`refused_before_work`), and
@@ -17,8 +16,8 @@
   gone (a ``kill -9``, a power cut) KILLED, with a message. The process tags stay on a KILLED or FAILED run.
 
 Only Lightning's public ``MLFlowLogger`` API is used (``experiment``: its ``MlflowClient``; ``run_id``;
-``experiment_id``) and MLflow's own client. Nothing here keeps state between calls: what a run has been through
-is on its logger (:data:`BOUND`) and in the store.
+``experiment_id``) and MLflow's own client. What a run has been through is in the store, and whether its run was
+opened here in :data:`BOUND` (nothing is set on the logger).
 """
 
 from __future__ import annotations
@@ -29,7 +28,9 @@ import os
 import signal
 import socket
 import time
+import weakref
 from dataclasses import dataclass
+from collections.abc import Mapping
 from typing import Any
 
 from lightning.pytorch.loggers import Logger, MLFlowLogger
@@ -42,7 +43,6 @@ from spade.tracking.descriptions import prerequisite_uses, run_description
 from spade.tracking.experiment_tags import NOTE_TAG, ensure_experiment_tags
 from spade.tracking.logged_model import LoggedStudent, describe_logged_model, model_note
 from spade.tracking.logger import held_metrics
-from spade.tracking.params import run_params
 from spade.tracking.predictors import is_predictor_run
 from spade.utils.processes import pid_alive, process_start
 
@@ -55,9 +55,9 @@ def mlflow_logger(loggers: list[Logger]) -> MLFlowLogger | None:
 
 
 # -- opening the run --------------------------------------------------------------------------------------------
-BOUND = "spade_bound"
-"""The attribute :func:`bind_experiment` sets on a logger whose run it opened or resumed: from then on
-:func:`mark_run_ended` closes that run when the run fails."""
+BOUND: weakref.WeakSet[Any] = weakref.WeakSet()
+"""The loggers whose run :func:`bind_experiment` opened or resumed: from then on :func:`mark_run_ended` closes that
+run when the run fails."""
 
 
 def bind_experiment(ml: MLFlowLogger, cfg: DictConfig | None = None) -> None:
@@ -78,7 +78,7 @@ def bind_experiment(ml: MLFlowLogger, cfg: DictConfig | None = None) -> None:
         client = ml.experiment
     except MlflowException:
         client = ml.experiment  # created meanwhile by a parallel job: this lookup finds it
-    setattr(ml, BOUND, True)
+    BOUND.add(ml)
     ensure_experiment_tags(client, client.get_experiment(ml.experiment_id), cfg)
 
 
@@ -86,16 +86,15 @@ def bound_run_id(ml: MLFlowLogger) -> str | None:
     """The logger's MLflow run id, without opening a run: on rank zero the run :func:`bind_experiment` opened or
     resumed (None before it did, or when it failed); on other ranks, whose logger holds no client, the ``run_id``
     it was made with (a resumed run; None for a new one)."""
-    if rank_zero_only.rank == 0 and not getattr(ml, BOUND, False):
+    if rank_zero_only.rank == 0 and ml not in BOUND:
         return None
     return ml.run_id
 
 
-def log_run_config(cfg: DictConfig, model: Any, ml: MLFlowLogger) -> None:
-    """Log the parameters that describe the method (:func:`~spade.tracking.params.run_params`: no
-    bookkeeping, no copies), the whole composed config as ``config/train.yaml`` and the FID extractor's identity
+def log_run_config(cfg: DictConfig, params: dict[str, Any], model: Any, ml: MLFlowLogger) -> None:
+    """Log ``params``, the parameters that describe the method (:func:`~spade.tracking.params.run_params`: the
+    config's groups), the whole composed config as ``config/train.yaml`` and the FID extractor's identity
     (tag ``fid_extractor``) into the logger's bound run."""
-    params = run_params(OmegaConf.to_container(cfg, resolve=True))
     fid = getattr(getattr(model, "test_metrics", None), "fid_identity", None)
     # A resumed run continues an MLflow run whose params are immutable: log only what it lacks (ckpt_path and
     # anything else set differently for the resume is recorded as a tag instead).
@@ -195,19 +194,19 @@ def mark_run_ended(loggers: list[Logger], exc: BaseException) -> str | None:
 
 
 def mark_opened_run_ended(loggers: list[Logger], exc: BaseException) -> str | None:
-    """:func:`mark_run_ended` for a run Lightning opened before SPADE bound it (``spade.evaluate``'s, bound only
-    when the evaluation finishes; a training run that failed in Lightning's setup): Lightning's teardown marks an
-    interrupted stage FAILED; a signal or Ctrl+C is KILLED. Returns the status set."""
+    """:func:`mark_run_ended` for a run Lightning opened before SPADE bound it (a run that failed in Lightning's
+    setup, before its record's): Lightning's teardown marks an interrupted stage FAILED; a signal or Ctrl+C is
+    KILLED. Returns the status set."""
     ml = mlflow_logger(loggers)
     if ml is None:
         return None
-    if not getattr(ml, BOUND, False):
+    if ml not in BOUND:
         try:
             ml.run_id  # the run Lightning opened (MLFlowLogger's public property)
         except Exception as err:  # noqa: BLE001 - never hide the original error
             log.warning("could not find the evaluation's MLflow run: %s", err)
             return None
-        setattr(ml, BOUND, True)
+        BOUND.add(ml)
     return mark_run_ended(loggers, exc)
 
 
@@ -277,7 +276,7 @@ def _picture_paths(client: Any, run_id: str) -> list[str]:
 
 
 def _references_note(metrics: dict[str, float], run: tuple[str, str]) -> str:
-    """Where the run's references and report are (a run with test figures: :func:`log_predictors_and_report`)."""
+    """Where the run's references and report are (a run with test figures: :func:`log_predictors`, :func:`log_report`)."""
     from spade.tracking.links import artifact_url
     from spade.tracking.predictors import predictors
     from spade.tracking.run_report import CSV, MARKDOWN, REPORT_DIR
@@ -348,24 +347,23 @@ def nicety(what: str, step: Any, *args: Any) -> Any:
         return None
 
 
-def log_predictors(cfg: DictConfig, client: Any, run_id: str, test_uses: list[DatasetUse],
+def log_predictors(tags: Mapping[str, Any], client: Any, run_id: str, test_uses: list[DatasetUse],
                    metrics: dict[str, float]) -> None:
     """The run's references as child runs (:mod:`~spade.tracking.predictors`), the run tagged with its role."""
     from spade.tracking.descriptions import what_it_is
     from spade.tracking.predictors import log_predictor_runs
 
-    tags = dict(cfg.get("tags") or {})
+    tags = dict(tags)
     nicety("predictor runs", log_predictor_runs, client, run_id, str(tags.get("role") or "model"), what_it_is(tags),
            test_uses, metrics)
 
 
-def log_report(cfg: DictConfig, client: Any, run_id: str, description: str, metrics: dict[str, float]) -> None:
+def log_report(client: Any, run_id: str, run_name: str, role: str, description: str,
+               metrics: dict[str, float]) -> None:
     """The run's report (:mod:`~spade.tracking.run_report`)."""
     from spade.tracking.run_report import log_run_report
 
-    role = str((cfg.get("tags") or {}).get("role") or "model")
-    nicety("run report", log_run_report, client, run_id, str(cfg.get("run_name") or "run"), description, metrics,
-           role)
+    nicety("run report", log_run_report, client, run_id, run_name, description, metrics, role)
 
 
 def drop_process_tags(client: Any, run_id: str, finishing: bool = False) -> None:
@@ -380,22 +378,3 @@ def drop_process_tags(client: Any, run_id: str, finishing: bool = False) -> None
     for key in (*PROCESS_TAGS, "spade.end_reason"):
         if key in tags and (key != "spade.end_reason" or not tags[key]):
             client.delete_tag(run_id, key)
-
-
-@rank_zero_only
-def finish_evaluation(cfg: DictConfig, trainer: Any, loggers: list[Logger]) -> None:
-    """``spade.evaluate``'s run: the test dataset as input and a description with the figures and baselines, the
-    baselines as child runs and the report (``report/``)."""
-    ml = mlflow_logger(loggers)
-    if ml is None:
-        return
-    bind_experiment(ml, cfg)
-    if cfg.get("source_seed") is not None:  # a training run's checkpoint tested elsewhere: counted under its seed
-        ml.experiment.log_param(ml.run_id, "cfg/seed", int(cfg.source_seed))
-    hparams = getattr(getattr(trainer, "lightning_module", None), "hparams", None) or {}
-    for key in ("sampler", "num_inference_steps", "test_samples", "guidance_scale"):  # an expert's sampling
-        if key in hparams:
-            ml.experiment.log_param(ml.run_id, f"cfg/model/{key}", hparams[key])
-    uses, metrics, description, _ = describe_run(cfg, ml, getattr(trainer, "datamodule", None), contexts=("test",))
-    log_predictors(cfg, ml.experiment, ml.run_id, [u for u in uses if u.context == "test"], metrics)
-    log_report(cfg, ml.experiment, ml.run_id, description, metrics)
