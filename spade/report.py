@@ -6,7 +6,7 @@ prints the table in the paper's layout as markdown, each cell the mean +/- sd ov
 paper's headline comparisons and pairwise tests (Welch's t-test over the per-seed values), and writes
 ``<table>.md``, ``<table>.csv``, ``<table>_comparisons.csv`` and a ``<table>.png`` chart into
 ``output_dir``. A row without a finished run is shown as missing, never dropped. The work is done by
-:mod:`spade.experiments.reporting` (:func:`~spade.experiments.reporting.build.report`); this is its entry point.
+:mod:`spade.experiments.reporting` (:func:`~spade.experiments.reporting.pages.report`); this is its entry point.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from omegaconf import DictConfig
 
 from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
 from spade.utils.errors import run_entry_point, task
-from spade.experiments.reporting import report
+from spade.experiments.reporting.pages import report
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="report")

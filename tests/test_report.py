@@ -12,7 +12,8 @@ import yaml
 
 from spade.experiments.tables import TABLES, get_table, relative_change
 from spade.paths import CONF_DIR
-from spade.experiments.reporting import build_report, compare, fetch_results, render_table, report
+from spade.experiments.reporting import build_report, compare, fetch_results, render_table
+from spade.experiments.reporting.pages import report
 
 # The paper's rows behind its headline (DESIGN.md section 6): medium Cond-DBC and large BC, L-shape.
 MEDIUM_CONDDBC_L = {"test/ape_cm": 1.46, "test/fid": 13.58, "test/hd19": 2.0, "model/params": 1_926_209.0}

@@ -218,7 +218,7 @@ def test_a_refused_evaluation_leaves_no_run(tmp_path: Path, run_main) -> None:
 def test_report_refuses_a_store_that_does_not_exist(tmp_path: Path, run_main) -> None:
     """``tracking_uri=sqlite:///<missing dir>/mlflow.db`` created an empty store and reported all missing."""
     from spade.utils.config import compose_config
-    from spade.experiments.reporting import report
+    from spade.experiments.reporting.pages import report
 
     store = tmp_path / "missing" / "mlflow.db"
     code, err = run_main("spade.report", [f"tracking_uri=sqlite:///{store}", f"output_dir={tmp_path / 'rep'}"])

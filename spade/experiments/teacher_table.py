@@ -30,7 +30,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from spade.experiments.reporting.pages import TEACHER_TABLE, teacher_files
 from spade.experiments.reporting.stats import holm, mean_sd, one_sample, significance, welch
 from spade.experiments.run_records import RunRecord
 from spade.metrics import catalog
@@ -40,6 +39,16 @@ from spade.utils.markdown import collapsed, markdown_table
 __all__ = ["TEACHER_TABLE", "teacher_files", "teacher_report"]
 
 DEFAULT_TITLE = "The teacher: each expert as a planner beside its student"
+
+TEACHER_TABLE = "teacher"
+
+
+def teacher_files(stem: str | None = None) -> tuple[str, str]:
+    """The files a teacher page writes into ``output_dir``: ``<page>.md`` and ``<page>.csv`` (``teacher`` unless the
+    page's ``page`` setting names it otherwise)."""
+    stem = str(stem or TEACHER_TABLE)
+    return f"{stem}.md", f"{stem}.csv"
+
 
 
 COLUMNS: tuple[tuple[str, str, str], ...] = tuple((catalog.label(n), n, catalog.figure(n).fmt) for n in catalog.TEACHER)

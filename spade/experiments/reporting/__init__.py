@@ -5,12 +5,12 @@ one-sample tests, Holm's correction, ``mean ± sd``), ``pages`` (the pages ``spa
 builds each and which files it writes), ``results`` (each row's runs over seeds at one scale,
 :func:`fetch_results`, the headline comparisons with Welch's t-test, :func:`compare`, and the pairwise tests,
 :func:`pairwise`), ``render`` (the markdown), ``files`` (the CSV files), ``chart`` (the PNG) and ``build``
-(:func:`build_report` puts one table's report together, :func:`report` those a config asks for). The tables
+(:func:`build_report` puts one table's report together; ``pages.report`` those a config asks for). The tables
 themselves are :mod:`spade.experiments.tables`; publishing into MLflow is
 :func:`spade.tracking.report.publish_report`.
 """
 
-from spade.experiments.reporting.build import Report, build_report, report
+from spade.experiments.reporting.build import Report, build_report
 from spade.experiments.reporting.chart import plot_table
 from spade.experiments.reporting.files import write_comparisons_csv, write_csv
 from spade.experiments.reporting.render import (
@@ -52,7 +52,6 @@ __all__ = [
     "render_pairwise",
     "render_paper_table",
     "render_table",
-    "report",
     "welch",
     "write_comparisons_csv",
     "write_csv",

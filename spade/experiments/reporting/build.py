@@ -7,7 +7,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from omegaconf import DictConfig
 
 from spade.experiments.reporting.chart import plot_table
 from spade.experiments.reporting.files import write_comparisons_csv, write_csv
@@ -121,14 +120,3 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
     links = publish_report(table, results, tracking_uri, files, log_to_runs)  # UI links; chart into the runs
     parts += ["", *links] if links else []
     return Report(table, results, comparisons, "\n".join(parts), files, pairs)
-
-
-def report(cfg: DictConfig) -> list[Report]:
-    """The reports of ``cfg.table`` (one table, every table with ``table=all``, or a registered page:
-    :mod:`spade.experiments.reporting.pages`); a store that does not exist is refused
-    (:class:`~spade.utils.errors.ConfigError`), never created empty and reported all missing."""
-    from spade.config.report_checks import validate_report_config
-    from spade.experiments.reporting.pages import page
-
-    validate_report_config(cfg, page)
-    return page(cfg.table).build(cfg)

@@ -2,8 +2,7 @@
 ``output_dir`` and the settings whose run records let it regenerate without the MLflow store.
 
 Every page registers here, so that the report's config checks (:mod:`spade.config.report_checks`) learn a page's
-files from its :class:`Page` (handed to them by :func:`spade.experiments.reporting.build.report`) and never import
-a page module; a new page is one :func:`register` call and its module. The paper's tables
+files from its :class:`Page` (handed to them by :func:`report`) and never import a page module; a new page is one :func:`register` call and its module. The paper's tables
 (:mod:`spade.experiments.tables`) are pages too, each by its key, number or composition (:func:`page`).
 """
 
@@ -15,12 +14,14 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from spade.config.report_checks import validate_report_config
+from spade.experiments.closed_loop_table import closed_loop_report
+from spade.experiments.oracle_page import oracle_report
+from spade.experiments.reporting.build import Report, build_report
 from spade.experiments.tables import TABLES, Table, get_table
+from spade.experiments.teacher_table import TEACHER_TABLE, teacher_files, teacher_report
 
-__all__ = ["PAGES", "TEACHER_TABLE", "Page", "page", "register", "report_files", "teacher_files"]
-
-TEACHER_TABLE = "teacher"
-
+__all__ = ["PAGES", "Page", "page", "register", "report", "report_files"]
 
 @dataclass(frozen=True)
 class Page:
@@ -72,30 +73,17 @@ def _scale(cfg: DictConfig) -> str | None:
 
 
 def _build_table(table: Table, cfg: DictConfig) -> Any:
-    from spade.experiments.reporting.build import build_report
-
     # `scale` is the config group of conf/scale (so that scale=cpu reads as everywhere else); its name filters runs.
     return build_report(table, cfg.tracking_uri, cfg.get("output_dir"), _scale(cfg), cfg.get("paper", True),
                         cfg.get("chart", True), cfg.get("log_to_runs", False) is True)
 
 
-def teacher_files(stem: str | None = None) -> tuple[str, str]:
-    """The files a teacher page writes into ``output_dir``: ``<page>.md`` and ``<page>.csv`` (``teacher`` unless the
-    page's ``page`` setting names it otherwise)."""
-    stem = str(stem or TEACHER_TABLE)
-    return f"{stem}.md", f"{stem}.csv"
-
-
 def _page_report(text: str, files: dict) -> Any:
-    from spade.experiments.reporting.build import Report
-
     return Report(None, {}, [], text, files)  # type: ignore[arg-type]
 
 
 def _closed_loop(cfg: DictConfig) -> list[Any]:
     """The drives of trained rows (:mod:`spade.experiments.closed_loop_table`)."""
-    from spade.experiments.closed_loop_table import closed_loop_report
-
     return [_page_report(*closed_loop_report(cfg.tracking_uri, cfg.get("output_dir"), _scale(cfg),
                                              labels=cfg.get("closed_loop_labels"),
                                              records_dir=cfg.get("closed_loop_records_dir"),
@@ -104,16 +92,12 @@ def _closed_loop(cfg: DictConfig) -> list[Any]:
 
 def _teacher(cfg: DictConfig) -> list[Any]:
     """The experts as planners (:mod:`spade.experiments.teacher_table`)."""
-    from spade.experiments.teacher_table import teacher_report
-
     settings = OmegaConf.to_container(cfg.teacher, resolve=True) if cfg.get("teacher") else {}
     return [_page_report(*teacher_report(cfg.tracking_uri, cfg.get("output_dir"), settings, _scale(cfg)))]
 
 
 def _oracle(cfg: DictConfig) -> list[Any]:
     """Where a teacher teaches (:mod:`spade.experiments.oracle_page`)."""
-    from spade.experiments.oracle_page import oracle_report
-
     settings = OmegaConf.to_container(cfg.oracle, resolve=True)
     return [_page_report(*oracle_report(cfg.tracking_uri, cfg.get("output_dir"), settings))]
 
@@ -123,3 +107,11 @@ register(Page("closed_loop", lambda chart, _: ["closed_loop.md", "closed_loop.cs
 register(Page(TEACHER_TABLE, lambda chart, stem: list(teacher_files(stem)), _teacher,
               ("teacher.records_dir", "teacher.committed")))
 register(Page("oracle", lambda chart, _: ["oracle.md", "oracle_curve.png"], _oracle, ("oracle.records_dir",)))
+
+
+def report(cfg: DictConfig) -> list[Report]:
+    """The reports of ``cfg.table`` (one table, every table with ``table=all``, or a registered page); a store that
+    does not exist is refused (:class:`~spade.utils.errors.ConfigError`), never created empty and reported all
+    missing."""
+    validate_report_config(cfg, page)
+    return page(cfg.table).build(cfg)
