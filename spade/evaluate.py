@@ -27,7 +27,7 @@ log = logging.getLogger(__name__)
 def main(cfg: DictConfig) -> None:
     from spade.config.refusals import exit_on_user_error
 
-    from spade.experiments.lifecycle import install_signal_handlers
+    from spade.utils.signals import install_signal_handlers
     from spade.tracking.summary import evaluation_summary
 
     install_signal_handlers()  # SIGTERM / SIGINT end the run through an exception: its MLflow run is marked KILLED

@@ -1,7 +1,7 @@
 """``python -m spade.report [table=table1|table2|table3|all] [scale=...]``: a paper table from the MLflow runs.
 
 Reads the finished runs of a table's MLflow experiment (run name = row name; see
-:mod:`spade.experiments.tables`) at one scale, one run per distinct seed (the latest run of a seed counts),
+:mod:`spade.tracking.tables`) at one scale, one run per distinct seed (the latest run of a seed counts),
 prints the table in the paper's layout as markdown, each cell the mean +/- sd over the seeds, with the
 paper's headline comparisons and pairwise tests (Welch's t-test over the per-seed values), and writes
 ``<table>.md``, ``<table>.csv``, ``<table>_comparisons.csv`` and a ``<table>.png`` chart into

@@ -32,7 +32,7 @@ log = logging.getLogger(__name__)
 def main(cfg: DictConfig) -> float | None:
     # here, not at the top: the training stack loads once the config has composed (``--help`` and Hydra's own
     # errors need none of it), and its preflight (spade.config.preflight) is the only command's checks it loads
-    from spade.experiments.lifecycle import install_signal_handlers
+    from spade.utils.signals import install_signal_handlers
     from spade.experiments.run import sweep_result, train
     from spade.tracking.summary import run_summary
 

@@ -20,7 +20,7 @@ ROWS = sorted(p.stem for p in (CONF_DIR / "experiment").glob("*.yaml") if p.stem
 def test_there_is_one_experiment_per_row() -> None:
     """Each table's rows are listed once (spade/experiments/tables.py): its composition sweeps them, and every one
     of them is an experiment file."""
-    from spade.experiments.tables import TABLES
+    from spade.tracking.tables import TABLES
 
     assert len(ROWS) == 27  # 18 students + 4 experts + 3 (Table 2) + 2 (Table 3)
     assert set(FAST_ROWS) <= set(ROWS)
@@ -217,7 +217,7 @@ def test_a_bad_row_or_seed_list_ends_the_table_with_one_error_line(spade_home: P
 
 def test_table_prints_scale_rows_seeds_instances_and_estimate(spade_home: Path) -> None:
     from spade.experiments.multirun import STEP_SECONDS, estimate_row, start_message
-    from spade.experiments.tables import TINY_NOTICE
+    from spade.tracking.tables import TINY_NOTICE
 
     text = start_message(_table_config("ablation_scratch", spade_home))
     assert text.startswith("SPADE table run: scale=cpu, 2 rows x 3 seed(s) (42, 1, 2) = 6 runs")
@@ -260,7 +260,7 @@ def test_table_estimate_scales_with_the_speed_measured_on_this_machine(spade_hom
 
 
 def test_tiny_run_summary_says_pipeline_check(spade_home: Path) -> None:
-    from spade.experiments.tables import TINY_NOTICE
+    from spade.tracking.tables import TINY_NOTICE
     from spade.tracking.summary import run_summary
 
     metrics = {"test/ape_cm": 12.0}
@@ -277,7 +277,7 @@ def test_table_runs_every_seed_and_trains_its_prerequisite_once(tmp_path: Path) 
     from mlflow import MlflowClient
 
     from spade.experiments.reporting import build_report
-    from spade.experiments.tables import TABLES, TINY_NOTICE
+    from spade.tracking.tables import TABLES, TINY_NOTICE
 
     env = {**os.environ, "SPADE_HOME": str(tmp_path), "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
     env.pop("MLFLOW_TRACKING_URI", None)
@@ -370,7 +370,7 @@ def test_the_evaluate_command_names_a_rows_data_config(spade_home: Path, monkeyp
 def test_runs_on_own_data_log_to_their_own_experiment_never_a_paper_tables(spade_home: Path) -> None:
     """A run on a user's own datasets went into ``table1`` and ``spade.report table=table1`` listed it as
     a paper row. ``data=own`` (no generator) logs to ``own_<training folder>``."""
-    from spade.experiments.tables import get_table
+    from spade.tracking.tables import get_table
 
     paper = compose_row("t1_small_bc_L", spade_home)
     own = compose_row("t1_small_bc_L", spade_home, "data=own", "data.train_dir=/d/site_train",

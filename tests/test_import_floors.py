@@ -27,8 +27,9 @@ FLOORS = [
     {"ros"},
     {"closedloop"},
     {"sketching"},
-    {"experiments", "tracking",  # a run's MLflow record: imported by experiments, reads their tables
-     "config"},  # the commands' config checks: imported by experiments' runs, the report's checks read its tables
+    {"config"},  # the commands' config checks, before any work
+    {"tracking"},  # a run's MLflow record and the paper's tables as MLflow experiments
+    {"experiments"},  # runs, evaluations and results pages
     {"perf"},
 ]
 TOP = len(FLOORS)  # spade/*.py entry points and spade/__init__.py
@@ -145,16 +146,6 @@ def package_cycles() -> list[list[str]]:
         if node not in index:
             connect(node)
     return cycles
-
-
-# Module cycles left in packages other helpers are reworking, each an SCC of modules: the test fails when one is no
-# longer found, so that whoever breaks a loop removes its entry here.
-ALLOWED_MODULE_CYCLES = [
-    # the run record's callback and steps call experiments.lifecycle back (inside functions)
-    {"spade.experiments.lifecycle", "spade.tracking.callback", "spade.tracking.runs"},
-    # the bench report renders the speed page, which reads the bench report's rows
-    {"spade.perf.bench_report", "spade.perf.speed_page"},
-]
 
 
 def module_imports(sources: dict[str, tuple[str, bool]]) -> dict[str, dict[str, list[int]]]:
@@ -286,8 +277,7 @@ def test_the_checker_sees_function_level_imports() -> None:
 
 
 def test_no_import_cycle_between_modules() -> None:
-    """No two spade modules import each other, directly or around a loop, even through imports inside functions
-    (but for :data:`ALLOWED_MODULE_CYCLES`, each of which must still be there)."""
+    """No two spade modules import each other, directly or around a loop, even through imports inside functions."""
     graph = spade_module_graph()
     cycles = module_cycles(graph)
 
@@ -295,11 +285,8 @@ def test_no_import_cycle_between_modules() -> None:
         return "\n".join(f"  {a} -> {b} (line {', '.join(map(str, lines))})" for a in sorted(cycle)
                          for b, lines in sorted(graph[a].items()) if b in cycle)
 
-    new = [c for c in cycles if c not in ALLOWED_MODULE_CYCLES]
-    assert not new, "spade modules that import each other (move the shared piece down to a module both import):\n" + (
-        "\n\n".join(describe(c) for c in new))
-    gone = [sorted(c) for c in ALLOWED_MODULE_CYCLES if c not in cycles]
-    assert not gone, f"these loops are gone: remove them from ALLOWED_MODULE_CYCLES: {gone}"
+    assert not cycles, "spade modules that import each other (move the shared piece down to a module both import):\n" + (
+        "\n\n".join(describe(c) for c in cycles))
 
 
 def test_the_cycle_checker_counts_function_level_imports() -> None:

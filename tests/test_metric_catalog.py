@@ -110,7 +110,7 @@ def test_each_label_and_header_names_one_figure() -> None:
 
 def test_tables_and_pages_draw_labels_and_formats_from_the_catalog() -> None:
     from spade.experiments import closed_loop_table, teacher_table
-    from spade.experiments.tables import CELL_METRICS, METRICS, PREFERENCE_METRICS
+    from spade.tracking.tables import CELL_METRICS, METRICS, PREFERENCE_METRICS
 
     for key, metric in METRICS.items():
         assert metric == catalog.figure(metric.name) and metric.key == key

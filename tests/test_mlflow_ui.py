@@ -413,7 +413,7 @@ def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(
 def test_report_logs_its_chart_into_the_rows_runs_and_prints_their_urls(tmp_path: Path) -> None:
     from mlflow import MlflowClient
 
-    from spade.experiments.tables import TABLES
+    from spade.tracking.tables import TABLES
     from spade.experiments.reporting import build_report
 
     uri = f"sqlite:///{tmp_path}/mlflow.db"

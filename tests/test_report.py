@@ -1,4 +1,4 @@
-"""spade.experiments.reporting (`python -m spade.report`) and spade.experiments.tables: layouts match the
+"""spade.experiments.reporting (`python -m spade.report`) and spade.tracking.tables: layouts match the
 experiments, missing rows stay, arithmetic holds."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from spade.experiments.tables import TABLES, get_table, relative_change
+from spade.tracking.tables import TABLES, get_table, relative_change
 from spade.paths import CONF_DIR
 from spade.experiments.reporting import build_report, compare, fetch_results, render_table
 from spade.experiments.reporting.pages import report
@@ -298,7 +298,7 @@ def test_one_seed_says_no_test(store: dict) -> None:
 
 
 def test_tiny_scale_report_says_pipeline_check(seeded: dict) -> None:
-    from spade.experiments.tables import TINY_NOTICE
+    from spade.tracking.tables import TINY_NOTICE
 
     assert TINY_NOTICE in build_report(TABLES["table2"], seeded["uri"]).text
     assert "pipeline check, not a result" in TINY_NOTICE
@@ -346,7 +346,7 @@ def test_a_cell_with_a_nan_seed_says_how_many_seeds_it_is_over() -> None:
 
     from spade.experiments.reporting.render import seed_cell
     from spade.experiments.reporting.results import RowResult, SeedRun
-    from spade.experiments.tables import METRICS
+    from spade.tracking.tables import METRICS
 
     row = RowResult("r", runs=[SeedRun(1, "a", 1, {"ape_cm": 294.14}), SeedRun(2, "b", 2, {"ape_cm": math.nan})],
                     run_id="b")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from spade.experiments.tables import TABLES
+from spade.tracking.tables import TABLES
 from spade.tracking.predictors import TOP_LEVEL_FILTER
 
 REPO = Path(__file__).resolve().parents[1]

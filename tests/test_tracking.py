@@ -138,7 +138,7 @@ def test_report_and_run_summary_do_not_take_child_runs_for_seeds_of_a_row(tmp_pa
     from omegaconf import OmegaConf
 
     from spade.experiments.reporting import fetch_results
-    from spade.experiments.tables import TABLES
+    from spade.tracking.tables import TABLES
     from spade.tracking.predictors import log_predictor_runs
     from spade.tracking.summary import find_run
 
@@ -338,7 +338,7 @@ def test_a_student_run_logs_its_best_checkpoint_as_an_mlflow_model_on_its_run(tr
 
     from spade.deploy.export import example_states
     from spade.deploy.mlflow_models import resolve_model, using_tracking_uri
-    from spade.experiments.lifecycle import best_checkpoint_path
+    from spade.training.checkpoint_paths import best_checkpoint_path
     from spade.tracking.summary import run_summary
     from spade.models.modelfile import load_network
     from factories import PARITY_BOUND
@@ -385,7 +385,7 @@ def test_an_expert_run_logs_no_model_and_a_failed_export_is_one_warning(tracked_
 
     from mlflow import MlflowClient
 
-    from spade.experiments.lifecycle import best_checkpoint_path
+    from spade.training.checkpoint_paths import best_checkpoint_path
     from spade.tracking.logged_model import is_student_run, try_log_student_model
     from factories import hand_made_checkpoint as _hand_made_checkpoint
     from training_helpers import compose_row

@@ -7,10 +7,10 @@ that runs rows and keeps their records:
 - :mod:`~spade.config.preflight`: every config check that needs no training, before any run opens;
 - :mod:`~spade.experiments.prerequisites` and :mod:`~spade.tracking.registry`: the experts and pretrained
   students a row needs, found in (or registered to) the MLflow Model Registry;
-- :mod:`~spade.experiments.lifecycle`: deterministic seeding, the best checkpoint across a resume, signals;
+- :mod:`~spade.experiments.lifecycle`: deterministic seeding, the best checkpoint across a resume;
 - :mod:`~spade.tracking`: what each run logs to MLflow (one module per job: UI links, experiment
   tags, dataset inputs, descriptions, the run's start, status and end, the closing lines, the report);
-- :mod:`~spade.experiments.tables` and :mod:`~spade.experiments.reporting`: the paper's tables, which rows they
+- :mod:`~spade.tracking.tables` and :mod:`~spade.experiments.reporting`: the paper's tables, which rows they
   hold, and ``python -m spade.report``'s fetching and rendering.
 
 Composing the project's Hydra configs from code is :func:`spade.utils.config.compose_config` (on the lowest floor,

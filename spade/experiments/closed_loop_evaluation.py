@@ -206,7 +206,7 @@ class ClosedLoopTest(L.Callback):
 
     def run(self, trainer: L.Trainer) -> None:
         """Drive, log the figures and the artifacts (see the class)."""
-        from spade.experiments.lifecycle import best_checkpoint_path, last_checkpoint_path
+        from spade.training.checkpoint_paths import best_checkpoint_path, last_checkpoint_path
 
         ckpt_path = self.ckpt_path or best_checkpoint_path(trainer) or last_checkpoint_path(trainer)
         if not ckpt_path:

@@ -1,4 +1,4 @@
-"""A training run's life: seeds that make it reproducible and resumable, its best checkpoint across a resume, signals.
+"""A training run's life: seeds that make it reproducible and resumable, its best checkpoint across a resume.
 
 * :class:`DeterministicTraining` (a callback ``spade.train`` always adds when a seed is set) draws the training
   data order from a generator seeded by (seed, epoch) and re-seeds Python's, NumPy's and torch's global generators
@@ -13,9 +13,9 @@
 * :func:`run_without_stages`: a run that trains and tests nothing (``train=false test=false``, or evaluates in
   closed loop alone) still gives its callbacks their ``setup`` and ``teardown`` hooks (stage :data:`NO_STAGE`)
   and closes its loggers, as a stage would.
-* :func:`install_signal_handlers`: SIGTERM and SIGINT end the run through an exception, so that the run's MLflow
-  record marks it KILLED (:func:`spade.tracking.runs.mark_run_ended`, which reads :func:`signal_received`; any
-  other exception marks it FAILED).
+
+Signals (a SIGTERM or SIGINT ends the run through an exception, recorded as KILLED) are :mod:`spade.utils.signals`;
+where a run's checkpoints are, :mod:`spade.training.checkpoint_paths`.
 
 The MLflow run's status (its process recorded, KILLED / FAILED when it does not finish, stale RUNNING runs marked
 KILLED) is kept by the run's record, :class:`spade.tracking.callback.RunRecord`, with the rest of its start and end.
@@ -25,8 +25,6 @@ from __future__ import annotations
 
 import logging
 import random
-import signal
-import threading
 from typing import Any
 
 import lightning as L
@@ -154,27 +152,6 @@ def run_without_stages(trainer: L.Trainer, model: L.LightningModule) -> None:
         logger.finalize("success")
 
 
-def last_checkpoint_path(trainer: L.Trainer) -> str:
-    """The run's newest epoch-end checkpoint (``checkpoints/last.ckpt``), ``""`` when none was written.
-
-    ``conf/callbacks/default.yaml`` writes it with a second, unmonitored ``ModelCheckpoint`` (``last_checkpoint``),
-    whose only checkpoint is its ``best_model_path``; a config that uses ``save_last`` instead has it as
-    ``last_model_path``.
-    """
-    for cb in trainer.checkpoint_callbacks:
-        if getattr(cb, "last_model_path", ""):
-            return str(cb.last_model_path)
-        if getattr(cb, "monitor", "unset") is None and getattr(cb, "best_model_path", ""):
-            return str(cb.best_model_path)
-    return ""
-
-
-def best_checkpoint_path(trainer: L.Trainer) -> str:
-    """The run's best checkpoint by its monitored metric (the first ``ModelCheckpoint``'s), ``""`` when none."""
-    callback = trainer.checkpoint_callback
-    return str(callback.best_model_path or "") if callback is not None else ""
-
-
 class CarryBestCheckpoint(Callback):
     """Keep the interrupted run's best checkpoint and score when a run resumes from ``ckpt_path``.
 
@@ -234,27 +211,3 @@ class CarryBestCheckpoint(Callback):
                 cb.kth_value = state["kth_value"]
             log.info("resumed with the interrupted run's best checkpoint %s (%s = %.4g)", cb.best_model_path,
                      cb.monitor, float(cb.best_model_score))
-
-
-# -- signals ----------------------------------------------------------------------------------------------------------
-_received: dict[str, int] = {}
-
-
-def signal_received() -> int | None:
-    """The SIGTERM / SIGINT that is ending this process, if any."""
-    return _received.get("signal")
-
-
-def _on_signal(signum: int, frame: Any) -> None:
-    _received.setdefault("signal", signum)
-    if signum == signal.SIGINT:
-        raise KeyboardInterrupt
-    raise SystemExit(128 + signum)
-
-
-def install_signal_handlers() -> None:
-    """SIGTERM and SIGINT raise in the main thread (SystemExit / KeyboardInterrupt), so runs are closed as KILLED."""
-    if threading.current_thread() is not threading.main_thread():
-        return
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, _on_signal)

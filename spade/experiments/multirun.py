@@ -36,7 +36,7 @@ from typing import Any
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from spade.experiments.tables import get_table
+from spade.tracking.tables import get_table
 
 try:  # a Hydra callback when Hydra is there (it always is under spade.train)
     from hydra.experimental.callback import Callback
@@ -92,8 +92,8 @@ def row_sweep(rows: Any, *table_rows: str) -> str:
 
 
 def table_row_sweep(rows: Any, table: str) -> str:
-    """:func:`row_sweep` over the rows of ``table`` (:attr:`spade.experiments.tables.Table.sweep_order`): a table's
-    rows are listed once, in :mod:`spade.experiments.tables`."""
+    """:func:`row_sweep` over the rows of ``table`` (:attr:`spade.tracking.tables.Table.sweep_order`): a table's
+    rows are listed once, in :mod:`spade.tracking.tables`."""
     return row_sweep(rows, *get_table(table).sweep_order)
 
 
@@ -298,7 +298,7 @@ def plan_table(config: DictConfig, speed: float = 1.0) -> dict[str, Any]:
 def start_message(config: DictConfig, speed: float | None = None) -> str:
     """The lines a table's multirun prints at its start (:func:`plan_table`), its costs scaled by ``speed``
     (``None``: the cost model's machine, unmeasured)."""
-    from spade.experiments.tables import TINY_NOTICE
+    from spade.tracking.tables import TINY_NOTICE
 
     plan = plan_table(config, 1.0 if speed is None else speed)
     seeds, rows = plan["seeds"], plan["rows"]

@@ -25,13 +25,12 @@ import hydra
 import lightning as L
 from omegaconf import DictConfig, OmegaConf
 
-from spade.experiments.lifecycle import (
-    CarryBestCheckpoint, DeterministicTraining, best_checkpoint_path, last_checkpoint_path, run_without_stages,
-)
+from spade.experiments.lifecycle import CarryBestCheckpoint, DeterministicTraining, run_without_stages
 from spade.experiments.prerequisites import Prerequisite, complete_prerequisite, pending_prerequisites
 from spade.config.preflight import validate_checkpoints, validate_train_config
 from spade.metrics import catalog
 from spade.models.modelfile import safe_loading
+from spade.training.checkpoint_paths import best_checkpoint_path, last_checkpoint_path
 from spade.training.instantiate import instantiate_callbacks, instantiate_loggers, run_id_from_checkpoint
 from spade.utils.console import lightning_logs_once
 

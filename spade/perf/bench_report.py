@@ -7,22 +7,13 @@ from pathlib import Path
 from typing import Any
 
 from spade.metrics import catalog
-from spade.utils.markdown import markdown_table
+from spade.utils.markdown import number_table
 
 STUDENT_ONNX_TARGET_MS = 15.0  # medium student, batch 1, ONNX Runtime
 COND_DBC_RATIO_TARGET = 2.5  # Cond-DBC step / BC step
 DDIM_SPEEDUP_TARGET = 10.0  # DDIM-k vs the full DDPM loop ...
 CLOSED_LOOP_TARGET_S = 120.0  # 100 quickstart test scenarios driven in closed loop, student and baselines, 2 cores
 DDIM_APE_TOLERANCE = 0.10  # ... at an APE within 10 % of DDPM's
-
-
-def _table(header: list[str], rows: list[list[Any]]) -> str:
-    def cell(v: Any) -> str:
-        if isinstance(v, float):
-            return f"{v:,.3g}" if abs(v) < 100 else f"{v:,.0f}"
-        return str(v)
-
-    return "\n".join(markdown_table(header, [[cell(v) for v in row] for row in rows]))
 
 
 def check_targets(results: dict[str, Any]) -> list[dict[str, Any]]:
@@ -93,7 +84,7 @@ def format_report(results: dict[str, Any]) -> str:
             for b in batches:
                 line += [r.get(f"eager_b{b}_ms", "-"), r.get(f"onnxruntime_b{b}_ms", "-")]
             table.append(line)
-        parts.append("### Student latency\n\n" + _table(header, table))
+        parts.append("### Student latency\n\n" + number_table(header, table))
     if results.get("experts"):
         table = []
         for e in results["experts"]:
@@ -102,19 +93,19 @@ def format_report(results: dict[str, Any]) -> str:
                               f"{row['sampler'].upper()}-{row['steps']}", row["seconds_per_sample"],
                               row.get("speedup_vs_ddpm", 1.0),
                               f"extrapolated from {row['timed_steps']} steps" if row["extrapolated"] else "measured"])
-        parts.append("### Expert sampling (seconds per sample, batch 1)\n\n" + _table(
+        parts.append("### Expert sampling (seconds per sample, batch 1)\n\n" + number_table(
             ["expert", "preset", "params", "px", "sampler", "s / sample", "speed-up vs DDPM", "how"], table))
     if results.get("quality"):
         q = results["quality"]
         table = [[f"{r['sampler'].upper()}-{r['steps']}", r["samples"], r["ape_cm"], r["failures"], r["hd_count"],
                   r["seconds_per_sample"]] for r in q["rows"]]
-        parts.append(f"### DDIM vs DDPM on a trained expert ({q['expert']})\n\n" + _table(
+        parts.append(f"### DDIM vs DDPM on a trained expert ({q['expert']})\n\n" + number_table(
             ["sampler", "samples", *map(catalog.label, ("ape_cm", "failures", "hd19", "seconds_per_sample"))], table))
     if results.get("decoder"):
         table = [[r["decoder"], r["image_size"], r["instances"], r["median_ms"], r["p95_ms"], r["cpu_ms_per_instance"]]
                  for r in results["decoder"]]
         parts.append("### Path decoding per instance (the planner's search vs the paper's skeleton extraction)\n\n"
-                     + _table(["decoder", "px", "instances", "median ms", "p95 ms", "CPU ms / instance"], table))
+                     + number_table(["decoder", "px", "instances", "median ms", "p95 ms", "CPU ms / instance"], table))
     if results.get("training"):
         from spade.perf.speed_page import format_training_speed, steps_table
 
@@ -133,12 +124,12 @@ def format_report(results: dict[str, Any]) -> str:
             table.append(["read: item by item", r["image_size"][0], r["instances"], f"{r['items_per_s']:,.0f} instances/s"])
             table.append([f"read: DataLoader, batch {r['loader_batch_size']}", r["image_size"][0], r["instances"],
                           f"{r['loader_instances_per_s']:,.0f} instances/s"])
-        parts.append("### Data\n\n" + _table(["what", "px", "instances", "throughput"], table))
+        parts.append("### Data\n\n" + number_table(["what", "px", "instances", "throughput"], table))
     if results.get("annotation_scaling"):
         parts.append(_annotation_scaling(results["annotation_scaling"]))
     if results.get("closed_loop"):
         k = results["closed_loop"]
-        parts.append("### Closed loop (seconds; spade/perf/closed_loop.py)\n\n" + _table(
+        parts.append("### Closed loop (seconds; spade/perf/closed_loop.py)\n\n" + number_table(
             ["scenarios", "student plans", "student drive", "network", "decoding", "rest (windows, following)",
              "shortest", "heading", "all", "scenarios / s (student)"],
             [[k["scenarios"], k["plans"], k["student_s"], k["network_s"], k["decoding_s"], k["rest_s"],
@@ -156,7 +147,7 @@ def format_report(results: dict[str, Any]) -> str:
     targets = results.get("targets") or check_targets(results)
     if targets:
         table = [[t["target"], t["setting"], t["value"], "met" if t["met"] else "MISSED"] for t in targets]
-        parts.append("### Targets\n\n" + _table(["target", "setting", "measured", ""], table))
+        parts.append("### Targets\n\n" + number_table(["target", "setting", "measured", ""], table))
     return "\n\n".join(parts)
 
 
@@ -175,7 +166,7 @@ def _metrics(r: dict[str, Any]) -> str:
                       f"(spade.metrics {loops['slowdown']:.0f}x faster)"])
     table.append([f"FID ({r['fid_extractor']}){'' if r['fid_computed'] else ', update only'}", px, r["fid_images"],
                   f"{r['fid_images_per_s']:,.0f} images/s"])
-    out = "### Metrics\n\n" + _table(["metric", "px", "n", "throughput"], table)
+    out = "### Metrics\n\n" + number_table(["metric", "px", "n", "throughput"], table)
     if ref.get("instances"):
         out += (f"\n\nSame {ref['instances']} instances: APE mean {ref['ours_ape_mean_cm']:.3f} cm (median "
                 f"{ref['ours_ape_median_cm']:.3f}, failures {ref['ours_failures']}) vs the reference's "
@@ -191,7 +182,7 @@ def _metrics(r: dict[str, Any]) -> str:
                  " ".join(f"{v:.4g}" for v in row["fid"]), f"{row['ratio']:.1f}",
                  "yes" if row["monotonic"] else "NO"] for row in sens["rows"]]
         out += (f"\n\n### FID sensitivity ({sens['images']} real vs {sens['images']} generated {sens['image_size']} px "
-                f"paths, degraded)\n\n" + _table(["extractor", "degradation", "levels", catalog.label("fid"),
+                f"paths, degraded)\n\n" + number_table(["extractor", "degradation", "levels", catalog.label("fid"),
                                                   "last / first", "monotonic"], rows))
     if r.get("shape_validity"):
         sv = r["shape_validity"]
@@ -203,7 +194,7 @@ def _metrics(r: dict[str, Any]) -> str:
                  for row in sv["rows"] for g in row["growing"]]
         out += (f"\n\n### FID shape validity ({sv['images']} robot-frame L paths vs {sv['images']} per set, "
                 f"{sv['image_size']} px)\n\n"
-                + _table(["extractor", "set", catalog.label("fid"), "/ ground truth"], rows))
+                + number_table(["extractor", "set", catalog.label("fid"), "/ ground truth"], rows))
     if r.get("fid_table"):
         ft = r["fid_table"]
         names = list(ft["columns"][0]["fid"])
@@ -212,7 +203,7 @@ def _metrics(r: dict[str, Any]) -> str:
                 for name in names]
         out += (f"\n\n### FID against the test set's ground truth ({ft['test_dir']}, {ft['shape'] or 'all'} "
                 f"instances: {ft['real']}; resample: {ft['resample']})\n\n"
-                + _table(["generated set", "n"] + [f"FID ({c['extractor']})" for c in ft["columns"]], rows))
+                + number_table(["generated set", "n"] + [f"FID ({c['extractor']})" for c in ft["columns"]], rows))
     return out
 
 
@@ -225,7 +216,7 @@ def _annotation(a: dict[str, Any]) -> str:
                       r["failed_scenarios"]])
     table.append(["total", "", "", a["instances"], a["seconds"], f"{a['instances_per_s']:.1f}", "", "", ""])
     return (f"### Annotation ({a['maps']})\n\n"
-            + _table(["preset", "px", "workers", "instances", "s", "instances/s", "scenarios accepted / tried",
+            + number_table(["preset", "px", "workers", "instances", "s", "instances/s", "scenarios accepted / tried",
                       "rejections (of attempts)", "failed scenarios"], table))
 
 
@@ -237,7 +228,7 @@ def _annotation_scaling(a: dict[str, Any]) -> str:
               "yes" if r["same_as_first"] else "NO"] for r in a["rows"]]
     spt = a.get("states_per_task") or "the tool's default"
     return (f"### Annotation scaling (preset {a['preset']}, {a['maps']}; states per task: {spt})\n\n"
-            + _table(["px", "m/px", "workers", "instances", "scenarios", "s", "pool start-up s", "instances/s",
+            + number_table(["px", "m/px", "workers", "instances", "scenarios", "s", "pool start-up s", "instances/s",
                       "instances/s per worker", "per worker without start-up", "instances per CPU-s", "load 1m",
                       "same dataset as the first"], table)
             + "\n\nPool start-up: starting the workers and importing their modules, measured apart; CPU seconds: "
@@ -256,7 +247,7 @@ def _dataset(d: dict[str, Any]) -> str:
     if "write_s" in d:
         table.insert(0, ["written (synthetic)", f"{d['write_s']:.1f} s"])
     return (f"### Dataset read ({n:,} instances of {px} px, {d['disk_mib']:,.1f} MiB, one fresh process)\n\n"
-            + _table(["what", "figure"], table))
+            + number_table(["what", "figure"], table))
 
 
 def _maps(m: dict[str, Any]) -> str:
@@ -265,7 +256,7 @@ def _maps(m: dict[str, Any]) -> str:
         to = m["real"][0]["resample_to_m"]
         table = [[r["map"], f"{r['width']} x {r['height']}", r["resolution_m"], r["occupied"], r["free"],
                   r["unknown"], r["load_ms"], r["resample_ms"], r["clear_square_m"]] for r in m["real"]]
-        parts.append(f"### Real maps ({m['dir']})\n\n" + _table(
+        parts.append(f"### Real maps ({m['dir']})\n\n" + number_table(
             ["map", "W x H", "m/px", "occupied", "free", "unknown", "load ms", f"-> {to:g} m/px ms",
              "clear square m"], table))
     else:
@@ -276,7 +267,7 @@ def _maps(m: dict[str, Any]) -> str:
               r["min_clear_square_m"], r["min_reach"]] for r in rows]
     seeds = rows[0]["seeds"] if rows else 0
     parts.append(f"### Procedural maps (0.05 m/px, seeds 0-{seeds - 1}, means; worst case of the last two)\n\n"
-                 + _table(["kind", "W x H", "generate ms", "occupied", "free", "unknown", "clear square m",
+                 + number_table(["kind", "W x H", "generate ms", "occupied", "free", "unknown", "clear square m",
                            "reach"], table))
     return "\n\n".join(parts)
 

@@ -10,7 +10,7 @@ import datetime
 from pathlib import Path
 from typing import Any
 
-from spade.perf.bench_report import _table
+from spade.utils.markdown import number_table
 
 #: The issue's target: a training step's FLOP rate at least this share of the same run's fp32 matmul rate.
 RATIO_TARGET = 0.6
@@ -25,7 +25,7 @@ def steps_table(rows: list[dict[str, Any]]) -> str:
     table = [[r["approach"], r["student"], r.get("expert_preset") or "-", r["image_size"], r["batch_size"],
               r.get("gflop", "-"), r["step_ms"], r.get("steps_per_s", "-"), r.get("gflops", "-"),
               r.get("matmul_gflops", "-"), ratio(r, "ratio_to_matmul"), ratio(r, "ratio_to_bc")] for r in rows]
-    return _table(["step", "student", "expert", "px", "batch", "GFLOP", "ms / step", "steps / s", "GFLOP/s",
+    return number_table(["step", "student", "expert", "px", "batch", "GFLOP", "ms / step", "steps / s", "GFLOP/s",
                    "matmul GFLOP/s", "x matmul", "x BC"], table)
 
 
@@ -33,7 +33,7 @@ def levers_table(rows: list[dict[str, Any]]) -> str:
     table = [[r["setup"], r.get("expert_preset") or "-", r["lever"], r["step_ms"], r["steps_per_s"],
               f"{r['speedup']:.2f}", r["gflops"], f"{r['ratio_to_matmul']:.2f}", "yes" if r["loss_finite"] else "NO"]
              for r in rows]
-    return _table(["step", "expert", "lever", "ms / step", "steps / s", "speed-up vs baseline", "GFLOP/s",
+    return number_table(["step", "expert", "lever", "ms / step", "steps / s", "speed-up vs baseline", "GFLOP/s",
                    "x matmul", "loss finite"], table)
 
 
@@ -42,14 +42,14 @@ def profile_tables(profiles: list[dict[str, Any]]) -> str:
     for p in profiles:
         table = [[o["op"], o["self_cpu_ms"], f"{o['share']:.1%}", o["calls"]] for o in p["operators"]]
         parts.append(f"#### {p['setup']}, {p['lever']} ({p['image_size']} px, batch {p['batch_size']})\n\n"
-                     + _table(["operator", "self CPU ms", "share", "calls"], table))
+                     + number_table(["operator", "self CPU ms", "share", "calls"], table))
     return "\n\n".join(parts)
 
 
 def lightning_table(rows: list[dict[str, Any]]) -> str:
     table = [[r["setting"], r["step_ms"], f"{r['overhead_ms']:+.1f}", f"{r['overhead_ms'] / r['step_ms']:+.1%}"
               if r["step_ms"] else "-", r["steps"]] for r in rows]
-    return _table(["how the BC step runs", "ms / step", "vs bare loop ms", "share", "steps timed"], table)
+    return number_table(["how the BC step runs", "ms / step", "vs bare loop ms", "share", "steps timed"], table)
 
 
 def format_training_speed(speed: dict[str, Any]) -> str:
@@ -138,7 +138,7 @@ def science_table(rows: list[dict[str, Any]]) -> str:
         table.append(line)
     seeds = sorted({r["seed"] for r in rows})
     resolved = {r["precision"]: r.get("resolved") for r in rows}
-    return (_table(["figure", *(f"{p} (ran as {resolved[p]})" for p in precisions)], table)
+    return (number_table(["figure", *(f"{p} (ran as {resolved[p]})" for p in precisions)], table)
             + f"\n\nSeeds {seeds}; spade.train overrides {rows[0].get('overrides')} (spade/perf/precision_check.py).")
 
 

@@ -23,7 +23,9 @@ The one entry from training is the callback :class:`~spade.tracking.callback.Run
 - :mod:`~spade.tracking.registry`: models in the MLflow Model Registry, pinned by alias;
 - :mod:`~spade.tracking.run_report`: the run's report, ``report/run_report.md`` and ``report/test_figures.csv``;
 - :mod:`~spade.tracking.summary`: the closing lines of ``spade.train`` and ``spade.evaluate``;
-- :mod:`~spade.tracking.report`: ``spade.report``'s table published in MLflow.
+- :mod:`~spade.tracking.report`: ``spade.report``'s table published in MLflow;
+- :mod:`~spade.tracking.tables`: the paper's tables, each an MLflow experiment of runs named after its rows (what
+  the experiments' descriptions, the runs view and ``spade.report`` read).
 
 Nothing is imported here, so that a torch- and Lightning-free module of this package (predictors, links,
 run_report, client) imports without the ones that need Lightning (runs, logger): import each name from its module.

@@ -185,7 +185,7 @@ class RunRecord(Callback):
                 log_predictors(identity.tags, client, run_id, [u for u in uses if u.context == "test"], metrics)
             log_report(client, run_id, identity.run_name, identity.role, description, metrics)
             return
-        from spade.experiments.lifecycle import best_checkpoint_path, last_checkpoint_path
+        from spade.training.checkpoint_paths import best_checkpoint_path, last_checkpoint_path
         from spade.tracking.logged_model import try_log_student_model
 
         paths = {kind: path for kind, path in (("best", best_checkpoint_path(trainer)),

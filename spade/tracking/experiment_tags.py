@@ -44,7 +44,7 @@ def runs_view_state() -> str:
     parent, and a shared view cannot say which runs to expand: MLflow 3.17 drops ``runsExpanded`` from it.)
     Training diagnostics (``margin/active``) stay out: the UI orders metric columns by name and draws only those in
     view, so a ``margin/`` column would push the test metrics off a laptop's screen."""
-    from spade.experiments.tables import METRICS
+    from spade.tracking.tables import METRICS
 
     columns = ["attributes.`Dataset`",
                *(f"metrics.`{m.mlflow_key}`" for m in METRICS.values() if m.mlflow_key.startswith(("test/", "model/")))]
@@ -57,7 +57,7 @@ def _scale_note() -> str:
 
 def experiment_description(name: str, cfg: DictConfig | None = None) -> str:
     """What a SPADE experiment holds, which paper table it reproduces and the commands that regenerate it."""
-    from spade.experiments.tables import METRICS, TABLES
+    from spade.tracking.tables import METRICS, TABLES
 
     columns = ", ".join(f"`{m.mlflow_key}`" for m in METRICS.values())
     table = next((t for t in TABLES.values() if t.experiment == name), None)

@@ -10,7 +10,7 @@
   and the untrained model as child runs (:mod:`~spade.tracking.predictors`) and the run's report
   (:mod:`~spade.tracking.run_report`); :func:`drop_process_tags` removes the process tags of a run that finished.
 * A run that does not finish is closed honestly: :func:`mark_run_ended` marks it KILLED (a signal, Ctrl+C:
-  :func:`spade.experiments.lifecycle.install_signal_handlers`) or FAILED (any other exception), or deletes it when
+  :func:`spade.utils.signals.install_signal_handlers`) or FAILED (any other exception), or deletes it when
   a refusal (a user error) came before it recorded any metric (:func:`refused_before_work`), and
   :func:`mark_stale_runs` (run by the next ``spade.train`` of the same row) marks RUNNING runs whose process is
   gone (a ``kill -9``, a power cut) KILLED, with a message. The process tags stay on a KILLED or FAILED run.
@@ -142,7 +142,7 @@ def record_process(loggers: list[Logger], resumed: bool) -> None:
 
 def end_status(exc: BaseException) -> tuple[str, str]:
     """(status, reason) of a run that ``exc`` ends: KILLED for a signal or Ctrl+C, FAILED otherwise."""
-    from spade.experiments.lifecycle import signal_received
+    from spade.utils.signals import signal_received
 
     sig = signal_received()
     killed = sig is not None or isinstance(exc, KeyboardInterrupt)

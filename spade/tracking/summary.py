@@ -208,7 +208,7 @@ def run_summary(cfg: DictConfig, metrics: dict[str, Any],
     ``cfg``'s name in the store) and to its experiment's runs table."""
     lines = [f"run {cfg.get('run_name')} finished"]
     if (cfg.get("scale") or {}).get("name") == "tiny":  # tiny figures are never read as results
-        from spade.experiments.tables import TINY_NOTICE
+        from spade.tracking.tables import TINY_NOTICE
 
         lines.append(f"  {TINY_NOTICE}")
     prefixes = ["test", *sorted({"/".join(k.split("/")[:3]) for k in metrics if k.startswith("test/baseline/")}),

@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["collapsed", "markdown_table"]
+__all__ = ["collapsed", "markdown_table", "number_table"]
 
 
 def markdown_table(header: Sequence[Any], rows: Sequence[Sequence[Any]], align: str = "", padded: bool = False
@@ -34,3 +34,14 @@ def markdown_table(header: Sequence[Any], rows: Sequence[Sequence[Any]], align: 
 def collapsed(title: str, lines: Sequence[str]) -> list[str]:
     """``lines`` in a block the docs site shows closed (pymdownx.details), under ``title``."""
     return [f'??? note "{title}"', "", *(f"    {line}" if line else "" for line in lines)]
+
+
+def number_table(header: list[str], rows: list[list[Any]]) -> str:
+    """:func:`markdown_table` of measured numbers, each float to 3 significant digits (whole numbers from 100 on)."""
+
+    def cell(v: Any) -> str:
+        if isinstance(v, float):
+            return f"{v:,.3g}" if abs(v) < 100 else f"{v:,.0f}"
+        return str(v)
+
+    return "\n".join(markdown_table(header, [[cell(v) for v in row] for row in rows]))

@@ -6,7 +6,7 @@ builds each and which files it writes), ``results`` (each row's runs over seeds 
 :func:`fetch_results`, the headline comparisons with Welch's t-test, :func:`compare`, and the pairwise tests,
 :func:`pairwise`), ``render`` (the markdown), ``files`` (the CSV files), ``chart`` (the PNG) and ``build``
 (:func:`build_report` puts one table's report together; ``pages.report`` those a config asks for). The tables
-themselves are :mod:`spade.experiments.tables`; publishing into MLflow is
+themselves are :mod:`spade.tracking.tables`; publishing into MLflow is
 :func:`spade.tracking.report.publish_report`.
 """
 

@@ -23,7 +23,7 @@ from spade.experiments.reporting.render import (
     tiny_notice,
 )
 from spade.experiments.reporting.results import ComparisonResult, RowResult, compare, fetch_results, pairwise
-from spade.experiments.tables import Table
+from spade.tracking.tables import Table
 from spade.utils.provenance import command_line, shown_path
 
 
@@ -38,7 +38,7 @@ DECIDING_STATEMENT = (
 def summary(pairs: list[ComparisonResult] | None) -> str:
     """The page's finding in a sentence or two: which pairwise orderings of the table's first (deciding) figure the
     seeds tell apart after Holm's correction. It leads the page (and is its line in the results index)."""
-    from spade.experiments.tables import METRICS
+    from spade.tracking.tables import METRICS
 
     tested = [c for c in pairs or [] if c.metric == pairs[0].metric and c.p_holm is not None] if pairs else []
     if not tested:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from spade.deploy.outputs import SOFTWARE
 from spade.experiments.reporting.results import MISSING, RowResult
-from spade.experiments.tables import CELL_METRICS, METRICS, Table
+from spade.tracking.tables import CELL_METRICS, METRICS, Table
 
 
 def plot_table(table: Table, results: dict[str, RowResult], path: Path, paper: bool = True) -> None:

@@ -8,7 +8,7 @@ import csv
 from pathlib import Path
 
 from spade.experiments.reporting.results import MISSING, ComparisonResult, RowResult
-from spade.experiments.tables import BASELINE_LABELS, CELL_METRICS, METRICS, Table
+from spade.tracking.tables import BASELINE_LABELS, CELL_METRICS, METRICS, Table
 
 
 def _blank(v: float | None) -> float | str:

@@ -3,7 +3,7 @@
 
 Every page registers here, so that the report's config checks (:mod:`spade.config.report_checks`) learn a page's
 files from its :class:`Page` (handed to them by :func:`report`) and never import a page module; a new page is one :func:`register` call and its module. The paper's tables
-(:mod:`spade.experiments.tables`) are pages too, each by its key, number or composition (:func:`page`).
+(:mod:`spade.tracking.tables`) are pages too, each by its key, number or composition (:func:`page`).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from spade.config.report_checks import validate_report_config
 from spade.experiments.closed_loop_table import closed_loop_report
 from spade.experiments.oracle_page import oracle_report
 from spade.experiments.reporting.build import Report, build_report
-from spade.experiments.tables import TABLES, Table, get_table
+from spade.tracking.tables import TABLES, Table, get_table
 from spade.experiments.teacher_table import TEACHER_TABLE, teacher_files, teacher_report
 
 __all__ = ["PAGES", "Page", "page", "register", "report", "report_files"]

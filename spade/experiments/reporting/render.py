@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from spade.experiments.reporting.results import MISSING, TEST_NAME, ComparisonResult, RowResult
 from spade.experiments.reporting.stats import mean_sd, significance
-from spade.experiments.tables import (
+from spade.tracking.tables import (
     BASELINE_LABELS,
     CELL_METRICS,
     METRICS,

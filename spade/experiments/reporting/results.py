@@ -1,6 +1,6 @@
 """A table's results from MLflow: each row's runs over seeds, and the headline comparisons between rows.
 
-Runs are matched to rows by run name (see :mod:`spade.experiments.tables`); a row's baselines and untrained model,
+Runs are matched to rows by run name (see :mod:`spade.tracking.tables`); a row's baselines and untrained model,
 logged as child runs of its run (:mod:`spade.tracking.predictors`), never count as its runs. A row is
 the aggregate of its finished runs **at one scale, one run per distinct seed** (the seed is the run's ``cfg/seed``
 param): the scale is the one asked for (``scale=``) or else that of the row's latest finished run; of several
@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from spade.experiments.reporting.stats import ALPHA, NO_TEST, holm, welch
-from spade.experiments.tables import (
+from spade.tracking.tables import (
     BASELINE_LABELS,
     CELL_METRICS,
     METRICS,
