@@ -23,14 +23,13 @@ from spade.annotation.run import alias_preset
 from spade.annotation.run import annotate
 from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
 from spade.utils.errors import run_entry_point, task
+from spade.config.annotate_checks import validate_annotate_config
 
 __all__ = ["annotate", "main"]
 
 
 def _checked_annotate(cfg: DictConfig) -> dict:
     """The config and inputs checked first (one ``error:`` line, exit 2), then the run."""
-    from spade.config.annotate_checks import validate_annotate_config
-
     validate_annotate_config(cfg)
     return annotate(cfg)
 

@@ -22,6 +22,7 @@ from spade.utils.errors import ConfigError, run_entry_point, task
 from spade.deploy.export import ExportReport, export_student
 from spade.config.export_checks import ExportOptions, validate_export_config
 from spade.config.refusals import exit_on_user_error
+from spade.deploy.mlflow_models import register_onnx_student
 
 log = logging.getLogger(__name__)
 
@@ -50,8 +51,6 @@ def export_with(options: ExportOptions) -> ExportReport:
         if report.format != "onnx":
             raise ConfigError(f"register={options.register}: only ONNX exports are registered as MLflow Models; "
                               "pass format=onnx")
-        from spade.deploy.mlflow_models import register_onnx_student
-
         registered = register_onnx_student(report.out_path, str(options.register), options.alias or None,
                                            tracking_uri=options.store_uri)
         log.info("registered as %s (version %s)", registered.model_uri, registered.version)

@@ -30,6 +30,10 @@ from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy)
 from spade.utils.errors import run_entry_point, task
 from spade.deploy.plan_command import rewrite_argv, run_plan
 from spade.deploy.plan_picture import plan_text
+from spade.config.plan_checks import validate_plan_config
+from spade.deploy.mlflow_models import is_model_uri, resolve_model
+from spade.deploy.plan_picture import load_map
+from spade.ros.recording import check_recording_path, write_plan_bag
 
 
 def _resolve_model_uri(cfg: DictConfig) -> None:
@@ -37,8 +41,6 @@ def _resolve_model_uri(cfg: DictConfig) -> None:
     MLflow store (``paths.mlflow_tracking_uri``: ``MLFLOW_TRACKING_URI``, else ``logs/mlflow.db`` under SPADE_HOME or
     the current folder) into ``paths.registry_cache_dir``; ``model_path`` becomes the file. A store that is not there
     is named in the refusal, never created."""
-    from spade.deploy.mlflow_models import is_model_uri, resolve_model
-
     value = cfg.get("model_path")
     if value and is_model_uri(str(value)):
         cfg.model_path = str(resolve_model(str(value), OmegaConf.select(cfg, "paths.mlflow_tracking_uri"),
@@ -47,18 +49,11 @@ def _resolve_model_uri(cfg: DictConfig) -> None:
 
 def _checked_plan(cfg: DictConfig):  # noqa: ANN202
     """The config and inputs checked first (one ``error:`` line, exit 2), then the query."""
-    from spade.config.plan_checks import validate_plan_config
-
     _resolve_model_uri(cfg)
     validate_plan_config(cfg)  # map and model files, pose and goal, a picture that is none of the inputs
-    from spade.ros.recording import check_recording_path
-
     mcap = check_recording_path(cfg.get("mcap"))
     result, png = run_plan(cfg)
     if mcap is not None:
-        from spade.deploy.plan_picture import load_map
-        from spade.ros.recording import write_plan_bag
-
         write_plan_bag(mcap, load_map(cfg.map), [result])
     return result, png, mcap
 

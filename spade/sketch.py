@@ -16,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
 from spade.utils.errors import run_entry_point, task
+from spade.config.sketch_checks import validate_sketch_config
 
 OmegaConf.register_new_resolver("sketch_dir", lambda m: re.sub(r"[^A-Za-z0-9_.-]+", "-", Path(str(m)).stem),
                                 replace=True)
@@ -37,7 +38,6 @@ def rewrite_argv(args: list[str]) -> list[str]:
 def _checked_app(cfg: DictConfig):  # noqa: ANN202
     """The config and inputs checked first (one ``error:`` line, exit 2), then the app and the options it serves
     with."""
-    from spade.config.sketch_checks import validate_sketch_config
     from spade.sketching import build_app
 
     options = validate_sketch_config(cfg)

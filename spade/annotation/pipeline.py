@@ -40,6 +40,9 @@ from spade.annotation.split import Split, in_scenario_part, parse_split
 from spade.annotation.templates import SHAPES, check_shape
 from spade.data.rasterize import Instance
 from spade.utils.errors import UserError
+from spade.annotation.sketch_file import densify
+from spade.data import DatasetWriter
+from spade.utils.processes import pid_alive, process_start
 
 log = logging.getLogger(__name__)
 
@@ -141,8 +144,6 @@ def exit_with_parent(parent: int, interval_s: float = 0.5) -> None:
     the parent *thread* that started the worker ends, which a pool does not promise to outlive."""
     import threading
     import time
-
-    from spade.utils.processes import pid_alive, process_start
 
     start = process_start(parent)  # a reused pid is not taken for the parent (start method fork, spawn or forkserver)
     if start is None and not pid_alive(parent):  # gone already
@@ -487,8 +488,6 @@ def execute_operator_sketch(ctx: MapContext, shape: str, waypoints_px: Any, cfg:
     """Execute one operator sketch (map pixel waypoints) and apply every check of :func:`sketch_instances`;
     raise :class:`Rejection` when one fails (``spade.sketching`` executes the browser's sketches with it). The
     window check is :func:`sketch_window_fit`'s (the window the sketching page draws)."""
-    from spade.annotation.sketch_file import densify
-
     frame = window_frame(cfg)
     res = ctx.costmap.resolution
     executed = execute_sketch(ctx.costmap, waypoints_px, densify(waypoints_px, 0.5), SHAPES[shape], cfg["execution"])
@@ -534,8 +533,6 @@ def write_dataset(out_dir: str | Path, items: Iterable[tuple[Instance, str, str,
                   extra: Mapping[str, Any] | Callable[[], Mapping[str, Any]], resolution: float) -> int:
     """Write instances with :class:`spade.data.DatasetWriter`; ``extra`` (or what it returns once every item is
     written) goes into the manifest. Returns the number of instances."""
-    from spade.data import DatasetWriter
-
     size = int(cfg["window"]["size_px"])
     alternatives = alternatives_count(cfg) if _expected(cfg) is not None else 0
     with DatasetWriter(out_dir, image_size=(size, size), resolution=resolution, num_waypoints=int(cfg["num_waypoints"]),

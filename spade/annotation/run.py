@@ -31,6 +31,9 @@ from spade.annotation.scenarios import costmap_context
 from spade.annotation.sources import load_map_sources
 from spade.annotation.split import parse_split, split_record
 from spade.data.settings import annotation_config, preset_override
+from spade.annotation.importers.rosbag import rosbag_instances
+from spade.annotation.importers.skipp import skipp_instances
+from spade.annotation.sketch_file import load_sketch_file, sketch_to_pixels
 
 log = logging.getLogger("spade.annotate")
 
@@ -54,8 +57,6 @@ def annotate(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
                desc=f"annotate -> {out_dir}")
     extra: dict[str, Any] = {"seed": int(cfg["seed"])}
     if cfg.get("sketches"):
-        from spade.annotation.sketch_file import load_sketch_file, sketch_to_pixels
-
         sketch_file = load_sketch_file(cfg["sketches"])
         source = load_map_sources([sketch_file.map], res)[0]
         ctx = costmap_context(source.map_id, source.map.grid, source.map.resolution, cfg, source.map.origin)
@@ -64,14 +65,10 @@ def annotate(cfg: Mapping[str, Any] | DictConfig) -> dict[str, Any]:
         items = sketch_instances(ctx, sketches, cfg, stats, bar.update)
         extra.update(source="sketches", sketch_file=str(sketch_file.path), maps=[_map_info(source)])
     elif (cfg.get("rosbag") or {}).get("paths"):
-        from spade.annotation.importers.rosbag import rosbag_instances
-
         bar.total = None
         items = rosbag_instances(cfg, stats, bar.update)
         extra.update(source="rosbag")
     elif (cfg.get("skipp") or {}).get("root"):
-        from spade.annotation.importers.skipp import skipp_instances
-
         bar.total = None
         items = skipp_instances(cfg, stats, bar.update)
         res = float(cfg["skipp"]["resolution_m"]) * 256 / int(cfg["window"]["size_px"])

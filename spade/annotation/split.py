@@ -31,6 +31,7 @@ import numpy as np
 from spade.data.checks import split_pair_problems  # noqa: F401  (the data checks own it; kept importable here)
 from spade.maps.occupancy import FREE
 from spade.utils.errors import ConfigError
+from spade.data.format import read_manifest_json
 
 MODES = ("area", "scenario")
 PARTS = ("train", "test")
@@ -208,8 +209,6 @@ def split_record(split: Split | None, lines: list[AreaLine | None] | None = None
 
 def read_split(root: str | Path) -> dict[str, Any] | None:
     """The ``extra.split`` record of a dataset's manifest (None for a dataset made without a split)."""
-    from spade.data.format import read_manifest_json
-
     record = (read_manifest_json(root).get("extra") or {}).get("split")
     return dict(record) if isinstance(record, dict) else None
 

@@ -22,6 +22,7 @@ from spade.maps.costmap import Costmap, build_costmap
 from spade.maps.frame import RobotFrame, heading_from_yaw
 from spade.maps.occupancy import OccupancyMap
 from spade.utils.errors import UserError
+from spade.annotation.sources import load_map_sources, parse_procedural
 
 __all__ = ["Scenario", "ScenarioError", "load_scenarios", "scenario_starts"]
 
@@ -98,8 +99,6 @@ def _map_records(manifest: Any) -> dict[str, dict[str, Any]]:
 
 
 def _load_map(record: dict[str, Any], resolution: float, root: Path) -> OccupancyMap:
-    from spade.annotation.sources import load_map_sources, parse_procedural
-
     source = str(record["source"])
     if parse_procedural(source) is None and not Path(source).expanduser().is_file():
         raise ScenarioError(

@@ -32,6 +32,7 @@ import numpy as np
 from spade.deploy.follower import FollowerSettings, follow_step
 from spade.closedloop.scenario_loading import Scenario
 from spade.ros.core import CoreSettings, replan_trigger
+from spade.annotation.scenarios import stable_hash
 
 __all__ = ["OUTCOMES", "ClosedLoopSettings", "Episode", "PlanRecord", "drive", "replay"]
 
@@ -105,8 +106,6 @@ def _lethal(scenario: Scenario, xy: np.ndarray) -> bool:
 
 
 def _rng(seed: int, scenario: Scenario) -> np.random.Generator:
-    from spade.annotation.scenarios import stable_hash
-
     return np.random.default_rng(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, stable_hash(scenario.scenario_id)]))
 
 

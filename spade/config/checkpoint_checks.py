@@ -20,6 +20,7 @@ from spade.config.dataset_checks import DataSources
 from spade.config.options import read_options
 from spade.data.checks import data_geometry
 from spade.utils.errors import ConfigError
+from spade.training.module_options import ExpertOptions
 
 
 def checkpoint_info(path: str | Path) -> dict[str, Any]:
@@ -39,8 +40,6 @@ def expert_timesteps(path: str | Path) -> int:
     ``num_train_timesteps``; the expert's default, 1000, when it records none), read as :func:`checkpoint_info`
     reads the entry: memory-mapped, no code run."""
     from spade.models.modelfile import load_checkpoint  # heavy: spade.models imports diffusers
-    from spade.training.module_options import ExpertOptions
-
     p = Path(path)
     hyper = load_checkpoint(p, mmap=zipfile.is_zipfile(p)).get("hyper_parameters")
     value = hyper.get("num_train_timesteps") if isinstance(hyper, Mapping) else None

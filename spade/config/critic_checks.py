@@ -17,6 +17,9 @@ from spade.config.file_checks import check_path_value, check_paths, check_writab
 from spade.config.store_checks import check_logger_store
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import check_bool_value, check_int_value, unset
+from spade.config.dataset_checks import check_existing_dataset
+from spade.config.preflight import check_expert_kind, margin_config
+from spade.deploy.outputs import replace_refusal
 
 
 @dataclass(frozen=True)
@@ -76,8 +79,6 @@ def validate_critic_config(cfg: DictConfig) -> CriticOptions:
     """``spade.critic``'s checks: every bad input is one line naming the key, its value and the fix, before the
     expert is loaded (a garbage store failed after a minute of measuring; a student given as the expert, a missing
     test set or ``critic.bands=0`` with a traceback); returns the command's own options."""
-    from spade.config.preflight import check_expert_kind, margin_config
-
     check_paths(cfg)
     options = read_options(cfg, CriticOptions)
     fix = ("pass a diffusion expert checkpoint (python -m spade.train +experiment=cond_expert_L, or "
@@ -108,8 +109,6 @@ def validate_critic_config(cfg: DictConfig) -> CriticOptions:
                        "give a folder you can write for the results page (null: no page)")
         if margin is not None:
             from spade.training.critic import page_stem
-            from spade.deploy.outputs import replace_refusal
-
             for suffix in (".md", ".png"):
                 stem = page_stem(str(ckpt), margin, not unset(student))
                 path = Path(str(out)).expanduser() / (stem + suffix)
@@ -148,8 +147,6 @@ def _check_timesteps(measure: CriticMeasure, ckpt: Any, margin: Any) -> None:
 def _check_test_set(test_set: CriticTestSet) -> None:
     """The critic scores the test set alone (``data.test_dir``): it must hold a dataset, opened with the loaders'
     checks (files, checksums, finite values), and instances of ``data.test_shape``. No training set is needed."""
-    from spade.config.dataset_checks import check_existing_dataset
-
     test_dir = test_set.test_dir
     check_folder_path("data.test_dir", test_dir)
     fix = ("pass the test set the expert is judged on (data.test_dir=DIR), or build it first (any `python -m "

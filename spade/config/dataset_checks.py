@@ -17,6 +17,10 @@ from spade.data.checks import check_dataset
 from spade.data.settings import dataset_settings
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import check_int_value, check_number_value, is_int, unset
+from spade.annotation.sources import parse_procedural
+from spade.config.annotate_checks import check_annotation_settings
+from spade.config.file_checks import check_map_size
+from spade.data import DatasetError
 
 
 @dataclass(frozen=True)
@@ -81,8 +85,6 @@ def check_data(sources: DataSources, scale: ScaleOptions, model: ModelOptions | 
         if generate is None:
             continue
         settings = dataset_settings(Path(str(getattr(sources, f"{name}_dir"))), generate)
-        from spade.config.annotate_checks import check_annotation_settings
-
         key = "scale.annotate" if scale.annotate is not None else f"data.{name}_generate"
         check_annotation_settings(settings, f"data.{name}_generate: ")
         check_window_holds_manoeuvre(settings, key)
@@ -113,7 +115,6 @@ def check_existing_dataset(key: str, root: Path) -> Any:
     ``key``, the file and the fix (:class:`~spade.data.format.DatasetError`, a user error). The hashes are
     remembered (:func:`spade.utils.hashing.file_sha256`), so the data module's own opening does not read the files
     again."""
-    from spade.data import DatasetError
     from spade.data.path_dataset import PathDataset
 
     try:
@@ -152,9 +153,6 @@ def check_map_entries(scale: ScaleOptions, name: str, maps: Any, resolution_m: A
         where = "scale.train_maps" if name == "train" and scale.train_maps is not None else f"data.{name}_generate"
         raise ConfigError(f"{where}: {exc.args[0] if exc.args else exc}; fix that entry, e.g. warehouse:1 or the path "
                           "of a ROS map yaml (nothing was generated or changed)") from None
-    from spade.annotation.sources import parse_procedural
-    from spade.config.file_checks import check_map_size
-
     for spec in specs:
         if parse_procedural(spec) is None:
             check_map_size(f"data.{name}_generate maps", spec, resolution_m)

@@ -16,6 +16,7 @@ from omegaconf import DictConfig
 from spade.config.options import read_options
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import MISSING, check_int_value, check_number_value
+from spade.utils.config import compose_config
 
 __all__ = ["ClosedLoopOptions", "EvaluateDrive", "check_drive", "check_drive_config", "validate_closed_loop_config"]
 
@@ -142,8 +143,6 @@ def validate_closed_loop_config(cfg: DictConfig) -> ClosedLoopOptions:
     """``spade.closed_loop``'s checks before any drive: :class:`ClosedLoopOptions`, and each condition's drive
     settings merged over the defaults and checked as ``drive.*``; returns the options."""
     from omegaconf import OmegaConf
-
-    from spade.utils.config import compose_config
 
     options = read_options(cfg, ClosedLoopOptions)
     defaults = OmegaConf.to_container(compose_config("evaluate", []).drive, resolve=True)

@@ -17,6 +17,7 @@ from spade.config.options import DataOptions, read_options
 from spade.config.store_checks import StoreOptions, check_store
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import check_bool_value, check_int_value, unset
+from spade.config.drive_checks import check_drive_config
 
 
 @dataclass(frozen=True)
@@ -98,8 +99,6 @@ class EvaluateOptions:
 
 def evaluate_options(cfg: DictConfig) -> EvaluateOptions:
     """:class:`EvaluateOptions` from the composed config; a bad value is one line (:class:`ConfigError`)."""
-    from spade.config.drive_checks import check_drive_config
-
     paths = read_options(cfg, PathOptions)
     run = read_options(cfg, EvaluateRun)
     check_drive_config(cfg)  # drive.* typed and ranged, and something to evaluate, before any run opens

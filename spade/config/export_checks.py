@@ -15,6 +15,7 @@ from spade.config.options import read_options
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import (check_bool_value, check_choice_value, check_int_list_value, check_int_value,
                                       check_number_value, unset)
+from spade.config.store_checks import check_server, check_store_file
 
 
 @dataclass(frozen=True)
@@ -156,8 +157,6 @@ def _check_register(options: ExportOptions) -> None:
             why = "not a string" if not isinstance(alias, str) else problem
             raise ConfigError(f"alias={alias!r} is not a model alias ({why}); use letters, digits, '_' and '-', e.g. "
                               "alias=champion, or alias=null for none")
-    from spade.config.store_checks import check_server, check_store_file
-
     uri = options.store_uri
     if not unset(uri):
         check_store_file("paths.mlflow_tracking_uri", str(uri))

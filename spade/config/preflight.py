@@ -36,6 +36,7 @@ from spade.config.store_checks import StoreOptions, check_store, store_path
 from spade.training.expert_mismatch import ExpertMismatchError
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import check_bool_value, check_choice_value, check_int_value
+from spade.deploy.mlflow_models import mlflow_client
 
 if TYPE_CHECKING:
     from spade.training.margin import MarginConfig
@@ -277,9 +278,6 @@ def check_resume(options: TrainOptions, ckpt: Any, info: dict[str, Any] | None) 
         raise ConfigError(f"ckpt_path={ckpt} was written under MLflow run {run_id}, but there is no store at {uri}; "
                           f"resume with the store it was logged to (SPADE_HOME or paths.mlflow_tracking_uri), or "
                           f"{new_run}")
-    # heavy (MLflow), for a resume only; the store itself was checked by check_train (check_store)
-    from spade.deploy.mlflow_models import mlflow_client
-
     try:
         run = mlflow_client(uri).get_run(run_id)
     except Exception:  # noqa: BLE001 - not in this store (or unreachable): say which run and where

@@ -23,6 +23,7 @@ from spade.config.options import read_options
 from spade.config.window_checks import check_window_holds_manoeuvre
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import check_bool_value, check_int_value, unset
+from spade.config.annotate_checks import check_annotation_settings
 
 
 @dataclass(frozen=True)
@@ -84,8 +85,6 @@ def validate_sketch_config(cfg: DictConfig) -> SketchOptions:
         settings = annotation_config(flatten_overrides(overrides) if isinstance(overrides, Mapping) else [])
     except Exception as exc:  # noqa: BLE001 - an override Hydra cannot apply
         raise ConfigError(f"annotate: {exc}".replace("\n", " ")) from None
-    from spade.config.annotate_checks import check_annotation_settings
-
     check_annotation_settings(settings, "annotate.")
     if files:
         check_map_size("map", files[0], (settings.get("window") or {}).get("resolution_m"))

@@ -19,6 +19,9 @@ from spade.data.augment import augment_batch, check_augmentation, widen_path
 from spade.data.checks import check_dataset, split_pair_problems
 from spade.data.datamodule_options import DataOptions
 from spade.data.settings import Generator
+from spade.data.labelled import StateView
+from spade.data.plausible import ceiling_map, plausible_images
+from spade.data.writer import DatasetExistsError
 
 log = logging.getLogger(__name__)
 
@@ -165,8 +168,6 @@ class PathDataModule(L.LightningDataModule):
                     "config's generator (conf/data/generator/annotate.yaml) or build it with "
                     f"`python -m spade.annotate out_dir={root}`."
                 )
-            from spade.data.writer import DatasetExistsError
-
             try:
                 self.generator(root, config)
             except DatasetExistsError:
@@ -235,8 +236,6 @@ class PathDataModule(L.LightningDataModule):
         diffusion margin sees them, :class:`~spade.data.labelled.StateView`), after checking their windows and that
         they share no scenario with the test set."""
         from torch.utils.data import ConcatDataset
-
-        from spade.data.labelled import StateView
 
         full = labelled.dataset
         unlabelled = PathDataset(self.unlabelled_dir, encoding=self.encoding)
@@ -366,8 +365,6 @@ class PathDataModule(L.LightningDataModule):
     def _plausible_mean(self, batch: dict) -> Any:
         """BC on the plausible set (``target_source=plausible_mean``): the target is the pixelwise mean of the
         demonstration and its alternatives drawn as targets (:func:`spade.data.plausible.ceiling_map`)."""
-        from spade.data.plausible import ceiling_map, plausible_images
-
         if batch.get("alternatives") is None:
             raise DatasetError(f"data.target_source=plausible_mean needs a training set with alternative "
                                f"demonstrations; {self.train_dir} has none: generate it with them "

@@ -13,6 +13,7 @@ from torch.utils.data import Dataset
 from spade.data.format import DatasetError, Manifest, read_manifest
 from spade.data.packing import unpack_bits, unpack_two_bit
 from spade.utils.hashing import file_sha256
+from spade.data.encoding import check_encoding, marker_channels
 
 def check_files(manifest: Manifest, checksums: bool = True) -> None:
     """Check that every array file exists with the size (and, if ``checksums``, the sha256) the manifest gives.
@@ -128,8 +129,6 @@ class PathDataset(Dataset):
 
     def __init__(self, root: str | Path, verify: bool = True, release_every: int = 2048,
                  encoding: str = "binary") -> None:
-        from spade.data.encoding import check_encoding
-
         self.root = Path(root)
         self.encoding = check_encoding(encoding)
         self.manifest = read_manifest(self.root)
@@ -220,8 +219,6 @@ class PathDataset(Dataset):
         if self.encoding == "binary":
             state[1:] = binary[:2].reshape(2, h, w)
         else:
-            from spade.data.encoding import marker_channels
-
             state[1:] = marker_channels(waypoints[0], waypoints[-1], h, self.marker_radius_px, self.encoding)
         path = binary[2].reshape(1, h, w).astype(np.float32)
         pose = np.array(arrays["pose"][index], dtype=np.float32)

@@ -22,6 +22,7 @@ from spade.data.format import (
 )
 from spade.data.packing import pack_bits, pack_two_bit
 from spade.utils.processes import pid_alive
+from spade.maps.frame import RobotFrame
 
 
 class _LabelTable:
@@ -144,8 +145,6 @@ class DatasetWriter:
         self.num_waypoints = int(num_waypoints)
         self.generator_config = json.loads(json.dumps(generator_config or {}, default=str))
         if frame is None:  # every SPADE window is in the robot frame of its side (spade.maps.frame)
-            from spade.maps.frame import RobotFrame
-
             frame = RobotFrame.for_size(self.height).to_json()
         self.frame = json.loads(json.dumps(frame))
         if not 0 <= int(alternatives) <= 255:

@@ -52,6 +52,7 @@ from spade.models.onnx_check import (
     probe_record,
     probe_state,
 )
+from spade.utils.timing import measure
 
 FORMATS = ("onnx", "torchscript")
 SUFFIXES = {"onnx": ".onnx", "torchscript": ".pt"}
@@ -221,8 +222,6 @@ def max_abs_diff(net: nn.Module, exported: ModelRunner, image_size: Sequence[int
 def latency_ms(net: nn.Module, exported: ModelRunner, image_size: Sequence[int], batches: Sequence[int] = (1,),
                runs: int = 20, warmup: int = 3) -> dict[str, float]:
     """Median ms per forward pass, eager PyTorch and the export's runtime, for each batch size."""
-    from spade.utils.timing import measure
-
     out: dict[str, float] = {}
     for b in batches:
         state = example_states(int(b), image_size, seed=1)

@@ -12,6 +12,7 @@ from spade.deploy.outputs import save_png
 from spade.deploy.plan_picture import load_map, plan_image
 from spade.deploy.plan_result import PlanResult
 from spade.deploy.student_planner import Planner
+from spade.annotation.sources import parse_procedural
 
 __all__ = ["rewrite_argv", "run_plan"]
 
@@ -50,8 +51,6 @@ def rewrite_argv(args: list[str]) -> list[str]:
 
 
 def _looks_like_map(arg: str) -> bool:
-    from spade.annotation.sources import parse_procedural
-
     if arg.endswith((".yaml", ".yml")):
         return True
     try:

@@ -10,14 +10,13 @@ from PIL import Image, ImageDraw
 from spade.deploy.plan_result import PlanResult
 from spade.maps import FREE, OCCUPIED, OccupancyMap, generate_map, load_ros_map
 from spade.utils import palette
+from spade.annotation.sources import parse_procedural
 
 __all__ = ["load_map", "plan_image", "plan_text"]
 
 
 def load_map(spec: str | Path) -> OccupancyMap:
     """A ROS map yaml, or a procedural map from a ``kind:seed`` spec (e.g. ``warehouse:101``)."""
-    from spade.annotation.sources import parse_procedural
-
     proc = parse_procedural(str(spec))
     if proc is not None:
         return generate_map(proc[0], proc[1])

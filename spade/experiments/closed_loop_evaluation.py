@@ -27,6 +27,16 @@ from spade.closedloop.scenario_loading import Scenario, load_scenarios
 from spade.closedloop.simulate import ClosedLoopSettings, Episode, drive, replay
 from spade.ros.core import CoreSettings
 from spade.utils.errors import UserError
+from spade.closedloop.episode_recording import write_episodes_bag
+from spade.closedloop.picture import episodes_picture
+from spade.closedloop.planners import BASELINE_PLANNERS, BaselinePlanner, DemonstrationPlanner
+from spade.data.checks import check_dataset
+from spade.data.path_dataset import PathDataset
+from spade.deploy.student_planner import Planner
+from spade.metrics.closed_loop import ClosedLoopMetrics, episode_figures
+from spade.tracking.callback import NO_STAGE
+from spade.tracking.runs import mlflow_logger
+from spade.training.checkpoint_paths import best_checkpoint_path, last_checkpoint_path
 
 __all__ = ["PREDICTOR_PREFIXES", "ClosedLoopTest", "closed_loop_settings", "run_closed_loop", "scenario_set"]
 
@@ -82,9 +92,6 @@ def scenario_set(datamodule: Any, count: int | None) -> list[Scenario]:
     if datamodule.test_dir is None or datamodule.test_generate is None or datamodule.generator is None:
         raise ClosedLoopConfigError("drive.scenarios=N needs a data config with a test_dir and its test_generate "
                                     "(conf/data/lshape.yaml); use drive.scenarios=null for the test set's own")
-    from spade.data.path_dataset import PathDataset
-    from spade.data.checks import check_dataset
-
     root = Path(datamodule.test_dir).with_name(f"{Path(datamodule.test_dir).name}_scenarios{count}")
     config = _scenario_config(datamodule.test_generate, count, shape)
     check_dataset(root, config, "drive.scenarios")
@@ -109,8 +116,6 @@ def _scenario_config(test_generate: Any, count: int, shape: str | None) -> dict[
 
 
 def _figures(episodes: list[Episode], commit_tol_cm: float) -> dict[str, float]:
-    from spade.metrics.closed_loop import ClosedLoopMetrics
-
     metric = ClosedLoopMetrics(commit_tol_cm=commit_tol_cm)
     metric.update(episodes)
     return {k: float(v) for k, v in metric.compute().items()}
@@ -120,13 +125,9 @@ def predictors(ckpt_path: str | Path | None, scenarios: list[Scenario], baseline
                planner_options: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The planners to drive, by name: the model (when ``ckpt_path``), the baselines on its windows (or on the
     test set's window when there is no model), the followed demonstration."""
-    from spade.closedloop.planners import BASELINE_PLANNERS, BaselinePlanner, DemonstrationPlanner
-
     out: dict[str, Any] = {}
     frame = resolution = margin = None
     if ckpt_path is not None:
-        from spade.deploy.student_planner import Planner
-
         model = Planner(ckpt_path, **{"far_goal": "clip", **dict(planner_options or {})})
         out["model"] = model
         frame, resolution, margin = model.frame, model.resolution, model.margin_m
@@ -167,8 +168,6 @@ def run_closed_loop(ckpt_path: str | Path | None, scenarios: list[Scenario], dri
 
 def worst_episodes(episodes: list[Episode], count: int) -> list[Episode]:
     """The ``count`` worst episodes: failures first, then by APE."""
-    from spade.metrics.closed_loop import episode_figures
-
     scored = [(0 if e.success else 1, episode_figures(e)["ape_cm"], i) for i, e in enumerate(episodes)]
     return [episodes[i] for _, _, i in sorted(scored, reverse=True)[:count]]
 
@@ -199,15 +198,11 @@ class ClosedLoopTest(L.Callback):
         self.run(trainer)
 
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
-        from spade.tracking.callback import NO_STAGE
-
         if stage == NO_STAGE:
             self.run(trainer)
 
     def run(self, trainer: L.Trainer) -> None:
         """Drive, log the figures and the artifacts (see the class)."""
-        from spade.training.checkpoint_paths import best_checkpoint_path, last_checkpoint_path
-
         ckpt_path = self.ckpt_path or best_checkpoint_path(trainer) or last_checkpoint_path(trainer)
         if not ckpt_path:
             log.warning("closed loop: no checkpoint to drive")
@@ -220,8 +215,6 @@ class ClosedLoopTest(L.Callback):
         if not trainer.is_global_zero:
             return
         if drive_cfg.get("mcap"):
-            from spade.closedloop.episode_recording import write_episodes_bag
-
             written = write_episodes_bag(drive_cfg["mcap"], episodes["model"][: int(drive_cfg.get("mcap_episodes", 20))],
                                          float(drive_cfg["follower"]["dt_s"]))
             print(f"closed loop: the model's episodes written to {written}", flush=True)
@@ -232,9 +225,6 @@ def log_episodes(loggers: list[Any], episodes: Mapping[str, list[Episode]], scen
     """The worst episodes' picture and every episode's outcome as the MLflow run's ``closed_loop/`` artifacts."""
     import json
     import tempfile
-
-    from spade.closedloop.picture import episodes_picture
-    from spade.tracking.runs import mlflow_logger
 
     ml = mlflow_logger(loggers)
     if ml is None:

@@ -35,6 +35,13 @@ from spade.metrics import catalog
 from spade.metrics.catalog import BASELINE_LABELS
 from spade.utils.markdown import collapsed, markdown_table
 from spade.utils.provenance import provenance_lines
+from spade.data.fingerprint import fingerprint
+from spade.experiments.evaluation import evaluate
+from spade.experiments.run_records import export_records, has_records, keep_committed_page, load_records, store_exists
+from spade.tracking.client import ensure_store, mlflow_client
+from spade.tracking.predictors import with_predictor_figures
+from spade.utils.config import compose_config
+from spade.utils.provenance import command_line, commit, shown_path
 
 __all__ = ["CLOSED_LOOP_TABLE", "closed_loop_report", "launch"]
 
@@ -84,8 +91,6 @@ def source_runs(client: Any, table: str, row: str, scale: str | None) -> list[An
         if run.data.tags.get("mlflow.parentRunId"):
             continue  # a baseline's child run
         by_seed.setdefault(run.data.params.get("cfg/seed", run.info.run_id), run)
-    from spade.tracking.predictors import with_predictor_figures
-
     return with_predictor_figures(client, list(by_seed.values()))  # its baselines' figures, from its child runs
 
 
@@ -105,8 +110,6 @@ def drive_settings(cfg: Any, dataset: str, data: str, condition: str) -> dict[st
 
     from omegaconf import OmegaConf
 
-    from spade.utils.provenance import commit
-
     try:
         code = commit() or f"spade {version('spade')}"
     except PackageNotFoundError:  # neither a checkout nor an install: the code is unknown, and recorded so
@@ -121,8 +124,6 @@ def drive_settings(cfg: Any, dataset: str, data: str, condition: str) -> dict[st
 
 def drive_keys(settings: Mapping[str, Any], source_run: str, seed: int) -> tuple[str, str]:
     """(drive key, condition key): fingerprints of ``settings`` with and without the source run and seed."""
-    from spade.data.fingerprint import fingerprint
-
     return fingerprint({**settings, "source_run": source_run, "seed": int(seed)}, 16), fingerprint(settings, 16)
 
 
@@ -137,11 +138,7 @@ def _finished_drives(client: Any) -> set[str]:
 
 def launch(cfg: Any) -> list[dict[str, Any]]:
     """Drive every (source run, dataset, condition) not yet driven (module docstring); returns what ran."""
-    from spade.tracking.client import ensure_store, mlflow_client
     from omegaconf import OmegaConf, open_dict
-
-    from spade.experiments.evaluation import evaluate
-    from spade.utils.config import compose_config
 
     ensure_store(str(cfg.tracking_uri))  # a fresh store created whole, under its lock, before the first search
     client = mlflow_client(str(cfg.tracking_uri))
@@ -216,8 +213,6 @@ def export_drives(tracking_uri: str, records_dir: str | Path, scale: str | None 
                   rows: list[str] | None = None) -> int:
     """The finished drives of the ``closed_loop`` experiment (run names ``rows`` when given) as run records in
     ``records_dir``: one per (cell, seed, condition key), each with its trained run's ``margin/active``."""
-    from spade.experiments.run_records import export_records
-
     return export_records(tracking_uri, CLOSED_LOOP_TABLE, records_dir, rows, scale=scale, tags=DRIVE_TAGS,
                           key_tag=CONDITION_KEY, instances=False, source_metrics=(MARGIN_ACTIVE,))
 
@@ -248,8 +243,6 @@ def fetch_drives(tracking_uri: str, scale: str | None = None) -> dict[tuple[str,
     """The finished drives of the ``closed_loop`` experiment, the latest run per seed of each cell (read through
     their run records, as a page reads them: :func:`export_drives`, :func:`drive_cells`)."""
     import tempfile
-
-    from spade.experiments.run_records import load_records
 
     with tempfile.TemporaryDirectory() as tmp:
         export_drives(tracking_uri, tmp, scale)
@@ -292,9 +285,6 @@ def closed_loop_report(tracking_uri: str, output_dir: str | Path | None, scale: 
     kept under the lost-store notice (:func:`spade.experiments.run_records.keep_committed_page`). Returns the text
     and the files written."""
     import tempfile
-
-    from spade.experiments.run_records import has_records, keep_committed_page, load_records, store_exists
-    from spade.utils.provenance import command_line, shown_path
 
     labels = dict(labels or {})
     with tempfile.TemporaryDirectory() as tmp:

@@ -21,6 +21,17 @@ from spade.metrics import catalog
 from spade.metrics.corruptions import CORRUPTION_SET_VERSION
 from spade.tracking.callback import RunIdentity, run_identity
 from spade.training.critic import critic_report, page_stem
+from spade.data import DatasetError
+from spade.data.path_dataset import PathDataset
+from spade.deploy.outputs import save_png
+from spade.models.modelfile import load_lightning, read_info
+from spade.training.expert_module import ExpertModule
+from spade.training.instantiate import instantiate_loggers
+from spade.training.logging_utils import log_image
+from spade.training.margin import DiffusionMargin, MarginConfig, MarginOptionError
+from spade.training.student_module import StudentModule
+from spade.training.teacher import planner_figures
+from spade.utils.provenance import command_line, commit, machine, shown_path
 
 __all__ = ["critic", "critic_identity", "format_report"]
 
@@ -31,9 +42,6 @@ def _test_loader(cfg: DictConfig, encoding: str = "binary"):
     """The test set of ``cfg.data`` (its ``test_shape`` only), without the training set a data module needs; its
     start and goal drawn with ``encoding``, the expert's (:attr:`ExpertModule.marker_encoding`)."""
     from torch.utils.data import DataLoader, Subset
-
-    from spade.data import DatasetError
-    from spade.data.path_dataset import PathDataset
 
     test_dir = cfg.data.get("test_dir")
     if not test_dir or not (Path(str(test_dir)) / "manifest.json").is_file():
@@ -55,10 +63,6 @@ def critic(cfg: DictConfig) -> dict[str, Any]:
     import torch
 
     start = time.perf_counter()
-    from spade.models.modelfile import load_lightning, read_info
-    from spade.training.expert_module import ExpertModule
-    from spade.training.margin import DiffusionMargin, MarginConfig, MarginOptionError
-
     try:
         config = MarginConfig.from_options(OmegaConf.to_container(cfg.model.margin, resolve=True) or {})
     except MarginOptionError as exc:
@@ -74,8 +78,6 @@ def critic(cfg: DictConfig) -> dict[str, Any]:
     expert.check_compatible(in_channels=3, image_size=dataset.image_size, source=f"ckpt_path={cfg.ckpt_path}")
     student = None
     if cfg.get("student_ckpt"):
-        from spade.training.student_module import StudentModule
-
         student = load_lightning(StudentModule, str(cfg.student_ckpt)).eval()
     margin = DiffusionMargin.from_expert(expert, config)
     c = cfg.critic
@@ -86,8 +88,6 @@ def critic(cfg: DictConfig) -> dict[str, Any]:
         f"agent_input={config.agent_input}, t in [{config.t_min}, {margin.t_max})")
     samples = cfg.critic.get("expert_samples", 0)
     if samples and not config.oracle:  # the oracle as a planner: a test's oracle_sample / oracle_medoid references
-        from spade.training.teacher import planner_figures
-
         metrics.update(planner_figures(expert, loader, samples=int(samples), student=student,
                                        max_instances=c.max_instances))
     _log(cfg, critic_identity(cfg, config), metrics, picture)
@@ -101,9 +101,6 @@ def _write_page(cfg: DictConfig, config, metrics: dict[str, float], picture, sec
     import datetime
 
     from PIL import Image
-
-    from spade.deploy.outputs import save_png
-    from spade.utils.provenance import command_line, commit, machine, shown_path
 
     if not cfg.get("output_dir"):
         return None
@@ -222,9 +219,6 @@ def critic_identity(cfg: DictConfig, config: Any) -> RunIdentity:
 def _log(cfg: DictConfig, identity: RunIdentity, metrics: dict[str, float], picture: np.ndarray) -> None:
     """The run's parameters, figures and picture (``critic/critic.png``; a file under ``paths.output_dir``
     without an MLflow logger)."""
-    from spade.training.instantiate import instantiate_loggers
-    from spade.training.logging_utils import log_image
-
     loggers = instantiate_loggers(cfg.get("logger"))
     for logger in loggers:
         logger.log_hyperparams(dict(identity.params))

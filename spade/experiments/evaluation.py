@@ -17,15 +17,18 @@ from spade.tracking.callback import RunRecord, evaluation_identity
 from spade.training.callbacks import ModelInfo
 from spade.training.instantiate import instantiate_loggers
 from spade.training.loading import load_module
+from spade.config.evaluate_checks import validate_evaluate_config
+from spade.experiments.closed_loop_evaluation import closed_loop_settings, ClosedLoopTest
+from spade.experiments.prediction_recording import check_recording_instances, record_test_set
+from spade.models.modelfile import read_info
+from spade.ros.recording import check_recording_path
+from spade.utils.console import lightning_logs_once
 
 __all__ = ["evaluate"]
 
 
 def _recording(cfg: DictConfig) -> tuple[Path | None, int]:
     """``mcap=`` (a new path, or None) and ``mcap_instances``, checked before anything runs."""
-    from spade.experiments.prediction_recording import check_recording_instances
-    from spade.ros.recording import check_recording_path
-
     mcap = check_recording_path(cfg.get("mcap"))
     return mcap, (check_recording_instances(cfg.get("mcap_instances", 64)) if mcap is not None else 0)
 
@@ -34,18 +37,10 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     """Test ``cfg.ckpt_path`` on ``cfg.data``'s test set; returns the test metrics. With ``cfg.mcap`` set, then
     writes the test set's first ``cfg.mcap_instances`` instances with the model's paths, the ground truth and the
     classical baselines as a ROS 2 MCAP recording (:mod:`spade.experiments.prediction_recording`)."""
-    from spade.config.evaluate_checks import validate_evaluate_config
-
-    from spade.utils.console import lightning_logs_once
-
     lightning_logs_once()  # Lightning's lines printed once, not twice (its own handler and the command's)
     options = validate_evaluate_config(cfg)  # role, and the checkpoint's window geometry against the test data's
     if cfg.get("closed_loop"):
-        from spade.experiments.closed_loop_evaluation import closed_loop_settings
-
         closed_loop_settings(cfg.drive, int(cfg.seed))  # a bad drive setting is refused before the test
-        from spade.ros.recording import check_recording_path
-
         check_recording_path(cfg.drive.get("mcap"), "drive.mcap")  # an existing recording is refused now
     mcap, mcap_instances = _recording(cfg)  # refused now, not after the test
     L.seed_everything(cfg.seed, workers=True)
@@ -63,8 +58,6 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
     callbacks: list[L.Callback] = [ModelInfo(latency_runs=0)]
     drive = None
     if cfg.get("closed_loop"):
-        from spade.experiments.closed_loop_evaluation import ClosedLoopTest
-
         drive = ClosedLoopTest(OmegaConf.to_container(cfg.drive, resolve=True), int(cfg.seed), str(cfg.ckpt_path),
                                datamodule)
         callbacks.append(drive)
@@ -79,8 +72,6 @@ def evaluate(cfg: DictConfig) -> dict[str, Any]:
         run_without_stages(trainer, model)
     results.update(drive.metrics if drive is not None else {})
     if mcap is not None and trainer.is_global_zero:
-        from spade.experiments.prediction_recording import record_test_set
-
         record_test_set(model, datamodule, mcap, mcap_instances)
     return {k: float(v) for k, v in results.items()}
 
@@ -89,8 +80,6 @@ def _use_models_encoding(datamodule: Any, ckpt_path: str) -> None:
     """Draw the test set's start and goal markers as the model was trained to see them (its file's
     ``data.marker_encoding``), whatever ``data.encoding`` says: a model is never fed another encoding."""
     import logging
-
-    from spade.models.modelfile import read_info
 
     encoding = str((read_info(ckpt_path).get("data") or {}).get("marker_encoding", "binary"))
     if getattr(datamodule, "encoding", "binary") != encoding:

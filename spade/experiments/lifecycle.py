@@ -34,6 +34,7 @@ from lightning.pytorch.callbacks import Callback
 
 from spade.tracking.callback import NO_STAGE  # the stage of a run that trains and tests nothing
 from torch.utils.data import DataLoader, RandomSampler
+from spade.models.modelfile import load_checkpoint
 
 log = logging.getLogger(__name__)
 
@@ -175,8 +176,6 @@ class CarryBestCheckpoint(Callback):
         import shutil
         import zipfile
         from pathlib import Path
-
-        from spade.models.modelfile import load_checkpoint
 
         loaded = load_checkpoint(self.ckpt_path, mmap=zipfile.is_zipfile(self.ckpt_path))
         states = loaded.get("callbacks") or {}

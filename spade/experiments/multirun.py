@@ -37,6 +37,12 @@ from typing import Any
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from spade.tracking.tables import get_table
+from spade.deploy.export import example_states
+from spade.tracking.registry import registry_name
+from spade.tracking.tables import TINY_NOTICE
+from spade.training.student_module import StudentModule
+from spade.utils.config import compose_config
+from spade.utils.timing import step_time
 
 try:  # a Hydra callback when Hydra is there (it always is under spade.train)
     from hydra.experimental.callback import Callback
@@ -135,10 +141,6 @@ def machine_speed(runs: int = 3) -> float:
     ``STEP_SECONDS["bc/medium"]``. 1.0 on the machine the costs were measured on, 2.0 on one half as fast (or
     as busy); about 5 steps' time, some seconds on 2 cores."""
     import torch
-
-    from spade.deploy.export import example_states
-    from spade.training.student_module import StudentModule
-    from spade.utils.timing import step_time
 
     generator_state = torch.random.get_rng_state()
     try:
@@ -251,9 +253,6 @@ def _datasets(cfg: DictConfig, seen: dict[str, tuple[int, str]]) -> None:
 def plan_table(config: DictConfig, speed: float = 1.0) -> dict[str, Any]:
     """What a table's multirun will run: scale, rows, seeds, datasets, per-row and prerequisite costs and the
     total, each on :data:`STEP_SECONDS`' machine times ``speed`` (:func:`machine_speed`)."""
-    from spade.utils.config import compose_config
-    from spade.tracking.registry import registry_name
-
     params = config.hydra.sweeper.params
     rows = [r.strip() for r in str(params.experiment).split(",") if r.strip()]
     task = [str(o) for o in (OmegaConf.select(config, "hydra.overrides.task") or [])]
@@ -298,8 +297,6 @@ def plan_table(config: DictConfig, speed: float = 1.0) -> dict[str, Any]:
 def start_message(config: DictConfig, speed: float | None = None) -> str:
     """The lines a table's multirun prints at its start (:func:`plan_table`), its costs scaled by ``speed``
     (``None``: the cost model's machine, unmeasured)."""
-    from spade.tracking.tables import TINY_NOTICE
-
     plan = plan_table(config, 1.0 if speed is None else speed)
     seeds, rows = plan["seeds"], plan["rows"]
     lines = [f"SPADE table run: scale={plan['scale']}, {len(rows)} rows x {len(seeds)} seed(s) "

@@ -17,6 +17,7 @@ from typing import Any
 from spade.experiments.reporting.intervals import paired_difference
 from spade.experiments.reporting.stats import mean_sd, welch
 from spade.experiments.run_records import RunRecord
+from spade.deploy.outputs import SOFTWARE
 
 __all__ = ["CurveSeries", "curve_series", "curve_tests", "curve_section", "curve_rows", "plot_curve"]
 
@@ -153,8 +154,6 @@ def plot_curve(series: CurveSeries, runs: Mapping[str, list[RunRecord]], floor: 
     """Planner APE against the number of demonstrations (log axis), one line per series with its sd over seeds, the
     floor, the BC ceiling and the best baseline drawn across."""
     from matplotlib.figure import Figure  # not pyplot: no global state
-
-    from spade.deploy.outputs import SOFTWARE
 
     fig = Figure(figsize=(6.4, 4.0))
     ax = fig.subplots()

@@ -28,6 +28,8 @@ from spade.experiments.run_records import RunRecord, export_records, load_record
 from spade.metrics import catalog
 from spade.metrics.catalog import BASELINE_ROW_LABELS
 from spade.utils.markdown import collapsed, markdown_table
+from spade.metrics.verdict import verdicts
+from spade.utils.provenance import command_line, provenance_lines, shown_path
 
 __all__ = ["oracle_report"]
 
@@ -152,8 +154,6 @@ def _teacher_rows(teachers: Mapping[str, str], runs: dict[str, list[RunRecord]],
 
 def _losses(runs: list[RunRecord]) -> list[str]:
     """The baselines a row loses to by the deciding figure (its seeds' mean planner APE and tail)."""
-    from spade.metrics.verdict import verdicts
-
     keys = {k for r in runs for k in r.metrics}
     mean = {k: v for k in keys if (v := _mean(runs, k)) is not None}
     return [catalog.BASELINE_LABELS[v.name] for v in verdicts(mean, "test") if v.outcome == "loses to"]
@@ -323,8 +323,6 @@ def _teacher_verdict(teachers: Mapping[str, str], teacher_runs: dict[str, list[R
 
 
 def _provenance(runs: list[RunRecord], records_dir: Path) -> list[str]:
-    from spade.utils.provenance import command_line, provenance_lines, shown_path
-
     lines = provenance_lines(command_line("spade.report"))
     lines[1:1] = ["- launch: `python -m spade.train -m +experiment=ROW seed=42,1,2,3,4` for each row below "
                   "(conf/experiment/site_*.yaml)"]

@@ -20,6 +20,11 @@ import torch
 from torch.utils.data import DataLoader, Subset
 
 from spade.utils.errors import ConfigError
+from spade.metrics.baselines import BASELINES, baseline_polylines
+from spade.metrics.decoding import PathDecoder
+from spade.metrics.extraction import extract_path, marker_centre
+from spade.metrics.geometry import polyline_ape
+from spade.ros.recording import write_test_bag
 
 __all__ = ["check_recording_instances", "instance_arrays", "record_test_set"]
 
@@ -47,11 +52,6 @@ def instance_arrays(model: Any, test_set: Any, instances: int, batch_size: int =
     (N, H, W) codes, ``ground_truth`` (N, K, 2) and ``goals`` (N, 2) window pixels, ``resolution`` (N,),
     ``predictions`` and ``planner`` (one (M, 2) polyline or None each), ``baselines`` (name -> polylines),
     ``ape_cm`` (N,) (NaN where nothing was extracted), ``robot_px``."""
-    from spade.metrics.baselines import BASELINES, baseline_polylines
-    from spade.metrics.decoding import PathDecoder
-    from spade.metrics.extraction import extract_path, marker_centre
-    from spade.metrics.geometry import polyline_ape
-
     n = min(int(instances), len(test_set))
     frame = _dataset(test_set).frame
     metrics = getattr(model, "test_metrics", None)
@@ -96,8 +96,6 @@ def instance_arrays(model: Any, test_set: Any, instances: int, batch_size: int =
 def record_test_set(model: Any, datamodule: Any, path: str | Path, instances: int = 64) -> Path:
     """Write ``datamodule``'s test set (its first ``instances``) with ``model``'s paths to ``path``
     (:func:`spade.ros.recording.write_test_bag`); returns the path written."""
-    from spade.ros.recording import write_test_bag
-
     if getattr(datamodule, "test_set", None) is None:
         datamodule.setup("test")
     arrays = instance_arrays(model, datamodule.test_set, instances,

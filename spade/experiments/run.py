@@ -33,6 +33,11 @@ from spade.models.modelfile import safe_loading
 from spade.training.checkpoint_paths import best_checkpoint_path, last_checkpoint_path
 from spade.training.instantiate import instantiate_callbacks, instantiate_loggers, run_id_from_checkpoint
 from spade.utils.console import lightning_logs_once
+from spade.experiments.closed_loop_evaluation import ClosedLoopTest
+from spade.experiments.evaluation import evaluate
+from spade.training.teacher_labels import label_unlabelled
+from spade.utils.config import compose_config
+from spade.utils.console import quiet_lightning_info
 
 __all__ = ["fit_and_test", "from_checkpoint", "optimized_value", "prerequisite_plan", "rename_prefix",
            "sweep_result", "test_elsewhere", "train", "untrained_test_metrics"]
@@ -95,8 +100,6 @@ def fit_and_test(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
     log.info("Instantiating datamodule <%s>", cfg.data._target_)
     datamodule: L.LightningDataModule = hydra.utils.instantiate(cfg.data)
     if getattr(datamodule, "teacher_label_request", lambda: None)() is not None:
-        from spade.training.teacher_labels import label_unlabelled
-
         label_unlabelled(datamodule)  # a teacher's plans label the unsketched states (sampled once, then read)
     log.info("Instantiating model <%s>", cfg.model._target_)
     model: L.LightningModule = hydra.utils.instantiate(cfg.model)
@@ -110,8 +113,6 @@ def fit_and_test(cfg: DictConfig) -> tuple[dict[str, Any], dict[str, Any]]:
         callbacks.append(CarryBestCheckpoint(str(ckpt_path)))  # the interrupted run's best stays the best
     drive = None
     if cfg.get("closed_loop") and type(model).__name__ == "StudentModule":  # the best checkpoint, after the test
-        from spade.experiments.closed_loop_evaluation import ClosedLoopTest
-
         drive = ClosedLoopTest(OmegaConf.to_container(cfg.drive, resolve=True), int(cfg.get("seed") or 0))
         callbacks.append(drive)
     trainer: L.Trainer = hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
@@ -150,9 +151,6 @@ def test_elsewhere(cfg: DictConfig, ckpt_path: str, name: str, data: str) -> dic
     ``{real: realmap_L}``: maps no training set uses) as ``python -m spade.evaluate`` does, in a run of its own named
     ``<run_name>_<NAME>`` in the same MLflow experiment, carrying the run's seed (so that ``spade.report`` counts it
     per seed, like a row). Returns its metrics as ``<NAME>/test/...``."""
-    from spade.experiments.evaluation import evaluate
-    from spade.utils.config import compose_config
-
     overrides = [f"ckpt_path={ckpt_path}", f"data={data}", f"scale={cfg.scale.name}", f"recipe={cfg.recipe.name}", f"run_name={cfg.run_name}_{name}",
                  f"tags.table={cfg.tags.table}", f"tags.row={cfg.run_name}_{name}", f"seed={cfg.seed}",
                  f"source_seed={cfg.seed}", f"paths.output_dir={cfg.paths.output_dir}/{name}",
@@ -176,8 +174,6 @@ def from_checkpoint(step: Callable[..., Any], ckpt_path: str | Path | None, **kw
 
 def untrained_test_metrics(cfg: DictConfig, model: L.LightningModule, datamodule: L.LightningDataModule) -> dict:
     """Test metrics of the model before any training, as ``untrained/...`` (the baseline learning must beat)."""
-    from spade.utils.console import quiet_lightning_info
-
     with quiet_lightning_info():  # the run's trainer has said which devices it uses; this one would say it again
         tester = hydra.utils.instantiate(cfg.trainer, logger=False, callbacks=[], enable_progress_bar=False)
         results = tester.test(model=model, datamodule=datamodule, verbose=False)[0]

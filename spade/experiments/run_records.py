@@ -24,6 +24,9 @@ from pathlib import Path
 from typing import Any
 
 from spade.metrics.path_metrics import INSTANCES_ARTIFACT
+from spade.experiments.reporting.results import _search_all_runs
+from spade.tracking.client import mlflow_client
+from spade.utils.provenance import shown_path
 
 __all__ = ["RunRecord", "export_records", "load_records", "has_records", "with_lost_store_notice",
            "keep_committed_page", "store_exists", "REFERENCES_FILE", "LOST_STORE"]
@@ -97,8 +100,6 @@ def _source_metrics(client: Any, run_id: str, names: tuple[str, ...]) -> dict[st
 def _shown(value: str) -> str:
     """A parameter as a committed record keeps it: a path relative to the project, never the writing machine's."""
     if isinstance(value, str) and value.startswith("/"):
-        from spade.utils.provenance import shown_path
-
         shown = shown_path(value)
         if shown.startswith("/"):  # outside the project (another checkout, a run folder): its file name alone
             from pathlib import PurePath
@@ -134,9 +135,6 @@ def export_records(tracking_uri: str, experiment: str, out_dir: str | Path, rows
     (``None``: any, for a training run that failed after its test); ``instances``: whether to download the
     per-instance artifact; ``source_metrics``: metrics of the run named by its ``source_run`` tag folded in (a
     drive's trained run's ``margin/active``) where the run has none of its own."""
-    from spade.experiments.reporting.results import _search_all_runs
-    from spade.tracking.client import mlflow_client
-
     client = mlflow_client(tracking_uri)
     found = client.get_experiment_by_name(experiment)
     if found is None:
@@ -225,8 +223,6 @@ def with_lost_store_notice(text: str, command: str, records_dir: str | Path) -> 
     """``text`` (a committed page) with one line under its title (``command``: Markdown, its commands in code spans) saying that its runs' store was lost, which
     command reruns its rows (and writes their records into ``records_dir``), and that the figures below are the lost
     store's. An earlier notice is replaced, so the page carries one however often it is kept."""
-    from spade.utils.provenance import shown_path
-
     notice = (f"{LOST_STORE} the MLflow store that held this page's runs was lost, so the figures below are from "
               f"that store and cannot be regenerated until its rows are rerun: {command} (which also writes their "
               f"run records into `{shown_path(records_dir)}`, from which the page then regenerates without a store).")

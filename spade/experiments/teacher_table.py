@@ -35,6 +35,9 @@ from spade.experiments.run_records import RunRecord
 from spade.metrics import catalog
 from spade.metrics.catalog import BASELINE_ROW_LABELS
 from spade.utils.markdown import collapsed, markdown_table
+from spade.experiments.closed_loop_table import CLOSED_LOOP_TABLE, drive_cells, export_drives
+from spade.experiments.run_records import export_records, has_records, keep_committed_page, load_records, store_exists
+from spade.utils.provenance import command_line, provenance_lines, shown_path
 
 __all__ = ["TEACHER_TABLE", "teacher_files", "teacher_report"]
 
@@ -144,9 +147,6 @@ def export_teacher_records(tracking_uri: str, records_dir: Path, settings: Mappi
                            scale: str | None) -> int:
     """The page's runs as records in ``records_dir``: ``<experiment>/`` per experiment of its rows, ``closed_loop/``
     for its guided rows' drives, ``_training/<experiment>/`` for the experts' training runs. Returns the count."""
-    from spade.experiments.closed_loop_table import CLOSED_LOOP_TABLE, export_drives
-    from spade.experiments.run_records import export_records
-
     count = 0
     for experiment, names in sorted(_sources(settings).items()):
         count += export_records(tracking_uri, experiment, records_dir / experiment, sorted(names), scale=scale,
@@ -163,8 +163,6 @@ def export_teacher_records(tracking_uri: str, records_dir: Path, settings: Mappi
 
 def _load(records_dir: Path) -> Records:
     """Every experiment folder's records of ``records_dir``, by (experiment, run name)."""
-    from spade.experiments.run_records import load_records
-
     out: Records = {}
     if not records_dir.is_dir():
         return out
@@ -313,10 +311,6 @@ def teacher_report(tracking_uri: str, output_dir: str | Path | None, settings: M
     ``teacher.md`` and ``teacher.csv`` there. Without records the committed page (``settings["committed"]``) is
     kept under the lost-store notice. Returns the markdown and the files written."""
     import tempfile
-
-    from spade.experiments.closed_loop_table import CLOSED_LOOP_TABLE, drive_cells
-    from spade.experiments.run_records import has_records, keep_committed_page, load_records, store_exists
-    from spade.utils.provenance import command_line, provenance_lines, shown_path
 
     with tempfile.TemporaryDirectory() as tmp:
         records_dir = Path(str(settings["records_dir"])) if settings.get("records_dir") else Path(tmp)

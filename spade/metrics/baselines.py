@@ -32,6 +32,8 @@ from skimage.graph import MCP_Geometric
 
 from spade.data.rasterize import draw_polyline  # noqa: F401  (drawn here, imported from here by others)
 from spade.metrics.extraction import marker_centre
+from spade.data.polyline import smooth_path
+from spade.maps.costmap import build_costmap
 
 BASELINES: tuple[str, ...] = ("straight", "shortest", "heading")
 """Names of the baselines, as used in metric keys (``test/baseline/<name>/ape_cm``)."""
@@ -97,9 +99,6 @@ def shortest_path(occupancy: np.ndarray, start: np.ndarray, goal: np.ndarray, re
     band (a window rotated next to a wall) may still drive out of it, so those cells cost a lot but are not
     forbidden here; obstacles and unknown cells are.
     """
-    from spade.data.polyline import smooth_path
-    from spade.maps.costmap import build_costmap
-
     costmap = build_costmap(np.ascontiguousarray(occupancy, dtype=np.uint8), resolution, robot, cost_weight)
     cost = costmap.cost.copy()
     free = costmap.grid == 1

@@ -30,6 +30,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from spade.utils.hashing import file_sha256
+from spade.metrics.shape_features import ShapeFeatures
 
 __all__ = [
     "RandomConvFeatures",
@@ -176,8 +177,6 @@ def build_feature_extractor(name: str = "shape", **kwargs) -> nn.Module:
     trained to see path shape, weights shipped and pinned), "randconv" (fixed random conv net) or "inception"
     (weights_path=...)."""
     if name == "shape":
-        from spade.metrics.shape_features import ShapeFeatures
-
         return ShapeFeatures(**kwargs)
     if name == "randconv":
         defaults = not kwargs or set(kwargs) <= {"in_channels"} and kwargs.get("in_channels", 1) == 1

@@ -18,6 +18,7 @@ from spade.metrics.decoding import PathDecoder
 from spade.metrics.fid import FID
 from spade.metrics.hausdorff import HausdorffCount
 from spade.metrics.preference import PREFERENCE_KEYS, PreferenceMetrics
+from spade.metrics.preference import instance_errors
 
 log = logging.getLogger(__name__)
 # (images, needed) pairs already warned of: a test scores the model and every baseline on the same instances, and
@@ -148,8 +149,6 @@ class PathMetrics(MetricCollection):
 
     def _record(self, polylines: list, batch: dict) -> None:
         """One row per instance of the planner's figures (:func:`spade.metrics.preference.instance_errors`)."""
-        from spade.metrics.preference import instance_errors
-
         truth = to_numpy(batch["waypoints"]).astype("float64")
         alternatives = batch.get("alternatives")
         alts = to_numpy(alternatives).astype("float64") if alternatives is not None else None

@@ -13,6 +13,7 @@ import torch
 
 from spade.data.augment import widen_path
 from spade.data.plausible import ceiling_map, plausible_images
+from spade.metrics.preference import medoid_path, plausible_set
 
 __all__ = ["POLYLINE_REFERENCES", "REFERENCES", "reference_maps", "reference_polylines"]
 
@@ -42,8 +43,6 @@ def reference_maps(batch: dict, width_px: int) -> dict[str, torch.Tensor]:
 def reference_polylines(batch: dict) -> dict[str, list]:
     """The oracle's paths of :data:`POLYLINE_REFERENCES` for a test batch with ``alternatives`` ({} without):
     window-pixel polylines, None where an instance has no alternative."""
-    from spade.metrics.preference import medoid_path, plausible_set
-
     alternatives = batch.get("alternatives")
     if alternatives is None:
         return {}

@@ -21,6 +21,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from spade.data.polyline import polyline_length, resample_polyline
+from spade.data.rasterize import draw_curve
 
 __all__ = ["TEMPLATE", "sample_paths", "render_paths", "straight_paths", "rotate_paths", "cut_gap", "template_curve",
            "to_robot_frame"]
@@ -141,8 +142,6 @@ def render_paths(paths: Sequence[np.ndarray], size: int, gap: float = 0.0, shift
     ``gap``: the middle ``gap`` fraction of each path's arc length removed (1/3: its middle third);
     ``shift_px``: each path translated by that many pixels in a random direction (deterministic by ``seed``).
     """
-    from spade.data.rasterize import draw_curve
-
     rng = np.random.default_rng(seed)
     out = np.zeros((len(paths), 1, size, size), dtype=np.float32)
     for i, p in enumerate(paths):

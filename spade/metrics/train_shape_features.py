@@ -58,6 +58,9 @@ import numpy as np
 from spade.data.format import MANIFEST, read_manifest_json
 from spade.data.settings import Generator
 from spade.utils.timing import cpu_model
+from spade.data.polyline import polyline_length, resample_polyline
+from spade.metrics.shape_paths import cut_gap
+from spade.utils.config import compose_config
 
 GENERATE = {
     "train_L": {"preset": "lshape", "seed": 21},
@@ -80,8 +83,6 @@ def configured_generator() -> Generator:
     """The generator the data configs give the data module (``conf/data/generator/annotate.yaml``: the annotation
     tool's :func:`~spade.annotation.run.generate_dataset`), instantiated from that config."""
     from hydra.utils import instantiate
-
-    from spade.utils.config import compose_config
 
     return instantiate(compose_config("data/generator/annotate").data.generator)
 
@@ -108,8 +109,6 @@ def ensure_data(data_dir: Path, generate: Generator | None = None) -> list[Path]
 
 def descriptor(points: np.ndarray, size: int, gap: float = 0.0) -> tuple[np.ndarray, int]:
     """The regression targets (31,) and kind index of a window polyline drawn at ``size`` px."""
-    from spade.data.polyline import polyline_length, resample_polyline
-
     p = (np.asarray(points, np.float64) + 0.5) * (64.0 / size) - 0.5
     pts = resample_polyline(p, N_POINTS) / 32.0 - 1.0
     dense = resample_polyline(p, 8 * N_BINS + 1)
@@ -133,8 +132,6 @@ def build_samples(roots: list[Path], seed: int, straight_every: int, gap_prob: f
 
     from spade.data.path_dataset import PathDataset
     from spade.metrics.baselines import draw_polyline
-    from spade.metrics.shape_paths import cut_gap
-
     rng = np.random.default_rng(seed)
     images, targets, kinds, held, gaps = [], [], [], [], []
     for root in roots:

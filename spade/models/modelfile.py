@@ -54,6 +54,8 @@ from torch import nn
 from spade.models.onnx_session import OUTPUT_NAME, OnnxSession
 from spade.utils.devices import device_name
 from spade.utils.errors import UserError
+from spade.models.builders import model_from_config
+from spade.models.onnx_check import archive_sha256, check_student_export, weights_sha256
 
 __all__ = [
     "INPUT_ENCODING", "SAFE_GLOBALS", "ModelFileError", "ModelRunner", "UnsafeModelFileError", "build_network",
@@ -385,8 +387,6 @@ def robot_frame(info: Mapping[str, Any], path: str | Path) -> dict[str, Any]:
 def build_network(info: Mapping[str, Any], state_dict: Mapping[str, torch.Tensor], path: str | Path) -> nn.Module:
     """The network a model file describes (``info["config"]``) with its weights (a Lightning state dict's
     ``net.`` entries, or a bare state dict), in eval mode on the CPU."""
-    from spade.models.builders import model_from_config
-
     try:
         net = model_from_config(dict(info["config"]))
     except (KeyError, TypeError, ValueError) as err:
@@ -456,8 +456,6 @@ class ModelRunner:
     def _check_export(self, allow_unsigned: bool) -> None:
         """An export is the one its metadata describes (:mod:`spade.models.onnx_check`): shapes, weight digest,
         parity probe, covered fields; else :class:`ModelFileError`. No record: refused unless ``allow_unsigned``."""
-        from spade.models.onnx_check import archive_sha256, check_student_export, weights_sha256
-
         if self.format == "onnx":
             shapes = self._session.input.shape, self._session.output.shape
             weights = lambda: weights_sha256(self.path.read_bytes())  # noqa: E731

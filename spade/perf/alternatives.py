@@ -35,6 +35,17 @@ from spade.annotation.templates import SHAPES
 from spade.maps.frame import RobotFrame
 from spade.metrics import catalog
 from spade.metrics.preference import floor_path
+from spade.annotation.pipeline import build_contexts
+from spade.annotation.scenarios import plan_scenario, state_indices_along
+from spade.annotation.sources import load_map_sources
+from spade.data.format import read_manifest
+from spade.data.path_dataset import PathDataset
+from spade.data.rasterize import robot_instance
+from spade.experiments.reporting.stats import paired
+from spade.maps.frame import path_heading
+from spade.metrics.extraction import marker_centre
+from spade.metrics.preference import PreferenceMetrics, PreferenceMetrics as _P
+from spade.utils.provenance import command_line, commit, machine, shown_path
 
 
 def prefilter_capture(costmap: Any, shape: str, goal_px: np.ndarray, points: np.ndarray, state_indices: np.ndarray,
@@ -42,8 +53,6 @@ def prefilter_capture(costmap: Any, shape: str, goal_px: np.ndarray, points: np.
                       rng: np.random.Generator, rounds: int = 8) -> tuple[int, int]:
     """(kept, accepted): of the (template, state) pairs that ``reference``'s prefilter proposes and whose executed
     path passes the state (the definition), how many the shipped ``settings`` prefilter would have proposed too."""
-    from spade.maps.frame import path_heading
-
     res = float(costmap.resolution)
     frame = RobotFrame.for_size(int(cfg["window"]["size_px"]))
     poses = np.stack([np.r_[points[i], path_heading(points, int(i))] for i in state_indices])
@@ -82,13 +91,6 @@ def compare(dataset: str, scenarios: int = 4, states: int = 6, shape: str = "L",
             seed: int = 0, looser: float = 2.0) -> dict[str, Any]:
     """The shipped prefilter against one ``looser`` times wider, on ``states`` evenly spaced states of the first
     ``scenarios`` scenarios of ``shape`` in a template dataset (rebuilt from its manifest's generator record)."""
-    from spade.annotation.pipeline import build_contexts
-    from spade.annotation.scenarios import plan_scenario, state_indices_along
-    from spade.annotation.sources import load_map_sources
-    from spade.data.format import read_manifest
-    from spade.data.rasterize import robot_instance
-    from spade.metrics.extraction import marker_centre
-
     cfg = read_manifest(dataset).generator
     res = float(cfg["window"]["resolution_m"])
     contexts = build_contexts(load_map_sources(cfg["maps"], res), cfg)
@@ -128,8 +130,6 @@ def compare(dataset: str, scenarios: int = 4, states: int = 6, shape: str = "L",
             rows.append({"scenario": result.scenario_id, "state": int(s),
                          "sampler": _figures(demo, sampled[int(s)], centre, res * 100),
                          "reference": _figures(demo, exact[int(s)], centre, res * 100)})
-    from spade.experiments.reporting.stats import paired
-
     summary = {}
     for key in ("floor_cm", "nearest_cm", "spread_cm", "count"):
         a = np.array([r["sampler"][key] for r in rows], float)
@@ -152,10 +152,6 @@ def independent_floor(dataset: str, shape: str | None = None) -> dict[str, Any]:
     beside what :class:`~spade.metrics.preference.PreferenceMetrics` computes from the same set."""
     import torch
 
-    from spade.data.path_dataset import PathDataset
-    from spade.data.format import read_manifest
-    from spade.metrics.preference import PreferenceMetrics
-
     m = read_manifest(dataset)
     if not m.alternatives:
         raise ValueError(f"{dataset} has no alternative demonstrations (alternatives.count=0 when it was made)")
@@ -173,8 +169,6 @@ def independent_floor(dataset: str, shape: str | None = None) -> dict[str, Any]:
         u = np.concatenate([[0.0], np.cumsum(seg)])
         t = np.linspace(0.0, u[-1], k)
         return np.stack([np.interp(t, u, p[:, 0]), np.interp(t, u, p[:, 1])], axis=1)
-
-    from spade.metrics.preference import PreferenceMetrics as _P
 
     tol_cm = _P().commit_tol_cm
     median_cm, medoid_cm, genuine = [], [], []
@@ -212,8 +206,6 @@ def independent_floor(dataset: str, shape: str | None = None) -> dict[str, Any]:
 def write_page(out_dir: str, comparison: dict[str, Any], floors: list[dict[str, Any]], seconds: float) -> Path:
     """``alternatives.md`` in ``out_dir``: the prefilter's loss and the floor checks, with their provenance."""
     import datetime
-
-    from spade.utils.provenance import command_line, commit, machine, shown_path
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

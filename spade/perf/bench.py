@@ -19,6 +19,11 @@ from omegaconf import DictConfig, OmegaConf
 
 from spade.perf.bench_report import check_targets
 from spade.utils.timing import machine_info
+from spade.perf.closed_loop import closed_loop_costs
+from spade.perf.dataset import dataset_read_at_scale
+from spade.perf.maps import procedural_map_costs, real_map_costs
+from spade.perf.throughput import annotation_scaling, generation_throughput
+from spade.utils.config import compose_config
 
 log = logging.getLogger(__name__)
 
@@ -190,8 +195,6 @@ def _metrics(m: dict[str, Any], seed: int) -> dict[str, Any]:
 
 def _annotation(a: dict[str, Any], work: Path) -> dict[str, Any]:
     """Each preset written by the annotation tool at its own size (or ``num_instances``), timed."""
-    from spade.perf.throughput import generation_throughput
-
     rows = []
     for preset in a["presets"]:
         out = work / "annotation" / preset
@@ -207,8 +210,6 @@ def _annotation(a: dict[str, Any], work: Path) -> dict[str, Any]:
 
 def _annotation_scaling(a: dict[str, Any], work: Path) -> dict[str, Any]:
     """Annotation instances/s per worker on a set of few scenarios, per window size and worker count."""
-    from spade.perf.throughput import annotation_scaling
-
     log.info("annotation scaling: preset %s, %d instances at %s px with %s workers", a["preset"],
              a["num_instances"], a["image_sizes"], a["workers"])
     rows = annotation_scaling(work, a["preset"], a["num_instances"], a["image_sizes"], a["workers"],
@@ -218,15 +219,11 @@ def _annotation_scaling(a: dict[str, Any], work: Path) -> dict[str, Any]:
 
 
 def _dataset(d: dict[str, Any], work: Path, seed: int) -> dict[str, Any]:
-    from spade.perf.dataset import dataset_read_at_scale
-
     log.info("dataset: reading %s", d.get("path") or f"{d['instances']} synthetic instances")
     return dataset_read_at_scale(work, d["instances"], d["image_size"], d["waypoints"], d.get("path"), seed)
 
 
 def _maps(m: dict[str, Any]) -> dict[str, Any]:
-    from spade.perf.maps import procedural_map_costs, real_map_costs
-
     maps_dir = m.get("dir")
     real = None
     if maps_dir and Path(maps_dir).expanduser().is_dir():
@@ -237,8 +234,6 @@ def _maps(m: dict[str, Any]) -> dict[str, Any]:
 
 
 def _closed_loop(k: dict[str, Any]) -> dict[str, Any]:
-    from spade.perf.closed_loop import closed_loop_costs
-
     if not k.get("ckpt") or not k.get("dataset"):
         raise ValueError("the closed_loop section needs closed_loop.ckpt (a trained student) and closed_loop.dataset "
                          "(a scenario set, e.g. data/quickstart/test_scenarios100 from spade.evaluate closed_loop=true "
@@ -249,8 +244,6 @@ def _closed_loop(k: dict[str, Any]) -> dict[str, Any]:
 
 def _datasets(d: dict[str, Any], work: Path) -> dict[str, Any]:
     """An L-shape training set and a test set written with the annotation tool (timed: generation throughput)."""
-    from spade.perf.throughput import generation_throughput
-
     train_dir, test_dir = work / "data" / "lshape", work / "data" / "test"
     generation = []
     for root, preset, n, maps in ((train_dir, "lshape", d["train_instances"], d.get("maps")),
@@ -314,7 +307,6 @@ def _load_expert(path: str | Path) -> Any:
 
 def _train_expert(q: dict[str, Any], datasets: dict[str, Any], work: Path, seed: int) -> Any:
     """A tiny conditional expert trained on the bench's training set (``+experiment=cond_expert_L``)."""
-    from spade.utils.config import compose_config
     from spade.experiments.run import train
 
     out = work / "expert"

@@ -8,6 +8,8 @@ from typing import Any
 
 from spade.metrics import catalog
 from spade.utils.markdown import number_table
+from spade.perf.contention import format_contention
+from spade.perf.speed_page import format_training_speed, steps_table
 
 STUDENT_ONNX_TARGET_MS = 15.0  # medium student, batch 1, ONNX Runtime
 COND_DBC_RATIO_TARGET = 2.5  # Cond-DBC step / BC step
@@ -107,8 +109,6 @@ def format_report(results: dict[str, Any]) -> str:
         parts.append("### Path decoding per instance (the planner's search vs the paper's skeleton extraction)\n\n"
                      + number_table(["decoder", "px", "instances", "median ms", "p95 ms", "CPU ms / instance"], table))
     if results.get("training"):
-        from spade.perf.speed_page import format_training_speed, steps_table
-
         parts.append("### Training step\n\n" + steps_table(results["training"]))
         if results.get("training_speed"):
             parts.append(format_training_speed(results["training_speed"]))
@@ -135,8 +135,6 @@ def format_report(results: dict[str, Any]) -> str:
             [[k["scenarios"], k["plans"], k["student_s"], k["network_s"], k["decoding_s"], k["rest_s"],
               k.get("shortest_s", "-"), k.get("heading_s", "-"), k["all_s"], k["scenarios_per_s"]]]))
     if results.get("contention"):
-        from spade.perf.contention import format_contention
-
         parts.append("### " + format_contention(results["contention"]["rows"], results["contention"]["size"]))
     if results.get("annotation"):
         parts.append(_annotation(results["annotation"]))

@@ -11,6 +11,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 from typing import Any
+from spade.closedloop.planners import BaselinePlanner
+from spade.closedloop.scenario_loading import load_scenarios
+from spade.closedloop.simulate import ClosedLoopSettings, drive
+from spade.deploy.student_planner import Planner
 
 __all__ = ["closed_loop_costs"]
 
@@ -19,12 +23,7 @@ def closed_loop_costs(ckpt: str | Path, dataset: str | Path, scenarios: int | No
                       baselines: tuple[str, ...] = ("shortest", "heading")) -> dict[str, Any]:
     """Drive ``scenarios`` (None: all) of the scenario set ``dataset`` with the student ``ckpt`` and the
     baselines; returns seconds per part, scenarios per second and plans per second."""
-    from spade.closedloop.planners import BaselinePlanner
-    from spade.closedloop.scenario_loading import load_scenarios
-    from spade.closedloop.simulate import ClosedLoopSettings, drive
     from spade.data.path_dataset import PathDataset
-    from spade.deploy.student_planner import Planner
-
     t0 = time.perf_counter()
     ds = PathDataset(dataset)
     scen = load_scenarios(ds, limit=scenarios)

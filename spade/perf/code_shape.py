@@ -29,6 +29,7 @@ import time
 from pathlib import Path
 
 from spade.utils.provenance import REPO_ROOT
+from spade.utils.provenance import command_line, machine
 
 __all__ = ["measure", "render", "main"]
 
@@ -105,8 +106,6 @@ def _git(*args: str) -> str:
 
 def render(before: dict, after: dict, before_rev: str, after_rev: str, command: str, seconds: float) -> str:
     """The page: one row per figure, before and after."""
-    from spade.utils.provenance import machine
-
     rows = [
         ("SPADE modules loaded by `import spade.train`", "modules_imported_by_spade_train", "d"),
         ("`python -m spade.train --help` (s, median)", "train_help_seconds", ".2f"),
@@ -156,8 +155,6 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             _git("worktree", "remove", "--force", str(tree))
     after = measure(REPO_ROOT, args.runs)
-    from spade.utils.provenance import command_line
-
     page = render(before, after, before_rev, after_rev, command_line("spade.perf.code_shape"),
                   time.perf_counter() - t0)
     print(page)

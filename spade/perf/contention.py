@@ -19,6 +19,7 @@ import subprocess
 import sys
 import time
 from typing import Any
+from spade.utils.threads import configure_threads
 
 __all__ = ["contention", "contention_table", "step_loop"]
 
@@ -116,8 +117,6 @@ def format_contention(rows: list[dict[str, Any]], size: str = "medium") -> str:
 
 
 def _worker(spec: dict[str, Any]) -> None:
-    from spade.utils.threads import configure_threads
-
     configure_threads(spec["setting"].get("threads"))
     result = step_loop(spec["size"], spec["image_size"], spec["batch_size"], spec["seconds"])
     print(json.dumps(result), flush=True)

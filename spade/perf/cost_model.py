@@ -22,6 +22,9 @@ from typing import Any
 import torch
 
 from spade.utils.timing import machine_info, step_time
+from spade.deploy.export import example_states
+from spade.perf.training import student_with_margin
+from spade.training.expert_module import ExpertModule
 
 __all__ = ["KINDS", "measure_cost_model", "write_cost_model"]
 
@@ -37,8 +40,6 @@ class _ExpertStep(torch.nn.Module):
 
     def __init__(self, conditional: bool) -> None:
         super().__init__()
-        from spade.training.expert_module import ExpertModule
-
         self.module = ExpertModule(conditional=conditional, preset=EXPERT_PRESET, prediction_type="sample",
                                    metrics={"fid": False, "planner": False})
 
@@ -47,8 +48,6 @@ class _ExpertStep(torch.nn.Module):
 
 
 def _module(kind: str) -> Any:
-    from spade.perf.training import student_with_margin
-
     approach, size = kind.split("/")
     if approach == "expert":
         return _ExpertStep(size == "cond")
@@ -58,8 +57,6 @@ def _module(kind: str) -> Any:
 
 def measure_cost_model(runs: int = 5, warmup: int = 2, kinds: tuple[str, ...] = KINDS) -> dict[str, float]:
     """Median seconds of one step of each kind (:data:`KINDS`) at batch 32, 64 px."""
-    from spade.deploy.export import example_states
-
     torch.manual_seed(0)
     batch = {"state": example_states(BATCH, (IMAGE_SIZE, IMAGE_SIZE), seed=0),
              "path": (torch.rand(BATCH, 1, IMAGE_SIZE, IMAGE_SIZE) > 0.97).float()}

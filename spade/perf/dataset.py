@@ -16,14 +16,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from spade.data import DatasetWriter
+from spade.metrics.synthetic import synthetic_batch
+from spade.perf.throughput import dataset_read_throughput
+import spade.data
 
 
 def write_synthetic_dataset(root: str | Path, instances: int, image_size: int, num_waypoints: int = 64,
                             seed: int = 0, chunk: int = 500) -> float:
     """Write ``instances`` synthetic instances (0.05 m/px) to ``root``; returns the seconds it took."""
-    from spade.data import DatasetWriter
-    from spade.metrics.synthetic import synthetic_batch
-
     rng = np.random.default_rng(seed)
     codes = np.array([0, 1, 2], dtype=np.uint8)  # UNKNOWN / FREE / OCCUPIED
     t0 = time.perf_counter()
@@ -58,9 +59,6 @@ def read_footprint(root: str | Path) -> dict[str, Any]:
     peak minus the baseline.
     Meaningful in a fresh process (what :func:`dataset_read_at_scale` runs it in)."""
     import torch  # noqa: F401  (counted in the baseline, as the reader's own code)
-
-    import spade.data  # noqa: F401
-    from spade.perf.throughput import dataset_read_throughput
 
     base = _rss_mb()
     out = dataset_read_throughput(root)

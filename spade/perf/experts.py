@@ -14,6 +14,11 @@ from typing import Any
 import torch
 
 from spade.perf.student import forward_gflop
+from spade.deploy.export import example_states
+from spade.metrics.ape import APE
+from spade.metrics.hausdorff import HausdorffCount
+from spade.models.builders import count_parameters
+from spade.training.expert_module import ExpertModule
 
 
 class _Stop(Exception):
@@ -61,10 +66,6 @@ def expert_sampling_costs(conditional: bool, preset: str, image_size: int, ddim_
                           max_timed_steps: int = 20, num_train_timesteps: int = 1000, batch: int = 1) -> dict[str, Any]:
     """Seconds per sample of a (randomly initialised) expert preset: DDIM at each of ``ddim_steps`` and DDPM over
     all ``num_train_timesteps`` steps, with the speed-up of each DDIM setting over DDPM."""
-    from spade.deploy.export import example_states
-    from spade.models.builders import count_parameters
-    from spade.training.expert_module import ExpertModule
-
     module = ExpertModule(conditional=conditional, preset=preset, num_train_timesteps=num_train_timesteps).eval()
     net = module.ema_net()
     state = example_states(batch, (image_size, image_size), seed=0)
@@ -83,9 +84,6 @@ def sampler_quality(module: Any, batch: dict[str, torch.Tensor], settings: Seque
                     hd_threshold: float = 19.0) -> list[dict[str, Any]]:
     """APE / Hd19 / failures of paths sampled for ``batch`` by each (sampler, steps) setting, all from the same
     initial noise (``seed``), with seconds per sample measured over the whole loop."""
-    from spade.metrics.ape import APE
-    from spade.metrics.hausdorff import HausdorffCount
-
     rows = []
     n = int(batch["state"].shape[0])
     for sampler, steps in settings:

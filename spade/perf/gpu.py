@@ -36,6 +36,12 @@ from spade.metrics import catalog
 from spade.perf.bench_report import write_json  # noqa: F401  (the JSON writer of spade.bench, used by the entry point)
 from spade.utils.timing import machine_info, measure
 from spade.tracking.predictors import TOP_LEVEL_FILTER
+from spade.metrics.synthetic import synthetic_batch
+from spade.models.builders import count_parameters
+from spade.perf.experts import sampling_seconds
+from spade.perf.training import student_with_margin
+from spade.tracking.client import mlflow_client
+from spade.training.expert_module import ExpertModule
 
 log = logging.getLogger(__name__)
 
@@ -98,8 +104,6 @@ def _peak_memory(device: torch.device, out: dict[str, Any]) -> Iterator[None]:
 
 
 def _batch(batch_size: int, image_size: int, device: torch.device, seed: int = 0) -> dict[str, torch.Tensor]:
-    from spade.metrics.synthetic import synthetic_batch
-
     data = synthetic_batch(batch_size, image_size, seed=seed)
     return {"state": torch.from_numpy(data["state"]).to(device), "path": torch.from_numpy(data["path"]).to(device)}
 
@@ -165,9 +169,6 @@ def expert_step(conditional: bool, preset: str, image_size: int, batch_size: int
                 prediction_type: str = "sample", peak_tflops: float | None = None) -> dict[str, Any]:
     """One AdamW step of an expert's denoising loss (``ExpertModule.denoising_loss``) with its EMA update; on
     CUDA out-of-memory the batch halves until it fits (reported as ``batch_size``)."""
-    from spade.models.builders import count_parameters
-    from spade.training.expert_module import ExpertModule
-
     row: dict[str, Any] = {"expert": "cond" if conditional else "uncond", "preset": preset, "image_size": image_size}
     module = ExpertModule(conditional=conditional, preset=preset, prediction_type=prediction_type, ema_decay=0.999)
     module.to(device).train()
@@ -207,8 +208,6 @@ def student_step(size: str, expert_preset: str | None, image_size: int, batch_si
     """One AdamW step of a student's losses: BC (``expert_preset=None``), Cond-DBC (``expert="cond"``) or DBC
     (``expert="uncond"``) with a frozen expert of that preset (random weights, wired as training wires it:
     :func:`spade.perf.training.student_with_margin`)."""
-    from spade.perf.training import student_with_margin
-
     module = student_with_margin(size, expert if expert_preset else None, expert_preset or "tiny").to(device)
     optimizer = torch.optim.AdamW([p for p in module.parameters() if p.requires_grad], lr=1e-3)
     batch = _batch(batch_size, image_size, device)
@@ -233,9 +232,6 @@ def student_step(size: str, expert_preset: str | None, image_size: int, batch_si
 def sampling_cost(preset: str, image_size: int, batch_size: int, ddim_steps: int, device: torch.device,
                   precision: str = "bf16") -> dict[str, Any]:
     """Seconds per sample of the conditional expert's DDIM loop, ``batch_size`` states at once."""
-    from spade.perf.experts import sampling_seconds
-    from spade.training.expert_module import ExpertModule
-
     module = ExpertModule(conditional=True, preset=preset, prediction_type="sample").to(device).eval()
     state = _batch(batch_size, image_size, device)["state"]
     with _autocast(device, precision):
@@ -247,8 +243,6 @@ def sampling_cost(preset: str, image_size: int, batch_size: int, ddim_steps: int
 
 def _run_figures(store: Path) -> list[dict[str, Any]]:
     """The runs of an MLflow SQLite store: name, wall seconds, and the test figures a reader compares."""
-    from spade.tracking.client import mlflow_client
-
     client = mlflow_client(f"sqlite:///{store}")
     keys = [catalog.mlflow_key(n) for n in (*catalog.GPU_CHECK, "seconds_per_sample")]
     rows = []

@@ -15,6 +15,8 @@ import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback, TQDMProgressBar
 from lightning.pytorch.loggers import CSVLogger
+from spade.perf.training import LEVERS, build_step, example_batch, Setup
+from spade.training.student_module import StudentModule
 
 
 class _StepClock(Callback):
@@ -33,8 +35,6 @@ class _StepClock(Callback):
 def _fit_step_ms(student: str, batches: list[dict[str, torch.Tensor]], log_every_n_steps: int,
                  progress_bar: bool) -> list[float]:
     """Per-step ms of ``Trainer.fit`` over ``batches`` (no validation, no checkpoints)."""
-    from spade.training.student_module import StudentModule
-
     clock = _StepClock()
     callbacks: list[Callback] = [clock]
     if progress_bar:
@@ -53,8 +53,6 @@ def lightning_overhead(student: str, image_size: int, batch_size: int, steps: in
                        settings: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per-step ms of a bare BC loop and of ``Trainer.fit`` under each setting (``log_every_n_steps``,
     ``progress_bar``), ``rounds`` times in turn; each row with its difference to the bare loop."""
-    from spade.perf.training import LEVERS, Setup, build_step, example_batch
-
     batch = example_batch(batch_size, image_size)
     batches = [dict(batch) for _ in range(steps + 2)]
     bare = build_step(Setup("BC", student), LEVERS["baseline"], batch)

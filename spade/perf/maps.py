@@ -8,6 +8,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from spade.maps import (
+    GENERATORS,
+    generate_map,
+    largest_free_component,
+    load_ros_map,
+    max_clear_square_m,
+    traversable_mask,
+)
 
 
 def real_map_costs(maps_dir: str | Path, resolution_m: float = 0.05, robot_radius_m: float = 0.22,
@@ -15,8 +23,6 @@ def real_map_costs(maps_dir: str | Path, resolution_m: float = 0.05, robot_radiu
     """Per ROS map yaml below ``maps_dir`` (sorted; the first ``limit``): size, m/px, occupied / free / unknown
     fractions, ms to load and to resample to ``resolution_m``, and the side of the largest square a robot of
     ``robot_radius_m`` can stand in (metres)."""
-    from spade.maps import load_ros_map, max_clear_square_m
-
     rows = []
     for path in sorted(Path(maps_dir).expanduser().rglob("*.yaml"))[:limit]:
         t0 = time.perf_counter()
@@ -35,8 +41,6 @@ def procedural_map_costs(seeds: int, robot_radius_m: float = 0.22) -> list[dict[
     """Per procedural generator (default size, 0.05 m/px), over seeds ``0 .. seeds - 1``: mean ms to generate, mean
     fractions, and the worst case of the largest clear square (m) and of the share of the traversable cells that
     the largest connected free component reaches."""
-    from spade.maps import GENERATORS, generate_map, largest_free_component, max_clear_square_m, traversable_mask
-
     rows = []
     for kind in sorted(GENERATORS):
         times, squares, reach, fractions = [], [], [], []

@@ -26,6 +26,10 @@ from spade.metrics.fid import FID
 from spade.metrics.hausdorff import HausdorffCount
 from spade.metrics.shape_features import ShapeFeatures
 from spade.metrics.synthetic import degrade, synthetic_batch, synthetic_predictions
+from spade.data.path_dataset import PathDataset
+from spade.data.polyline import resample_polyline
+from spade.metrics.baselines import BASELINES, baseline_polylines, draw_polyline
+from spade.metrics.shape_paths import render_paths, rotate_paths, sample_paths, straight_paths
 
 SENSITIVITY_LEVELS = {"shift": [0, 1, 2, 4, 8], "blur": [0, 0.5, 1, 2, 3], "dropout": [0, 0.1, 0.2, 0.4, 0.6],
                       "blobs": [0, 1, 2, 4, 8]}
@@ -133,8 +137,6 @@ def reference_instance(pred: np.ndarray, truth_mask: np.ndarray, start: np.ndarr
     from scipy.sparse.csgraph import shortest_path
     from scipy.spatial.distance import directed_hausdorff
     from skimage.morphology import thin
-
-    from spade.data.polyline import resample_polyline
 
     mask = pred >= 0.5
     hd = float("inf")
@@ -249,8 +251,6 @@ def shape_validity(images: int, image_size: int = 64, seed: int = 0,
     """FID's validity on robot-frame L paths (:mod:`spade.metrics.shape_paths`, ``images`` per set): a disjoint
     ground-truth sample, straight lines, U's, sharp corners, the middle third removed, a 180 degree rotation,
     each against the ground truth, and the growing corruptions of :data:`SHAPE_LEVELS`; per extractor."""
-    from spade.metrics.shape_paths import render_paths, rotate_paths, sample_paths, straight_paths
-
     res = 0.1 * 64 / image_size
     scale = image_size / 64
     real = torch.from_numpy(render_paths(sample_paths(images, "L", image_size, res, seed=seed + 1), image_size))
@@ -285,8 +285,6 @@ def shape_validity(images: int, image_size: int = 64, seed: int = 0,
 
 
 def _load_paths(root: str | Path, shape: str | None) -> dict[str, Any]:
-    from spade.data.path_dataset import PathDataset
-
     ds = PathDataset(root)
     keep = [i for i, s in enumerate(ds.labels("shape")) if shape is None or s == shape]
     items = [ds[i] for i in keep]
@@ -308,8 +306,6 @@ def fid_test_table(test_dir: str | Path, resample_dir: str | Path | None = None,
     one the test set is split by scenario into two halves, and every row is scored against the first half (the
     resample row is the second half).
     """
-    from spade.metrics.baselines import BASELINES, baseline_polylines, draw_polyline
-
     test = _load_paths(test_dir, shape)
     n = len(test["path"])
     if resample_dir is not None:

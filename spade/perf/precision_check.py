@@ -15,6 +15,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+from spade.experiments.run import train
+from spade.utils.config import compose_config
 
 #: spade.train overrides of every run: the medium BC row of the encoding table, tested on the held-out map only.
 BASE_OVERRIDES: tuple[str, ...] = ("+experiment=enc_gaussian_L", "~also_test", "logger=none", "closed_loop=false",
@@ -23,9 +25,6 @@ BASE_OVERRIDES: tuple[str, ...] = ("+experiment=enc_gaussian_L", "~also_test", "
 
 def train_once(precision: str, seed: int, overrides: Sequence[str], output_dir: Path) -> dict[str, Any]:
     """One run; its test figures (``test/*``), the precision the trainer resolved it to, and the fit's seconds."""
-    from spade.experiments.run import train
-    from spade.utils.config import compose_config
-
     cfg = compose_config("train", [*BASE_OVERRIDES, f"trainer.precision={precision}", f"seed={seed}",
                                    f"paths.output_dir={output_dir}", *overrides])
     t0 = time.perf_counter()

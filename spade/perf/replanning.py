@@ -25,6 +25,9 @@ import sys
 import time
 from pathlib import Path
 from typing import Any
+from spade.experiments.closed_loop_evaluation import run_closed_loop, scenario_set
+from spade.experiments.run_records import _shown as shown
+from spade.utils.config import compose_config
 
 __all__ = ["CONDITIONS", "FIGURES", "drive_records", "summarise"]
 
@@ -42,8 +45,6 @@ FIGURES = ("ape_cm", "mode_switches", "commit_rate", "success_rate", "replan_cha
 def _shown(value: str) -> str:
     """A path as a committed record keeps it: relative to the project, or its last parts, never the writing
     machine's folders (:func:`spade.experiments.run_records._shown`, the run records' rule)."""
-    from spade.experiments.run_records import _shown as shown
-
     return shown(value)
 
 
@@ -62,9 +63,6 @@ def drive_records(ckpts: list[str], weights: list[float], conditions: list[str],
     docstring). ``scenarios``: the first N of the test set's (None: all)."""
     import hydra
     from omegaconf import OmegaConf
-
-    from spade.experiments.closed_loop_evaluation import run_closed_loop, scenario_set
-    from spade.utils.config import compose_config
 
     unknown = sorted(set(conditions) - set(CONDITIONS))
     if unknown:

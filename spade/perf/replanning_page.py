@@ -20,6 +20,7 @@ from typing import Any
 
 from spade.experiments.reporting.stats import holm, mean_sd, paired, significance
 from spade.utils.markdown import markdown_table
+from spade.utils.provenance import provenance_lines
 
 __all__ = ["TARGETS", "load_drive_records", "replanning_page"]
 
@@ -60,8 +61,6 @@ def _paired_by_student(a: dict[str, float], b: dict[str, float]) -> float | None
 
 def replanning_page(records: list[dict[str, Any]], command: str = "") -> str:
     """The page's markdown from the drive records."""
-    from spade.utils.provenance import provenance_lines
-
     groups: dict[tuple[str, float], dict[str, dict[str, float]]] = {}
     followed: dict[str, list[dict[str, float]]] = {}
     for r in records:

@@ -11,6 +11,8 @@ from pathlib import Path
 from typing import Any
 
 from spade.utils.markdown import number_table
+from spade.experiments.reporting.stats import mean_sd, welch
+from spade.paths import CONFIG_PATH
 
 #: The issue's target: a training step's FLOP rate at least this share of the same run's fp32 matmul rate.
 RATIO_TARGET = 0.6
@@ -115,8 +117,6 @@ SCIENCE_KEYS: tuple[str, ...] = ("test/planner/ape_cm", "test/planner/plausibili
 def science_table(rows: list[dict[str, Any]]) -> str:
     """Mean +- sd of each test figure per precision over seeds, and Welch's test of each against the first
     precision (the fp32 reference)."""
-    from spade.experiments.reporting.stats import mean_sd, welch
-
     precisions = list(dict.fromkeys(r["precision"] for r in rows))
     keys = [k for k in SCIENCE_KEYS if any(k in r["metrics"] for r in rows)]
 
@@ -146,7 +146,6 @@ def _defaults() -> str:
     """What ``trainer=cpu``'s speed options resolve to on this machine."""
     from omegaconf import OmegaConf
 
-    from spade.paths import CONFIG_PATH
     from spade.training.speed import resolve_channels_last, resolve_precision
 
     cfg = OmegaConf.load(Path(CONFIG_PATH) / "trainer" / "cpu.yaml")

@@ -13,6 +13,8 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from spade.models.builders import build_model, count_parameters
 from spade.utils.timing import measure
+from spade.deploy.export import example_states, export_net
+from spade.models.modelfile import open_model
 
 
 def forward_gflop(net: nn.Module, *inputs: torch.Tensor) -> float:
@@ -31,9 +33,6 @@ def student_latency(sizes: Sequence[str], image_size: int, batches: Sequence[int
     ``onnx``, ``onnxruntime_b<N>_ms`` for the model exported by :func:`spade.deploy.export.export_net`. The
     batch-1 runs are timed ``runs`` times, larger batches ``max(3, runs // 3)`` times.
     """
-    from spade.deploy.export import example_states, export_net
-    from spade.models.modelfile import open_model
-
     rows = []
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         for size in sizes:

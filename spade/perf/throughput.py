@@ -10,6 +10,9 @@ import shutil
 import time
 from pathlib import Path
 from typing import Any
+from spade.annotation.pipeline import init_worker as _init_worker
+from spade.annotation.run import annotate
+from spade.data.settings import annotation_config
 
 
 def dataset_read_throughput(root: str | Path, batch_size: int = 32) -> dict[str, Any]:
@@ -43,9 +46,6 @@ def generation_throughput(out_dir: str | Path, preset: str, num_instances: int |
     Returns the instances per second and what the tool rejected: ``rejection_rates`` are fractions of the
     placement attempts (accepted scenarios plus every rejection but ``scenario_failed``).
     """
-    from spade.annotation.run import annotate
-    from spade.data.settings import annotation_config
-
     layer: dict[str, Any] = {"workers": workers, "progress": False, "preview": {"enabled": False},
                              "num_instances": num_instances,
                              "maps": list(maps) if isinstance(maps, (list, tuple)) else maps}
@@ -81,8 +81,6 @@ def pool_startup_s(workers: int, start_method: str = "spawn") -> float:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    from spade.annotation.pipeline import init_worker as _init_worker
-
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(start_method),
                              initializer=_init_worker, initargs=([], {}, os.getpid())) as pool:
@@ -114,8 +112,6 @@ def annotation_scaling(work: str | Path, preset: str, num_instances: int, image_
     seconds of the run (this process and its workers: a figure that a machine shared with other jobs does not
     halve) and whether the dataset is the same as the first worker count's (:func:`dataset_digest`).
     """
-    from spade.data.settings import annotation_config
-
     start_method = str(annotation_config(Path(work), {"preset": preset}).start_method)  # the runs' own
     rows: list[dict[str, Any]] = []
     for px in image_sizes:

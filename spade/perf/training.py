@@ -24,15 +24,16 @@ from typing import Any
 import torch
 
 from spade.perf.step_cost import matmul_gflops, step_gflop, top_operators
+from spade.deploy.export import example_states
+from spade.training.expert_module import ExpertModule
+from spade.training.margin import MarginConfig
+from spade.training.speed import use_bf16_expert
+from spade.training.student_module import StudentModule
 
 
 def student_with_margin(size: str, expert: str | None = None, preset: str = "tiny", **margin: Any) -> Any:
     """A :class:`StudentModule` of ``size``; with the diffusion margin (``margin``: :class:`MarginConfig` options)
     of a fresh ``cond``/``uncond`` expert of ``preset`` if given."""
-    from spade.training.expert_module import ExpertModule
-    from spade.training.margin import MarginConfig
-    from spade.training.student_module import StudentModule
-
     module = StudentModule(size=size)
     if expert is not None:
         if expert not in ("cond", "uncond"):
@@ -91,8 +92,6 @@ LEVERS: dict[str, Lever] = {lever.name: lever for lever in (
 
 def example_batch(batch_size: int, image_size: int, seed: int = 0) -> dict[str, torch.Tensor]:
     """A batch of states and sparse paths (the step's cost does not depend on their content)."""
-    from spade.deploy.export import example_states
-
     generator = torch.Generator().manual_seed(seed)
     state = example_states(batch_size, (image_size, image_size), seed=seed)
     path = (torch.rand(batch_size, 1, image_size, image_size, generator=generator) > 0.97).float()
@@ -108,11 +107,7 @@ def build_step(setup: Setup, lever: Lever, batch: dict[str, torch.Tensor]) -> Ca
     """One optimisation step of ``setup`` run as ``lever`` says, as a callable returning the loss."""
     from lightning.pytorch.plugins.precision import MixedPrecision
 
-    from spade.training.speed import use_bf16_expert
-
     if setup.approach == "Expert":
-        from spade.training.expert_module import ExpertModule
-
         module = ExpertModule(conditional=True, preset=setup.preset or "tiny", metrics={"fid": False, "planner": False})
         module.train()
     else:

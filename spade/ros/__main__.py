@@ -20,6 +20,8 @@ from omegaconf import DictConfig
 
 from spade.paths import CONFIG_PATH  # the configs (conf/ or the installed copy); registers the resolvers
 from spade.utils.errors import ConfigError, exit_on_errors, run_entry_point, task
+from spade.ros.launch import run
+from spade.ros.sim import run_sim
 
 
 def user_errors() -> tuple[type[BaseException], ...]:
@@ -37,16 +39,12 @@ def user_errors() -> tuple[type[BaseException], ...]:
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="ros")
 @task
 def main(cfg: DictConfig) -> None:
-    from spade.ros.launch import run
-
     exit_on_errors(user_errors)(run)(cfg)
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name="ros_sim")
 @task
 def sim_main(cfg: DictConfig) -> None:
-    from spade.ros.sim import run_sim
-
     status = exit_on_errors(user_errors)(run_sim)(cfg)
     if status:
         raise SystemExit(status)

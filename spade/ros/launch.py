@@ -10,6 +10,11 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from spade.utils.errors import ConfigError
+from spade.deploy.mlflow_models import resolve_model
+from spade.maps import FREE, OccupancyMap
+from spade.ros.core import check_option, CoreSettings, PlannerCore
+from spade.ros.node_options import TOPIC_KEYS
+from spade.ros.recording import NodeRecorder, replay_bag
 
 __all__ = ["build_core", "build_planner", "checked_options", "domain_id", "foxglove_options", "require_dds", "run"]
 
@@ -24,8 +29,6 @@ def _options(cfg: DictConfig, key: str) -> dict[str, Any]:
 def build_planner(cfg: DictConfig) -> Any:
     """The :class:`spade.planner.Planner` of ``cfg.model_path`` with ``cfg.planner``'s options; prints how long the
     import and the model took."""
-    from spade.deploy.mlflow_models import resolve_model
-
     value = cfg.get("model_path")
     if value in (None, ""):
         raise ConfigError("model_path: no model; pass model=PATH (a student .ckpt from python -m spade.train, its "
@@ -48,8 +51,6 @@ def warm_up(planner: Any) -> float:
     (about 0.6 s on a CPU without torch); returns its seconds."""
     import numpy as np
 
-    from spade.maps import FREE, OccupancyMap
-
     t0 = time.perf_counter()
     empty = OccupancyMap(np.full((80, 80), FREE, np.uint8), planner.resolution, (0.0, 0.0, 0.0), name="warm-up")
     centre = 40 * planner.resolution
@@ -61,15 +62,11 @@ def warm_up(planner: Any) -> float:
 
 
 def build_core(cfg: DictConfig, planner: Any, settings: Any = None) -> Any:
-    from spade.ros.core import PlannerCore
-
     return PlannerCore(planner, settings if settings is not None else core_settings(cfg))
 
 
 def core_settings(cfg: DictConfig) -> Any:
     """``cfg.node`` as :class:`spade.ros.core.CoreSettings`, typed and ranged (ConfigError naming the option)."""
-    from spade.ros.core import CoreSettings
-
     node = _options(cfg, "node")
     try:
         return CoreSettings(**node)
@@ -83,8 +80,6 @@ def action_settings(cfg: DictConfig) -> Any:
     """``cfg.action`` as :class:`spade.ros.action.ActionSettings`, typed and ranged."""
     from spade.ros.action import ActionSettings
     from spade.ros.action_types import DISTROS
-    from spade.ros.core import check_option
-
     raw = _options(cfg, "action")
     known = set(ActionSettings.__dataclass_fields__)
     unknown = sorted(set(raw) - known)
@@ -122,8 +117,6 @@ def action_settings(cfg: DictConfig) -> Any:
 
 def checked_options(cfg: DictConfig) -> dict[str, Any]:
     """Every option of the node, typed and ranged before any work (before the model loads or DDS starts)."""
-    from spade.ros.node_options import TOPIC_KEYS
-
     topics = _options(cfg, "topics")
     unknown = sorted(set(topics) - set(TOPIC_KEYS))
     if unknown:
@@ -171,8 +164,6 @@ def run(cfg: DictConfig) -> dict[str, int]:
     require_dds("python -m spade.ros")  # its messages and options are DDS types, a replay's too
     options = checked_options(cfg)
     if cfg.get("replay"):
-        from spade.ros.recording import replay_bag
-
         planner = build_planner(cfg)
         core = build_core(cfg, planner, options["node"])
         return replay_bag(core, Path(str(cfg.replay)), options["topics"],
@@ -187,8 +178,6 @@ def run(cfg: DictConfig) -> dict[str, int]:
     core = build_core(cfg, planner, options["node"])
     recorder = None
     if cfg.get("record"):
-        from spade.ros.recording import NodeRecorder
-
         recorder = NodeRecorder(Path(str(cfg.record)), topics_cfg, pose_type)
     node = PlannerNode(core, domain_id=domain, topics=topics_cfg, pose_type=pose_type, qos=options["qos"],
                        recorder=recorder, action=options["action"])
@@ -238,8 +227,6 @@ def foxglove_options(cfg: DictConfig, prefix: str = "foxglove", default_port: in
     """``foxglove=true`` (and ``foxglove_host``, ``foxglove_port``): the live Foxglove server's options, or None
     (``prefix``: ``node_foxglove`` for the node that the simulator starts). Checked before any work; a missing
     foxglove-sdk is refused with the install line."""
-    from spade.ros.core import check_option
-
     try:
         enabled = check_option(prefix, cfg.get(prefix, False), "bool")
         port = check_option(f"{prefix}_port", cfg.get(f"{prefix}_port", default_port), "int", 0, True, high=65535)

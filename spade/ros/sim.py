@@ -35,6 +35,11 @@ import numpy as np
 
 from spade.maps import FREE, OccupancyMap
 from spade.utils.errors import ConfigError
+from spade.annotation.sources import parse_procedural
+from spade.deploy.follower import follow_step, FollowerSettings
+from spade.maps import generate_map, load_ros_map, MapFormatError
+from spade.ros.core import check_option
+from spade.ros.launch import NODE_FOXGLOVE_PORT, SIM_FOXGLOVE_PORT, domain_id, foxglove_options, require_dds
 
 __all__ = ["SimRobot", "SimSettings", "pick_free_pose", "run_sim", "sim_map"]
 
@@ -62,8 +67,6 @@ class SimRobot:
     collisions: int = 0
 
     def step(self) -> np.ndarray:
-        from spade.deploy.follower import FollowerSettings, follow_step
-
         if self.plan is None or len(self.plan) < 2:
             return self.pose
         follower = FollowerSettings(speed_mps=self.settings.speed_mps, dt_s=1.0 / self.settings.rate_hz)
@@ -128,9 +131,6 @@ def _triples(value: Any, key: str) -> list[np.ndarray]:
 def sim_map(spec: Any) -> OccupancyMap:
     """The simulator's map: a ROS map yaml (and its image) or a procedural ``kind:seed`` spec such as
     ``warehouse:1``; a missing file or a bad spec is one :class:`~spade.utils.errors.ConfigError` line."""
-    from spade.annotation.sources import parse_procedural
-    from spade.maps import MapFormatError, generate_map, load_ros_map
-
     fix = "give a ROS map yaml (map_server format) or a generator spec such as warehouse:101"
     if spec in (None, ""):
         raise ConfigError(f"map is not set; {fix}")
@@ -152,10 +152,6 @@ def sim_map(spec: Any) -> OccupancyMap:
 def run_sim(cfg: Any) -> int:
     """Run the simulator of ``cfg`` (conf/ros_sim.yaml); returns the exit status (0: every goal reached)."""
     from omegaconf import OmegaConf
-
-    from spade.ros.launch import NODE_FOXGLOVE_PORT, SIM_FOXGLOVE_PORT, domain_id, foxglove_options, require_dds
-    from spade.ros.core import check_option
-    from spade.utils.errors import ConfigError
 
     c = OmegaConf.to_container(cfg, resolve=True)
     try:

@@ -35,6 +35,8 @@ from spade.sketching.storage import SketchStore, StorageError
 from spade.utils import palette
 from spade.utils.errors import ConfigError
 from spade.utils.provenance import shown_path
+from spade.annotation.run import alias_preset, annotate
+from spade.utils.config import compose_config
 
 log = logging.getLogger(__name__)
 
@@ -66,9 +68,6 @@ def annotation_config(overrides: Sequence[str] = ()) -> dict[str, Any]:
     """conf/annotate.yaml composed with ``overrides`` (``key=value`` as on spade.annotate's command line,
     ``preset=NAME`` included), as a plain dict."""
     from omegaconf import OmegaConf
-
-    from spade.annotation.run import alias_preset
-    from spade.utils.config import compose_config
 
     cfg = compose_config("annotate", alias_preset(list(overrides)))  # inside spade.sketch's Hydra app too
     out: dict[str, Any] = OmegaConf.to_container(cfg, resolve=True)  # type: ignore[assignment]
@@ -411,8 +410,6 @@ class SketchWorkspace:
 
     def _build(self, job: BuildJob) -> None:
         from tqdm import tqdm
-
-        from spade.annotation.run import annotate
 
         cfg = {**self.cfg, "sketches": str(self.store.path), "out_dir": str(self.dataset_dir), "overwrite": True,
                "progress": True}

@@ -54,6 +54,12 @@ from spade.tracking.runs import (
     record_process,
     run_figures,
 )
+from spade.tracking.dataset_inputs import dataset_uses
+from spade.tracking.descriptions import model_description, version_description
+from spade.tracking.logged_model import try_log_student_model
+from spade.tracking.progress_picture import log_progress_picture
+from spade.tracking.registry import data_fingerprint, register_checkpoint, registry_name
+from spade.training.checkpoint_paths import best_checkpoint_path, last_checkpoint_path
 
 log = logging.getLogger(__name__)
 
@@ -158,8 +164,6 @@ class RunRecord(Callback):
         ml = self._logger(trainer)
         if ml is None:
             return
-        from spade.tracking.dataset_inputs import dataset_uses
-
         datamodule = getattr(trainer, "datamodule", None)
         uses = [u for u in (dataset_uses(datamodule) if datamodule is not None else []) if u.context == "test"]
         log_predictors(self.identity.tags, ml.experiment, ml.run_id, uses, run_figures(ml))
@@ -185,16 +189,11 @@ class RunRecord(Callback):
                 log_predictors(identity.tags, client, run_id, [u for u in uses if u.context == "test"], metrics)
             log_report(client, run_id, identity.run_name, identity.role, description, metrics)
             return
-        from spade.training.checkpoint_paths import best_checkpoint_path, last_checkpoint_path
-        from spade.tracking.logged_model import try_log_student_model
-
         paths = {kind: path for kind, path in (("best", best_checkpoint_path(trainer)),
                                                ("last", last_checkpoint_path(trainer))) if path}
         for kind, path in paths.items():
             client.log_artifact(run_id, path, artifact_path=f"checkpoints/{kind}")
         if "fit" in identity.stages:
-            from spade.tracking.progress_picture import log_progress_picture
-
             nicety("training-progress picture", log_progress_picture, client, run_id,
                    f"{identity.run_name}: training by epoch")
         logged = try_log_student_model(cfg, str(client.tracking_uri), run_id, paths.get("best") or paths.get("last"))
@@ -208,9 +207,6 @@ class RunRecord(Callback):
 
     def register(self, ml: Any, kind: str, uses: list[Any], metrics: dict[str, float]) -> None:
         """Register ``checkpoints/<kind>`` when the row asks (``registry.prefix``)."""
-        from spade.tracking.descriptions import model_description, version_description
-        from spade.tracking.registry import data_fingerprint, register_checkpoint, registry_name
-
         cfg = self.cfg
         name = registry_name(cfg)
         if not name:

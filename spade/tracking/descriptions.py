@@ -26,6 +26,9 @@ from spade.paths import CONF_DIR
 from spade.tracking.dataset_inputs import DatasetUse
 from spade.tracking.links import artifact_url, relative_run_link
 from spade.utils.markdown import markdown_table
+from spade.metrics.verdict import verdict_lines
+from spade.tracking.dataset_inputs import dataset_profile
+from spade.tracking.registry import data_fingerprint
 
 log = logging.getLogger(__name__)
 
@@ -173,8 +176,6 @@ def test_composition(use: DatasetUse, shape: str | None = None) -> str:
     """The test set as the run used it, against the set on disk: ``263 L instances of a 600-instance L+U set (40
     scenarios)`` when the run kept part of it (its row's shape), ``all 600 instances (L+U, 40 scenarios)`` when it
     used it whole; the count alone when the manifest cannot be read."""
-    from spade.tracking.dataset_inputs import dataset_profile
-
     used = use.instances
     try:
         profile = dataset_profile(use.root)
@@ -252,8 +253,6 @@ def run_description(cfg: DictConfig, metrics: dict[str, float], uses: list[Datas
         text = figures
     else:
         text, meaning = "No test figures (the run was not tested).", ""
-    from spade.metrics.verdict import verdict_lines
-
     verdict = verdict_lines(metrics, "test", THIS_MODEL)
     if verdict:
         text += "\n\n**Verdict.** " + " ".join(f"{line[0].upper()}{line[1:]}." for line in verdict)
@@ -268,8 +267,6 @@ def run_description(cfg: DictConfig, metrics: dict[str, float], uses: list[Datas
 
 def model_description(cfg: DictConfig, uses: list[DatasetUse]) -> str:
     """A registered model's description: what it is, what trained it, on which data."""
-    from spade.tracking.registry import data_fingerprint
-
     tags = dict(cfg.get("tags") or {})
     what = what_it_is(tags)
     text = (f"SPADE {what}, size `{tags.get('size', '?')}`, for {tags.get('shape', '?')}-shape paths at scale "

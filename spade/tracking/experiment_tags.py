@@ -24,6 +24,7 @@ from typing import Any
 from omegaconf import DictConfig
 
 from spade.tracking.links import VIEW_KEY
+from spade.tracking.tables import METRICS, TABLES
 
 KIND_TAG = "mlflow.experimentKind"
 KIND_TRAINING = "custom_model_development"  # the MLflow UI's "model training" experiments
@@ -44,8 +45,6 @@ def runs_view_state() -> str:
     parent, and a shared view cannot say which runs to expand: MLflow 3.17 drops ``runsExpanded`` from it.)
     Training diagnostics (``margin/active``) stay out: the UI orders metric columns by name and draws only those in
     view, so a ``margin/`` column would push the test metrics off a laptop's screen."""
-    from spade.tracking.tables import METRICS
-
     columns = ["attributes.`Dataset`",
                *(f"metrics.`{m.mlflow_key}`" for m in METRICS.values() if m.mlflow_key.startswith(("test/", "model/")))]
     return json.dumps({"selectedColumns": columns, "orderByKey": RUN_NAME_KEY, "orderByAsc": True})
@@ -57,8 +56,6 @@ def _scale_note() -> str:
 
 def experiment_description(name: str, cfg: DictConfig | None = None) -> str:
     """What a SPADE experiment holds, which paper table it reproduces and the commands that regenerate it."""
-    from spade.tracking.tables import METRICS, TABLES
-
     columns = ", ".join(f"`{m.mlflow_key}`" for m in METRICS.values())
     table = next((t for t in TABLES.values() if t.experiment == name), None)
     if table is not None:

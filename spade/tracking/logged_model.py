@@ -19,6 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
+from spade.deploy.mlflow_models import MODEL_NAME, log_onnx_student, using_tracking_uri
+from spade.tracking.experiment_tags import NOTE_TAG
+from spade.tracking.links import relative_run_link
 
 log = logging.getLogger(__name__)
 
@@ -41,8 +44,6 @@ def log_student_model(tracking_uri: str, run_id: str, checkpoint: str | Path) ->
     """Export ``checkpoint`` (a student's) to ONNX in a temporary folder and log it as the MLflow Model ``model`` of
     run ``run_id`` in the store at ``tracking_uri`` (not registered). Raises what the export or MLflow raises."""
     from spade.deploy.export import export_student
-    from spade.deploy.mlflow_models import MODEL_NAME, log_onnx_student, using_tracking_uri
-
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="spade-model-") as folder:
         # parity on a batch of 2 (another size than the exported 1); no latency runs: the run's time is not spent
@@ -85,8 +86,6 @@ def logged_model_description(cfg: DictConfig, metrics: dict[str, float], run: tu
     its test figures (the trained student's own, :func:`~spade.tracking.descriptions.figures_table`
     without the references: those are the run's child runs) and how to plan with it."""
     from spade.tracking.descriptions import FIGURES, figures_table, what_it_is
-    from spade.tracking.links import relative_run_link
-
     experiment_id, run_id, run_name = run
     own = {k: v for k, v in metrics.items() if k.startswith("test/") and not k.startswith("test/baseline/")}
     table = figures_table({k: v for k, v in own.items() if k[len("test/"):] in FIGURES})
@@ -102,7 +101,5 @@ def logged_model_description(cfg: DictConfig, metrics: dict[str, float], run: tu
 def describe_logged_model(client: Any, logged: LoggedStudent, cfg: DictConfig, metrics: dict[str, float],
                           run: tuple[str, str, str]) -> None:
     """Set the logged model's description (tag ``mlflow.note.content``: :func:`logged_model_description`)."""
-    from spade.tracking.experiment_tags import NOTE_TAG
-
     model_id = logged.model_uri.split("/")[-1] if logged.model_uri.startswith("models:/") else logged.model_uri
     client.set_logged_model_tags(model_id, {NOTE_TAG: logged_model_description(cfg, metrics, run, logged.run_uri)})

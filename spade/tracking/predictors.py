@@ -30,6 +30,10 @@ import re
 import time
 from dataclasses import dataclass
 from typing import Any
+from spade.metrics.catalog import BASELINE_ROW_LABELS as BASELINE_LABELS
+from spade.tracking.dataset_inputs import log_dataset_inputs
+from spade.tracking.experiment_tags import NOTE_TAG
+from spade.utils.palette import predictor_colour
 
 log = logging.getLogger(__name__)
 
@@ -63,8 +67,6 @@ def predictors(metrics: dict[str, float]) -> list[Predictor]:
     was tested next to, ``untrained/baseline/...``, are the same figures again and left out) of a run's metrics, as
     :class:`Predictor` s with the model's names (``test/<key>``). The untrained model also carries the model's
     ``model/params`` (the same network)."""
-    from spade.metrics.catalog import BASELINE_ROW_LABELS as BASELINE_LABELS
-
     baselines: dict[str, dict[str, float]] = {}
     untrained: dict[str, float] = {}
     for key, value in metrics.items():
@@ -107,11 +109,6 @@ def log_predictor_runs(client: Any, run_id: str, role: str | None = None, what: 
     dataset(s) (:class:`~spade.tracking.dataset_inputs.DatasetUse`), logged as each child's input.
     """
     from mlflow.entities import Metric, RunTag
-
-    from spade.tracking.dataset_inputs import log_dataset_inputs
-    from spade.tracking.experiment_tags import NOTE_TAG
-
-    from spade.utils.palette import predictor_colour
 
     run = client.get_run(run_id)
     found = predictors(dict(metrics) if metrics is not None else dict(run.data.metrics))

@@ -45,6 +45,13 @@ from spade.tracking.logged_model import LoggedStudent, describe_logged_model, mo
 from spade.tracking.logger import held_metrics
 from spade.tracking.predictors import is_predictor_run
 from spade.utils.processes import pid_alive, process_start
+from spade.tracking.descriptions import what_it_is
+from spade.tracking.links import artifact_url
+from spade.tracking.predictors import log_predictor_runs, predictors
+from spade.tracking.progress_picture import epoch_series
+from spade.tracking.run_report import CSV, MARKDOWN, REPORT_DIR, log_run_report
+from spade.utils.errors import UserError
+from spade.utils.signals import signal_received
 
 log = logging.getLogger(__name__)
 
@@ -142,8 +149,6 @@ def record_process(loggers: list[Logger], resumed: bool) -> None:
 
 def end_status(exc: BaseException) -> tuple[str, str]:
     """(status, reason) of a run that ``exc`` ends: KILLED for a signal or Ctrl+C, FAILED otherwise."""
-    from spade.utils.signals import signal_received
-
     sig = signal_received()
     killed = sig is not None or isinstance(exc, KeyboardInterrupt)
     reason = f"signal {signal.Signals(sig).name}" if sig is not None else f"{type(exc).__name__}: {exc}"
@@ -158,8 +163,6 @@ def refused_before_work(client: Any, run_id: str, exc: BaseException) -> bool:
     """Whether ``exc`` is a refusal (a :class:`~spade.utils.errors.UserError`: an empty test set, a full disk while
     a dataset was generated, a bad dataset) that came before the run ``run_id`` recorded any metric. Such a run
     holds nothing but its opening: it is deleted, not left FAILED (the one-line error says what to fix)."""
-    from spade.utils.errors import UserError
-
     if not isinstance(exc, UserError):
         return False
     try:
@@ -277,10 +280,6 @@ def _picture_paths(client: Any, run_id: str) -> list[str]:
 
 def _references_note(metrics: dict[str, float], run: tuple[str, str]) -> str:
     """Where the run's references and report are (a run with test figures: :func:`log_predictors`, :func:`log_report`)."""
-    from spade.tracking.links import artifact_url
-    from spade.tracking.predictors import predictors
-    from spade.tracking.run_report import CSV, MARKDOWN, REPORT_DIR
-
     if not any(k.startswith("test/") for k in metrics):
         return ""
     found = predictors(metrics)
@@ -331,8 +330,6 @@ def margin_history(client: Any, run_id: str) -> list[tuple[int, float, float]]:
     """A guided student's margin activity per epoch, ``[(epoch, active, value)]``, from the run's ``margin/*``
     (logged at the global step of each epoch's validation, tag ``spade.margin_step=global``; older runs: step =
     epoch)."""
-    from spade.tracking.progress_picture import epoch_series
-
     series = epoch_series(client, run_id)
     values = dict(series.get("margin/value", []))
     return [(epoch, active, values.get(epoch, float("nan"))) for epoch, active in series.get("margin/active", [])]
@@ -350,9 +347,6 @@ def nicety(what: str, step: Any, *args: Any) -> Any:
 def log_predictors(tags: Mapping[str, Any], client: Any, run_id: str, test_uses: list[DatasetUse],
                    metrics: dict[str, float]) -> None:
     """The run's references as child runs (:mod:`~spade.tracking.predictors`), the run tagged with its role."""
-    from spade.tracking.descriptions import what_it_is
-    from spade.tracking.predictors import log_predictor_runs
-
     tags = dict(tags)
     nicety("predictor runs", log_predictor_runs, client, run_id, str(tags.get("role") or "model"), what_it_is(tags),
            test_uses, metrics)
@@ -361,8 +355,6 @@ def log_predictors(tags: Mapping[str, Any], client: Any, run_id: str, test_uses:
 def log_report(client: Any, run_id: str, run_name: str, role: str, description: str,
                metrics: dict[str, float]) -> None:
     """The run's report (:mod:`~spade.tracking.run_report`)."""
-    from spade.tracking.run_report import log_run_report
-
     nicety("run report", log_run_report, client, run_id, run_name, description, metrics, role)
 
 

@@ -24,6 +24,10 @@ from spade.tracking.descriptions import guidance_verdict
 from spade.tracking.links import ui_lines
 from spade.tracking.runs import RunRef
 from spade.utils.console import CONSOLE_WIDTH, wrap
+from spade.deploy.mlflow_models import MODEL_NAME
+from spade.metrics.verdict import verdict_lines, verdicts
+from spade.tracking.predictors import TOP_LEVEL_FILTER
+from spade.tracking.tables import TINY_NOTICE
 
 log = logging.getLogger(__name__)
 
@@ -33,9 +37,6 @@ def find_run(cfg: DictConfig) -> RunRef | None:
     logged on it when there is one."""
     if OmegaConf.select(cfg, "logger.mlflow", default=None) is None:
         return None
-    from spade.deploy.mlflow_models import MODEL_NAME
-    from spade.tracking.predictors import TOP_LEVEL_FILTER
-
     uri = str(cfg.paths.mlflow_tracking_uri)
     client = mlflow_client(uri)
     experiment = client.get_experiment_by_name(str(OmegaConf.select(cfg, "logger.mlflow.experiment_name")))
@@ -94,8 +95,6 @@ def learning_verdict(metrics: dict[str, Any]) -> list[str]:
     """The verdict lines of a student's or expert's test (:mod:`spade.metrics.verdict`): the figure that decides,
     the floor where the test set has alternatives, and the model against every classical baseline; one line with
     the likely cause and what to change when it extracted no path at all. Empty when there is no test."""
-    from spade.metrics.verdict import verdict_lines, verdicts
-
     failures = metrics.get("test/failure_rate")
     if failures is None:
         return []
@@ -208,8 +207,6 @@ def run_summary(cfg: DictConfig, metrics: dict[str, Any],
     ``cfg``'s name in the store) and to its experiment's runs table."""
     lines = [f"run {cfg.get('run_name')} finished"]
     if (cfg.get("scale") or {}).get("name") == "tiny":  # tiny figures are never read as results
-        from spade.tracking.tables import TINY_NOTICE
-
         lines.append(f"  {TINY_NOTICE}")
     prefixes = ["test", *sorted({"/".join(k.split("/")[:3]) for k in metrics if k.startswith("test/baseline/")}),
                 "untrained"]

@@ -13,6 +13,9 @@ from spade.metrics.plausible import REFERENCES, reference_maps, reference_polyli
 from spade.models.modelfile import write_checkpoint_entry
 from spade.training.logging_utils import log_image
 from spade.training.visualize import TestRecords, prediction_grid
+from spade.metrics.baselines import BASELINES, batch_baseline_polylines, draw_polylines
+from spade.models.modelfile import load_checkpoint, read_info
+from spade.training.logging_utils import log_table_csv
 
 
 class PathPlanningModule(L.LightningModule):
@@ -150,8 +153,6 @@ class PathPlanningModule(L.LightningModule):
 
     # -- test: the model next to the classical baselines, on the same instances ---------------------------
     def on_test_epoch_start(self) -> None:
-        from spade.metrics.baselines import BASELINES
-
         metrics = dict(self.hparams.get("metrics") or {})
         self._baseline_metrics = {name: PathMetrics(**{**metrics, "planner_keys": BASELINE_PLANNER_KEYS},
                                                     record_instances=True).to(self.device) for name in BASELINES}
@@ -166,8 +167,6 @@ class PathPlanningModule(L.LightningModule):
     def _test_with(self, prob: torch.Tensor, batch: dict) -> None:
         """The test of predicted probabilities ``prob``: the metrics, the records for the pictures, and the
         classical baselines on the same instances."""
-        from spade.metrics.baselines import batch_baseline_polylines, draw_polylines
-
         self.test_metrics.update(prob, batch)
         self._test_records.add(batch, prob)
         h, w = prob.shape[-2:]
@@ -196,8 +195,6 @@ class PathPlanningModule(L.LightningModule):
         if scenarios:  # the unit of the intervals over scenarios: a small test set says so in the summary
             self.log("test/scenarios", float(len(scenarios)), sync_dist=False)
         if rows:
-            from spade.training.logging_utils import log_table_csv
-
             log_table_csv(self.logger, rows, INSTANCES_ARTIFACT, self.trainer.log_dir)
 
     def _target_width(self) -> int:
@@ -227,8 +224,6 @@ def pretrained_weights(ckpt: "str | Path", role: str, config: dict, prefix: str,
     """The weights under ``prefix`` of the ``role`` checkpoint ``ckpt`` (``model.init_ckpt``: fine-tuning), after
     checking that it exists, holds that role and the same network ``config``; ``fix`` ends the mismatch message."""
     from pathlib import Path
-
-    from spade.models.modelfile import load_checkpoint, read_info
 
     a = "an" if role[0] in "aeiou" else "a"
     path = Path(ckpt)

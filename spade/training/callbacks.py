@@ -8,6 +8,9 @@ from lightning.pytorch.callbacks import Callback
 
 from spade.models.builders import count_parameters
 from spade.utils.timing import measure
+from spade.training.critic import critic_report
+from spade.training.logging_utils import log_image
+from spade.training.margin import DiffusionMargin, MarginConfig
 
 
 @torch.inference_mode()
@@ -114,10 +117,6 @@ class CriticReport(Callback):
     def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if getattr(pl_module, "role", None) != "expert" or not trainer.is_global_zero or trainer.sanity_checking:
             return
-        from spade.training.critic import critic_report
-        from spade.training.logging_utils import log_image
-        from spade.training.margin import DiffusionMargin, MarginConfig
-
         dm = trainer.datamodule
         loader = dm.test_dataloader()
         for name, options in self.formulations.items():

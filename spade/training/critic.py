@@ -37,6 +37,13 @@ from spade.data.augment import widen_path
 from spade.metrics.corruptions import CORRUPTION_SET_VERSION, CORRUPTIONS, corrupt
 from spade.training.expert_module import expert_input
 from spade.training.margin import DiffusionMargin
+from spade.data.plausible import plausible_images
+from spade.metrics._inputs import per_instance_resolution
+from spade.metrics.ape import APE
+from spade.metrics.decoding import PathDecoder
+from spade.metrics.preference import instance_errors
+from spade.training.critic_picture import critic_picture
+from spade.training.margin import SCORES
 
 __all__ = ["CriticErrors", "band_edges", "critic_metrics", "critic_report", "example_images", "measure_errors"]
 
@@ -113,15 +120,9 @@ def measure_errors(margin: DiffusionMargin, batches: Iterable[dict], robot_x: fl
     widened to ``width_px`` (the training target). ``student`` (a StudentModule or any module mapping a state to
     logits) adds its predictions as candidate ``student`` and their APE. Draws are shared by all candidates of an
     instance, ``draws_per_band`` in each of ``bands`` equal bands of the margin's [t_min, t_max)."""
-    from spade.metrics.ape import APE
-
     names = list(corruptions)
     edges = band_edges(margin.config.t_min, margin.t_max, bands)
     gen = torch.Generator(device="cpu").manual_seed(int(seed))
-    from spade.metrics._inputs import per_instance_resolution
-    from spade.metrics.decoding import PathDecoder
-    from spade.metrics.preference import instance_errors
-
     decoder = PathDecoder(force_endpoints=True)
     ts, demo, apes, planner_apes, plausible = [], [], [], [], []
     cands: dict[str, list[torch.Tensor]] = {name: [] for name in names + ([STUDENT] if student is not None else [])}
@@ -161,8 +162,6 @@ def measure_errors(margin: DiffusionMargin, batches: Iterable[dict], robot_x: fl
             differs[name].append(((img - demo_seen).abs().flatten(1).sum(1) >= 1.0).cpu())
         x_demo, cond = expert_input(state, target, margin.conditional)
         if margin.oracle:  # the oracle teacher knows each test instance's plausible set
-            from spade.data.plausible import plausible_images
-
             alts = batch.get("alternatives")
             if alts is None:
                 raise ValueError("the oracle as a critic (margin=oracle) needs a test set with alternative "
@@ -217,8 +216,6 @@ def _spearman_search(errors: CriticErrors, margin: DiffusionMargin, student_err:
     """The Spearman of the student's per-instance margin with ``values`` under every score of :data:`SCORES` and
     in every timestep band, from the same draws: which formulation knows where the student is wrong, measured
     without a training run each (``critic/search/spearman_<key>/<score>[/<band>]``)."""
-    from spade.training.margin import SCORES
-
     out = {}
     for score in SCORES:
         scores = margin.score(student_err, errors.demo, score=score)
@@ -288,8 +285,6 @@ def critic_report(margin: DiffusionMargin, loader: Iterable[dict], robot_x: floa
                   max_instances: int | None = None, title: str = "") -> tuple[dict[str, float], np.ndarray]:
     """The critic's figures (:func:`critic_metrics` of :func:`measure_errors`) and their picture
     (:func:`~spade.training.critic_picture.critic_picture`) for ``margin`` on ``loader``'s instances."""
-    from spade.training.critic_picture import critic_picture
-
     errors = measure_errors(margin, loader, robot_x, width_px, student=student, draws_per_band=draws_per_band,
                             bands=bands, seed=seed, max_instances=max_instances)
     metrics = critic_metrics(errors, margin)

@@ -15,6 +15,11 @@ from spade.models.builders import build_model
 from spade.models.diffusion import NoiseSchedule, to_model_range
 from spade.training.base import PathPlanningModule
 from spade.training.module_options import ExpertOptions
+from spade.metrics.path_metrics import PathMetrics
+from spade.metrics.preference import SpreadMetrics
+from spade.training.base import pretrained_weights
+from spade.training.expert_mismatch import ExpertMismatchError
+from spade.training.teacher import medoid_reading, sample_maps, two_sample_paths
 
 
 def ema_decay_at(step: int | torch.Tensor, max_decay: float) -> float:
@@ -143,8 +148,6 @@ class ExpertModule(PathPlanningModule):
     def load_pretrained(self, ckpt: str | Path) -> None:
         """Start from another expert's weights (its EMA copy, what it samples and judges with), for fine-tuning:
         e.g. a trained teacher taught classifier-free guidance (``model.cond_dropout``). The same network only."""
-        from spade.training.base import pretrained_weights
-
         weights = pretrained_weights(ckpt, "expert", self.net.config, "ema.module.",
                                      "set model.preset and model.conditional to the pretrained expert's")
         self.net.load_state_dict(weights)
@@ -160,8 +163,6 @@ class ExpertModule(PathPlanningModule):
         """Raise a clear error when this expert cannot judge a student's paths on the given data: other channels,
         another window size, or start and goal markers drawn another way (``encoding``, the data's
         ``data.encoding``; an expert saved before the encoding was recorded was trained on ``binary`` discs)."""
-        from spade.training.expert_mismatch import ExpertMismatchError
-
         expected = in_channels if self.conditional else in_channels + 1
         have = self.net.condition_channels if self.conditional else self.net.in_channels
         what = "condition" if self.conditional else "input"
@@ -260,9 +261,6 @@ class ExpertModule(PathPlanningModule):
         return prob
 
     def on_test_epoch_start(self) -> None:
-        from spade.metrics.path_metrics import PathMetrics
-        from spade.metrics.preference import SpreadMetrics
-
         super().on_test_epoch_start()
         self.sample_seconds, self.sample_count = 0.0, 0
         self._spread = SpreadMetrics().to(self.device)
@@ -278,8 +276,6 @@ class ExpertModule(PathPlanningModule):
         generator's (``test/planner/spread_cm``, ``test/generator_spread_cm``, ``test/planner/spread_ratio``;
         :class:`~spade.metrics.preference.SpreadMetrics`): a teacher narrower than the operator's choices can only
         teach one of them. ``test/seconds_per_sample`` is the sampling time per instance and sample."""
-        from spade.training.teacher import medoid_reading, sample_maps, two_sample_paths
-
         k = int(self.hparams.get("test_samples", 2) or 2)
         samples, seconds = sample_maps(self, batch["state"], k)
         self.sample_seconds += seconds

@@ -8,6 +8,8 @@ from typing import Any
 import lightning as L
 
 from spade.models.modelfile import load_lightning, read_info
+from spade.training.expert_module import ExpertModule
+from spade.training.student_module import StudentModule
 
 
 def load_module(ckpt_path: str | Path, **hparams: Any) -> L.LightningModule:
@@ -19,11 +21,7 @@ def load_module(ckpt_path: str | Path, **hparams: Any) -> L.LightningModule:
         raise FileNotFoundError(f"ckpt_path={path} does not exist; pass a checkpoint written by python -m spade.train")
     role = read_info(path, checkpoint=True, required=False).get("role")
     if role == "student":
-        from spade.training.student_module import StudentModule
-
         return load_lightning(StudentModule, path, **hparams)
     if role == "expert":
-        from spade.training.expert_module import ExpertModule
-
         return load_lightning(ExpertModule, path, **hparams)
     raise ValueError(f"{path} is not a SPADE student or expert checkpoint (role {role!r})")

@@ -40,6 +40,7 @@ from torch import nn
 from spade.models.diffusion import sample_timesteps
 from spade.training.expert_mismatch import ExpertMismatchError
 from spade.training.expert_module import ExpertModule, denoise, expert_input
+from spade.training.oracle import oracle_candidates, OracleDenoiser
 
 __all__ = ["AGENT_INPUTS", "EXPERT_KINDS", "SCORES", "UNLABELLED", "DiffusionMargin", "MarginConfig", "MarginOptionError", "legacy_margin_options",
            "sample_timesteps"]
@@ -226,8 +227,6 @@ class DiffusionMargin(nn.Module):
         expert.eval().requires_grad_(False)
         schedule = expert.schedule
         if config.oracle:  # the expert lends its schedule; the oracle predicts x0 of the path channel (conditional)
-            from spade.training.oracle import OracleDenoiser
-
             return cls(OracleDenoiser(schedule.alphas_cumprod), schedule.add_noise, schedule.num_train_timesteps,
                        True, config, prediction_target=lambda x0, noise, t: x0)
         return cls(expert.ema_net(), schedule.add_noise, schedule.num_train_timesteps, expert.conditional, config,
@@ -265,8 +264,6 @@ class DiffusionMargin(nn.Module):
             raise ValueError("the oracle teacher (model.margin.oracle=true) needs each training instance's plausible "
                              "set: train on data generated with alternatives (data.train_generate.set: "
                              "[{alternatives: {count: 16}}])")
-        from spade.training.oracle import oracle_candidates
-
         images, mask = plausible
         return oracle_candidates(images), mask
 

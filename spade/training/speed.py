@@ -28,6 +28,7 @@ from torch import nn
 
 from spade.utils.errors import ConfigError
 from spade.utils.hardware import bf16_fast
+from spade.training.callbacks import ChannelsLast
 
 #: Lightning's precision values (``lightning.pytorch.Trainer(precision=...)``), plus ``auto``.
 PRECISIONS: tuple[str, ...] = ("auto", "64-true", "32-true", "16-mixed", "bf16-mixed", "16-true", "bf16-true",
@@ -112,8 +113,6 @@ def use_bf16_expert(module: nn.Module) -> bool:
 
 def speed_callbacks(channels_last: bool, callbacks: list[Callback]) -> list[Callback]:
     """The callbacks the resolved options need that ``callbacks`` does not hold yet."""
-    from spade.training.callbacks import ChannelsLast
-
     if channels_last and not any(isinstance(c, ChannelsLast) for c in callbacks):
         return [ChannelsLast()]
     return []

@@ -16,6 +16,9 @@ from spade.training.base import PathPlanningModule
 from spade.training.expert_mismatch import ExpertMismatchError  # noqa: F401  (raised by ExpertModule.check_compatible)
 from spade.training.margin import DiffusionMargin, MarginConfig, legacy_margin_options
 from spade.training.module_options import StudentOptions
+from spade.data.plausible import plausible_images
+from spade.training.base import pretrained_weights
+from spade.training.expert_module import ExpertModule
 
 if TYPE_CHECKING:
     from spade.training.expert_module import ExpertModule
@@ -92,8 +95,6 @@ class StudentModule(PathPlanningModule):
 
     def load_pretrained(self, ckpt: str | Path) -> None:
         """Initialise the network from another student's checkpoint (fine-tuning), checking it is the same net."""
-        from spade.training.base import pretrained_weights
-
         weights = pretrained_weights(ckpt, "student", self.net.config, "net.",
                                      "set model.size to the pretrained student's size")
         self.net.load_state_dict(weights)
@@ -108,8 +109,6 @@ class StudentModule(PathPlanningModule):
         (``load_from_checkpoint``, safely) and build the margin from it (:meth:`use_expert`); once."""
         if self.margin_cfg is None or self._margin:
             return
-        from spade.training.expert_module import ExpertModule
-
         ckpt = self.hparams.margin["expert_ckpt"]
         self.use_expert(load_lightning(ExpertModule, ckpt), image_size, source=str(ckpt), encoding=encoding)
 
@@ -189,8 +188,6 @@ class StudentModule(PathPlanningModule):
         of unlabelled states (None where the batch has no alternatives)."""
         if batch.get("alternatives") is None:
             return None
-        from spade.data.plausible import plausible_images
-
         width = self._target_width()
         images, mask = plausible_images(batch["waypoints"], batch["alternatives"], *logits.shape[-2:], width)
         return images.to(logits.dtype), mask

@@ -23,6 +23,9 @@ from collections.abc import Iterable
 from typing import Any
 
 import torch
+from spade.metrics.baselines import draw_polylines
+from spade.metrics.path_metrics import PathMetrics
+from spade.metrics.preference import medoid_path, SpreadMetrics
 
 __all__ = ["planner_figures", "sample_maps", "two_sample_paths"]
 
@@ -42,9 +45,6 @@ def medoid_reading(metrics: Any, decode: Any, maps: list[torch.Tensor], batch: d
     """Update ``metrics`` (a :class:`~spade.metrics.path_metrics.PathMetrics`) with the minimum-Bayes-risk reading of
     the K sample ``maps``: each instance's medoid of its samples' decoded paths
     (:func:`~spade.metrics.preference.medoid_path`). ``decoded``: the paths of the first maps already decoded."""
-    from spade.metrics.baselines import draw_polylines
-    from spade.metrics.preference import medoid_path
-
     decoded = list(decoded or [])
     for m in maps[len(decoded):]:
         decoded.append([d.points if d.ok else None for d in decode(m, batch["state"], batch["resolution"])])
@@ -63,9 +63,6 @@ def planner_figures(expert: Any, loader: Iterable[dict], samples: int = 4, stude
                     max_instances: int | None = None) -> dict[str, float]:
     """The figures of the module docstring for ``expert`` (an :class:`ExpertModule`) on ``loader``'s instances
     (at most ``max_instances``)."""
-    from spade.metrics.path_metrics import PathMetrics
-    from spade.metrics.preference import SpreadMetrics
-
     if isinstance(samples, bool) or not isinstance(samples, int) or samples < 2:
         raise ValueError(f"samples must be an integer >= 2 (two samples measure the spread), got {samples!r}")
     options = {**dict(expert.hparams.get("metrics") or {}), "fid": False}

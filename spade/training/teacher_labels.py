@@ -27,6 +27,15 @@ import numpy as np
 import torch
 
 from spade.data.format import DatasetError
+from spade.data.packing import unpack_bits, unpack_two_bit
+from spade.data.path_dataset import PathDataset
+from spade.data.polyline import resample_polyline
+from spade.data.rasterize import draw_polyline
+from spade.data.writer import DatasetWriter
+from spade.metrics.path_metrics import PathMetrics
+from spade.metrics.preference import medoid_path
+from spade.training.loading import load_module
+from spade.training.teacher import sample_maps
 
 __all__ = ["TeacherLabels", "teacher_labels_dir", "write_teacher_labels", "ensure_teacher_labels", "label_unlabelled"]
 
@@ -66,16 +75,6 @@ def write_teacher_labels(teacher_ckpt: str | Path, unlabelled_dir: str | Path, o
                          batch_size: int = 32, overwrite: bool = False) -> TeacherLabels:
     """Label the first ``states`` states of ``unlabelled_dir`` with the medoid of the teacher's ``samples`` decoded
     paths, written as a SPADE dataset at ``out_dir`` (atomically: :class:`~spade.data.writer.DatasetWriter`)."""
-    from spade.data.packing import unpack_bits, unpack_two_bit
-    from spade.data.path_dataset import PathDataset
-    from spade.data.polyline import resample_polyline
-    from spade.data.rasterize import draw_polyline
-    from spade.data.writer import DatasetWriter
-    from spade.metrics.path_metrics import PathMetrics
-    from spade.metrics.preference import medoid_path
-    from spade.training.loading import load_module
-    from spade.training.teacher import sample_maps
-
     if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
         raise ValueError(f"data.unlabelled_teacher_samples={samples!r}: give a whole number >= 1 (4: the medoid "
                          "of four samples, the teacher page's reading)")
@@ -152,8 +151,6 @@ def label_unlabelled(datamodule: Any) -> Path | None:
     if request is None:
         return None
     datamodule.prepare_data()  # the unlabelled states first (generated when missing)
-    from spade.data.path_dataset import PathDataset
-
     ckpt, source, samples, limit, encoding = request
     count = len(PathDataset(source, encoding=encoding))
     path = ensure_teacher_labels(ckpt, source, samples, min(count, limit) if limit else count, encoding)

@@ -25,6 +25,8 @@ import numpy as np
 import torch
 
 from spade.utils import palette
+from spade.metrics.extraction import extract_path
+from spade.metrics.geometry import polyline_ape
 
 MAX_HEIGHT_PX = 900
 MAX_WIDTH_PX = 1200  # what MLflow's artifact view shows at a laptop's width without shrinking it much
@@ -55,9 +57,6 @@ def overlay(state: torch.Tensor, target: torch.Tensor, prob: torch.Tensor | None
 def _instance_ape(prob: np.ndarray, state: np.ndarray, waypoints: np.ndarray, resolution: float
                   ) -> tuple[float, np.ndarray | None, str | None]:
     """(APE cm or inf, extracted polyline or None, failure reason or None) of one prediction."""
-    from spade.metrics.extraction import extract_path
-    from spade.metrics.geometry import polyline_ape
-
     result = extract_path(prob, state[1], state[2], len(waypoints))
     if not result.ok:
         return float("inf"), None, result.failure

@@ -15,6 +15,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+from spade.utils.console import quiet_library_deprecations, quiet_third_party_advertising
 
 
 class UserError(Exception):
@@ -95,8 +96,6 @@ def run_entry_point(main: Callable[[], Any]) -> None:
     error does, instead of Hydra's 1; its message is Hydra's own."""
     global _task_started
     _task_started = False
-    from spade.utils.console import quiet_library_deprecations, quiet_third_party_advertising
-
     quiet_third_party_advertising()  # Lightning's product tips are not SPADE's output
     quiet_library_deprecations()  # nor one library's deprecation notes about another
     try:

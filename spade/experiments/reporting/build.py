@@ -25,6 +25,8 @@ from spade.experiments.reporting.render import (
 from spade.experiments.reporting.results import ComparisonResult, RowResult, compare, fetch_results, pairwise
 from spade.tracking.tables import Table
 from spade.utils.provenance import command_line, shown_path
+from spade.tracking.report import publish_report
+from spade.tracking.tables import METRICS
 
 
 DECIDING_STATEMENT = (
@@ -38,8 +40,6 @@ DECIDING_STATEMENT = (
 def summary(pairs: list[ComparisonResult] | None) -> str:
     """The page's finding in a sentence or two: which pairwise orderings of the table's first (deciding) figure the
     seeds tell apart after Holm's correction. It leads the page (and is its line in the results index)."""
-    from spade.tracking.tables import METRICS
-
     tested = [c for c in pairs or [] if c.metric == pairs[0].metric and c.p_holm is not None] if pairs else []
     if not tested:
         return "No ordering of the rows can be tested yet (fewer than two seeds a row)."
@@ -115,8 +115,6 @@ def build_report(table: Table, tracking_uri: str, output_dir: str | Path | None 
         files["markdown"] = out / f"{table.key}.md"
         parts += ["", "Written: " + ", ".join(shown_path(p) for p in files.values())]
         files["markdown"].write_text("\n".join(parts) + "\n")
-    from spade.tracking.report import publish_report  # imports Lightning: only once a report is built
-
     links = publish_report(table, results, tracking_uri, files, log_to_runs)  # UI links; chart into the runs
     parts += ["", *links] if links else []
     return Report(table, results, comparisons, "\n".join(parts), files, pairs)

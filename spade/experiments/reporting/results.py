@@ -30,6 +30,8 @@ from spade.tracking.tables import (
     baseline_metric,
     relative_change,
 )
+from spade.tracking.client import mlflow_client
+from spade.tracking.predictors import with_predictor_figures
 
 MISSING = "missing"  # how a row without a finished run reads in every output
 TEST_NAME = "Welch's t-test (two-sided, unequal variances, alpha 0.05) over the per-seed values"
@@ -122,8 +124,6 @@ def _search_all_runs(client: Any, experiment_id: str, filter_string: str) -> lis
     """The runs that match, each with its baselines' and untrained model's figures (its child runs) folded back
     under the run's names (``test/baseline/<name>/...``: :func:`spade.tracking.predictors.
     with_predictor_figures`)."""
-    from spade.tracking.predictors import with_predictor_figures
-
     runs, token = [], None
     while True:
         page = client.search_runs([experiment_id], filter_string=filter_string, max_results=1000, page_token=token)
@@ -176,8 +176,6 @@ def fetch_results(table: Table, tracking_uri: str, scale: str | None = None) -> 
     Runs are matched by run name; ``scale`` keeps only runs tagged with that scale (otherwise the scale of the row's
     latest finished run). The finished runs at that scale count once per distinct seed (the latest of each seed).
     """
-    from spade.tracking.client import mlflow_client
-
     client = mlflow_client(tracking_uri)
     results = {row: RowResult(row) for row in table.rows}
     experiment = client.get_experiment_by_name(table.experiment)
