@@ -140,6 +140,40 @@ def test_the_window_fit_moves_with_the_sketch_and_names_the_waypoints_outside(se
     assert abs(np.linalg.norm(base[1] - base[0]) - 6.4) < 1e-6
 
 
+@pytest.mark.parametrize("slack_m", [0.01, -0.01])
+def test_a_sketch_at_the_margin_keeps_its_verdict_under_2_cm_shifts(setup, slack_m: float) -> None:
+    """A goal 1 cm inside (outside) the window's margin: every shift of the whole sketch by up to 2 cm, in any
+    direction, gets the same verdict from the server, and the verdict is the rule's the page computes from the
+    numbers GET /api/map serves (waypoints margin_m inside the window placed by the sketch)."""
+    client, _, _ = setup
+    rule = client.get("/api/map").json()["window"]
+    assert rule["tolerance_m"] >= 0.02 + rule["resolution_m"] - 1e-9
+    # an L heading +x from (-1, 0): its window's left margin lies size/2 - margin cells to its left
+    lateral = (rule["robot_px"][0] - rule["margin_m"] / rule["resolution_m"]) * rule["resolution_m"]
+    sketch = np.array([[-1.0, 0.0], [0.5, 0.0], [1.5, 0.0], [2.1, 0.3], [2.4, 1.0], [2.4, 2.0]])
+    sketch[-1, 1] = sketch[0, 1] + lateral - slack_m
+    verdicts = set()
+    for angle in np.linspace(0, 2 * np.pi, 6, endpoint=False):
+        for r in (0.005, 0.01, 0.015, 0.02):
+            shift = r * np.array([np.cos(angle), np.sin(angle)])
+            res = client.post("/api/execute", json={"shape": "L", "waypoints": (sketch + shift).tolist()}).json()
+            verdicts.add((res["accepted"], res.get("reason"), res["window"]["fits"],
+                          tuple(res["window"]["outside_waypoints"])))
+    expected = (True, None, True, ()) if slack_m > 0 else (False, "window", False, (5,))
+    assert verdicts == {expected}, verdicts
+
+
+@pytest.mark.parametrize("waypoints, words", [([], "the sketch has 0 waypoints"),
+                                              ([[0.0, 1.0]], "the sketch has 1 waypoint:")])
+def test_execute_and_save_need_waypoints(setup, waypoints, words) -> None:
+    client, _, out = setup
+    for url in ("/api/execute", "/api/sketches"):
+        r = client.post(url, json={"shape": "L", "waypoints": waypoints})
+        assert r.status_code == 422 and r.json()["error"].startswith(words), r.text
+        assert "\n" not in r.json()["error"] and "at least 2" in r.json()["error"]
+    assert not (out / "sketches.yaml").exists()
+
+
 def test_a_waypoint_outside_the_map_is_named_from_1_and_marked(setup) -> None:
     client, _, _ = setup
     res = client.post("/api/execute", json={"shape": "L", "waypoints": [[0.0, 1.0], [15.0, 1.0], [3.0, 3.0]]})
@@ -368,6 +402,41 @@ def test_plan_with_a_student(setup, tmp_path: Path) -> None:
                           ({"pose": [0.0, 1.0, 0.0], "goal": [1.0, -9.0]}, "goal .* lies outside the map")):
         r = client.post("/api/plan", json=body)
         assert r.status_code == 422 and re.search(message, r.json()["error"]), r.text
+
+
+class FaintLineOracle(LineOracle):
+    """The line of :class:`LineOracle` over a background of p = 0.2 everywhere else, and a low-confidence flag."""
+
+    def logits(self, states: np.ndarray) -> np.ndarray:
+        out = super().logits(states)
+        return np.where(out < 0, np.float32(np.log(0.2 / 0.8)), out).astype(np.float32)
+
+
+def test_the_wash_covers_only_the_predicted_path_and_low_confidence_says_what_to_do(setup, tmp_path: Path) -> None:
+    import base64
+    import io
+
+    from PIL import Image
+
+    client, _, _ = setup
+    assert client.post("/api/model", json={"path": str(student_checkpoint(tmp_path / "out" / "s.ckpt"))}).status_code == 200
+    planner = client.app.state.workspace.planner
+    planner.backend = FaintLineOracle()
+    res = client.post("/api/plan", json={"pose": [0.0, 1.0, 0.0], "goal": [3.0, 1.0]}).json()
+    assert res["success"], res
+    overlay = res["overlay"]
+    alpha = np.asarray(Image.open(io.BytesIO(base64.b64decode(overlay["png"].split(",", 1)[1]))))[..., 3]
+    washed = alpha > 0
+    assert overlay["threshold"] == planner.threshold and washed.any()
+    # the washed cells: a band along the 3 m line (about 3 m / 0.1 m long), not the 64 x 64 window
+    assert washed.sum() < 0.1 * 64 * 64, washed.sum()
+    assert (res["confidence"] or {}).get("advice") is None  # a confident plan: nothing to do
+
+    planner.low_confidence_share = -1.0  # every plan flagged: the page is told what to do
+    res = client.post("/api/plan", json={"pose": [0.0, 1.0, 0.0], "goal": [3.0, 1.0]}).json()
+    advice = res["confidence"]["advice"]
+    assert res["confidence"]["low_confidence"] and advice.startswith("low confidence"), res["confidence"]
+    assert "move the goal" in advice and "fallback=shortest" in advice and "sketch and save more" in advice
 
 
 def test_sketch_file_written_by_the_app_is_plain_yaml(setup) -> None:

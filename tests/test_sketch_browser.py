@@ -282,3 +282,44 @@ def test_sketch_execute_save_build_and_plan_in_the_browser(server: tuple[str, Pa
         assert "baseline shortest" in page.inner_text("#baselines")
         screenshot(page, "sketch_6_policy.png")
     print("\n" + ", ".join(f"{k}: {1e3 * v:.0f} ms" for k, v in timings.items()))
+
+
+def test_the_page_and_the_server_give_one_fit_verdict_at_the_margin(server: tuple[str, Path], tmp_path: Path) -> None:
+    """An L whose goal lies 1 cm inside (outside) the window's margin, shifted by up to 2 cm: the page's live verdict
+    (computed from the rule's numbers the server serves) is the same for every shift and equals the server's check
+    on Execute; the page then shows the server's verdict. Execute waits for 2 waypoints."""
+    url, _ = server
+    with browser_page(1600, 1000) as page:
+        page.goto(url)
+        page.wait_for_selector("body[data-ready='1']", timeout=30_000)
+        assert page.is_disabled("#execute")  # no waypoints yet
+        click_world(page, [L_MAIN[0]])
+        assert page.is_disabled("#execute") and "1 more waypoint" in page.get_attribute("#execute", "title")
+        rule = page.evaluate("window.spade.state.meta.window")
+        # L_MAIN heads +y from its start and turns right: the window's right margin lies this far to its right
+        lateral = (rule["size_px"] - 1 - rule["robot_px"][0] - rule["margin_m"] / rule["resolution_m"]) \
+            * rule["resolution_m"]
+        for slack in (0.01, -0.01):
+            sketch = np.asarray(L_MAIN)
+            sketch[-1, 0] = sketch[0, 0] + lateral - slack
+            verdicts = set()
+            for k, shift in enumerate((np.zeros(2), SHIFT_M, -SHIFT_M, SHIFT_M[::-1], -SHIFT_M[::-1])):
+                page.evaluate("(p) => window.spade.setSketch(p)", (sketch + shift).tolist())
+                assert page.is_enabled("#execute")
+                live = page.get_attribute("#window-fit", "data-fits")
+                assert page.get_attribute("#window-fit", "data-source") == "page"
+                page.click("#execute")
+                page.wait_for_selector("#result.accepted, #result.rejected")
+                served = page.evaluate("window.spade.state.execution.window")
+                assert live == ("1" if served["fits"] else "0"), (slack, shift, page.inner_text("#window-fit"))
+                assert page.get_attribute("#window-fit", "data-fits") == live  # the server's verdict, shown
+                assert page.get_attribute("#window-fit", "data-source") == "server"
+                verdicts.add((live, page.get_attribute("#result", "class"), json.dumps(served["outside_waypoints"])))
+                if k == 0:
+                    shot = tmp_path / f"fit_at_margin_{'inside' if slack > 0 else 'outside'}.png"
+                    page.screenshot(path=str(shot), full_page=True)
+                    screenshot(page, shot.name)
+            expected = ("1", "result accepted", "[]") if slack > 0 else ("0", "result rejected", "[6]")
+            assert verdicts == {expected}, (slack, verdicts)
+        page.click("#clear")
+        assert page.is_disabled("#execute")

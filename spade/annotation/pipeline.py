@@ -42,6 +42,7 @@ from spade.data.rasterize import Instance
 from spade.utils.errors import UserError
 from spade.annotation.sketch_file import densify
 from spade.data import DatasetWriter
+from spade.maps.frame import RobotFrame
 from spade.utils.processes import pid_alive, process_start
 
 log = logging.getLogger(__name__)
@@ -439,10 +440,54 @@ def _summary(result: ScenarioResult, n_instances: int) -> dict[str, Any]:
 
 
 @dataclass(frozen=True)
+class WindowFitRule:
+    """The one definition of whether a sketch fits the student's window: the server's check (:func:`sketch_window_fit`)
+    and the sketching page's live verdict both read these numbers (the page gets :meth:`to_json` from ``GET /api/map``).
+
+    The window is placed by the sketch itself: the robot at the first waypoint, heading towards the sketch's point
+    ``heading_m`` along it. Every waypoint must lie ``margin_m`` inside it; as the window moves with the sketch, this
+    test does not change when the whole sketch is shifted. The executed path, snapped to the map's cells, moves by up
+    to a cell against the sketch when the sketch is shifted by a fraction of one, so it must lie ``path_margin_m``
+    inside the window less ``tolerance_m`` (one cell and the ``SHIFT_TOLERANCE_M`` an operator's hand wobbles by):
+    a sketch shifted by up to that much keeps its verdict.
+    """
+
+    size_px: int
+    robot_px: tuple[float, float]
+    resolution_m: float
+    margin_m: float
+    heading_m: float
+    path_margin_m: float
+    tolerance_m: float
+
+    SHIFT_TOLERANCE_M = 0.02  # a shift of the whole sketch by up to this keeps the verdict
+
+    @classmethod
+    def from_config(cls, cfg: Mapping[str, Any], resolution_m: float) -> "WindowFitRule":
+        """The rule of an annotation config (``window``, ``execution.heading_window_m``) on a map of
+        ``resolution_m`` metres per cell."""
+        frame = window_frame(cfg)
+        margin = float(cfg["window"]["margin_m"])
+        return cls(frame.size, (float(frame.robot_px[0]), float(frame.robot_px[1])), float(resolution_m), margin,
+                   float(cfg["execution"]["heading_window_m"]), margin / 2.0,
+                   float(resolution_m) + cls.SHIFT_TOLERANCE_M)
+
+    @property
+    def frame(self) -> Any:
+        return RobotFrame(self.size_px, self.robot_px)
+
+    def to_json(self) -> dict[str, Any]:
+        """The numbers the sketching page computes its live verdict from (metres, window pixels)."""
+        return {"size_px": self.size_px, "robot_px": list(self.robot_px), "resolution_m": self.resolution_m,
+                "margin_m": self.margin_m, "heading_m": self.heading_m, "path_margin_m": self.path_margin_m,
+                "tolerance_m": round(self.tolerance_m, 6)}
+
+
+@dataclass(frozen=True)
 class SketchWindowFit:
     """How a sketch fits the student's window (:func:`sketch_window_fit`): the window's pose, the waypoints (indices
-    from 0) less than the margin inside it and the executed path's points (map pixels) less than half the margin
-    inside it."""
+    from 0) less than the margin inside it and the executed path's points (map pixels) less than the path's margin
+    (less the tolerance) inside it."""
 
     pose: Any  # spade.maps.frame.WindowPose
     outside_waypoints: list[int]
@@ -453,21 +498,16 @@ class SketchWindowFit:
         return not self.outside_waypoints and not len(self.outside_points)
 
 
-def sketch_window_fit(waypoints_px: np.ndarray, executed_px: np.ndarray | None, frame: Any, margin_px: float,
-                      heading_px: float) -> SketchWindowFit:
-    """Where an operator's sketch puts the student's window, and what of it lies outside.
-
-    The window is the one the sketching page draws while the operator sketches: the robot at the first waypoint,
-    heading towards the sketch's point ``heading_px`` along it (``execution.heading_window_m``). The sketch fits when
-    every waypoint lies ``margin_px`` inside the window (the straight legs between them then do too: the window is
-    convex) and the executed path stays ``margin_px / 2`` inside it. The verdict moves with the sketch: shifting a
-    whole sketch over the map does not change it (the executed path, snapped to the map's cells, moves by up to a
-    cell against the sketch, which the half margin absorbs), unlike a check at the executed path's first cell and
-    heading, which flipped on centimetres."""
+def sketch_window_fit(waypoints_px: np.ndarray, executed_px: np.ndarray | None, rule: WindowFitRule
+                      ) -> SketchWindowFit:
+    """Where an operator's sketch (map pixels) puts the student's window, and what of it lies outside, by
+    :class:`WindowFitRule` (the page's ``sketchWindow`` computes the same from the rule's JSON)."""
+    res = rule.resolution_m
+    frame = rule.frame
     wp = np.asarray(waypoints_px, dtype=np.float64)
     steps = np.linalg.norm(np.diff(wp, axis=0), axis=1)
     arc = np.concatenate([[0.0], np.cumsum(steps)])
-    reach = min(float(heading_px), float(arc[-1]))
+    reach = min(rule.heading_m / res, float(arc[-1]))
     k = int(np.clip(np.searchsorted(arc, reach, side="right") - 1, 0, len(wp) - 2))
     t = 0.0 if steps[k] == 0 else (reach - arc[k]) / steps[k]
     ahead = wp[k] + t * (wp[k + 1] - wp[k]) - wp[0]
@@ -480,26 +520,24 @@ def sketch_window_fit(waypoints_px: np.ndarray, executed_px: np.ndarray | None, 
     bad_points = np.zeros((0, 2))
     if executed_px is not None and len(executed_px):
         pts = np.asarray(executed_px, dtype=np.float64)
-        bad_points = pts[outside(pts, margin_px / 2.0)]
-    return SketchWindowFit(pose, np.flatnonzero(outside(wp, margin_px)).tolist(), bad_points)
+        bad_points = pts[outside(pts, max(0.0, rule.path_margin_m - rule.tolerance_m) / res)]
+    return SketchWindowFit(pose, np.flatnonzero(outside(wp, rule.margin_m / res)).tolist(), bad_points)
 
 
 def execute_operator_sketch(ctx: MapContext, shape: str, waypoints_px: Any, cfg: Mapping[str, Any]) -> ExecutedPath:
     """Execute one operator sketch (map pixel waypoints) and apply every check of :func:`sketch_instances`;
     raise :class:`Rejection` when one fails (``spade.sketching`` executes the browser's sketches with it). The
     window check is :func:`sketch_window_fit`'s (the window the sketching page draws)."""
-    frame = window_frame(cfg)
-    res = ctx.costmap.resolution
+    rule = WindowFitRule.from_config(cfg, ctx.costmap.resolution)
     executed = execute_sketch(ctx.costmap, waypoints_px, densify(waypoints_px, 0.5), SHAPES[shape], cfg["execution"])
-    margin_m = float(cfg["window"]["margin_m"])
-    fit = sketch_window_fit(waypoints_px, executed.points, frame, margin_m / res,
-                            float(cfg["execution"]["heading_window_m"]) / res)
+    fit = sketch_window_fit(waypoints_px, executed.points, rule)
     if not fit.fits:
         named = ", ".join(f"#{i + 1}" for i in fit.outside_waypoints)
-        where = (f"waypoint{'s' * (len(fit.outside_waypoints) > 1)} {named} less than {margin_m:g} m inside"
+        path_margin = max(0.0, rule.path_margin_m - rule.tolerance_m)
+        where = (f"waypoint{'s' * (len(fit.outside_waypoints) > 1)} {named} less than {rule.margin_m:g} m inside"
                  if named else f"{len(fit.outside_points)} points of the executed path less than "
-                               f"{margin_m / 2:g} m inside")
-        raise Rejection("window", f"{where} the {frame.size} px robot-frame window (robot at the first waypoint, "
+                               f"{path_margin:g} m inside")
+        raise Rejection("window", f"{where} the {rule.size_px} px robot-frame window (robot at the first waypoint, "
                                   "heading along the sketch)", executed.points)
     return executed
 

@@ -25,8 +25,8 @@ from PIL import Image
 from scipy.spatial import cKDTree
 
 from spade.annotation.execution import Rejection
-from spade.annotation.pipeline import execute_operator_sketch, sketch_window_fit
-from spade.annotation.scenarios import costmap_context, window_frame
+from spade.annotation.pipeline import WindowFitRule, execute_operator_sketch, sketch_window_fit
+from spade.annotation.scenarios import costmap_context
 from spade.annotation.sketch_file import Sketch, SketchFileError, densify, sketch_to_pixels
 from spade.annotation.sources import load_map_sources, parse_procedural
 from spade.annotation.templates import SHAPES, check_shape
@@ -81,7 +81,21 @@ def _confidence(result: Any) -> dict[str, Any] | None:
     if not result.success or share is None or not np.isfinite(share):
         return None
     return {"low_share": round(float(share), 3), "min_probability": round(float(result.min_probability), 3),
-            "low_confidence": bool(result.low_confidence), "fallback": bool(result.fallback)}
+            "low_confidence": bool(result.low_confidence), "fallback": bool(result.fallback),
+            "advice": _advice(result)}
+
+
+def _advice(result: Any) -> str | None:
+    """What the operator can do about a low-confidence plan, in one sentence (None for a confident one)."""
+    if result.fallback:
+        return ("low confidence: the Nav2-like shortest path replaced the student's plan; move the goal or the robot "
+                "so that the way between them is open, or sketch and save more demonstrations of this manoeuvre")
+    if not result.low_confidence:
+        return None
+    return (f"low confidence ({100 * float(result.low_share):.0f} % of the path through p < 0.5): move the goal "
+            "nearer, inside the student's window ahead of the robot, or turn the robot towards it; compare with the "
+            "Nav2-like shortest baseline drawn dashed (a deployment takes it with fallback=shortest); sketch and "
+            "save more demonstrations of this manoeuvre to train it")
 
 
 def _png(rgba: np.ndarray) -> bytes:
@@ -99,6 +113,9 @@ def _finite_points(value: Any, what: str, n: int | None = None) -> np.ndarray:
         if arr.shape != (n,) or not np.isfinite(arr).all():
             raise RequestError(f"{what} must be {n} finite numbers, got {value!r}")
         return arr
+    if what == "waypoints" and arr.ndim in (1, 2) and len(arr) < 2 and (arr.ndim == 1 or arr.shape[1] == 2):
+        raise RequestError(f"the sketch has {len(arr)} waypoint{'s' * (len(arr) != 1)}: send at least 2 [x, y] "
+                           "points in map-frame metres (the start first, the goal last)")
     if arr.ndim != 2 or arr.shape[1] != 2 or len(arr) < 2 or not np.isfinite(arr).all():
         raise RequestError(f"{what} must be a list of at least 2 [x, y] points in map-frame metres, got "
                            f"{np.shape(arr)} values")
@@ -158,6 +175,7 @@ class SketchWorkspace:
         self.source = load_map_sources([spec], self.resolution)[0]
         self.map = self.source.map
         self.ctx = costmap_context(self.source.map_id, self.map.grid, self.map.resolution, self.cfg, self.map.origin)
+        self.fit_rule = WindowFitRule.from_config(self.cfg, self.ctx.costmap.resolution)
         self.out_dir = Path(out_dir).expanduser().resolve()
         self.dataset_dir = self.out_dir / "dataset"
         self.build_command = " ".join(["python -m spade.annotate", f"sketches={self.out_dir / 'sketches.yaml'}",
@@ -195,11 +213,7 @@ class SketchWorkspace:
             "shapes": sorted(SHAPES), "shape_turn_deg": dict(SHAPES),
             "robot": {"radius_m": float(robot["radius_m"]), "inflation_radius_m": float(robot["inflation_radius_m"])},
             "footprint": self.footprint(),
-            "window": {"size_px": int(self.cfg["window"]["size_px"]), "resolution_m": self.resolution,
-                       "margin_m": float(self.cfg["window"]["margin_m"]),
-                       "robot_px": list(window_frame(self.cfg).robot_px),
-                       "heading_m": float(self.cfg["execution"]["heading_window_m"]),
-                       "path_margin_m": float(self.cfg["window"]["margin_m"]) / 2.0},
+            "window": self.fit_rule.to_json(),  # the page's live fit verdict: the server's rule, its numbers
             "palette": dict(palette.LABELS),
             "execution": {k: self.cfg["execution"][k] for k in ("max_deviation_m", "shape_tolerance_deg")},
             "sketch_file": str(self.store.path), "dataset_dir": str(self.dataset_dir),
@@ -270,16 +284,16 @@ class SketchWorkspace:
     def window_of(self, px: np.ndarray, executed: np.ndarray | None = None) -> tuple[Any, dict[str, Any]]:
         """The student's window the sketch (map pixels) puts it in (:func:`sketch_window_fit`, as the page draws it
         while sketching): the fit and, in metres, the window's corners and its margin's."""
-        frame = window_frame(self.cfg)
-        res = self.ctx.costmap.resolution
-        margin = float(self.cfg["window"]["margin_m"]) / res
-        fit = sketch_window_fit(px, executed, frame, margin, float(self.cfg["execution"]["heading_window_m"]) / res)
-        lo, hi, m_lo, m_hi = -0.5, frame.size - 0.5, margin, frame.size - 1 - margin
+        rule = self.fit_rule
+        fit = sketch_window_fit(px, executed, rule)
+        margin = rule.margin_m / rule.resolution_m
+        lo, hi, m_lo, m_hi = -0.5, rule.size_px - 0.5, margin, rule.size_px - 1 - margin
         corners = np.array([[lo, lo], [hi, lo], [hi, hi], [lo, hi]])
         inner = np.array([[m_lo, m_lo], [m_hi, m_lo], [m_hi, m_hi], [m_lo, m_hi]])
         return fit, {"corners_m": self._metres(fit.pose.to_map(corners)),
                      "margin_m": self._metres(fit.pose.to_map(inner)),
-                     "outside_waypoints": fit.outside_waypoints}
+                     "outside_waypoints": fit.outside_waypoints, "outside_points": int(len(fit.outside_points)),
+                     "fits": fit.fits}
 
     def _inside(self, xy: np.ndarray, what: str) -> None:
         b = self.bounds_m()
@@ -356,8 +370,9 @@ class SketchWorkspace:
             words += " (waypoint " + ", ".join(f"#{i + 1}" for i in offending_waypoints) + ")"
         generic = rej.reason in ("sketch_off_map", "sketch_off_free", "no_path", "window")  # the detail repeats
         if rej.reason == "window" and not offending_waypoints and len(offending):
+            rule = self.fit_rule
             words += (f" ({len(offending)} points of the executed path less than "
-                      f"{float(self.cfg['window']['margin_m']) / 2:g} m inside it)")
+                      f"{max(0.0, rule.path_margin_m - rule.tolerance_m):g} m inside it)")
         message = f"rejected ({rej.reason}): {words}" + (f"; {rej.detail}" if rej.detail and not generic else "")
         return {"accepted": False, "shape": shape, "reason": rej.reason, "detail": rej.detail, "message": message,
                 "path": self._metres(path) if path is not None else [],
@@ -538,13 +553,21 @@ class SketchWorkspace:
         cells_m = m.pixel_to_world(np.stack([cols, rows], axis=-1).astype(np.float64))
         win = np.rint(np.asarray(to_window(cells_m))).astype(int)
         inside = (win[..., 0] >= 0) & (win[..., 0] < w) & (win[..., 1] >= 0) & (win[..., 1] < h)
+        gh, gw = m.grid.shape
+        on_map = (rows >= 0) & (rows < gh) & (cols >= 0) & (cols < gw)
+        free = np.zeros(rows.shape, bool)
+        free[on_map] = m.grid[rows[on_map], cols[on_map]] == FREE
+        inside &= free  # never over obstacles or unknown space: the robot's path cannot lie there
         rgba = np.zeros((*rows.shape, 4), np.uint8)
         p = prob[win[..., 1][inside], win[..., 0][inside]]
         rgba[inside, :3] = palette.rgb(palette.PROBABILITY)
-        rgba[inside, 3] = np.where(p > 0.02, 40 + 200 * p, 0).astype(np.uint8)
+        # the wash only where the student predicts its path (p at the decoder's threshold or above), not over the
+        # whole window: opacity from 90 at the threshold to 240 at p = 1
+        t = float(getattr(self.planner, "threshold", 0.5))
+        rgba[inside, 3] = np.where(p >= t, 90 + 150 * np.clip((p - t) / max(1.0 - t, 1e-6), 0, 1), 0).astype(np.uint8)
         top_left = m.pixel_to_world(np.array([c0 - 0.5, r0 - 0.5], dtype=np.float64))
         bottom_right = m.pixel_to_world(np.array([c1 + 0.5, r1 + 0.5], dtype=np.float64))
-        return {"png": "data:image/png;base64," + base64.b64encode(_png(rgba)).decode(),
+        return {"png": "data:image/png;base64," + base64.b64encode(_png(rgba)).decode(), "threshold": t,
                 "window_m": np.round(np.asarray(to_world(np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5],
                                                                     [-0.5, h - 0.5]]))), 4).tolist(),
                 "x_min": float(top_left[0]), "y_max": float(top_left[1]),

@@ -35,9 +35,11 @@ function screenToWorld(sx, sy) {
   return [m.origin[0] + (sx - v.ox) / v.scale * m.resolution,
           m.origin[1] + (m.height_px - (sy - v.oy) / v.scale) * m.resolution];
 }
-// The student's window where the sketch puts it, as the server checks it (spade.annotation.pipeline.
-// sketch_window_fit): the robot at the first waypoint, heading towards the sketch's point heading_m along it; the
-// waypoints must lie margin_m inside it. Corners in map metres; outside: indices of the waypoints that do not.
+// The student's window where the sketch puts it, by the server's rule (spade.annotation.pipeline.WindowFitRule, its
+// numbers served as meta.window): the robot at the first waypoint, heading towards the sketch's point heading_m
+// along it; the waypoints must lie margin_m inside it. Corners in map metres; outside: indices of the waypoints
+// that do not. The executed path's part of the rule is the server's alone: its verdict replaces this one once the
+// sketch is executed (showFit).
 function sketchWindow(points) {
   const m = state.meta, w = m.window;
   if (!points || points.length < 2) return null;
@@ -227,7 +229,7 @@ function drawWindow(win, outsideCount) {
 function drawLegend() {
   const items = state.mode === "policy"
     ? [["robot, its footprint and window", C.robot], ["goal", C.goal], ["plan (the student's path)", C.prediction],
-       ["path probability", C.probability], ["baseline: straight line", C["baseline-straight"]],
+       [state.plan && state.plan.overlay ? `path probability ≥ ${state.plan.overlay.threshold}` : "path probability", C.probability], ["baseline: straight line", C["baseline-straight"]],
        ["baseline: Nav2-like shortest", C["baseline-shortest"]], ["baseline: heading template", C["baseline-heading"]]]
     : [["start, footprint, student's window", C.robot], ["sketch waypoints, executed path", C.demonstration],
        ["goal (last waypoint)", C.goal], ["outside the window / rejected part", C["low-confidence"]],
@@ -317,19 +319,29 @@ function drawSketch() {
 }
 
 function showFit() {
-  // the live verdict of the window fit, before executing (the server's check is the same)
+  // the live verdict of the window fit, by the server's rule; once the sketch is executed, the server's own verdict
+  // (which also checks the executed path), so that the two never disagree on screen
   const el = $("window-fit"), win = sketchWindow(state.waypoints), w = state.meta.window;
-  if (!win) { el.textContent = ""; el.className = "fit"; delete el.dataset.fits; return; }
-  if (!win.outside.length) {
+  if (!win) { el.textContent = ""; el.className = "fit"; delete el.dataset.fits; delete el.dataset.source; return; }
+  const served = state.execution && state.execution.window;
+  const outside = served ? served.outside_waypoints : win.outside;
+  const pathOutside = served ? served.outside_points : 0;
+  if (!outside.length && !pathOutside) {
     el.textContent = `Fits the student's window (${win.size_m.toFixed(1)} m, every waypoint ${w.margin_m} m inside it).`;
     el.className = "fit fits"; el.dataset.fits = "1";
-  } else {
-    const named = win.outside.map((i) => `#${i + 1}`).join(", ");
-    el.textContent = `Waypoint${win.outside.length > 1 ? "s" : ""} ${named} outside the student's window ` +
+  } else if (outside.length) {
+    const named = outside.map((i) => `#${i + 1}`).join(", ");
+    el.textContent = `Waypoint${outside.length > 1 ? "s" : ""} ${named} outside the student's window ` +
                      `(keep them ${w.margin_m} m inside the blue frame): sketch a shorter manoeuvre.`;
     el.className = "fit outside"; el.dataset.fits = "0";
+  } else {
+    el.textContent = `The executed path leaves the student's window (${pathOutside} points less than ` +
+                     `${Math.max(0, w.path_margin_m - w.tolerance_m).toFixed(2)} m inside it): move the waypoints ` +
+                     "near the frame inwards.";
+    el.className = "fit outside"; el.dataset.fits = "0";
   }
-  el.dataset.outside = JSON.stringify(win.outside);
+  el.dataset.source = served ? "server" : "page";
+  el.dataset.outside = JSON.stringify(outside);
 }
 
 // ---------------------------------------------------------------------------------------------- sketch editing
@@ -340,8 +352,16 @@ function sketchChanged() {
   $("result").textContent = ""; $("result").className = "result";
   $("waypoint-count").textContent = `${state.waypoints.length} waypoint${state.waypoints.length === 1 ? "" : "s"}`;
   showFit();
+  enableExecute();
   draw();
 }
+function enableExecute() {
+  // Execute needs a sketch: at least 2 waypoints (the start, the goal last)
+  const n = state.waypoints.length;
+  $("execute").disabled = n < 2;
+  $("execute").title = n < 2 ? `click ${2 - n} more waypoint${n === 1 ? "" : "s"} on the map first (the goal last)` : "";
+}
+function setSketch(points) { pushHistory(); state.waypoints = points.map((p) => p.slice()); sketchChanged(); }
 function undo() { if (state.history.length) { state.waypoints = state.history.pop(); sketchChanged(); } }
 function clearSketch() { if (state.waypoints.length) { pushHistory(); state.waypoints = []; sketchChanged(); } }
 
@@ -361,6 +381,7 @@ async function execute() {
   const r = await api("POST", "/api/execute", { shape: shape(), waypoints: state.waypoints });
   if (!r.ok) { state.execution = null; setResult("result", "error", r.data.error); draw(); return; }
   state.execution = r.data;
+  showFit();
   $("save").disabled = !r.data.accepted;
   setResult("result", r.data.accepted ? "accepted" : "rejected",
             `${r.data.accepted ? "Accepted" : "Rejected"}: ${r.data.message.replace(/^(accepted|rejected[^:]*): /, "")}` +
@@ -380,6 +401,7 @@ async function save() {
   state.waypoints = []; state.execution = null; $("save").disabled = true; $("sketch-name").value = "";
   $("waypoint-count").textContent = "0 waypoints";
   showFit();
+  enableExecute();
   await refreshSaved();
 }
 
@@ -480,8 +502,8 @@ async function plan() {
   const p = r.data;
   const c = p.confidence;
   const confidence = c ? ` Decoded by ${p.decode}: ${(100 * c.low_share).toFixed(0)} % of it through p < 0.5, `
-      + `lowest p ${c.min_probability.toFixed(2)}` + (c.fallback ? "; low confidence: the Nav2-like fallback path."
-      : c.low_confidence ? "; LOW CONFIDENCE." : ".") : "";
+      + `lowest p ${c.min_probability.toFixed(2)}` + (c.advice ? `. ${c.advice[0].toUpperCase()}${c.advice.slice(1)}.` : ".")
+      : "";
   setResult("plan-result", p.success ? (c && c.low_confidence ? "failure" : "success") : "failure",
             p.success ? `Path of ${p.length_m.toFixed(2)} m, ${p.waypoints.length} waypoints, ${p.latency_ms} ms.${confidence}`
                       : `No path (${p.code}): ${p.reason} (${p.latency_ms} ms).`);
@@ -600,6 +622,7 @@ async function start() {
     `y ${m.bounds_m.y_min.toFixed(2)}…${m.bounds_m.y_max.toFixed(2)} m`));
   [state.mapImg, state.costImg] = await Promise.all([loadImage("/api/map.png"), loadImage("/api/costmap.png")]);
   showModel();
+  enableExecute();
   resize();
   fit();
   await refreshSaved();
@@ -626,5 +649,5 @@ document.querySelectorAll("input[name=shape]").forEach((el) => el.onchange = () 
 window.addEventListener("resize", resize);
 
 // For scripts and the browser test: map metres <-> canvas pixels, the page's state.
-window.spade = { state, worldToScreen, screenToWorld, fit, draw, sketchWindow };
+window.spade = { state, worldToScreen, screenToWorld, fit, draw, sketchWindow, setSketch };
 start();
