@@ -371,7 +371,6 @@ def test_a_changed_condition_reruns_its_drives_and_the_page_drops_the_old_number
     from mlflow import MlflowClient
 
     import spade.experiments.closed_loop_table as table
-    import spade.experiments.evaluation as evaluation
     from spade.utils.config import compose_config
 
     uri = f"sqlite:///{tmp_path}/mlflow.db"
@@ -391,7 +390,7 @@ def test_a_changed_condition_reruns_its_drives_and_the_page_drops_the_old_number
         return {"closed_loop/success_rate": 1.0, "closed_loop/ape_cm": 100.0 * noise + 1.0}
 
     source = SimpleNamespace(info=SimpleNamespace(run_id="source-run-1"), data=SimpleNamespace(params={"cfg/seed": "0"}))
-    monkeypatch.setattr(evaluation, "evaluate", drive)
+    monkeypatch.setattr(table, "evaluate", drive)
     monkeypatch.setattr(table, "source_runs", lambda *args: [source])
     monkeypatch.setattr(table, "_best_checkpoint", lambda *args: tmp_path / "best.ckpt")
 

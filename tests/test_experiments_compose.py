@@ -18,7 +18,7 @@ ROWS = sorted(p.stem for p in (CONF_DIR / "experiment").glob("*.yaml") if p.stem
 
 
 def test_there_is_one_experiment_per_row() -> None:
-    """Each table's rows are listed once (spade/experiments/tables.py): its composition sweeps them, and every one
+    """Each table's rows are listed once (spade/tracking/tables.py): its composition sweeps them, and every one
     of them is an experiment file."""
     from spade.tracking.tables import TABLES
 

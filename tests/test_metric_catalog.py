@@ -15,7 +15,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "spade"
 
 # Modules that render figures (tables, reports, gpu_check, the bench, verdicts): none may spell a label itself.
 RENDERERS = [
-    "experiments/tables.py",
+    "tracking/tables.py",
     "experiments/teacher_table.py",
     "experiments/closed_loop_table.py",
     *sorted(str(p.relative_to(PACKAGE)) for p in (PACKAGE / "experiments" / "reporting").glob("*.py")),
