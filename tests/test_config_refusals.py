@@ -320,3 +320,25 @@ def test_closed_loop_is_checked_before_any_drive(tmp_path: Path, run_main, overr
     assert code == 2, err
     assert says in one_error_line(err)
     assert not store.exists()
+
+
+def test_closed_loop_refuses_a_store_that_does_not_exist(tmp_path: Path, run_main) -> None:
+    """A mistyped ``tracking_uri`` created an empty store, drove nothing and exited 0 ("0 drives run"). The drives
+    read the source rows' finished runs from the store: a store that is not there is one line, and none is made."""
+    typo = tmp_path / "mlfow.db"
+    code, err = run_main("spade.closed_loop", [f"tracking_uri=sqlite:///{typo}"])
+    assert code == 2, err
+    line = one_error_line(err)
+    assert f"there is no MLflow store at {typo}" in line and "tracking_uri" in line
+    assert not typo.exists()
+
+
+@pytest.mark.parametrize("override, says", [("rate_hz=0", "rate_hz=0"), ("speed_mps=-1", "speed_mps=-1"),
+                                            ("goal_distance_m=[3.0,1.0]", "the minimum exceeds the maximum")])
+def test_the_simulators_ranges_are_one_line_with_the_fix(run_main, override: str, says: str) -> None:
+    """A bad range of ``spade.ros sim`` named the option without a fix; ``goal_distance_m=[3,1]`` started the
+    simulator. Each is refused in one line that says where to set it."""
+    code, err = run_main("spade.ros", ["sim", "map=warehouse:1", override])
+    assert code == 2, err
+    line = one_error_line(err)
+    assert says in line and "conf/ros_sim.yaml" in line

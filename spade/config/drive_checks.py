@@ -14,6 +14,7 @@ from typing import Any, ClassVar
 from omegaconf import DictConfig
 
 from spade.config.options import read_options
+from spade.config.store_checks import check_server, check_store_file, store_path
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import MISSING, check_int_value, check_number_value
 from spade.utils.config import compose_config
@@ -152,4 +153,18 @@ def validate_closed_loop_config(cfg: DictConfig) -> ClosedLoopOptions:
             raise ConfigError(f"conditions.{name}.{unknown[0]}: no such drive setting; the keys are those of "
                               f"{DRIVE_DEFAULTS}")
         check_drive({**defaults, **settings}, f"conditions.{name}")  # type: ignore[dict-item]
+    check_source_store(str(cfg.tracking_uri))
     return options
+
+
+def check_source_store(uri: str) -> None:
+    """The store the source rows were trained into: it must exist (the drives read its finished runs; opening a
+    mistyped path would create an empty store and drive nothing) and be a complete MLflow store or a server that
+    answers."""
+    path = store_path(uri)
+    if uri.startswith("sqlite:") and path is not None and not path.exists():
+        raise ConfigError(f"tracking_uri={uri}: there is no MLflow store at {path}, so there are no trained rows to "
+                          "drive; point tracking_uri (or SPADE_HOME / MLFLOW_TRACKING_URI) at the store the rows "
+                          "were trained into, e.g. sqlite:///PATH/logs/mlflow.db")
+    check_store_file("tracking_uri", uri)
+    check_server("tracking_uri", uri)

@@ -171,12 +171,16 @@ def run_sim(cfg: Any) -> int:
             raise ValueError(f"goal_distance_m={distance!r}: [min, max] metres")
         settings.goal_distance_m = (check_option("goal_distance_m[0]", distance[0], "float", 0.0),
                                     check_option("goal_distance_m[1]", distance[1], "float", 0.0))
+        if settings.goal_distance_m[0] > settings.goal_distance_m[1]:
+            raise ValueError(f"goal_distance_m={list(distance)!r}: the minimum exceeds the maximum, e.g. "
+                             "goal_distance_m=[1.0,3.0]")
         goals_cfg = c.get("goals", "random")
         goals = None if goals_cfg in (None, "random") else _triples(goals_cfg, "goals")
         start_cfg = c.get("start")
         start = None if start_cfg in (None, "random") else _triples([start_cfg], "start")[0]
     except ValueError as err:
-        raise ConfigError(f"{err} (conf/ros_sim.yaml)") from None
+        raise ConfigError(f"{err}; set it on the command line or in conf/ros_sim.yaml (whose comments give each "
+                          "option's meaning)") from None
     map_path = c.get("map")
     if not map_path:
         raise ConfigError("map: no map; pass map=MAP.yaml (a ROS map: yaml + image) or a procedural spec such as "
