@@ -342,3 +342,28 @@ def test_the_simulators_ranges_are_one_line_with_the_fix(run_main, override: str
     assert code == 2, err
     line = one_error_line(err)
     assert says in line and "conf/ros_sim.yaml" in line
+
+
+@pytest.mark.parametrize("options, named", [({"precision": "banana"}, "trainer.precision='banana'"),
+                                            ({"devices": -7}, "trainer.devices=-7"),
+                                            ({"accelerator": "tpu"}, "trainer.accelerator=tpu")])
+def test_a_trainer_option_lightning_refuses_is_one_line_naming_it(options: dict, named: str) -> None:
+    """Lightning's own refusal of a trainer option (raised inside the constructor Hydra instantiates) reaches the
+    user as one ``error:`` line with the fix, not Hydra's "Error in call to target" traceback."""
+    from hydra.errors import InstantiationException
+    from hydra.utils import instantiate
+
+    from spade.utils.errors import exit_on_errors
+
+    with pytest.raises(InstantiationException) as raised:
+        instantiate({"_target_": "spade.training.speed.build_trainer", "logger": False, **options})
+    assert isinstance(raised.value.__cause__, ConfigError)
+
+    def task() -> None:
+        raise raised.value
+
+    with pytest.raises(SystemExit) as ended:
+        exit_on_errors((ConfigError,))(task)()
+    assert ended.value.code == 2
+    message = str(raised.value.__cause__)
+    assert named in message and "\n" not in message and ("use one of" in message or "trainer.devices=1" in message)

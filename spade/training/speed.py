@@ -24,6 +24,7 @@ from typing import Any
 import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
 from torch import nn
 
 from spade.utils.errors import ConfigError
@@ -125,5 +126,11 @@ def build_trainer(*, precision: Any = "32-true", channels_last: Any = "auto",
     Lightning's."""
     callbacks = [callbacks] if isinstance(callbacks, Callback) else list(callbacks or [])
     callbacks += speed_callbacks(resolve_channels_last(channels_last, accelerator), callbacks)
-    return L.Trainer(accelerator=accelerator, precision=resolve_precision(precision, accelerator),
-                     callbacks=callbacks, **kwargs)
+    precision = resolve_precision(precision, accelerator)
+    try:
+        return L.Trainer(accelerator=accelerator, precision=precision, callbacks=callbacks, **kwargs)
+    except (MisconfigurationException, ValueError, TypeError, ImportError) as exc:  # Lightning refuses an option
+        given = {"accelerator": accelerator, **{k: kwargs[k] for k in ("devices", "strategy", "num_nodes") if k in kwargs}}
+        raise ConfigError(f"trainer ({', '.join(f'trainer.{k}={v}' for k, v in given.items())}): "
+                          f"{' '.join(str(exc).split())}; fix the trainer option it names (e.g. trainer.accelerator=cpu, "
+                          "trainer.devices=1)") from exc

@@ -48,6 +48,17 @@ def remove_untouched_run_dir() -> None:
         return
 
 
+def _caused_by(exc: BaseException, kinds: Errors) -> BaseException | None:
+    """``exc`` or the exception it was raised from that is one of ``kinds``: a user error raised inside a constructor
+    that Hydra instantiates reaches the entry point wrapped in Hydra's ``InstantiationException``."""
+    seen: BaseException | None = exc
+    while seen is not None:
+        if isinstance(seen, kinds):
+            return seen
+        seen = seen.__cause__
+    return None
+
+
 def exit_on_errors(errors: Errors | Callable[[], Errors]) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Wrap an entry point's task function: an exception of ``errors`` (a tuple, or a function returning one when
     such an exception occurs) ends the process with one line and exit status 2.
@@ -61,11 +72,12 @@ def exit_on_errors(errors: Errors | Callable[[], Errors]) -> Callable[[Callable[
             try:
                 return fn(*args, **kwargs)
             except BaseException as exc:
-                if not isinstance(exc, errors() if callable(errors) else errors):
+                user = _caused_by(exc, errors() if callable(errors) else errors)
+                if user is None:
                     raise
                 if os.environ.get("HYDRA_FULL_ERROR") == "1":
                     raise
-                print(f"error: {exc}", file=sys.stderr, flush=True)
+                print(f"error: {user}", file=sys.stderr, flush=True)
                 remove_untouched_run_dir()
                 raise SystemExit(2) from None
 
