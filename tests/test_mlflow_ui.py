@@ -206,7 +206,7 @@ def test_experiments_are_tagged_as_training_with_a_description(tmp_path: Path) -
     assert tags[KIND_TAG] == "custom_model_development"
     assert "Table 2" in tags[NOTE_TAG] and "python -m spade.train +experiment=ablation_finetune" in tags[NOTE_TAG]
     assert "python -m spade.report table=table2" in tags[NOTE_TAG] and "t2_bc_finetune_U" in tags[NOTE_TAG]
-    assert "metrics.`test/ape_cm`" in json.loads(tags[VIEW_TAG])["selectedColumns"]
+    assert json.loads(tags[VIEW_TAG])["selectedColumns"][0] == "tags.`planner APE`"  # the deciding figure
     # Experiments made before SPADE tagged them get the tags; a description a person wrote stays.
     old = client.create_experiment("quickstart", tags={NOTE_TAG: "my own notes"})
     bind_experiment(_logger(tmp_path, "quickstart"))
@@ -396,13 +396,13 @@ def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(
     assert "registered model `spade-cond_expert-L-tiny-abc v1`, run [cond_expert_L](#/experiments/" in text
     assert "Regenerate: `python -m spade.train +experiment=t1_small_conddbc_L scale=tiny`" in text
     # aligned columns: labels left, figures right, every line of the table as wide as its header
-    assert "| **this model**     |    4.5 |      3 |      2 |" in text
-    assert "| baseline: straight |   30.2 |    n/a |      0 |" in text
+    assert "| **this model**     |    4.5 |      2 |      3 |" in text
+    assert "| baseline: straight |   30.2 |      0 |    n/a |" in text
     assert "| untrained          |  190.0 |" in text
     table = [line for line in text.splitlines() if line.startswith("|")]
     assert len({len(line) for line in table}) == 1 and table[0].startswith("| test set ")
     assert "APE cm: mean distance between" in text and "Hd19 n: instances whose Hausdorff distance" in text
-    assert "fail %: share of instances" in text and ">20cm %: share of instances" in text
+    assert "fail %: share of instances" in text and ">20cm %" not in text  # the glossary: the columns shown
     assert "`predictions/test_worst.png`" in text
     linked = run_description(cfg, metrics, uses, prerequisites, ["predictions/test_worst.png"], ("5", "ab12"))
     assert ("[predictions/test_worst.png](#/experiments/5/runs/ab12/artifacts/predictions/test_worst.png"
