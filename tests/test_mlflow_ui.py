@@ -543,13 +543,20 @@ def _check_pages(base: str, run_url: str, experiment_url: str, experiment_id: st
         assert "baseline:" not in body.split("Metrics (")[0]  # the description's table: this model only
         screenshot(page, "mlflow_surfaces/3_model.png")
 
-        # 3. the runs table in SPADE's view: the run, its predictors as child runs, test columns in view
+        # 3. the runs table in SPADE's view: the run, its predictors as child runs, the rounded figures in view,
+        # the deciding one (the planner's APE) the first after the run's name, with its unit
         page.goto(experiment_url)
         for name in ("quickstart", *CHILDREN):
             page.get_by_role("link", name=name, exact=True).first.wait_for(state="visible")
         _close_assistant(page)
-        column = page.get_by_role("columnheader", name="test/ape_cm").first
+        column = page.get_by_role("columnheader", name="planner APE", exact=True).first
         column.wait_for(state="visible")
         assert _in_view(page, column)
+        tail = page.get_by_role("columnheader", name="planner over 20 cm", exact=True).first
+        assert column.bounding_box()["x"] < tail.bounding_box()["x"]
+        dataset = page.get_by_role("columnheader", name="Dataset").first
+        assert dataset.bounding_box() is None or column.bounding_box()["x"] < dataset.bounding_box()["x"]
+        page.get_by_role("gridcell").filter(has_text=re.compile(r"^\d+\.\d\d cm$")).first.wait_for(state="visible")
+        assert not re.search(r"\d\.\d{5,}", page.inner_text("body"))  # no unrounded figure in view
         picture = screenshot(page, "mlflow_surfaces/4_runs_view.png")
     return picture
