@@ -36,7 +36,8 @@ VIEW_TAG = f"mlflow.sharedViewState.{VIEW_KEY}"  # the runs-table view that ?vie
 
 
 RUN_NAME_KEY = "tags.`mlflow.runName`"  # the UI's sort key of the Run Name column
-CHAR_PX, HEADER_PX = 8, 48  # a figure column's width: its header's characters and the sort and menu icons
+# a figure column's width: its header's characters (at least a value's, "108.94 cm"), and the sort and menu icons
+CHAR_PX, HEADER_PX, VALUE_CHARS = 7, 40, 10
 
 
 def runs_view_state() -> str:
@@ -53,7 +54,8 @@ def runs_view_state() -> str:
     them unrounded, orders their columns by name and cuts their headers alike."""
     figures = [f"tags.`{tag_key(name)}`" for name in FIGURE_TAGS]
     columns = [*figures, "attributes.`Dataset`"]
-    widths = {column: HEADER_PX + CHAR_PX * len(tag_key(name)) for column, name in zip(figures, FIGURE_TAGS)}
+    widths = {column: HEADER_PX + CHAR_PX * max(len(tag_key(name)), VALUE_CHARS)
+              for column, name in zip(figures, FIGURE_TAGS)}
     return json.dumps({"selectedColumns": columns, "columnOrder": columns, "columnWidths": widths,
                        "orderByKey": RUN_NAME_KEY, "orderByAsc": True})
 
