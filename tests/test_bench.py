@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from spade.perf.bench_report import check_targets, format_report
+from spade.perf.bench_report import format_report
+from spade.perf.targets import bench_verdict, check_targets
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -134,6 +135,28 @@ def test_targets_are_judged_as_the_issue_states() -> None:
     assert none_within[2]["met"] is False and none_within[2]["value"] == "-"
     table = format_report({"mode": "full", "machine": {}, **_results(14.0, 2.4, [(10, 1.05, 0.1)])})
     assert "| medium student batch-1 ONNX Runtime <= 15 ms |" in table and "MISSED" not in table
+
+
+def test_the_verdict_says_from_the_measured_figures_whether_the_targets_were_met() -> None:
+    met = {"machine": {"cpu": "AMD EPYC"}, **_results(14.0, 2.4, [(50, 1.08, 0.5)])}
+    for row, ratio in zip(met["training"], (0.65, 0.7, 0.61)):
+        row["ratio_to_matmul"] = ratio
+    verdict = bench_verdict(met)
+    first, rest = verdict.split(". ", 1)
+    assert first.startswith("3 of 3 performance targets met on this CPU (AMD EPYC): the medium student plans in "
+                            "14.0 ms (batch 1, ONNX Runtime, 128 px), within the 15 ms target;")
+    assert "takes 2.40x a BC step, within the 2.5x target" in first and "20x faster" in first
+    assert rest == "The training steps run at 0.61x to 0.70x the rate of an fp32 matmul on the same CPU: every step " \
+                   "reaches the 0.6x target."
+    missed = {"machine": {}, **_results(16.0, 2.6, [(10, 1.5, 0.1)])}
+    for row, ratio in zip(missed["training"], (0.53, 0.52, 0.44)):
+        row["ratio_to_matmul"] = ratio
+    verdict = bench_verdict(missed)
+    assert verdict.startswith("0 of 3 performance targets met on this machine: the medium student plans in 16.0 ms")
+    assert "over the 15 ms target" in verdict and "takes 2.60x a BC step, over the 2.5x target" in verdict
+    assert "no DDIM setting keeps the APE within 10% of DDPM-1000" in verdict and "none reaches the 0.6x target" in verdict
+    assert bench_verdict({}).startswith("No performance target was measured")
+    assert format_report(met).startswith(bench_verdict(met))  # the report leads with it
 
 
 def test_quick_and_full_settings_come_from_one_config() -> None:

@@ -272,8 +272,39 @@ def _critic_cfg(spade_home, *overrides: str):
     return cfg
 
 
+def _win_rates(bands: dict[str, tuple[float, ...]]) -> dict[str, float]:
+    """Canned critic figures: each candidate's win rate per band (t0000-0200 ...) and over all timesteps."""
+    out = {}
+    for name, wins in bands.items():
+        out[f"critic/win/{name}"] = sum(wins) / len(wins)
+        for i, win in enumerate(wins):
+            out[f"critic/win/{name}/t{200 * i:04d}-{200 * (i + 1):04d}"] = win
+    return out
+
+
+def test_the_critic_verdict_says_whether_the_expert_ranks_the_demonstration_first_in_most_bands() -> None:
+    from spade.experiments.critic_run import critic_verdict
+
+    good = _win_rates({"blur": (0.92, 0.93, 0.79, 0.53, 0.33), "shift1": (1.0, 1.0, 1.0, 1.0, 0.98),
+                       "empty": (1.0,) * 5, "student": (0.05, 0.04, 0.04, 0.03, 0.01)})
+    text = critic_verdict(good)
+    assert text.startswith("The expert ranks the demonstration above each of its 3 corruptions in most of 5 "
+                           "timestep bands")
+    assert "Its weakest is blur: a win rate of 70% over all timesteps, 33% in band t 0800-1000." in text
+    assert text.endswith("Against the student, the demonstration scores better on 3% of the instances: the share "
+                         "where the margin acts.")
+    mixed = _win_rates({"blur": (0.4, 0.3, 0.6, 0.2, 0.1), "shift1": (0.9,) * 5, "empty": (1.0,) * 5})
+    assert critic_verdict(mixed).startswith("The expert ranks the demonstration above 2 of its 3 corruptions in most "
+                                            "of 5 timestep bands, but not above blur.")
+    bad = _win_rates({"blur": (0.4, 0.3, 0.6, 0.2, 0.1), "shift1": (0.5,) * 5, "empty": (0.9,) * 5})
+    text = critic_verdict(bad)
+    assert text.startswith("The expert does not rank the demonstration above its corruptions: it does so in most of "
+                           "5 timestep bands for only 1 of 3 (empty).")
+    assert "student" not in text and len(text.split(". ")) == 2
+
+
 def test_critic_command_scores_an_expert_and_a_student_and_writes_its_page(spade_home, tiny_checkpoints) -> None:
-    from spade.experiments.critic_run import critic, format_report
+    from spade.experiments.critic_run import critic, critic_verdict, format_report
 
     cfg = _critic_cfg(spade_home, f"ckpt_path={tiny_checkpoints['cond']}", f"student_ckpt={tiny_checkpoints['student']}",
                       "margin=cond_dbc_st")
@@ -288,6 +319,7 @@ def test_critic_command_scores_an_expert_and_a_student_and_writes_its_page(spade
     assert "| blur |" in text and "- commit: " in text and "- wall time: " in text
     assert "Provenance:\n\n- command: " in text and "Student:\n\n- " in text  # lists after a blank line
     assert str(spade_home) not in text  # paths relative to SPADE_HOME (spade.utils.provenance.shown_path)
+    assert text.split("\n")[2:5] == ["## Verdict", "", critic_verdict(metrics)]  # the verdict first
     # the expert as a planner beside the student, on the same instances (spade.training.teacher)
     for key in ("expert/planner/ape_cm", "expert/mean_map/planner/ape_cm", "student/planner/ape_cm",
                 "expert/spread_cm", "expert/seconds_per_sample"):

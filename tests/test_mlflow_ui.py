@@ -206,7 +206,7 @@ def test_experiments_are_tagged_as_training_with_a_description(tmp_path: Path) -
     assert tags[KIND_TAG] == "custom_model_development"
     assert "Table 2" in tags[NOTE_TAG] and "python -m spade.train +experiment=ablation_finetune" in tags[NOTE_TAG]
     assert "python -m spade.report table=table2" in tags[NOTE_TAG] and "t2_bc_finetune_U" in tags[NOTE_TAG]
-    assert "metrics.`test/ape_cm`" in json.loads(tags[VIEW_TAG])["selectedColumns"]
+    assert json.loads(tags[VIEW_TAG])["selectedColumns"][0] == "tags.`planner APE`"  # the deciding figure
     # Experiments made before SPADE tagged them get the tags; a description a person wrote stays.
     old = client.create_experiment("quickstart", tags={NOTE_TAG: "my own notes"})
     bind_experiment(_logger(tmp_path, "quickstart"))
@@ -396,13 +396,13 @@ def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(
     assert "registered model `spade-cond_expert-L-tiny-abc v1`, run [cond_expert_L](#/experiments/" in text
     assert "Regenerate: `python -m spade.train +experiment=t1_small_conddbc_L scale=tiny`" in text
     # aligned columns: labels left, figures right, every line of the table as wide as its header
-    assert "| **this model**     |    4.5 |      3 |      2 |" in text
-    assert "| baseline: straight |   30.2 |    n/a |      0 |" in text
+    assert "| **this model**     |    4.5 |      2 |      3 |" in text
+    assert "| baseline: straight |   30.2 |      0 |    n/a |" in text
     assert "| untrained          |  190.0 |" in text
     table = [line for line in text.splitlines() if line.startswith("|")]
     assert len({len(line) for line in table}) == 1 and table[0].startswith("| test set ")
     assert "APE cm: mean distance between" in text and "Hd19 n: instances whose Hausdorff distance" in text
-    assert "fail %: share of instances" in text and ">20cm %: share of instances" in text
+    assert "fail %: share of instances" in text and ">20cm %" not in text  # the glossary: the columns shown
     assert "`predictions/test_worst.png`" in text
     linked = run_description(cfg, metrics, uses, prerequisites, ["predictions/test_worst.png"], ("5", "ab12"))
     assert ("[predictions/test_worst.png](#/experiments/5/runs/ab12/artifacts/predictions/test_worst.png"
@@ -543,13 +543,20 @@ def _check_pages(base: str, run_url: str, experiment_url: str, experiment_id: st
         assert "baseline:" not in body.split("Metrics (")[0]  # the description's table: this model only
         screenshot(page, "mlflow_surfaces/3_model.png")
 
-        # 3. the runs table in SPADE's view: the run, its predictors as child runs, test columns in view
+        # 3. the runs table in SPADE's view: the run, its predictors as child runs, the rounded figures in view,
+        # the deciding one (the planner's APE) the first after the run's name, with its unit
         page.goto(experiment_url)
         for name in ("quickstart", *CHILDREN):
             page.get_by_role("link", name=name, exact=True).first.wait_for(state="visible")
         _close_assistant(page)
-        column = page.get_by_role("columnheader", name="test/ape_cm").first
+        column = page.get_by_role("columnheader", name="planner APE", exact=True).first
         column.wait_for(state="visible")
         assert _in_view(page, column)
+        tail = page.get_by_role("columnheader", name="planner over 20 cm", exact=True).first
+        assert column.bounding_box()["x"] < tail.bounding_box()["x"]
+        dataset = page.get_by_role("columnheader", name="Dataset")  # drawn only when in view: after the figures
+        assert not dataset.count() or column.bounding_box()["x"] < dataset.first.bounding_box()["x"]
+        page.get_by_role("gridcell").filter(has_text=re.compile(r"^\d+\.\d\d cm$")).first.wait_for(state="visible")
+        assert not re.search(r"\d\.\d{5,}", page.inner_text("body"))  # no unrounded figure in view
         picture = screenshot(page, "mlflow_surfaces/4_runs_view.png")
     return picture

@@ -121,7 +121,11 @@ def test_baselines_and_the_untrained_model_are_child_runs_with_the_model_metric_
     # SPADE's runs view sorts by name: the run, then its predictors, one line each, the same columns
     view = json.loads(client.get_experiment(experiment_id).tags[VIEW_TAG])
     assert (view["orderByKey"], view["orderByAsc"]) == ("tags.`mlflow.runName`", True)
-    assert "metrics.`test/ape_cm`" in view["selectedColumns"]
+    # ... its first columns the rounded figures, the deciding one first, which every predictor's run carries
+    assert view["selectedColumns"][:2] == ["tags.`planner APE`", "tags.`planner over 20 cm`"]
+    assert view["columnOrder"] == view["selectedColumns"] and view["selectedColumns"][-1] == "attributes.`Dataset`"
+    assert straight.data.tags["planner APE"] == "30.50 cm" and straight.data.tags["APE"] == "30.25 cm"
+    assert untrained.data.tags["params"] == "118k"
     assert sorted(runs) == [r.info.run_name for r in client.search_runs(
         [experiment_id], order_by=["tags.`mlflow.runName` ASC"])]
     # logged again (a run tested again): updated, not doubled
@@ -550,3 +554,44 @@ def test_one_palette_across_previews_plan_pictures_and_prediction_pictures() -> 
     assert "--spade-demonstration: " + palette.DEMONSTRATION in palette.CSS_VARIABLES
     with pytest.raises(ValueError):
         palette.rgb("red")
+
+
+def test_the_description_leads_with_the_deciding_figure_rounded_without_machine_paths_or_repeats(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import re
+
+    from omegaconf import OmegaConf
+
+    from spade.tracking.descriptions import PrerequisiteUse, run_description
+
+    monkeypatch.setenv("SPADE_HOME", str(tmp_path))
+    cfg = OmegaConf.create({"run_name": "quickstart", "tags": {"table": "quickstart", "role": "student",
+                                                              "approach": "Cond-DBC", "shape": "L"}})
+    own = {"planner/ape_cm": 4.875823020935059, "planner/over_20cm_rate": 0.03213, "planner/plausibility_cm": 2.104,
+           "planner/commit_rate": 0.8123, "ape_cm": 5.2049, "over_20cm_rate": 0.1, "failure_rate": 0.0213,
+           "fid": 49.552631, "hd19": 263.0}
+    metrics = {f"test/{k}": v for k, v in own.items()}
+    metrics.update({"test/baseline/straight/planner/ape_cm": 30.123456, "test/baseline/straight/fid": 120.98765,
+                    "test/baseline/straight/planner/over_20cm_rate": 0.6})
+    prerequisites = [PrerequisiteUse("expert", "cond_expert_L", "/home/someone/spade/ckpts/expert-v3.ckpt"),
+                     PrerequisiteUse("critic", "cond_expert_L", str(tmp_path / "logs" / "critic.ckpt"))]
+    text = run_description(cfg, metrics, [], prerequisites)
+    lines = text.splitlines()
+    headers = [c.strip() for c in lines[0].strip("|").split("|")]
+    # the deciding figure and its tail first, then plausibility and commitment, then the paper's
+    assert headers[:5] == ["test set", "plan APE cm", "plan >20cm %", "plaus. cm", "commit %"], headers
+    assert headers.index("APE cm") > headers.index("commit %")
+    cells = [c.strip() for c in lines[2].strip("|").split("|")]
+    assert cells[:5] == ["**this model**", "4.9", "3", "2.1", "81"], cells  # cm to 0.1, shares in whole per cent
+    assert "FID" in headers and cells[headers.index("FID")] == "49.55" and cells[headers.index("Hd19 n")] == "263"
+    assert not re.search(r"\d\.\d{3,}", text.split("**Verdict.**")[0]), text  # no unrounded figure in the table
+    # no path of the writing machine: a path under $SPADE_HOME relative to it, any other by its file name
+    assert "/home/" not in text and str(tmp_path) not in text
+    assert "checkpoint `expert-v3.ckpt`" in text and "checkpoint `logs/critic.ckpt`" in text
+    # the glossary gives each meaning once, the planner's figures under their base figure's meaning
+    glossary = next(line for line in lines if line.startswith("Lower is better"))
+    assert glossary.startswith("Lower is better, except commit %.")
+    assert glossary.count("mean distance between") == 1 and "plan APE cm / APE cm: mean distance" in glossary
+    entries = [e.split(":")[0] for e in glossary.split(". ", 1)[1].split("; ")]
+    assert len(entries) == len(set(entries)), entries
+    assert text.index("| test set") < text.index("**Verdict.**")  # the table is the first thing shown

@@ -33,7 +33,7 @@ from spade.training.student_module import StudentModule
 from spade.training.teacher import planner_figures
 from spade.utils.provenance import command_line, commit, machine, shown_path
 
-__all__ = ["critic", "critic_identity", "format_report"]
+__all__ = ["critic", "critic_identity", "critic_verdict", "format_report"]
 
 log = logging.getLogger(__name__)
 
@@ -95,8 +95,51 @@ def critic(cfg: DictConfig) -> dict[str, Any]:
     return metrics
 
 
+def critic_verdict(metrics: dict[str, float]) -> str:
+    """Two or three sentences from the win rates (``critic/win/<candidate>[/<band>]``): whether the expert ranks the
+    demonstration above its corruptions in most timestep bands (a win rate above one half in more than half of the
+    bands), the weakest corruption and its worst band, and how often the margin against the student is active."""
+    bands = sorted({k.rsplit("/", 1)[1] for k in metrics if k.startswith("critic/win/") and k.count("/") == 3})
+    names = [k.split("/")[2] for k in metrics if k.startswith("critic/win/") and k.count("/") == 2]
+    corruptions = [n for n in names if n != "student"]
+    if not corruptions:
+        return "No corruption was scored: the page has no verdict on the expert as a critic."
+
+    def band_wins(name: str) -> list[float]:
+        return [metrics[f"critic/win/{name}/{b}"] for b in bands if f"critic/win/{name}/{b}" in metrics]
+
+    def ranked(name: str) -> bool:
+        wins = band_wins(name) or [metrics[f"critic/win/{name}"]]
+        return sum(w > 0.5 for w in wins) > len(wins) / 2
+
+    held = [n for n in corruptions if ranked(n)]
+    lost = [n for n in corruptions if n not in held]
+    count = f"{len(bands)} timestep bands" if bands else "the timesteps"
+    if not lost:
+        first = (f"The expert ranks the demonstration above each of its {len(corruptions)} corruptions in most of "
+                 f"{count}: as a critic it tells the demonstration from a damaged path.")
+    elif len(held) > len(lost):
+        first = (f"The expert ranks the demonstration above {len(held)} of its {len(corruptions)} corruptions in most "
+                 f"of {count}, but not above {', '.join(lost)}.")
+    else:
+        first = (f"The expert does not rank the demonstration above its corruptions: it does so in most of {count} "
+                 f"for only {len(held)} of {len(corruptions)}" + (f" ({', '.join(held)})" if held else "") + ".")
+    weakest = min(corruptions, key=lambda n: metrics[f"critic/win/{n}"])
+    sentences = [first]
+    wins = {b: metrics[f"critic/win/{weakest}/{b}"] for b in bands if f"critic/win/{weakest}/{b}" in metrics}
+    text = f"Its weakest is {weakest}: a win rate of {metrics[f'critic/win/{weakest}']:.0%} over all timesteps"
+    if wins:
+        band = min(wins, key=wins.get)
+        text += f", {wins[band]:.0%} in band {band.replace('t', 't ', 1)}"
+    sentences.append(text + ".")
+    if "critic/win/student" in metrics:
+        sentences.append(f"Against the student, the demonstration scores better on {metrics['critic/win/student']:.0%} "
+                         "of the instances: the share where the margin acts.")
+    return " ".join(sentences)
+
+
 def _write_page(cfg: DictConfig, config, metrics: dict[str, float], picture, seconds: float) -> Path | None:
-    """The results page: the figures (:func:`format_report`), per band, with command, commit, date, machine and
+    """The results page: the verdict (:func:`critic_verdict`), the figures (:func:`format_report`), per band, with command, commit, date, machine and
     wall time, next to its picture, in ``cfg.output_dir``."""
     import datetime
 
@@ -122,6 +165,13 @@ def _write_page(cfg: DictConfig, config, metrics: dict[str, float], picture, sec
     text = "\n".join([
         f"# The expert as a critic: {Path(str(cfg.ckpt_path)).name}, margin on agent input `{config.agent_input}`, "
         f"score `{config.score}`",
+        "",
+        "## Verdict",
+        "",
+        critic_verdict(metrics) + " These win rates say whether the expert can judge a path at all; what decides "
+        "a guided student is its planner's APE (the [metrics reference](../reference/metrics.md#which-figure-decides)).",
+        "",
+        "## Figures",
         "",
         f"Margin formulation: score `{config.score}`, agent input `{config.agent_input}`, timesteps "
         f"[{config.t_min}, {config.t_max if config.t_max is not None else 'T'}); "

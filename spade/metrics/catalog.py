@@ -34,12 +34,14 @@ __all__ = [
     "GPU_CHECK",
     "HEADLINE",
     "PREFERENCE",
+    "RUNS_VIEW",
     "SUMMARY",
     "TABLE",
     "TEACHER",
     "figure",
     "fmt",
     "format_params",
+    "glossary",
     "header",
     "known",
     "label",
@@ -330,6 +332,44 @@ def meaning(names: tuple[str, ...]) -> str:
     return "; ".join(f"{header(n)}: {figure(n).meaning}" for n in names) + "."
 
 
+# what a family's qualifier means, for a glossary that gives each figure's meaning once
+_FAMILY_MEANINGS = {
+    "planner/": "read on the path the planner decodes by search (the path a robot drives)",
+    "mean_map/planner/": "read on the planner's path through the mean of an expert's K samples' maps",
+    "medoid/planner/": "read on the medoid of an expert's K samples' decoded paths",
+    "closed_loop/": "read on a scenario driven from start to goal",
+}
+
+
+def _family(name: str) -> tuple[str, str] | None:
+    """(family prefix, base figure) of a family member (``planner/ape_cm`` -> ``("planner/", "ape_cm")``)."""
+    bare = _drop_predictor(_unstaged(name))
+    if bare in _BY_NAME:
+        return None
+    for prefix, _, _ in _FAMILIES:
+        if bare.startswith(prefix) and bare[len(prefix):] in _BY_NAME:
+            return prefix, bare[len(prefix):]
+    return None
+
+
+def glossary(names: tuple[str, ...]) -> str:
+    """A legend under a table of ``names`` that gives each meaning once: the figures that share one (``APE cm`` and
+    the planner's ``plan APE cm``) under one entry, then one entry per family saying what its qualifier means."""
+    entries: dict[str, list[str]] = {}  # meaning -> headers, in the order of ``names``
+    families: dict[str, list[str]] = {}  # family prefix -> its members' headers
+    for name in names:
+        member = _family(name)
+        base = figure(member[1]) if member else figure(name)
+        entries.setdefault(base.meaning, [])
+        if header(name) not in entries[base.meaning]:
+            entries[base.meaning].append(header(name))
+        if member:
+            families.setdefault(member[0], []).append(header(name))
+    parts = [f"{' / '.join(headers)}: {text}" for text, headers in entries.items()]
+    parts += [f"{', '.join(headers)}: {_FAMILY_MEANINGS[prefix]}" for prefix, headers in families.items()]
+    return "; ".join(parts) + "."
+
+
 # -- the ordered figure lists that the pages and summaries show --------------------------------------------------
 CELL: tuple[str, ...] = ("fid", "ape_cm", "hd19", "failure_rate", "over_20cm_rate", "planner/ape_cm",
                          "planner/over_20cm_rate")
@@ -344,9 +384,14 @@ PREFERENCE: tuple[str, ...] = ("floor_cm", "planner/ape_over_floor", "planner/pl
 TABLE: tuple[str, ...] = (*CELL, "planner/low_confidence_rate", *PREFERENCE, "model/params", "margin/active")
 """Every figure a table's report reads from a row's runs (its CSV columns, in this order)."""
 
-DESCRIPTION: tuple[str, ...] = ("ape_cm", "fid", "hd19", "failure_rate", "over_20cm_rate", "planner/ape_cm",
-                                "planner/over_20cm_rate", "planner/plausibility_cm", "planner/commit_rate")
-"""The test figures a run's description shows (its figures table), in this order."""
+DESCRIPTION: tuple[str, ...] = ("planner/ape_cm", "planner/over_20cm_rate", "planner/plausibility_cm",
+                                "planner/commit_rate", "ape_cm", "over_20cm_rate", "failure_rate", "fid", "hd19")
+"""The test figures a run's description shows (its figures table), in this order: the figure that decides first,
+with its tail (:mod:`spade.metrics.verdict`), then plausibility and commitment, then the paper's."""
+
+RUNS_VIEW: tuple[str, ...] = (*DESCRIPTION, "model/params")
+"""The figures SPADE's MLflow runs view shows as its first columns, in this order (rounded: run tags that
+:mod:`spade.tracking.figure_tags` writes beside the full-precision metrics)."""
 
 SUMMARY: tuple[str, ...] = ("planner/ape_cm", "planner/over_20cm_rate", "planner/ape_over_floor",
                             "planner/plausibility_cm", "planner/commit_rate", "planner/low_confidence_rate", "ape_cm",

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from spade.perf.bench_report import check_targets
+from spade.perf.targets import check_targets
 from spade.utils.timing import machine_info
 from spade.perf.closed_loop import closed_loop_costs
 from spade.perf.dataset import dataset_read_at_scale

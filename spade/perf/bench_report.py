@@ -1,4 +1,5 @@
-"""The bench's results as Markdown tables (README-ready), its performance targets checked, and the JSON file."""
+"""The bench's results as Markdown tables (README-ready), led by the verdict on its performance targets
+(:mod:`spade.perf.targets`), and the JSON file."""
 
 from __future__ import annotations
 
@@ -10,65 +11,12 @@ from spade.metrics import catalog
 from spade.utils.markdown import number_table
 from spade.perf.contention import format_contention
 from spade.perf.speed_page import format_training_speed, steps_table
-
-STUDENT_ONNX_TARGET_MS = 15.0  # medium student, batch 1, ONNX Runtime
-COND_DBC_RATIO_TARGET = 2.5  # Cond-DBC step / BC step
-DDIM_SPEEDUP_TARGET = 10.0  # DDIM-k vs the full DDPM loop ...
-CLOSED_LOOP_TARGET_S = 120.0  # 100 quickstart test scenarios driven in closed loop, student and baselines, 2 cores
-DDIM_APE_TOLERANCE = 0.10  # ... at an APE within 10 % of DDPM's
-
-
-def check_targets(results: dict[str, Any]) -> list[dict[str, Any]]:
-    """The bench's performance targets, each with the measured value, whether it is met, and the setting measured."""
-    out = []
-    for row in results.get("student", []):
-        if row["size"] == "medium" and "onnxruntime_b1_ms" in row:
-            value = row["onnxruntime_b1_ms"]
-            out.append({"target": f"medium student batch-1 ONNX Runtime <= {STUDENT_ONNX_TARGET_MS:g} ms",
-                        "setting": f"{row['image_size']} px ({row['gflop_b1']:.2f} GFLOP)", "value": f"{value:.1f} ms",
-                        "met": value <= STUDENT_ONNX_TARGET_MS})
-    for row in results.get("training", []):
-        if row["approach"].startswith("Cond-DBC") and "batch_terms" not in row["approach"] and "ratio_to_bc" in row:
-            value = row["ratio_to_bc"]
-            out.append({"target": f"Cond-DBC step <= {COND_DBC_RATIO_TARGET:g} x BC step",
-                        "setting": f"{row['image_size']} px, batch {row['batch_size']}, {row['student']} student, "
-                                   f"cond expert {row['expert_preset']}",
-                        "value": f"{value:.2f} x", "met": value <= COND_DBC_RATIO_TARGET})
-    loop = results.get("closed_loop")
-    if loop:
-        per100 = loop["all_s"] * 100.0 / max(loop["scenarios"], 1)
-        out.append({"target": f"100 closed-loop scenarios (student and baselines) <= {CLOSED_LOOP_TARGET_S:g} s",
-                    "setting": f"{loop['scenarios']} scenarios of {loop['dataset']}, {loop['plans']} student plans",
-                    "value": f"{per100:.1f} s per 100", "met": per100 <= CLOSED_LOOP_TARGET_S})
-    quality = results.get("quality") or {}
-    rows = quality.get("rows") or []
-    ddpm = next((r for r in rows if r["sampler"] == "ddpm"), None)
-    if ddpm is not None:
-        best = None
-        for row in rows:
-            if row["sampler"] != "ddim":
-                continue
-            speedup = ddpm["seconds_per_sample"] / row["seconds_per_sample"]
-            within = row["ape_cm"] <= ddpm["ape_cm"] * (1 + DDIM_APE_TOLERANCE)
-            if within and (best is None or speedup > best[0]):
-                best = (speedup, row)
-        if best is None:
-            out.append({"target": f"DDIM >= {DDIM_SPEEDUP_TARGET:g} x faster than DDPM-{ddpm['steps']} at APE within "
-                                  f"{DDIM_APE_TOLERANCE:.0%}", "setting": "no DDIM setting within the APE tolerance",
-                        "value": "-", "met": False})
-        else:
-            speedup, row = best
-            out.append({"target": f"DDIM >= {DDIM_SPEEDUP_TARGET:g} x faster than DDPM-{ddpm['steps']} at APE within "
-                                  f"{DDIM_APE_TOLERANCE:.0%}",
-                        "setting": f"DDIM-{row['steps']}: APE {row['ape_cm']:.2f} vs {ddpm['ape_cm']:.2f} cm "
-                                   f"({row['samples']} samples)",
-                        "value": f"{speedup:.0f} x", "met": speedup >= DDIM_SPEEDUP_TARGET})
-    return out
-
+from spade.perf.targets import bench_verdict, check_targets
 
 def format_report(results: dict[str, Any]) -> str:
-    """All measured sections as Markdown tables, then the targets."""
-    parts = []
+    """The verdict (:func:`~spade.perf.targets.bench_verdict`), then all measured sections as Markdown tables,
+    then the targets."""
+    parts = [bench_verdict(results)]
     m = results.get("machine", {})
     parts.append(f"Machine: {m.get('cpu')} ({m.get('cpu_count')} CPUs), torch {m.get('torch')} with "
                  f"{m.get('torch_threads')} threads, load average {m.get('load_average_1m')} at the start; "

@@ -13,9 +13,8 @@ from typing import Any
 from spade.utils.markdown import number_table
 from spade.experiments.reporting.stats import mean_sd, welch
 from spade.paths import CONFIG_PATH
+from spade.perf.targets import RATIO_TARGET, bench_verdict
 
-#: The issue's target: a training step's FLOP rate at least this share of the same run's fp32 matmul rate.
-RATIO_TARGET = 0.6
 #: Operator names whose time is the counted (convolution / matmul) work; the rest is what the FLOP counter skips.
 _COUNTED = ("conv", "mkldnn", "addmm", "mm", "bmm", "matmul", "linear")
 
@@ -159,13 +158,21 @@ def _defaults() -> str:
 
 def speed_page(results: dict[str, Any], command: str, commit: str | None, wall_s: float,
                date: str | None = None) -> str:
-    """The page: provenance, the step table, the levers, the bound, the profiles, Lightning's overhead."""
+    """The page: the verdict (:func:`~spade.perf.targets.bench_verdict`), provenance, the step table, the levers,
+    the bound, the profiles, Lightning's overhead."""
     m = results.get("machine", {})
     speed = results.get("training_speed") or {}
     hw = speed.get("hardware") or {}
     date = date or _now()
     head = [
         "# Training speed",
+        "",
+        "## Verdict",
+        "",
+        bench_verdict(results) + " This page times training; what decides a model's quality is stated in the "
+        "[metrics reference](../reference/metrics.md#which-figure-decides).",
+        "",
+        "## How it was measured",
         "",
         "Written by the bench; do not edit by hand. Regenerate with the command below.",
         "",

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +26,7 @@ from spade.metrics import catalog
 from spade.paths import CONF_DIR
 from spade.tracking.dataset_inputs import DatasetUse
 from spade.tracking.links import artifact_url, relative_run_link
+from spade.utils import provenance
 from spade.utils.markdown import markdown_table
 from spade.metrics.verdict import verdict_lines
 from spade.tracking.dataset_inputs import dataset_profile
@@ -63,8 +65,27 @@ def figure_rows(metrics: dict[str, float]) -> list[tuple[str, dict[str, float]]]
 
 
 THIS_MODEL = "this model"
-# under the figures table: what its compact headers mean, from the catalog
-FIGURES_MEANING = "Lower is better, except commit. " + catalog.meaning(FIGURES)
+
+
+def figures_meaning(shown: tuple[str, ...]) -> str:
+    """The line under the figures table: which way is better and what each compact header means, each meaning
+    once (:func:`~spade.metrics.catalog.glossary`)."""
+    higher = [catalog.header(k) for k in shown if catalog.lower_is_better(k) is False]
+    return (f"Lower is better{', except ' + ', '.join(higher) if higher else ''}. "
+            + catalog.glossary(shown))
+
+
+def shown_path(path: str) -> str:
+    """A path as a description prints it: relative to ``$SPADE_HOME``, the checkout or the current directory
+    (:func:`spade.utils.provenance.shown_path`), else its file name: never the writing machine's absolute path."""
+    shown = provenance.shown_path(path)
+    return Path(shown).name if os.path.isabs(shown) else shown
+
+
+def _shown_override(override: str) -> str:
+    """A command line's ``key=value`` with an absolute path value shown by :func:`shown_path`."""
+    key, sep, value = override.partition("=")
+    return f"{key}={shown_path(value)}" if sep and os.path.isabs(value) else override
 
 
 def figures_table(metrics: dict[str, float]) -> str:
@@ -73,11 +94,11 @@ def figures_table(metrics: dict[str, float]) -> str:
     rows = figure_rows(metrics)
     if not rows:
         return ""
-    shown = [k for k in FIGURES if any(k in figs for _, figs in rows)]  # no column of n/a only
+    shown = tuple(k for k in FIGURES if any(k in figs for _, figs in rows))  # no column of n/a only
     cells = [["test set", *(catalog.header(k) for k in shown)]]
     for label, figs in rows:
         cells.append([f"**{label}**" if label == THIS_MODEL else label, *(_fmt(k, figs.get(k)) for k in shown)])
-    return "\n".join(markdown_table(cells[0], cells[1:], padded=True)) + "\n\n" + FIGURES_MEANING
+    return "\n".join(markdown_table(cells[0], cells[1:], padded=True)) + "\n\n" + figures_meaning(shown)
 
 
 @dataclass(frozen=True)
@@ -130,11 +151,12 @@ def regenerate_command(cfg: DictConfig) -> str | None:
         # the user's datasets regenerates on them, not on the built-in ones); a sweep's own keys are dropped
         dropped = ("+experiment=", "experiment=", "scale=", "seed=", "rows=", "seeds=", "hydra.")
         seed = cfg.get("seed")
-        rest = [o for o in overrides if not o.startswith(dropped)]
+        rest = [_shown_override(o) for o in overrides if not o.startswith(dropped)]
         return " ".join([f"python -m spade.train +experiment={run_name}", *([f"scale={scale}"] if scale else []),
                          *([f"seed={seed}"] if seed is not None else []), *rest])
     if overrides or HydraConfig.initialized():
-        return " ".join([f"python -m spade.{cfg.get('task_name') or 'train'}", *overrides])  # train, evaluate
+        return " ".join([f"python -m spade.{cfg.get('task_name') or 'train'}",  # train, evaluate
+                         *map(_shown_override, overrides)])
     return None
 
 
@@ -235,7 +257,7 @@ def run_description(cfg: DictConfig, metrics: dict[str, float], uses: list[Datas
             if p.registered:
                 item += f" (registered model `{p.registered}`" + (f", run {p.run_link})" if p.run_link else ")")
             else:
-                item += f" (checkpoint `{p.checkpoint}`)"
+                item += f" (checkpoint `{shown_path(p.checkpoint)}`)"
             items.append(item)
         parts.append("Prerequisites: " + "; ".join(items) + ".")
     guidance = guidance_verdict(margin_history)

@@ -4,8 +4,9 @@ The experiment (one per paper table, quickstart, smoke, sweep or evaluation) is 
 (``mlflow.experimentKind=custom_model_development``: the UI's "Machine learning" kind; MLflow 3 UIs before 3.17
 chose an experiment's first page by it),
 carries a description (``mlflow.note.content``: the paper table it reproduces and how to regenerate it) and stores
-the runs-table view that shows the Dataset and metric columns, one line per run sorted by run name, so that a
-row's run is followed by its baselines and untrained model (:data:`VIEW_TAG`, :func:`runs_view_state`).
+the runs-table view that shows the rounded test figures (the deciding figure first) and the Dataset, one line per
+run sorted by run name, so that a row's run is followed by its baselines and untrained model (:data:`VIEW_TAG`,
+:func:`runs_view_state`).
 
 What the tag does not do: MLflow 3.17's UI no longer reads ``mlflow.experimentKind`` to choose an experiment's
 first page. With its workflow-based navigation (on in every 3.17 build), the kind follows the sidebar's
@@ -23,6 +24,8 @@ from typing import Any
 
 from omegaconf import DictConfig
 
+from spade.tracking.figure_tags import FIGURES as FIGURE_TAGS
+from spade.tracking.figure_tags import tag_key
 from spade.tracking.links import VIEW_KEY
 from spade.tracking.tables import METRICS, TABLES
 
@@ -33,21 +36,28 @@ VIEW_TAG = f"mlflow.sharedViewState.{VIEW_KEY}"  # the runs-table view that ?vie
 
 
 RUN_NAME_KEY = "tags.`mlflow.runName`"  # the UI's sort key of the Run Name column
+# a figure column's width: its header's characters (at least a value's, "108.94 cm"), and the sort and menu icons
+CHAR_PX, HEADER_PX, VALUE_CHARS = 7, 40, 10
 
 
 def runs_view_state() -> str:
-    """The runs table as SPADE shows it: Dataset, the paper's test metrics and the parameter count as columns,
-    the runs sorted by name.
+    """The runs table as SPADE shows it: the test figures rounded, the deciding figure first (the planner's APE,
+    its tail, plausibility, commitment, then the paper's figures and the parameter count: run tags of
+    :mod:`~spade.tracking.figure_tags`, each column wide enough for its header), then Dataset; the runs sorted by
+    name.
 
     Sorted by name, a row's run (``quickstart``) is followed by its predictors' child runs
     (``quickstart/baseline-heading``, ..., ``quickstart/untrained``: :mod:`~spade.tracking.predictors`),
     each a line of its own with the same columns. (Sorted by date, the UI would nest the children under a collapsed
     parent, and a shared view cannot say which runs to expand: MLflow 3.17 drops ``runsExpanded`` from it.)
-    Training diagnostics (``margin/active``) stay out: the UI orders metric columns by name and draws only those in
-    view, so a ``margin/`` column would push the test metrics off a laptop's screen."""
-    columns = ["attributes.`Dataset`",
-               *(f"metrics.`{m.mlflow_key}`" for m in METRICS.values() if m.mlflow_key.startswith(("test/", "model/")))]
-    return json.dumps({"selectedColumns": columns, "orderByKey": RUN_NAME_KEY, "orderByAsc": True})
+    The full-precision metrics stay out of view (the Columns menu adds them, numerically sortable): the UI prints
+    them unrounded, orders their columns by name and cuts their headers alike."""
+    figures = [f"tags.`{tag_key(name)}`" for name in FIGURE_TAGS]
+    columns = [*figures, "attributes.`Dataset`"]
+    widths = {column: HEADER_PX + CHAR_PX * max(len(tag_key(name)), VALUE_CHARS)
+              for column, name in zip(figures, FIGURE_TAGS)}
+    return json.dumps({"selectedColumns": columns, "columnOrder": columns, "columnWidths": widths,
+                       "orderByKey": RUN_NAME_KEY, "orderByAsc": True})
 
 
 def _scale_note() -> str:

@@ -14,8 +14,8 @@ from urllib.parse import quote, urlsplit
 
 WORKFLOW_QUERY = "workflowType=machine_learning"  # MLflow 3 UIs: open on runs, not on GenAI traces
 # A runs-table view stored in the experiment (the MLflow UI's "shared view": tag mlflow.sharedViewState.<key>,
-# opened by ?viewStateShareKey=<key>): the Dataset column and the tables' metric columns, runs sorted by name (each
-# row's run followed by its baselines and untrained model).
+# opened by ?viewStateShareKey=<key>): the rounded test figures, the deciding one first, then the Dataset column,
+# runs sorted by name (each row's run followed by its baselines and untrained model).
 VIEW_KEY = "spade"
 DEFAULT_UI = "http://127.0.0.1:5000"  # where `mlflow ui` listens unless told otherwise
 UI_URL_ENV = "SPADE_MLFLOW_UI_URL"  # the UI's address when it is not `mlflow ui`'s default (another port, a proxy)
@@ -38,8 +38,8 @@ def ui_base_url(tracking_uri: str, ui_url: str | None = None) -> str:
 
 def experiment_url(base: str, experiment_id: str, view: bool = True) -> str:
     """The experiment's runs table (MLflow's hash routes; the query keeps 3.x UIs off the GenAI view), with
-    SPADE's view of it (:func:`~spade.tracking.experiment_tags.runs_view_state`: metric columns
-    shown) unless ``view=False``."""
+    SPADE's view of it (:func:`~spade.tracking.experiment_tags.runs_view_state`: the rounded
+    test figures shown, the deciding one first) unless ``view=False``."""
     query = f"viewStateShareKey={VIEW_KEY}&{WORKFLOW_QUERY}" if view else WORKFLOW_QUERY
     return f"{base.rstrip('/')}/#/experiments/{experiment_id}/runs?{query}"
 

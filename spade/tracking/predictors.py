@@ -33,6 +33,7 @@ from typing import Any
 from spade.metrics.catalog import BASELINE_ROW_LABELS as BASELINE_LABELS
 from spade.tracking.dataset_inputs import log_dataset_inputs
 from spade.tracking.experiment_tags import NOTE_TAG
+from spade.tracking.figure_tags import figure_tags
 from spade.utils.palette import predictor_colour
 
 log = logging.getLogger(__name__)
@@ -126,7 +127,7 @@ def log_predictor_runs(client: Any, run_id: str, role: str | None = None, what: 
     for predictor in found:
         child_tags = {PARENT_TAG: run_id, PREDICTOR_TAG: predictor.name, NOTE_TAG: _note(predictor, row, what),
                       COLOUR_TAG: predictor_colour(predictor.name),
-                      **{k: tags[k] for k in ROW_TAGS if tags.get(k)}}
+                      **{k: tags[k] for k in ROW_TAGS if tags.get(k)}, **figure_tags(predictor.metrics)}
         if predictor.name == "untrained":
             child_tags.update({k: tags[k] for k in (*MODEL_TAGS, "role") if tags.get(k)})
         child = existing.get(predictor.name)

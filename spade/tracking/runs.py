@@ -41,6 +41,7 @@ from spade.tracking.client import ensure_store, mlflow_client
 from spade.tracking.dataset_inputs import DatasetUse, dataset_uses, log_dataset_inputs
 from spade.tracking.descriptions import prerequisite_uses, run_description
 from spade.tracking.experiment_tags import NOTE_TAG, ensure_experiment_tags
+from spade.tracking.figure_tags import log_figure_tags
 from spade.tracking.logged_model import LoggedStudent, describe_logged_model, model_note
 from spade.tracking.logger import held_metrics
 from spade.tracking.predictors import is_predictor_run
@@ -318,6 +319,7 @@ def describe_run(cfg: DictConfig, ml: MLFlowLogger, datamodule: Any, contexts: t
                                   (str(run.info.experiment_id), run_id), history, seconds)
     description += _references_note(metrics, (str(run.info.experiment_id), run_id)) + model_note(logged_model)
     client.set_tag(run_id, NOTE_TAG, description)
+    nicety("the runs view's figures", log_figure_tags, client, run_id, metrics)
     if logged_model is not None:
         nicety("the logged model's description", describe_logged_model, client, logged_model, cfg, metrics,
                (str(run.info.experiment_id), run_id, str(run.info.run_name)))
