@@ -63,11 +63,11 @@ def tiny_checkpoints(spade_home: Path) -> dict[str, str]:
 
 
 #: Environment variables that the libraries a test drives set themselves (names or prefixes): Lightning's
-#: ``seed_everything`` records the seed, torch sets its own on the first import of some modules. Neither restored
-#: nor reported. ``MLFLOW_TRACKING_URI`` (exported by ``mlflow.set_tracking_uri`` for child processes) is removed
+#: ``seed_everything`` records the seed, torch sets its own on the first import of some modules, MLflow keeps its
+#: telemetry session id. Neither restored nor reported. ``MLFLOW_TRACKING_URI`` (exported by ``mlflow.set_tracking_uri`` for child processes) is removed
 #: after each test: a later test's ``spade.train`` subprocess must not log into an earlier test's store.
 LIBRARY_SET_ENV = ("PL_GLOBAL_SEED", "PL_SEED_WORKERS", "PYTORCH_", "TORCHINDUCTOR_", "TORCH_", "KMP_",
-                   "CUBLAS_WORKSPACE_CONFIG")
+                   "CUBLAS_WORKSPACE_CONFIG", "_MLFLOW_TELEMETRY_")
 #: Set by pytest itself around every phase of a test.
 PYTEST_ENV = "PYTEST_CURRENT_TEST"
 

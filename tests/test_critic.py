@@ -319,7 +319,7 @@ def test_critic_command_scores_an_expert_and_a_student_and_writes_its_page(spade
     assert "| blur |" in text and "- commit: " in text and "- wall time: " in text
     assert "Provenance:\n\n- command: " in text and "Student:\n\n- " in text  # lists after a blank line
     assert str(spade_home) not in text  # paths relative to SPADE_HOME (spade.utils.provenance.shown_path)
-    assert text.split("\n")[2:5] == ["## Verdict", "", critic_verdict(metrics)]  # the verdict first
+    assert text.split("\n")[2:4] == ["## Verdict", ""] and text.split("\n")[4].startswith(critic_verdict(metrics))
     # the expert as a planner beside the student, on the same instances (spade.training.teacher)
     for key in ("expert/planner/ape_cm", "expert/mean_map/planner/ape_cm", "student/planner/ape_cm",
                 "expert/spread_cm", "expert/seconds_per_sample"):
