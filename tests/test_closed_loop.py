@@ -347,16 +347,31 @@ def test_the_closed_loop_page_shows_seeds_baselines_tests_and_the_rankings(tmp_p
 
 @pytest.mark.slow
 def test_a_training_run_drives_its_best_checkpoint_when_the_scale_says_so(spade_home) -> None:  # noqa: ANN001
-    """closed_loop: true (the quickstart's scale): after its test, spade.train drives the test scenarios."""
+    """closed_loop: true (the quickstart's scale): after its test, spade.train drives the test scenarios; the run
+    carries the worst episodes' picture and the episodes file as spade.evaluate's does, each baseline's child run its
+    closed-loop figures under the student's names, and the description the closed loop's verdict."""
+    from mlflow import MlflowClient
+
     from spade.experiments.run import train
+    from spade.tracking.predictors import NOTE_TAG, PARENT_TAG, PREDICTOR_TAG
     from training_helpers import compose_row
 
-    cfg = compose_row("t1_medium_bc_L", spade_home, "logger=none", "trainer.max_steps=2", "trainer.max_epochs=1",
+    cfg = compose_row("t1_medium_bc_L", spade_home, "trainer.max_steps=2", "trainer.max_epochs=1",
                       "+trainer.limit_val_batches=1", "data.eval_batch_size=8", "model.grid_size=0",
-                      "callbacks.model_info.latency_runs=0", "closed_loop=true")
-    metrics, _ = train(cfg)
+                      "callbacks.model_info.latency_runs=0", "closed_loop=true", "tags.table=closed_loop_train_check")
+    metrics, objects = train(cfg)
     assert metrics["closed_loop/demonstration/success_rate"] == 1.0
     assert 0.0 <= metrics["closed_loop/success_rate"] <= 1.0 and "test/ape_cm" in metrics
+    client, run_id = MlflowClient(tracking_uri=str(cfg.paths.mlflow_tracking_uri)), objects["run"].run_id
+    assert sorted(a.path for a in client.list_artifacts(run_id, "closed_loop")) == [
+        "closed_loop/episodes.json", "closed_loop/worst.png"]
+    run = client.get_run(run_id)
+    children = {r.data.tags[PREDICTOR_TAG]: r.data.metrics for r in client.search_runs(
+        [run.info.experiment_id], filter_string=f"tags.`{PARENT_TAG}` = '{run_id}'")}
+    for name in ("shortest", "heading"):
+        assert children[f"baseline-{name}"]["closed_loop/ape_cm"] == pytest.approx(
+            metrics[f"closed_loop/baseline/{name}/ape_cm"]), name
+    assert "**Closed loop.** Success " in run.data.tags[NOTE_TAG]
 
 
 def test_a_changed_condition_reruns_its_drives_and_the_page_drops_the_old_numbers(tmp_path: Path,

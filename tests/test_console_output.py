@@ -210,3 +210,25 @@ def test_the_quickstart_console_has_no_duplicated_line_and_none_over_120_columns
         assert checkpoint.startswith(home) and Path(checkpoint).is_file()
         _check_summary(summary, checkpoint)
         assert re.search(r"logged model     : runs:/[0-9a-f]{32}/model", summary)
+
+
+@pytest.mark.parametrize("student_ape, outcome", [
+    (12.1, "the student beats the Nav2-like shortest path (15.3 cm) and the heading template (19.0 cm, success 95 %)"),
+    (18.4, "the student beats the heading template (19.0 cm, success 95 %) but loses to the Nav2-like shortest path "
+           "(15.3 cm)")])
+def test_the_closed_loop_table_ends_with_its_verdict_within_120_columns(student_ape: float, outcome: str) -> None:
+    from spade.tracking.summary import closed_loop_lines
+
+    m = {"closed_loop/episodes": 40.0, "test/failure_rate": 0.0}
+    for prefix, ape, success in (("", student_ape, 1.0), ("baseline/shortest/", 15.3, 1.0),
+                                 ("baseline/heading/", 19.0, 0.95), ("followed/", 4.46, 1.0)):
+        m.update({f"closed_loop/{prefix}ape_cm": ape, f"closed_loop/{prefix}success_rate": success,
+                  f"closed_loop/{prefix}mode_switches": 0.64})
+    lines = closed_loop_lines(m)
+    assert max(len(line) for line in lines) <= WIDTH, max(lines, key=len)
+    start = next(i for i, line in enumerate(lines) if line.lstrip().startswith("closed loop "))
+    assert start > 4  # under the table's rows: a header, the student, two baselines, the followed demonstration
+    verdict = " ".join(" ".join(lines[start:]).split())
+    assert verdict.startswith(f"closed loop : success 100 %, APE {student_ape:.1f} cm, 0.64 mode switches per "
+                              "scenario;"), verdict
+    assert outcome in verdict and "the demonstration followed drives at 4.5 cm" in verdict

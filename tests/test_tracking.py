@@ -595,3 +595,73 @@ def test_the_description_leads_with_the_deciding_figure_rounded_without_machine_
     entries = [e.split(":")[0] for e in glossary.split(". ", 1)[1].split("; ")]
     assert len(entries) == len(set(entries)), entries
     assert text.index("| test set") < text.index("**Verdict.**")  # the table is the first thing shown
+
+
+# -- the closed loop beside the test -------------------------------------------------------------------------------
+def _driven(student_ape: float, shortest_ape: float, heading_success: float = 1.0) -> dict[str, float]:
+    """A closed loop's figures as ClosedLoopTest logs them: the student's, the baselines' under their prefixes."""
+    out = {"closed_loop/episodes": 12.0}
+    for prefix, ape, success in (("", student_ape, 1.0), ("baseline/shortest/", shortest_ape, 1.0),
+                                 ("baseline/heading/", 20.0, heading_success), ("followed/", 4.5, 1.0)):
+        out.update({f"closed_loop/{prefix}ape_cm": ape, f"closed_loop/{prefix}success_rate": success,
+                    f"closed_loop/{prefix}mode_switches": 0.7})
+    return out
+
+
+def test_the_baselines_closed_loop_figures_reach_their_child_runs_under_the_students_names(tmp_path: Path) -> None:
+    """The drive comes after the test's child runs (spade.train's callback order): the run's record logs them again,
+    so one chart of closed_loop/ape_cm shows the student and each baseline driven, at one step."""
+    from omegaconf import OmegaConf
+
+    from spade.tracking.callback import RunIdentity, RunRecord
+    from spade.tracking.predictors import NOTE_TAG, PARENT_TAG, PREDICTOR_TAG, TEST_STEP
+
+    ml = _logger(tmp_path)
+    tags = {"table": "quickstart", "row": "quickstart", "role": "student", "approach": "BC"}
+    cfg = OmegaConf.create({"run_name": "quickstart", "tags": tags})
+    record = RunRecord(cfg, RunIdentity("quickstart", "quickstart", tags, {}, ("test",), training=False))
+    trainer = SimpleNamespace(is_global_zero=True, loggers=[ml], datamodule=None)
+    ml.log_metrics({k: v for k, v in METRICS.items() if k.startswith("test/")}, step=324)
+    record.on_test_end(trainer, None)  # the test's child runs, before the drive
+    client, run_id = ml.experiment, ml.run_id
+    ml.log_metrics(_driven(12.1, 15.3), step=324)  # ClosedLoopTest, at the test's end too
+    record.finish(trainer, ml)
+
+    children = {r.data.tags[PREDICTOR_TAG]: r for r in client.search_runs(
+        [client.get_run(run_id).info.experiment_id], filter_string=f"tags.`{PARENT_TAG}` = '{run_id}'")}
+    assert sorted(children) == ["baseline-heading", "baseline-shortest", "baseline-straight"]  # none doubled
+    parent = client.get_run(run_id).data.metrics
+    shortest, heading = children["baseline-shortest"].data.metrics, children["baseline-heading"].data.metrics
+    assert shortest["closed_loop/ape_cm"] == parent["closed_loop/baseline/shortest/ape_cm"] == 15.3
+    assert heading["closed_loop/ape_cm"] == 20.0 and heading["closed_loop/mode_switches"] == 0.7
+    assert parent["closed_loop/ape_cm"] == 12.1 and heading["test/ape_cm"] == 12.0  # the test's figures kept
+    assert not [k for k in children["baseline-straight"].data.metrics if k.startswith("closed_loop/")]  # not driven
+    assert not [k for c in children.values() for k in c.data.metrics if "/baseline/" in k or "followed" in k]
+    for run in (run_id, children["baseline-shortest"].info.run_id):  # one x for the student and its baselines
+        assert _steps(client, run, "closed_loop/ape_cm") == [TEST_STEP]
+    assert "closed-loop scenarios" in children["baseline-shortest"].data.tags[NOTE_TAG]
+    description = client.get_run(run_id).data.tags[NOTE_TAG]
+    assert "**Closed loop.** Success 100 %, APE 12.1 cm, 0.70 mode switches per scenario; this model beats the " \
+           "Nav2-like shortest path (15.3 cm) and the heading template (20.0 cm)" in description
+
+
+@pytest.mark.parametrize("student, shortest, heading_success, verdict", [
+    (12.1, 15.3, 1.0, "this model beats the Nav2-like shortest path (15.3 cm) and the heading template (20.0 cm)"),
+    (18.0, 15.3, 1.0, "this model beats the heading template (20.0 cm) but loses to the Nav2-like shortest path "
+                      "(15.3 cm)"),
+    (22.0, 15.3, 0.9, "this model is mixed against the heading template (20.0 cm, success 90 %) but loses to the "
+                      "Nav2-like shortest path (15.3 cm)"),
+])
+def test_the_description_gives_the_closed_loops_verdict_either_way(student: float, shortest: float,
+                                                                    heading_success: float, verdict: str) -> None:
+    from omegaconf import OmegaConf
+
+    from spade.tracking.descriptions import run_description
+
+    cfg = OmegaConf.create({"run_name": "quickstart", "tags": {"table": "quickstart", "role": "student"}})
+    text = run_description(cfg, {**METRICS, **_driven(student, shortest, heading_success)}, [], [])
+    line = next(p for p in text.split("\n\n") if p.startswith("**Closed loop.**"))
+    assert verdict in " ".join(line.split()), line
+    assert line.endswith("the demonstration followed drives at 4.5 cm (what the follower itself costs).")
+    assert text.index("**Verdict.**") < text.index("**Closed loop.**")
+    assert "**Closed loop.**" not in run_description(cfg, METRICS, [], [])  # not driven: no line

@@ -11,7 +11,9 @@ description, ``config/train.yaml``, the logged and registered model). Without an
   parameters logged; a training run also has the stale RUNNING runs of its row marked KILLED
   (:func:`~spade.tracking.runs.mark_stale_runs`), its process recorded and its config logged. The run is kept
   open (:meth:`~spade.tracking.logger.MLFlowLogger.keep_open`) until its last stage's ``teardown``.
-* ``on_test_end``: the classical baselines and the untrained model as child runs (:mod:`~spade.tracking.predictors`).
+* ``on_test_end``: the classical baselines and the untrained model as child runs (:mod:`~spade.tracking.predictors`);
+  logged again when the run's record is completed if figures for them came later (a closed loop driven after the
+  test: :class:`~spade.experiments.closed_loop_evaluation.ClosedLoopTest`, whichever callback's hook runs first).
 * ``teardown`` of the run's last stage (the test, else the fit), which then closes the run: a training run's best and
   last checkpoints, the training-progress picture (:mod:`~spade.tracking.progress_picture`), a student's best
   checkpoint as the run's MLflow Model (:mod:`~spade.tracking.logged_model`), the datasets as inputs, the
@@ -55,6 +57,7 @@ from spade.tracking.runs import (
     run_figures,
 )
 from spade.tracking.dataset_inputs import dataset_uses
+from spade.tracking.predictors import predictor_figures
 from spade.tracking.descriptions import model_description, version_description
 from spade.tracking.logged_model import try_log_student_model
 from spade.tracking.progress_picture import log_progress_picture
@@ -121,7 +124,7 @@ class RunRecord(Callback):
         self.identity = identity if identity is not None or cfg is None else training_identity(cfg)
         self.run: RunRef | None = None  # where the run lives, once its record is complete
         self._opened = False
-        self._predictors_logged = False
+        self._predictors_logged: dict[str, list[str]] | None = None  # the child runs' figures, once logged
 
     def _logger(self, trainer: L.Trainer) -> Any:
         """The run's MLflow logger on rank zero; None without one, on other ranks, or without a config."""
@@ -166,8 +169,9 @@ class RunRecord(Callback):
             return
         datamodule = getattr(trainer, "datamodule", None)
         uses = [u for u in (dataset_uses(datamodule) if datamodule is not None else []) if u.context == "test"]
-        log_predictors(self.identity.tags, ml.experiment, ml.run_id, uses, run_figures(ml))
-        self._predictors_logged = True
+        metrics = run_figures(ml)
+        log_predictors(self.identity.tags, ml.experiment, ml.run_id, uses, metrics)
+        self._predictors_logged = predictor_figures(metrics)
 
     # -- the run's end -----------------------------------------------------------------------------------------------
     def teardown(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
@@ -185,8 +189,7 @@ class RunRecord(Callback):
         datamodule = getattr(trainer, "datamodule", None)
         if not identity.training:
             uses, metrics, description, self.run = describe_run(cfg, ml, datamodule, contexts=("test",))
-            if not self._predictors_logged:
-                log_predictors(identity.tags, client, run_id, [u for u in uses if u.context == "test"], metrics)
+            self.complete_predictors(client, run_id, uses, metrics)
             log_report(client, run_id, identity.run_name, identity.role, description, metrics)
             return
         paths = {kind: path for kind, path in (("best", best_checkpoint_path(trainer)),
@@ -198,12 +201,19 @@ class RunRecord(Callback):
                    f"{identity.run_name}: training by epoch")
         logged = try_log_student_model(cfg, str(client.tracking_uri), run_id, paths.get("best") or paths.get("last"))
         uses, metrics, description, self.run = describe_run(cfg, ml, datamodule, logged_model=logged)
-        if not self._predictors_logged:  # no test: the run is still tagged with its role
-            log_predictors(identity.tags, client, run_id, [], metrics)
+        self.complete_predictors(client, run_id, uses, metrics)  # no test: the run is still tagged with its role
         log_report(client, run_id, identity.run_name, identity.role, description, metrics)
         nicety("process tags' removal", drop_process_tags, client, run_id, True)
         if paths:
             self.register(ml, "best" if "best" in paths else "last", uses, metrics)
+
+    def complete_predictors(self, client: Any, run_id: str, uses: list[Any], metrics: dict[str, float]) -> None:
+        """The child runs with every figure the run ends with: logged when the test did not log them, logged again
+        (updated) when figures for them came after it (the baselines' closed-loop figures)."""
+        if self._predictors_logged is not None and self._predictors_logged == predictor_figures(metrics):
+            return
+        log_predictors(self.identity.tags, client, run_id, [u for u in uses if u.context == "test"], metrics)
+        self._predictors_logged = predictor_figures(metrics)
 
     def register(self, ml: Any, kind: str, uses: list[Any], metrics: dict[str, float]) -> None:
         """Register ``checkpoints/<kind>`` when the row asks (``registry.prefix``)."""

@@ -2,7 +2,8 @@
 
 :func:`run_description` opens with the run's test figures next to the classical baselines and the untrained model
 (:func:`figures_table`: rounded, units in the headers), first so that the UI shows it without "Show more", then
-the verdict, then one paragraph: row, approach, data (the test set's composition: :func:`test_composition`),
+the verdict and, for a run driven in closed loop, the closed loop's (:mod:`spade.metrics.closed_loop_verdict`), then
+one paragraph: row, approach, data (the test set's composition: :func:`test_composition`),
 prerequisites (linked to the runs that trained them), the measured wall time, the command that regenerates it, and
 links to its prediction pictures.
 :func:`model_description` and :func:`version_description` describe a registered model and one of its versions.
@@ -28,6 +29,7 @@ from spade.tracking.dataset_inputs import DatasetUse
 from spade.tracking.links import artifact_url, relative_run_link
 from spade.utils import provenance
 from spade.utils.markdown import markdown_table
+from spade.metrics.closed_loop_verdict import closed_loop_verdict
 from spade.metrics.verdict import verdict_lines
 from spade.tracking.dataset_inputs import dataset_profile
 from spade.tracking.registry import data_fingerprint
@@ -278,6 +280,9 @@ def run_description(cfg: DictConfig, metrics: dict[str, float], uses: list[Datas
     verdict = verdict_lines(metrics, "test", THIS_MODEL)
     if verdict:
         text += "\n\n**Verdict.** " + " ".join(f"{line[0].upper()}{line[1:]}." for line in verdict)
+    driven = closed_loop_verdict(metrics, THIS_MODEL)
+    if driven:
+        text += f"\n\n**Closed loop.** {driven[0].upper()}{driven[1:]}."
     text += "\n\n" + " ".join(parts)
     if meaning:
         text += "\n\n" + meaning

@@ -7,7 +7,7 @@ What a run shows in the MLflow UI is decided here, where every metric passes:
   logged on the run: they are kept in :attr:`MLFlowLogger.held` and become the run's child runs
   (:func:`~spade.tracking.predictors.log_predictor_runs`, with the model's metric names), where the runs
   table and the charts compare them with the model. The run's own metrics are the model's.
-* **Test figures at one step.** Every ``test/...`` figure is logged at
+* **Test figures at one step.** Every ``test/...`` and ``closed_loop/...`` figure is logged at
   :data:`~spade.tracking.predictors.TEST_STEP` (0), the step the child runs use: the charts put the
   model, its baselines and the untrained model side by side instead of at two ends of the x axis. The run's MLflow
   Model (logged when the run finishes; MLflow links to it the run's metrics at its step, 0) carries the test figures
@@ -44,6 +44,7 @@ from spade.tracking.predictors import TEST_STEP, is_reference_metric
 from spade.tracking.progress_picture import MARGIN_STEP_TAG
 
 MARGIN_PREFIX = "margin/"
+TEST_STEP_PREFIXES = ("test/", "closed_loop/")  # the figures logged at TEST_STEP, as the child runs log theirs
 
 
 class MLFlowLogger(LightningMLFlowLogger):
@@ -103,7 +104,7 @@ class MLFlowLogger(LightningMLFlowLogger):
         held = {k: float(v) for k, v in metrics.items() if is_reference_metric(k)}
         self.held.update(held)
         kept = {k: v for k, v in metrics.items() if k not in held}
-        test = {k: v for k, v in kept.items() if k.startswith("test/")}
+        test = {k: v for k, v in kept.items() if k.startswith(TEST_STEP_PREFIXES)}
         margin = {k: v for k, v in kept.items() if k.startswith(MARGIN_PREFIX)}
         rest = {k: v for k, v in kept.items() if k not in test and k not in margin}
         if "epoch" in rest and step is not None and not test:

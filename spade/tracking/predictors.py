@@ -7,11 +7,15 @@ before training (``untrained/...``) are **only** child runs of the model's run: 
 ``<run name>/baseline-<name>`` and ``<run name>/untrained``, with the model's own metric names (``test/ape_cm``,
 ``test/planner/ape_cm``, ...) at the model's test step (:data:`TEST_STEP`): the runs table shows the model and its
 references as rows under one another, the same column holding the same figure, and a chart of ``test/ape_cm``
-shows one bar or dot per predictor at one x. Each child run carries ``spade.predictor=<name>`` (the model's run
-carries its role: ``student``, ``expert``), its colour in the UI's charts (``mlflow.runColor``: one per predictor
-kind, :func:`spade.utils.palette.predictor_colour`), the row's ``table``, ``row``, ``scale`` and ``shape`` tags, the
-test dataset as its input and a one-line description. SPADE's runs view sorts by run name, so that each run is
-followed by its children, one line each (:func:`~spade.tracking.experiment_tags.runs_view_state`).
+shows one bar or dot per predictor at one x. A run driven in closed loop (``closed_loop=true``) also gives each
+baseline's child run its closed-loop figures (``closed_loop/baseline/<name>/<key>`` as ``closed_loop/<key>``, the
+student's names, at the same step; the run itself keeps them too, for the closed-loop page), so that a chart of
+``closed_loop/ape_cm`` compares the student with the planners it was driven against. Each child run carries
+``spade.predictor=<name>`` (the model's run carries its role: ``student``, ``expert``), its colour in the UI's charts
+(``mlflow.runColor``: one per predictor kind, :func:`spade.utils.palette.predictor_colour`), the row's ``table``,
+``row``, ``scale`` and ``shape`` tags, the test dataset as its input and a one-line description. SPADE's runs view
+sorts by run name, so that each run is followed by its children, one line each
+(:func:`~spade.tracking.experiment_tags.runs_view_state`).
 
 Readers that want a run's figures with its references' under the old names (``spade.report``'s tables, the
 teacher page: ``test/baseline/<name>/...``, ``untrained/...``) fold the children back in with
@@ -64,15 +68,16 @@ class Predictor:
 
 
 def predictors(metrics: dict[str, float]) -> list[Predictor]:
-    """The baselines (``test/baseline/<name>/<key>``) and the untrained model (``untrained/<key>``; the baselines it
-    was tested next to, ``untrained/baseline/...``, are the same figures again and left out) of a run's metrics, as
-    :class:`Predictor` s with the model's names (``test/<key>``). The untrained model also carries the model's
-    ``model/params`` (the same network)."""
+    """The baselines (``test/baseline/<name>/<key>``, and driven in closed loop ``closed_loop/baseline/<name>/<key>``)
+    and the untrained model (``untrained/<key>``; the baselines it was tested next to, ``untrained/baseline/...``, are
+    the same figures again and left out) of a run's metrics, as :class:`Predictor` s with the model's names
+    (``test/<key>``, ``closed_loop/<key>``). The untrained model also carries the model's ``model/params`` (the same
+    network)."""
     baselines: dict[str, dict[str, float]] = {}
     untrained: dict[str, float] = {}
     for key, value in metrics.items():
-        if match := re.fullmatch(r"test/baseline/([^/]+)/(.+)", key):
-            baselines.setdefault(match.group(1), {})[f"test/{match.group(2)}"] = float(value)
+        if match := re.fullmatch(r"(test|closed_loop)/baseline/([^/]+)/(.+)", key):
+            baselines.setdefault(match.group(2), {})[f"{match.group(1)}/{match.group(3)}"] = float(value)
         elif key.startswith("untrained/") and not key.startswith("untrained/baseline/"):
             untrained[f"test/{key[len('untrained/'):]}"] = float(value)
     out = [Predictor(f"baseline-{name}", f"baseline: {BASELINE_LABELS.get(name, name)}", figures)
@@ -94,9 +99,11 @@ def _note(predictor: Predictor, row: str, what: str) -> str:
     if predictor.name == "untrained":
         return (f"The {what} of row **{row}** before any training, tested on the same test set (its parent run): "
                 "what training has to improve on.")
+    driven = any(k.startswith("closed_loop/") for k in predictor.metrics)
     return (f"Classical predictor ({predictor.label[len('baseline: '):]}) on the test set of row **{row}** (its "
             "parent run): no learning, the same instances; a learned model that does not beat it has learned "
-            "nothing worth deploying.")
+            "nothing worth deploying." + (" Its closed_loop/* figures: the same planner driven through the parent's "
+                                          "closed-loop scenarios." if driven else ""))
 
 
 def log_predictor_runs(client: Any, run_id: str, role: str | None = None, what: str = "model",
@@ -146,9 +153,18 @@ def log_predictor_runs(client: Any, run_id: str, role: str | None = None, what: 
     return out
 
 
+def predictor_figures(metrics: dict[str, float]) -> dict[str, list[str]]:
+    """Which figures each predictor's child run gets from ``metrics`` (:func:`predictors`): ``{name: sorted keys}``,
+    to tell whether figures logged after the child runs (a closed loop driven after the test) call for them again."""
+    return {p.name: sorted(p.metrics) for p in predictors(metrics)}
+
+
 def reference_key(predictor: str, key: str) -> str | None:
     """A child run's metric ``key`` (``test/ape_cm``) under its parent's name for it (``test/baseline/straight/ape_cm``,
-    ``untrained/ape_cm``); None for a key the parent never carried for that predictor."""
+    ``untrained/ape_cm``, ``closed_loop/baseline/shortest/ape_cm``); None for a key the parent never carried for that
+    predictor."""
+    if key.startswith("closed_loop/") and predictor.startswith("baseline-"):
+        return f"closed_loop/baseline/{predictor[len('baseline-'):]}/{key[len('closed_loop/'):]}"
     if not key.startswith("test/"):
         return None
     if predictor == "untrained":

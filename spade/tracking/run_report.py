@@ -28,10 +28,11 @@ CSV_KEYS = tuple(f"test/{k}" for k in (*FIGURES, "planner/low_confidence_rate", 
 
 def figure_lines(metrics: dict[str, float], role: str = "model") -> list[dict[str, Any]]:
     """One dict per predictor (``predictor``, ``label``, then :data:`CSV_KEYS`): the model's own test figures (when
-    it logged any), each baseline's and the untrained model's, under the model's metric names."""
+    it logged any), each baseline's and the untrained model's, under the model's metric names (a baseline driven in
+    closed loop only, with no test figure, has no line)."""
     own = {k: float(metrics[k]) for k in CSV_KEYS if k in metrics}
     lines = [(role, "this model", own)] if own else []
-    lines += [(p.name, p.label, p.metrics) for p in predictors(metrics)]
+    lines += [(p.name, p.label, p.metrics) for p in predictors(metrics) if any(k in p.metrics for k in CSV_KEYS)]
     return [{"predictor": name, "label": label, **{k: figures.get(k) for k in CSV_KEYS}}
             for name, label, figures in lines]
 

@@ -25,6 +25,7 @@ from spade.tracking.links import ui_lines
 from spade.tracking.runs import RunRef
 from spade.utils.console import CONSOLE_WIDTH, wrap
 from spade.deploy.mlflow_models import MODEL_NAME
+from spade.metrics.closed_loop_verdict import closed_loop_verdict
 from spade.metrics.verdict import verdict_lines, verdicts
 from spade.tracking.predictors import TOP_LEVEL_FILTER
 from spade.tracking.tables import TINY_NOTICE
@@ -280,8 +281,9 @@ def _closed_loop_header(key: str) -> str:
 
 
 def closed_loop_lines(metrics: dict[str, Any]) -> list[str]:
-    """A row per predictor driven in closed loop (``closed_loop/*``), under the number of scenarios driven: see
-    :data:`CLOSED_LOOP_COLUMNS`."""
+    """A row per predictor driven in closed loop (``closed_loop/*``), under the number of scenarios driven (see
+    :data:`CLOSED_LOOP_COLUMNS`), then the closed loop's verdict
+    (:func:`~spade.metrics.closed_loop_verdict.closed_loop_verdict`)."""
     rows = []
     for prefix, name in CLOSED_LOOP_NAMES.items():
         key = f"closed_loop/{prefix}"
@@ -298,4 +300,5 @@ def closed_loop_lines(metrics: dict[str, Any]) -> list[str]:
     lines = [f"  closed loop: {int(metrics.get('closed_loop/episodes', 0))} scenarios driven from start to goal",
              "  " + "".ljust(first) + "".join(f"  {h:>{w}}" for h, w in zip(headers, widths))]
     lines += ["  " + name.ljust(first) + "".join(f"  {c:>{w}}" for c, w in zip(cells, widths)) for name, cells in rows]
-    return lines
+    verdict = closed_loop_verdict(metrics, _who(metrics))
+    return lines + (field("closed loop", verdict) if verdict else [])
