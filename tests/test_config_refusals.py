@@ -322,6 +322,31 @@ def test_closed_loop_is_checked_before_any_drive(tmp_path: Path, run_main, overr
     assert not store.exists()
 
 
+def test_closed_loop_refuses_sources_the_store_has_no_finished_run_of(tmp_path: Path, run_main) -> None:
+    """An unknown table or row in a real store warned "no finished run ... launch it first" and exited 0 with "0 drives
+    run". When no source can be driven it is one line naming the sources and the rows the store holds, exit 2."""
+    from spade.deploy.mlflow_store import ensure_store, mlflow_client
+
+    store = tmp_path / "mlflow.db"
+    uri = f"sqlite:///{store}"
+    ensure_store(uri)
+    client = mlflow_client(uri)
+    run = client.create_run(client.create_experiment("quickstart"), run_name="quickstart",
+                            tags={"scale": "quickstart"})
+    client.set_terminated(run.info.run_id, "FINISHED")
+    code, err = run_main("spade.closed_loop", ["sources=[{table: nosuch, row: t1_small_bc_L}]", f"tracking_uri={uri}"])
+    assert code == 2, err
+    line = one_error_line(err)
+    assert "nosuch/t1_small_bc_L" in line and "quickstart/quickstart" in line and "sources=[" in line, line
+    code, err = run_main("spade.closed_loop", ["sources=[{table: quickstart, row: quickstart}]", "scale=tiny",
+                                               f"tracking_uri={uri}"])  # trained, but at another scale
+    assert code == 2 and "at scale tiny" in one_error_line(err), err
+    from spade.config.drive_checks import check_source_rows
+
+    check_source_rows(uri, [{"table": "nosuch", "row": "x"}, {"table": "quickstart", "row": "quickstart"}],
+                      "quickstart")  # one source that can be driven: the launch drives it and warns of the other
+
+
 def test_closed_loop_refuses_a_store_that_does_not_exist(tmp_path: Path, run_main) -> None:
     """A mistyped ``tracking_uri`` created an empty store, drove nothing and exited 0 ("0 drives run"). The drives
     read the source rows' finished runs from the store: a store that is not there is one line, and none is made."""

@@ -88,3 +88,90 @@ def test_the_epoch_picture_shows_distinct_scenarios_in_wide_readable_panels() ->
     picture = prediction_grid(*stack, torch.tensor([p[5] for p in picks]), titles=[p[0] for p in picks])
     height, width = picture.shape[:2]
     assert width >= 6 * MIN_PANEL_PX and height <= MAX_HEIGHT_PX and height < width
+
+
+def _drawn(fig):
+    fig.canvas.draw()
+    return fig.canvas.get_renderer()
+
+
+@pytest.mark.parametrize("n, size, worst", [(8, 32, True), (4, 64, True), (2, 128, False)])
+def test_panel_titles_are_whole_inside_the_picture_and_apart(n: int, size: int, worst: bool) -> None:
+    """A title wider than its panel once ran into its neighbour's and past the picture's edge, where the saved
+    picture cut it: each is now wrapped or set smaller until it fits, every word kept."""
+    import matplotlib.pyplot as plt
+
+    from spade.training.visualize import prediction_figure
+
+    b = _batch(n, size)
+    names = [f"#{1000 + k} (a_rather_long_site_name-s{k:03d}/L{k:03d})" for k in range(n)]
+    prob = b["path"] * 0.9
+    prob[0] = 0  # no path: the longest reason
+    fig = prediction_figure(b["state"], b["path"], prob, b["waypoints"], b["resolution"], titles=names, worst=worst)
+    try:
+        renderer = _drawn(fig)
+        boxes = [ax.title.get_window_extent(renderer) for ax in fig.axes]
+        for ax, box, name in zip(fig.axes, boxes, names):
+            assert fig.bbox.x0 - 0.5 <= box.x0 and box.x1 <= fig.bbox.x1 + 0.5, (ax.title.get_text(), box, fig.bbox)
+            assert fig.bbox.y0 - 0.5 <= box.y0 and box.y1 <= fig.bbox.y1 + 0.5, (ax.title.get_text(), box, fig.bbox)
+            assert box.y0 >= ax.get_window_extent(renderer).y1 - 0.5  # over its own panel, not on it
+            assert "".join(ax.title.get_text().split()).startswith("".join(name.split()))  # every character kept
+        for i, first in enumerate(boxes):
+            for second in boxes[i + 1:]:
+                assert not first.overlaps(second), (first, second)
+        (legend,) = [leg.get_window_extent(renderer) for leg in fig.legends]
+        assert fig.bbox.x0 <= legend.x0 and legend.x1 <= fig.bbox.x1 and legend.y1 <= fig.bbox.y1, legend
+        assert not any(box.overlaps(legend) for box in boxes)
+    finally:
+        plt.close(fig)
+
+
+def test_every_panel_draws_the_start_and_the_goal_where_the_instance_has_them() -> None:
+    import matplotlib.pyplot as plt
+
+    from spade.metrics.extraction import marker_centre
+    from spade.training.visualize import legend_handles, prediction_figure
+
+    b = _batch(3, 64, seed=3)
+    fig = prediction_figure(b["state"], b["path"], b["path"] * 0.9, b["waypoints"], b["resolution"])
+    try:
+        legend = {h.get_label(): h.get_marker() for h in legend_handles(False) if hasattr(h, "get_marker")}
+        start_marker = next(m for label, m in legend.items() if label.startswith("robot"))
+        goal_marker = legend["goal"]
+        assert start_marker != goal_marker and "None" not in (start_marker, goal_marker)
+        for k, ax in enumerate(fig.axes):
+            state = b["state"][k].numpy()
+            for channel, marker in ((1, start_marker), (2, goal_marker)):
+                centre = marker_centre(state[channel])
+                drawn = [line for line in ax.get_lines() if line.get_marker() == marker
+                         and np.allclose(line.get_xydata(), centre[None], atol=0.01)]
+                assert len(drawn) == 1, (k, channel, [(ln.get_marker(), ln.get_xydata()) for ln in ax.get_lines()])
+                x, y = centre
+                x0, x1 = sorted(ax.get_xlim())
+                y0, y1 = sorted(ax.get_ylim())
+                assert x0 <= x <= x1 and y0 <= y <= y1  # inside the panel's view
+    finally:
+        plt.close(fig)
+
+
+def test_the_worst_panels_say_why_they_are_worst() -> None:
+    import matplotlib.pyplot as plt
+
+    from spade.training.visualize import prediction_figure, worst_reason
+
+    assert worst_reason(float("inf"), "empty", False) == "worst: no path (nothing above p 0.5)"
+    assert worst_reason(31.04, None, True, tail_cm=20.0) == "worst: APE 31.0 cm, over 20 cm"
+    assert worst_reason(12.0, None, False) == "worst: APE 12.0 cm, path ends before the goal"
+    assert worst_reason(12.0, None, True) == "worst: APE 12.0 cm"
+    b = _batch(2, 64, seed=5)
+    prob = b["path"] * 0.9
+    prob[0] = 0  # nothing predicted
+    prob[1] = torch.roll(b["path"][1] * 0.9, shifts=4, dims=-1)  # 4 px = 40 cm to the side
+    fig = prediction_figure(b["state"], b["path"], prob, b["waypoints"], b["resolution"], titles=["#1", "#2"],
+                            worst=True)
+    try:
+        titles = [" ".join(ax.title.get_text().split()) for ax in fig.axes]
+    finally:
+        plt.close(fig)
+    assert titles[0] == "#1 worst: no path (nothing above p 0.5)", titles
+    assert titles[1].startswith("#2 worst: APE ") and ", over 20 cm" in titles[1], titles

@@ -55,6 +55,8 @@ def test_the_tutorials_procedural_maps_load_and_a_missing_map_is_one_line(tmp_pa
       "node_foxglove_port=9000"], "foxglove_port and node_foxglove_port are both 9000"),
     (["map=warehouse:1", "node_foxglove=maybe"], "node_foxglove"),
     (["map=nowhere/site_map.yaml"], "map=nowhere/site_map.yaml"),
+    (["map=warehouse:1", "foxglove=true", "foxglove_host=''"], "foxglove_host='' is empty; give the address"),
+    (["map=warehouse:1", "foxglove=true", "foxglove_host=' '"], "foxglove_host=' ' is empty; give the address"),
 ])
 def test_bad_simulator_options_are_refused_in_one_line_before_any_work(overrides: list[str], match: str) -> None:
     pytest.importorskip("foxglove")

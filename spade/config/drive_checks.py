@@ -15,11 +15,13 @@ from omegaconf import DictConfig
 
 from spade.config.options import read_options
 from spade.config.store_checks import check_server, check_store_file, store_path
+from spade.deploy.mlflow_store import mlflow_client
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import MISSING, check_int_value, check_number_value
 from spade.utils.config import compose_config
 
-__all__ = ["ClosedLoopOptions", "EvaluateDrive", "check_drive", "check_drive_config", "validate_closed_loop_config"]
+__all__ = ["ClosedLoopOptions", "EvaluateDrive", "check_drive", "check_drive_config", "check_source_rows",
+           "validate_closed_loop_config"]
 
 DRIVE_DEFAULTS = "conf/drive/default.yaml"
 _NONNEGATIVE = ("noise_xy_m", "noise_yaw_rad", "initial_offset_m", "initial_offset_rad", "budget_extra_s",
@@ -154,7 +156,35 @@ def validate_closed_loop_config(cfg: DictConfig) -> ClosedLoopOptions:
                               f"{DRIVE_DEFAULTS}")
         check_drive({**defaults, **settings}, f"conditions.{name}")  # type: ignore[dict-item]
     check_source_store(str(cfg.tracking_uri))
+    check_source_rows(str(cfg.tracking_uri), options.sources, str(OmegaConf.select(cfg, "scale.name", default="")))
     return options
+
+
+def _finished(client: Any, experiment_id: str, query: str, max_results: int = 1000) -> list[Any]:
+    """The finished top-level runs (a baseline's child runs left out) of one experiment matching ``query``."""
+    runs = client.search_runs([experiment_id], f"attributes.status = 'FINISHED'{query}", max_results=max_results)
+    return [r for r in runs if not r.data.tags.get("mlflow.parentRunId")]
+
+
+def check_source_rows(uri: str, sources: list[Mapping[str, str]], scale: str, shown: int = 8) -> None:
+    """When no source row has a finished run in the store at ``scale``, nothing can be driven: one line naming the
+    sources and the rows the store does hold (a mistyped table or row once warned and exited 0, "0 drives run").
+    A source not yet trained beside others that are is left to the launch, which warns and drives the rest."""
+    client = mlflow_client(uri)
+    at_scale = f" and tags.scale = '{scale}'" if scale else ""
+    for source in sources:
+        experiment = client.get_experiment_by_name(str(source["table"]))
+        if experiment is not None and _finished(client, experiment.experiment_id,
+                                                f" and attributes.run_name = '{source['row']}'{at_scale}", 1):
+            return
+    known = sorted({f"{e.name}/{r.info.run_name}" for e in client.search_experiments()
+                    for r in _finished(client, e.experiment_id, at_scale)})
+    named = ", ".join(f"{s['table']}/{s['row']}" for s in sources)
+    listed = ", ".join(known[:shown]) + (f" and {len(known) - shown} more" if len(known) > shown else "")
+    raise ConfigError(f"sources: no finished run of {named} (table/row) in {uri}{f' at scale {scale}' if scale else ''}"
+                      f", so nothing can be driven; the store's finished rows{f' at that scale' if scale else ''}: "
+                      f"{listed or 'none'}; name trained rows, e.g. sources=[{{table: quickstart, row: quickstart}}], "
+                      "or train the rows first (python -m spade.train +experiment=ROW)")
 
 
 def check_source_store(uri: str) -> None:

@@ -236,7 +236,8 @@ def onnx_material(root: Path, ckpt: Path) -> dict[str, Path]:
 
 
 def stores(root: Path) -> dict[str, Path]:
-    """A store with a registered model of two versions, one of another MLflow schema holding a run, a half-made one."""
+    """A store with a registered model of two versions, one with a finished quickstart run, one of another MLflow
+    schema holding a run, a half-made one."""
     out = {}
     registry = root / "registry.db"
     ensure_store(f"sqlite:///{registry}")
@@ -245,6 +246,12 @@ def stores(root: Path) -> dict[str, Path]:
     for _ in range(2):
         client.create_model_version("stu", source=str(root / "nowhere"))
     out["registry_db"] = registry
+    trained = root / "trained.db"  # a store holding one finished row, as after make quickstart
+    ensure_store(f"sqlite:///{trained}")
+    client = mlflow_client(f"sqlite:///{trained}")
+    run = client.create_run(client.create_experiment("quickstart"), run_name="quickstart", tags={"scale": "quickstart"})
+    client.set_terminated(run.info.run_id, "FINISHED")
+    out["trained_db"] = trained
     other = root / "other_schema.db"
     ensure_store(f"sqlite:///{other}")
     client = mlflow_client(f"sqlite:///{other}")
@@ -525,7 +532,7 @@ PROBES: list[Probe] = [
     P("closed-loop-sources-string", "closed-loop preflight", "spade.closed_loop", ["sources=guidance", *CL],
       "sources", left=left_store("mlflow.db")),
     P("closed-loop-unknown-table", "closed-loop preflight", "spade.closed_loop",
-      ["sources=[{table: nosuch, row: t1_small_bc_L}]", *CL], "nosuch", left=left_store("mlflow.db")),
+      ["sources=[{table: nosuch, row: t1_small_bc_L}]", "tracking_uri=sqlite:///{trained_db}"], "nosuch"),
     P("closed-loop-scenarios-0", "closed-loop preflight", "spade.closed_loop", ["datasets.heldout.scenarios=0", *CL],
       "datasets.heldout.scenarios", left=left_store("mlflow.db")),
     P("closed-loop-negative-noise", "closed-loop preflight", "spade.closed_loop",

@@ -235,6 +235,9 @@ def foxglove_options(cfg: DictConfig, prefix: str = "foxglove", default_port: in
         raise ConfigError(str(err)) from None
     if not enabled:
         return None
+    if not str(host).strip():  # a server on "" listens nowhere a viewer can name; the run would start and fail late
+        raise ConfigError(f"{host_key}={host!r} is empty; give the address the Foxglove server listens on: "
+                          f"{host_key}=127.0.0.1 (this machine only) or {host_key}=0.0.0.0 (reachable from others)")
     import importlib.util
 
     if importlib.util.find_spec("foxglove") is None:
