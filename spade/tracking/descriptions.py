@@ -85,9 +85,18 @@ def shown_path(path: str) -> str:
 
 
 def _shown_override(override: str) -> str:
-    """A command line's ``key=value`` with an absolute path value shown by :func:`shown_path`."""
+    """A command line's ``key=value`` as a command that still runs: an absolute path under ``$SPADE_HOME`` written
+    ``$SPADE_HOME/...`` (the shell expands it on any machine), under the checkout or the current directory relative
+    to it (:func:`spade.utils.provenance.shown_path`), anywhere else as given: never cut to its file name."""
     key, sep, value = override.partition("=")
-    return f"{key}={shown_path(value)}" if sep and os.path.isabs(value) else override
+    if not (sep and os.path.isabs(value)):
+        return override
+    home = os.environ.get("SPADE_HOME")
+    if home:
+        root, path = Path(os.path.abspath(Path(home).expanduser())), Path(os.path.abspath(value))
+        if path == root or root in path.parents:
+            return f"{key}=$SPADE_HOME/{path.relative_to(root).as_posix()}"
+    return f"{key}={provenance.shown_path(value)}"
 
 
 def figures_table(metrics: dict[str, float]) -> str:
