@@ -149,3 +149,17 @@ def test_a_malformed_curve_setting_names_the_fix() -> None:
         curve_series({"BC": ["site_bc_L"]})
     with pytest.raises(ValueError, match="not a whole number"):
         curve_series({"BC": {"many": "site_bc_L"}})
+
+
+def test_a_row_that_loses_to_a_baseline_names_it() -> None:
+    """A row whose seeds' mean planner APE and tail are worse than a classical baseline's is said to lose to it."""
+    from spade.experiments.oracle_page import _losses
+    from spade.experiments.run_records import RunRecord
+
+    def run(seed: int, ape: float) -> RunRecord:
+        metrics = {"test/planner/ape_cm": ape, "test/planner/over_20cm_rate": 0.4,
+                   "test/baseline/heading/planner/ape_cm": 12.0, "test/baseline/heading/planner/over_20cm_rate": 0.1}
+        return RunRecord(f"row_s{seed}", seed, f"run{seed}", None, None, metrics)
+
+    assert _losses([run(1, 22.0), run(2, 25.0)]) == ["heading template"]
+    assert _losses([run(1, 5.0), run(2, 6.0)]) == []

@@ -156,7 +156,7 @@ def _losses(runs: list[RunRecord]) -> list[str]:
     """The baselines a row loses to by the deciding figure (its seeds' mean planner APE and tail)."""
     keys = {k for r in runs for k in r.metrics}
     mean = {k: v for k in keys if (v := _mean(runs, k)) is not None}
-    return [catalog.BASELINE_LABELS[v.name] for v in verdicts(mean, "test") if v.outcome == "loses to"]
+    return [catalog.BASELINE_LABELS.get(v.baseline, v.baseline) for v in verdicts(mean, "test") if v.outcome == "loses to"]
 
 
 def _tests(rows: dict[str, list[RunRecord]], against: str) -> dict[str, dict[str, Any]]:
