@@ -36,6 +36,7 @@ import numpy as np
 from skimage.draw import disk, line
 
 from spade.data import DatasetWriter, resample_polyline
+from spade.utils.provenance import REPO_ROOT
 from spade.deploy.export import export_student
 from spade.deploy.mlflow_models import mlflow_client
 from spade.deploy.mlflow_store import ensure_store
@@ -70,6 +71,15 @@ class Outcome:
 
 def error_lines(output: str) -> list[str]:
     return [ln.strip() for ln in output.splitlines() if ln.strip().startswith("error: ")]
+
+
+def _scrubbed(text: str, root: Path, work: Path | None = None) -> str:
+    """``text`` without the writing machine's paths: the probe's folder as WORK, the run's temporary root as TMP,
+    the checkout (and its virtual environment) as ``.``, the home folder as ``~``."""
+    for path, shown in ((work, "WORK"), (root, "TMP"), (REPO_ROOT, "."), (Path.home(), "~")):
+        if path is not None:
+            text = text.replace(str(path), shown)
+    return text
 
 
 def classify(outcome: Outcome, names: str = "", report: bool = False) -> tuple[str, str]:
@@ -697,13 +707,13 @@ def probe_all(out: Path, only: list[str] | None = None) -> dict[str, Any]:
                 probe = Probe(**{**probe.__dict__, "args": args})
             outcome = run_probe(probe, work, m)
             verdict, why = classify(outcome, probe.names, report=not probe.hydra and probe.module == "spade.data.verify")
-            shown = " ".join(command(probe, work, m)[2:]).replace(str(work), "WORK").replace(str(root), "TMP")
+            shown = _scrubbed(" ".join(command(probe, work, m)[2:]), root, work)
             errors = error_lines(outcome.output)
             rows.append({**row, "command": "python -m " + shown if probe.run is None else probe.run.__doc__.split(
                 ":")[0].strip().replace("\n", " ").replace("    ", " "),
                 "rc": outcome.rc, "seconds": round(outcome.seconds, 1), "verdict": verdict, "why": why,
-                "error": errors[0].replace(str(root), "TMP") if errors else "",
-                "tail": "" if verdict == "clear" else outcome.output[-600:].replace(str(root), "TMP")})
+                "error": _scrubbed(errors[0], root) if errors else "",
+                "tail": "" if verdict == "clear" else _scrubbed(outcome.output[-600:], root)})
             print(f"{probe.name}: {verdict} {why} ({outcome.seconds:.0f} s)", flush=True)
             (work / "ro").chmod(0o755) if (work / "ro").exists() else None
     counts = {v: sum(r["verdict"] == v for r in rows) for v in (*VERDICTS, "skipped")}
