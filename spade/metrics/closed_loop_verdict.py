@@ -13,13 +13,13 @@ One run's figures, without seeds: a comparison between models needs seeds and a 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Mapping
 
 from spade.metrics import catalog
 from spade.metrics.baselines import BASELINES
 from spade.metrics.catalog import BASELINE_LABELS
+from spade.metrics.verdict import finite_value
 
 __all__ = ["ClosedLoopVerdict", "closed_loop_verdict", "closed_loop_verdicts"]
 
@@ -27,14 +27,6 @@ APE = "ape_cm"
 SUCCESS = "success_rate"
 OUTCOMES = ("beats", "mixed against", "loses to", "matches")  # the order a sentence names them in
 VERBS = {"beats": "beats", "mixed against": "is mixed against", "loses to": "loses to", "matches": "matches"}
-
-
-def _value(metrics: Mapping[str, float], key: str) -> float | None:
-    value = metrics.get(key)
-    if value is None:
-        return None
-    value = float(value)
-    return None if math.isnan(value) else value
 
 
 def _cm(value: float) -> str:
@@ -69,13 +61,13 @@ class ClosedLoopVerdict:
 def closed_loop_verdicts(metrics: Mapping[str, float]) -> list[ClosedLoopVerdict]:
     """The student's verdict against each baseline driven in closed loop (``closed_loop/baseline/<name>/``) that
     has an APE and a success rate, as the student has (see the module); empty when the student was not driven."""
-    own = _value(metrics, f"closed_loop/{APE}"), _value(metrics, f"closed_loop/{SUCCESS}")
+    own = finite_value(metrics, f"closed_loop/{APE}"), finite_value(metrics, f"closed_loop/{SUCCESS}")
     if None in own:
         return []
     out = []
     for name in BASELINES:
         prefix = f"closed_loop/baseline/{name}/"
-        base = _value(metrics, prefix + APE), _value(metrics, prefix + SUCCESS)
+        base = finite_value(metrics, prefix + APE), finite_value(metrics, prefix + SUCCESS)
         if None in base:
             continue
         ape, success = (own[0], base[0]), (own[1], base[1])
@@ -95,11 +87,11 @@ def closed_loop_verdict(metrics: Mapping[str, float], model: str = "the student"
     """One sentence: the student's success rate, APE and mode switches per scenario, then the verdict against the
     planners it was driven against (:func:`closed_loop_verdicts`), then what the followed demonstration drives at;
     None when the run drove nothing in closed loop."""
-    ape, success = _value(metrics, f"closed_loop/{APE}"), _value(metrics, f"closed_loop/{SUCCESS}")
+    ape, success = finite_value(metrics, f"closed_loop/{APE}"), finite_value(metrics, f"closed_loop/{SUCCESS}")
     if ape is None or success is None:
         return None
     text = f"success {_share(success)}, APE {_cm(ape)}"
-    switches = _value(metrics, "closed_loop/mode_switches")
+    switches = finite_value(metrics, "closed_loop/mode_switches")
     if switches is not None:
         text += f", {catalog.fmt('closed_loop/mode_switches', switches)} mode switches per scenario"
     found = closed_loop_verdicts(metrics)
@@ -113,7 +105,7 @@ def closed_loop_verdict(metrics: Mapping[str, float], model: str = "the student"
         text += f"; {model} " + (" but ".join(groups) if len(groups) == 2 else _listed(groups, ", and "))
     else:
         text += "; no classical planner was driven beside it"
-    followed = _value(metrics, f"closed_loop/followed/{APE}")
+    followed = finite_value(metrics, f"closed_loop/followed/{APE}")
     if followed is not None:
         text += f"; the demonstration followed drives at {_cm(followed)} (what the follower itself costs)"
     return text

@@ -33,7 +33,8 @@ PREFERENCE_FIGURES = ("planner/plausibility_cm", "planner/commit_rate")
 __all__ = ["DECIDING_FIGURE", "Verdict", "verdicts", "verdict_lines"]
 
 
-def _value(metrics: Mapping[str, float], key: str) -> float | None:
+def finite_value(metrics: Mapping[str, float], key: str) -> float | None:
+    """``metrics[key]`` as a float; None when it is missing or NaN (a figure that cannot be compared)."""
     value = metrics.get(key)
     if value is None:
         return None
@@ -81,10 +82,10 @@ def verdicts(metrics: Mapping[str, float], prefix: str = "test") -> list[Verdict
         base = f"{prefix}/baseline/{name}/"
         if not any(k.startswith(base) for k in metrics):
             continue
-        ape = (_value(metrics, f"{prefix}/{DECIDING_FIGURE}"), _value(metrics, base + DECIDING_FIGURE))
-        tail = (_value(metrics, f"{prefix}/{TAIL_FIGURE}"), _value(metrics, base + TAIL_FIGURE))
-        plaus = (_value(metrics, f"{prefix}/{PREFERENCE_FIGURES[0]}"), _value(metrics, base + PREFERENCE_FIGURES[0]))
-        commit = (_value(metrics, f"{prefix}/{PREFERENCE_FIGURES[1]}"), _value(metrics, base + PREFERENCE_FIGURES[1]))
+        ape = (finite_value(metrics, f"{prefix}/{DECIDING_FIGURE}"), finite_value(metrics, base + DECIDING_FIGURE))
+        tail = (finite_value(metrics, f"{prefix}/{TAIL_FIGURE}"), finite_value(metrics, base + TAIL_FIGURE))
+        plaus = (finite_value(metrics, f"{prefix}/{PREFERENCE_FIGURES[0]}"), finite_value(metrics, base + PREFERENCE_FIGURES[0]))
+        commit = (finite_value(metrics, f"{prefix}/{PREFERENCE_FIGURES[1]}"), finite_value(metrics, base + PREFERENCE_FIGURES[1]))
         has_tail = None not in tail
         if None in ape:
             outcome = "cannot be compared with"
@@ -112,12 +113,12 @@ def verdict_lines(metrics: Mapping[str, float], prefix: str = "test", model: str
              "plausibility and commitment where the test set has alternatives"]
     if not with_floor:
         return lines + [v.sentence(model) for v in found]
-    floor, ratio = _value(metrics, f"{prefix}/floor_cm"), _value(metrics, f"{prefix}/planner/ape_over_floor")
+    floor, ratio = finite_value(metrics, f"{prefix}/floor_cm"), finite_value(metrics, f"{prefix}/planner/ape_over_floor")
     if floor is not None and ratio is not None:
         lines.append(f"floor: {floor:.2f} cm (the best a single path can do against one demonstration); "
                      f"{model}'s planner APE is {ratio:.2f}x it")
-    ceiling = _value(metrics, f"{prefix}/ceiling/planner/ape_cm")
-    ceiling_ratio = _value(metrics, f"{prefix}/ceiling/planner/ape_over_floor")
+    ceiling = finite_value(metrics, f"{prefix}/ceiling/planner/ape_cm")
+    ceiling_ratio = finite_value(metrics, f"{prefix}/ceiling/planner/ape_over_floor")
     if ceiling is not None and ceiling_ratio is not None:
         lines.append(f"BC ceiling: {ceiling:.2f} cm, {ceiling_ratio:.2f}x the floor (the plausible set's mean image, "
                      "what a perfect BC student converges to, decoded by the planner)")
