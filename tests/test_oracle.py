@@ -330,9 +330,14 @@ def test_every_site_row_composes_and_its_variants_change_only_what_they_name(tmp
                 "site_oracle_lam10_L": ("site_oracle_L", {"model.margin.lambda_dm"}),
                 "site_oracle_allt_L": ("site_oracle_L", {"model.margin.t_max"}),
                 "site_bc_250_L": ("site_bc_L", {"data.max_train_instances"}),
-                "site_bc_2000_L": ("site_bc_L", {"data.max_train_instances"}),
-                "site_bcplaus_250_L": ("site_bcplaus_L", {"data.max_train_instances"}),
-                "site_bcplaus_2000_L": ("site_bcplaus_L", {"data.max_train_instances"})}
+                "site_bcplaus_250_L": ("site_bcplaus_L", {"data.max_train_instances"})}
+    steps = {"data.max_train_instances", "trainer.max_epochs", "trainer.max_steps"}
+    every_32 = {"trainer.check_val_every_n_epoch", "trainer.val_check_interval"}
+    for parent in ("site_bc_L", "site_bcplaus_L"):
+        row = parent.removesuffix("_L")
+        expected[f"{row}_1000_L"] = (parent, steps)
+        expected[f"{row}_2000_L"] = (parent, steps | every_32)
+        expected[f"{row}_250steps_L"] = (f"{row}_250_L", {"trainer.max_epochs"})
     for row, (parent, keys) in expected.items():
         assert differences(composed[row], composed[parent]) - ignore == keys, row
 
