@@ -51,9 +51,7 @@ def main(cfg: DictConfig) -> None:
     print(format_report(results))
     print(f"\nJSON: {path}")
     if options.speed_page:
-        from spade.perf.speed_page import read_science, write_speed_page
-
-        results["speed_science"] = read_science(options.speed_science or [])
+        from spade.perf.speed_page import write_speed_page
 
         page = write_speed_page(results, options.speed_page, command, checkout, time.perf_counter() - t0)
         print(f"Page: {page}")

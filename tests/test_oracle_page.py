@@ -163,3 +163,49 @@ def test_a_row_that_loses_to_a_baseline_names_it() -> None:
 
     assert _losses([run(1, 22.0), run(2, 25.0)]) == ["heading template"]
     assert _losses([run(1, 5.0), run(2, 6.0)]) == []
+
+
+def test_the_precision_page_tells_a_moved_figure_from_noise(tmp_path: Path) -> None:
+    """The bf16 science check: a bf16 row whose planner APE moved by 1 cm (5 sd) is told apart from its fp32 twin
+    after Holm; one within the seeds' noise is not; a pair without two seeds on a side is said untested."""
+    from spade.experiments.precision_page import precision_report
+
+    records = tmp_path / "records"
+    records.mkdir()
+    rng = np.random.default_rng(1)
+    for seed, jitter in zip((42, 1, 2, 3), (0.0, 0.2, -0.2, 0.1)):
+        _record(records, "site_bc_L", seed, 4.0 + jitter, rng)
+        _record(records, "site_bc_bf16_L", seed, 4.05 - jitter, rng)  # within noise
+        _record(records, "site_teacher_L", seed, 4.0 + jitter / 4, rng)
+        _record(records, "site_teacher_bf16_L", seed, 5.0 + jitter / 4, rng)  # moved by 1 cm
+    _record(records, "site_x_bf16_L", 42, 4.0, rng)
+    settings = {"records_dir": str(records), "labels": {"site_bc_bf16_L": "BC", "site_teacher_bf16_L": "teacher"},
+                "pairs": {"site_bc_bf16_L": "site_bc_L", "site_teacher_bf16_L": "site_teacher_L",
+                          "site_x_bf16_L": "site_x_L"}}
+    text, files = precision_report(f"sqlite:///{tmp_path}/missing.db", tmp_path / "out", settings)
+    verdict = text.split("## Figures")[0]
+    assert "**bf16 changes the science**: told apart from fp32 on teacher: planner APE" in verdict
+    assert "BC: planner APE" not in verdict and "Not yet tested" in verdict and "site_x_bf16_L" in verdict
+    rows = {tuple(c.strip() for c in line.split("|")[1:3]): line for line in text.splitlines() if line.startswith("| ")}
+    assert rows[("teacher", "planner APE")].rstrip(" |").endswith("told apart")
+    assert rows[("BC", "planner APE")].rstrip(" |").endswith("not told apart")
+    assert "4 / 4" in rows[("BC", "planner APE")] and files["markdown"].read_text().startswith("# bf16")
+    with pytest.raises(ValueError, match="precision.pairs is empty"):
+        precision_report(f"sqlite:///{tmp_path}/missing.db", None, {"records_dir": str(records)})
+
+
+def test_a_curve_point_counts_its_optimizer_steps_from_its_params() -> None:
+    """max_steps when it stopped the run, else epochs times the batches (the last one partial) of the training set."""
+    from spade.experiments.oracle_page import optimizer_steps
+    from spade.experiments.run_records import RunRecord
+
+    def record(**params: str) -> RunRecord:
+        return RunRecord(row="r", seed=1, run_id="x", start_time=0, end_time=1, metrics={}, params={f"cfg/{k.replace('__', '/')}": v
+                                                                       for k, v in params.items()})
+
+    assert optimizer_steps(record(trainer__max_epochs="6", data__max_train_instances="500")) == 96  # 16 batches of 32
+    assert optimizer_steps(record(trainer__max_epochs="12", data__max_train_instances="250")) == 96
+    assert optimizer_steps(record(trainer__max_epochs="-1", trainer__max_steps="96",
+                                  data__max_train_instances="2000")) == 96
+    assert optimizer_steps(record(trainer__max_epochs="2", data__max_train_instances="100", data__batch_size="16")) == 14
+    assert optimizer_steps(record(trainer__max_epochs="6")) is None

@@ -514,7 +514,8 @@ def test_every_page_is_registered_and_names_its_files() -> None:
     """spade.report's config checks learn a page's files from the registry, never from the page's module."""
     from spade.experiments.reporting.pages import PAGES, page, report_files
 
-    assert set(PAGES) == {"closed_loop", "teacher", "oracle"}
+    assert set(PAGES) == {"closed_loop", "teacher", "oracle", "precision"}
+    assert report_files("precision") == ["precision.md"]
     assert report_files("closed_loop") == ["closed_loop.md", "closed_loop.csv"]
     assert report_files("oracle") == ["oracle.md", "oracle_curve.png"]
     assert report_files("table2", chart=False) == ["table2.md", "table2.csv", "table2_comparisons.csv"]

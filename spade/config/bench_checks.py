@@ -31,7 +31,6 @@ class BenchOptions:
     threads: int | None = None
     seed: int = 0
     speed_page: Any = None
-    speed_science: list[str] | None = None  # with speed_page: JSON files of spade.perf.precision_check
 
     def __post_init__(self) -> None:
         check_bool_value("quick", self.quick)

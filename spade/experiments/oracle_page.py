@@ -420,12 +420,39 @@ def oracle_report(tracking_uri: str, output_dir: str | Path | None, settings: Ma
     return text, files
 
 
+RECORDED_BATCH = 32
+"""The site rows' batch (``scale=quickstart``, from ``conf/scale/cpu.yaml``), for records exported before
+``cfg/data/batch_size`` was kept."""
+
+
+def optimizer_steps(record: RunRecord) -> int | None:
+    """The optimiser steps a run trained for: ``trainer.max_steps`` when it stopped the run, else its epochs times
+    the batches of its training set (Lightning keeps the last, partial batch); None when the record cannot say."""
+    def number(key: str) -> int | None:
+        value = record.params.get(key)
+        try:
+            return int(float(value)) if value not in (None, "", "None", "null") else None
+        except (TypeError, ValueError):
+            return None
+
+    steps, epochs, n = number("cfg/trainer/max_steps"), number("cfg/trainer/max_epochs"), \
+        number("cfg/data/max_train_instances")
+    if steps is not None and steps > 0:
+        return steps
+    if epochs is None or epochs < 1 or n is None:
+        return None
+    return epochs * math.ceil(n / (number("cfg/data/batch_size") or RECORDED_BATCH))
+
+
 def _epochs_note(by_name: Mapping[str, list[RunRecord]], names: set[str]) -> str:
-    """Says that every point of the curve trained the same epochs (so fewer demonstrations, fewer steps)."""
-    epochs = {r.params.get("cfg/trainer/max_epochs") for n in names for r in by_name.get(n, [])} - {None}
-    if len(epochs) != 1:
+    """Says whether every point of the curve trained the same optimiser steps (so that only the data changes)."""
+    steps = {optimizer_steps(r) for n in names for r in by_name.get(n, [])}
+    if not steps or None in steps:
         return ""
-    return f" Every point trains {epochs.pop()} epochs, so fewer demonstrations also mean fewer optimiser steps."
+    if len(steps) == 1:
+        return f" Every point trains {steps.pop()} optimiser steps, so that only the data changes."
+    return (f" The points train {min(steps)} to {max(steps)} optimiser steps: fewer demonstrations also mean fewer "
+            "steps.")
 
 
 def _best_baseline(runs: list[RunRecord]) -> tuple[str, float] | None:

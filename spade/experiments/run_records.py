@@ -33,7 +33,8 @@ __all__ = ["RunRecord", "export_records", "load_records", "has_records", "with_l
 
 REFERENCES_FILE = "_references.json"
 KEPT_PREFIXES = ("test/", "closed_loop/", "model/", "margin/")
-KEPT_PARAMS = ("cfg/seed", "cfg/data/max_train", "cfg/trainer/max_epochs", "cfg/model/margin/")
+KEPT_PARAMS = ("cfg/seed", "cfg/data/max_train", "cfg/data/batch_size", "cfg/trainer/max_epochs",
+               "cfg/trainer/max_steps", "cfg/trainer/precision", "cfg/model/margin/")
 """Parameters a record keeps by default (prefixes); a page that reads more names them (``export_records(params=)``)."""
 ROUND = 4
 LOST_STORE = "> **Store lost:**"

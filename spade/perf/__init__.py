@@ -6,8 +6,8 @@
 - :mod:`spade.perf.training` - training steps of BC, DBC, Cond-DBC and the expert: time, FLOP rate against a
   matmul, each speed lever, profiles (FLOPs, the matmul reference and the profiler in :mod:`spade.perf.step_cost`,
   Lightning's per-step overhead in :mod:`spade.perf.lightning_overhead`);
-- :mod:`spade.perf.speed_page` - the training section's results page (``docs/results/speed.md``), with the bf16
-  check of :mod:`spade.perf.precision_check`;
+- :mod:`spade.perf.speed_page` - the training section's results page (``docs/results/speed.md``); its bf16 science
+  check is ``spade.report table=precision`` (:mod:`spade.experiments.precision_page`);
 - :mod:`spade.perf.metrics` - APE + Hd19 and FID throughput, a per-instance reference pipeline, FID sensitivity;
 - :mod:`spade.perf.throughput` - dataset-read and generation (annotation) throughput;
 - :mod:`spade.perf.dataset` - a large dataset read in a fresh process, with its resident memory;

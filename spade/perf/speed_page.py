@@ -11,7 +11,6 @@ from pathlib import Path
 from typing import Any
 
 from spade.utils.markdown import number_table
-from spade.experiments.reporting.stats import mean_sd, welch
 from spade.paths import CONFIG_PATH
 from spade.perf.targets import RATIO_TARGET, bench_verdict
 
@@ -108,39 +107,6 @@ def _bounds(results: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-#: The test figures the precision check compares (spade/perf/precision_check.py), as spade.train logs them.
-SCIENCE_KEYS: tuple[str, ...] = ("test/planner/ape_cm", "test/planner/plausibility_cm", "test/planner/ape_over_floor",
-                                 "test/score_cm", "test/ape_cm")
-
-
-def science_table(rows: list[dict[str, Any]]) -> str:
-    """Mean +- sd of each test figure per precision over seeds, and Welch's test of each against the first
-    precision (the fp32 reference)."""
-    precisions = list(dict.fromkeys(r["precision"] for r in rows))
-    keys = [k for k in SCIENCE_KEYS if any(k in r["metrics"] for r in rows)]
-
-    def values(precision: str, key: str) -> list[float]:
-        return [r["metrics"][key] for r in rows if r["precision"] == precision and key in r["metrics"]]
-
-    def cell(v: list[float]) -> str:
-        return mean_sd(v, sep=" +- ") + f" (n={len(v)})" if v else "-"
-
-    table = []
-    for key in [*keys, "fit + test s"]:
-        line = [key]
-        ref = values(precisions[0], key) if key != "fit + test s" else \
-            [r["seconds"] for r in rows if r["precision"] == precisions[0]]
-        for precision in precisions:
-            v = values(precision, key) if key != "fit + test s" else \
-                [r["seconds"] for r in rows if r["precision"] == precision]
-            line.append(cell(v) + ("" if precision == precisions[0] else f"; {welch(v, ref)[1]}"))
-        table.append(line)
-    seeds = sorted({r["seed"] for r in rows})
-    resolved = {r["precision"]: r.get("resolved") for r in rows}
-    return (number_table(["figure", *(f"{p} (ran as {resolved[p]})" for p in precisions)], table)
-            + f"\n\nSeeds {seeds}; spade.train overrides {rows[0].get('overrides')} (spade/perf/precision_check.py).")
-
-
 def _defaults() -> str:
     """What ``trainer=cpu``'s speed options resolve to on this machine."""
     from omegaconf import OmegaConf
@@ -196,13 +162,9 @@ def speed_page(results: dict[str, Any], command: str, commit: str | None, wall_s
     if speed.get("levers"):
         parts.append("## Levers, each alone against the same run's baseline\n\n" + levers_table(speed["levers"])
                      + "\n\nbf16 (`trainer.precision=bf16-mixed`, or `auto`: bf16-mixed where the CPU or GPU has "
-                       "native bf16) changes the numerics: it stays opt-in "
-                       "until the planner figures of the medium BC and teacher-guided rows are shown within noise of "
-                       "fp32's" + ("; the check below is the evidence so far." if results.get("speed_science")
-                                   else "; this page does not show that."))
-    if results.get("speed_science"):
-        parts.append("## Does bf16 keep the science? The medium BC student at the quickstart's scale\n\n"
-                     + science_table(results["speed_science"]))
+                       "native bf16) changes the numerics: whether it keeps the science (the planner figures of the "
+                       "site's BC and teacher-guided rows, bf16 against fp32 over seeds) is the "
+                       "[precision page](precision.md)'s verdict.")
     bounds = _bounds(results)
     if bounds:
         parts.append("## What bounds the ratio to the matmul\n\n" + bounds)
@@ -218,28 +180,13 @@ def speed_page(results: dict[str, Any], command: str, commit: str | None, wall_s
     return "\n\n".join(parts) + "\n"
 
 
-def read_science(paths: Any) -> list[dict[str, Any]]:
-    """The rows of the precision check's JSON files (``speed_science``: one path or a list)."""
-    import json
-
-    paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
-    rows: list[dict[str, Any]] = []
-    for path in paths:
-        if not Path(path).is_file():
-            raise FileNotFoundError(f"speed_science={path} does not exist; write it with python -m "
-                                    "spade.perf.precision_check out=PATH")
-        rows += json.loads(Path(path).read_text())
-    return rows
-
-
 def _now() -> str:
     return datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
 
 
 def write_speed_page(results: dict[str, Any], path: str | Path, command: str, commit: str | None,
                      wall_s: float) -> Path:
-    """The page at ``path`` and, beside it (``.json``), the results and provenance it was written from, so that
-    :func:`rerender` can add the precision check to it later without measuring again."""
+    """The page at ``path`` and, beside it (``.json``), the results and provenance it was written from."""
     import json
 
     path = Path(path)
@@ -251,19 +198,15 @@ def write_speed_page(results: dict[str, Any], path: str | Path, command: str, co
     return path
 
 
-def rerender(json_path: str | Path, science: list[str | Path]) -> Path:
-    """The page of ``json_path`` (what :func:`write_speed_page` wrote beside it) written again with the precision
-    check's runs (:mod:`spade.perf.precision_check` JSON files) added; the measured figures and their provenance
-    are the recorded ones."""
+def rerender(json_path: str | Path) -> Path:
+    """The page of ``json_path`` (what :func:`write_speed_page` wrote beside it) written again by this code from the
+    recorded figures and provenance, without measuring again."""
     import json
 
     json_path = Path(json_path)
     data = json.loads(json_path.read_text())
     results, p = data["results"], data["provenance"]
-    if science:
-        results["speed_science"] = read_science(science)
-        data["science_files"] = [str(s) for s in science]
-        json_path.write_text(json.dumps(data, indent=1, default=str))
+    results.pop("speed_science", None)  # written by an earlier bf16 check, now the precision page's
     page = json_path.with_suffix(".md")
     page.write_text(speed_page(results, p["command"], p["commit"], p["wall_s"], p["date"]))
     return page
@@ -272,6 +215,6 @@ def rerender(json_path: str | Path, science: list[str | Path]) -> Path:
 if __name__ == "__main__":
     import sys
 
-    if len(sys.argv) < 2:
-        raise SystemExit("usage: python -m spade.perf.speed_page docs/results/speed.json [PRECISION_CHECK.json ...]")
-    print(rerender(sys.argv[1], sys.argv[2:]))
+    if len(sys.argv) != 2:
+        raise SystemExit("usage: python -m spade.perf.speed_page docs/results/speed.json")
+    print(rerender(sys.argv[1]))

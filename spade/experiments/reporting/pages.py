@@ -17,6 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 from spade.config.report_checks import validate_report_config
 from spade.experiments.closed_loop_table import closed_loop_report
 from spade.experiments.oracle_page import oracle_report
+from spade.experiments.precision_page import precision_report
 from spade.experiments.reporting.build import Report, build_report
 from spade.tracking.tables import TABLES, Table, get_table
 from spade.experiments.teacher_table import TEACHER_TABLE, teacher_files, teacher_report
@@ -107,6 +108,15 @@ register(Page("closed_loop", lambda chart, _: ["closed_loop.md", "closed_loop.cs
 register(Page(TEACHER_TABLE, lambda chart, stem: list(teacher_files(stem)), _teacher,
               ("teacher.records_dir", "teacher.committed")))
 register(Page("oracle", lambda chart, _: ["oracle.md", "oracle_curve.png"], _oracle, ("oracle.records_dir",)))
+
+
+def _precision(cfg: DictConfig) -> list[Any]:
+    """The bf16 science check (:mod:`spade.experiments.precision_page`)."""
+    settings = OmegaConf.to_container(cfg.precision, resolve=True)
+    return [_page_report(*precision_report(cfg.tracking_uri, cfg.get("output_dir"), settings))]
+
+
+register(Page("precision", lambda chart, _: ["precision.md"], _precision, ("precision.records_dir",)))
 
 
 def report(cfg: DictConfig) -> list[Report]:
