@@ -338,6 +338,8 @@ def test_every_site_row_composes_and_its_variants_change_only_what_they_name(tmp
         expected[f"{row}_1000_L"] = (parent, steps)
         expected[f"{row}_2000_L"] = (parent, steps | every_32)
         expected[f"{row}_250steps_L"] = (f"{row}_250_L", {"trainer.max_epochs"})
+    for row in ("site_bc", "site_bcplaus", "site_oraclelabels"):
+        expected[f"{row}_small_L"] = (f"{row}_L", {"model.size"})
     for row, (parent, keys) in expected.items():
         assert differences(composed[row], composed[parent]) - ignore == keys, row
 

@@ -209,3 +209,27 @@ def test_a_curve_point_counts_its_optimizer_steps_from_its_params() -> None:
                                   data__max_train_instances="2000")) == 96
     assert optimizer_steps(record(trainer__max_epochs="2", data__max_train_instances="100", data__batch_size="16")) == 14
     assert optimizer_steps(record(trainer__max_epochs="6")) is None
+
+
+def test_a_row_with_a_twin_is_tested_against_it_and_the_twin_is_a_reference(tmp_path: Path) -> None:
+    """against_rows: the small student's label route against the small BC, not the medium one; the small BC itself
+    is a reference (not tested against the medium BC)."""
+    from spade.experiments.oracle_page import oracle_report
+
+    records = tmp_path / "records"
+    records.mkdir()
+    rng = np.random.default_rng(2)
+    for seed in (42, 1, 2):
+        _record(records, "site_bc_L", seed, 4.0, rng)
+        _record(records, "site_bc_small_L", seed, 6.0, rng)
+        _record(records, "site_bcplaus_small_L", seed, 5.0, rng)  # better than the small BC, worse than the medium
+    settings = {"page": "oracle", "records_dir": str(records), "against": "site_bc_L",
+                "rows": {"site_bc_L": "BC", "site_bc_small_L": "BC small", "site_bcplaus_small_L": "plaus small"},
+                "against_rows": {"site_bcplaus_small_L": "site_bc_small_L"}}
+    text, _ = oracle_report(f"sqlite:///{tmp_path}/missing.db", None, settings)
+    verdict = text.split("## Rows")[0]
+    assert re.search(r"\*\*Better than BC\*\*: plaus small \d\.\d\d cm \(-\d\.\d\d against BC small", verdict)
+    assert "BC small 6." not in verdict  # the reference is not tested
+    headline = next(line for line in text.splitlines() if line.startswith("| plaus small |"))
+    assert "better (against BC small)" in headline
+    assert next(line for line in text.splitlines() if line.startswith("| BC small |")).rstrip(" |").endswith("—")

@@ -159,16 +159,25 @@ def _losses(runs: list[RunRecord]) -> list[str]:
     return [catalog.BASELINE_LABELS.get(v.baseline, v.baseline) for v in verdicts(mean, "test") if v.outcome == "loses to"]
 
 
-def _tests(rows: dict[str, list[RunRecord]], against: str) -> dict[str, dict[str, Any]]:
-    """Each row against ``against`` on the deciding figure: Welch over seeds and the paired bootstrap over scenarios
-    (the seed-pooled per-scenario means); Holm's correction is applied by :func:`_correct` over the page."""
-    base = rows.get(against, [])
+def _bases(rows: Mapping[str, Any], against: str, twins: Mapping[str, str]) -> dict[str, str]:
+    """The row each row is tested against: its twin (``against_rows``: a small student against the small BC) or
+    ``against``; a row that others are tested against is a reference, not tested itself."""
+    references = {against, *twins.values()}
+    return {name: twins.get(name, against) for name in rows if name not in references}
+
+
+def _tests(rows: dict[str, list[RunRecord]], bases: Mapping[str, str]) -> dict[str, dict[str, Any]]:
+    """Each row against its base (:func:`_bases`) on the deciding figure: Welch over seeds and the paired bootstrap
+    over scenarios (the seed-pooled per-scenario means); Holm's correction is applied by :func:`_correct` over the
+    page."""
     out: dict[str, dict[str, Any]] = {}
-    for name in (n for n in rows if n != against):
+    for name, against in bases.items():
+        base = rows.get(against, [])
         p, wording = welch(_values(rows[name], DECIDING), _values(base, DECIDING))
         a = _by_scenario([i for r in rows[name] for i in r.instances], "planner_ape_cm")
         b = _by_scenario([i for r in base for i in r.instances], "planner_ape_cm")
-        out[name] = {"p": p, "wording": wording, "paired": paired_difference(a, b) if a and b else None}
+        out[name] = {"p": p, "wording": wording, "paired": paired_difference(a, b) if a and b else None,
+                     "against": against}
     return out
 
 
@@ -212,19 +221,22 @@ def _verdict(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], agains
     groups: dict[str, list[str]] = {"better": [], "worse": [], "not told apart": [], "one seed": []}
     winners = []
     for name, test in tests.items():
-        ape = _mean(rows[name], DECIDING)
-        if ape is None:
+        ape, twin = _mean(rows[name], DECIDING), test.get("against", against)
+        own_ape = _mean(rows.get(twin, []), DECIDING)
+        if ape is None or own_ape is None:
             continue
-        closed = "" if ceiling is None or base_ape - ceiling <= 0 else \
-            f", {100 * (base_ape - ape) / (base_ape - ceiling):.0f} % of the gap"
-        outcome = _outcome(rows, name, base_ape, test)
-        groups[outcome].append(f"{labels.get(name, name)} {ape:.2f} cm ({ape - base_ape:+.2f}{closed})")
+        closed = "" if ceiling is None or own_ape - ceiling <= 0 else \
+            f", {100 * (own_ape - ape) / (own_ape - ceiling):.0f} % of the gap"
+        twin_text = "" if twin == against else f" against {labels.get(twin, twin)}"
+        outcome = _outcome(rows, name, own_ape, test)
+        groups[outcome].append(f"{labels.get(name, name)} {ape:.2f} cm ({ape - own_ape:+.2f}{twin_text}{closed})")
         if outcome == "better":
-            winners.append(f"{labels.get(name, name)} ({ape:.2f} cm against {base_ape:.2f})")
+            winners.append(f"{labels.get(name, name)} ({ape:.2f} cm against {own_ape:.2f})")
     rule = ("told apart only when Welch's test over seeds (Holm's correction over the page) and the paired "
             "bootstrap over scenarios agree")
     head = (f"- **Where a teacher teaches here**: {'; '.join(winners)} beat{'s' if len(winners) == 1 else ''} "
-            f"{labels.get(against, against)} by the deciding figure, the planner's APE ({rule}); no other row does."
+            f"{labels.get(against, against)} (or its twin) by the deciding figure, the planner's APE ({rule}); no "
+            "other row does."
             if winners else f"- **No row beats BC** by the deciding figure, the planner's APE ({rule}).")
     lines = [head]
     if ceiling is not None:
@@ -267,12 +279,15 @@ def _headline(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], again
                 if interval is not None and not math.isnan(interval.low):
                     text = f"{text} [{interval.low:.2f}, {interval.high:.2f}]"
             cells.append(text)
-        if name == against or base_ape is None:
+        twin = tests.get(name, {}).get("against")
+        own_ape = _mean(rows.get(twin, []), DECIDING) if twin else None
+        if own_ape is None or base_ape is None:
             outcome = "—"
         else:
             ape = _mean(runs, DECIDING)
-            outcome = f"{ape - base_ape:+.2f} cm, {_outcome(rows, name, base_ape, tests.get(name, {}))}" \
+            outcome = f"{ape - own_ape:+.2f} cm, {_outcome(rows, name, own_ape, tests[name])}" \
                 if ape is not None else "n/a"
+            outcome += "" if twin == against else f" (against {labels.get(twin, twin)})"
         body.append([labels.get(name, name), len(runs), *cells, outcome])
     return markdown_table(["row", "seeds", *(h for h, _, _ in HEADLINE), "against BC"], body)
 
@@ -287,13 +302,16 @@ def _tests_table(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], ag
     order = sorted(tests, key=lambda n: (not _significant(tests[n]), tests[n].get("holm") or 2.0))
     for name in order:
         test, ape = tests[name], _mean(rows[name], DECIDING)
-        if ape is None:
+        own_ape = _mean(rows.get(test.get("against", against), []), DECIDING)
+        if ape is None or own_ape is None:
             continue
         p, holm_p, paired = test.get("p"), test.get("holm"), test.get("paired")
         paired_text = "n/a" if paired is None or math.isnan(paired.low) else \
             f"{paired.mean:+.2f} [{paired.low:+.2f}, {paired.high:+.2f}]"
-        body.append([labels.get(name, name), f"{ape - base_ape:+.2f}", "n/a" if p is None else f"{p:.3g}",
-                     "n/a" if holm_p is None else f"{holm_p:.3g}", paired_text, _outcome(rows, name, base_ape, test)])
+        twin = test.get("against", against)
+        label = labels.get(name, name) + ("" if twin == against else f" (against {labels.get(twin, twin)})")
+        body.append([label, f"{ape - own_ape:+.2f}", "n/a" if p is None else f"{p:.3g}",
+                     "n/a" if holm_p is None else f"{holm_p:.3g}", paired_text, _outcome(rows, name, own_ape, test)])
     return markdown_table(["row", "difference (cm)", "Welch p", "Holm p", "paired over scenarios (cm) [95 % CI]",
                            "outcome"], body)
 
@@ -353,8 +371,8 @@ def oracle_report(tracking_uri: str, output_dir: str | Path | None, settings: Ma
     teacher_runs = {name: by_name[name] for name in teachers if name in by_name}
     missing = [k for k, v in rows.items() if not v]  # named rows without a finished run: shown, never dropped
     rows = {k: sorted(v, key=lambda r: (r.seed is None, r.seed or 0)) for k, v in rows.items() if v}
-    tests = _tests(rows, against)
-    ctests = curve_tests(curve, by_name, {(name, against): test for name, test in tests.items()})
+    tests = _tests(rows, _bases(rows, against, dict(settings.get("against_rows") or {})))
+    ctests = curve_tests(curve, by_name, {(name, test["against"]): test for name, test in tests.items()})
     _correct(tests, ctests)
     title = str(settings.get("title", "Where a teacher teaches: the oracle, the site's unsketched states, the BC ceiling"))
     every_run = [r for v in rows.values() for r in v]
