@@ -92,6 +92,35 @@ def test_no_previous_plan_or_a_zero_weight_decodes_exactly_as_before() -> None:
         PathDecoder(prior_weight=1.0)
 
 
+def test_keeping_returns_the_previous_plan_itself_until_a_fresh_path_is_clearly_cheaper() -> None:
+    """keep_ratio: the previous plan, joined from the robot, exactly (no drift inside the band), while the fresh path
+    is not cheaper by more than the ratio; replaced when the network turns against it or the map blocks it."""
+    grid = pillar_grid()
+    decoder = PathDecoder(force_endpoints=True, keep_ratio=0.3)
+    robot = START + np.array([1.0, 0.0])  # the follower is a pixel off its plan
+    for tilt in (0.02, -0.02, 0.1):  # the left way at most 1.12x the fresh path's plain cost
+        found = decoder(two_ways(tilt), grid, robot, GOAL, 0.1, prior=LEFT)
+        assert found.ok and found.prior == "kept" and side(found.points) == "left"
+        np.testing.assert_allclose(found.points[0], robot) and np.testing.assert_allclose(found.points[-1], GOAL)
+        assert np.max(np.min(np.linalg.norm(found.points[:, None] - LEFT[None], axis=2), axis=1)) < 12
+    # the network turned against it (p 0.4 against 0.6: 1.7x the plain cost): kept under a ratio of 1, not of 0.3
+    assert decoder(two_ways(-0.1), grid, robot, GOAL, 0.1, prior=LEFT).prior == "used"
+    assert PathDecoder(force_endpoints=True, keep_ratio=1.0)(two_ways(-0.1), grid, robot, GOAL, 0.1,
+                                                             prior=LEFT).prior == "kept"
+    prob = two_ways(0.0)  # the network now sees only the right way: far cheaper, so the plan is replaced
+    prob[rasterise_polyline(LEFT, (H, H), 3)] = 0.01
+    prob[rasterise_polyline(RIGHT, (H, H), 3)] = 0.9
+    found = decoder(prob, grid, robot, GOAL, 0.1, prior=LEFT)
+    assert found.prior == "used" and side(found.points) == "right"
+    blocked = pillar_grid()
+    blocked[30, 14:29] = 2
+    assert decoder(two_ways(0.1), blocked, robot, GOAL, 0.1, prior=LEFT).prior == "blocked"
+    elsewhere = decoder(two_ways(0.1), grid, robot, GOAL + np.array([0.0, 6.0]), 0.1, prior=LEFT)
+    assert elsewhere.prior == "used"  # the previous plan ends at another goal: never kept
+    with pytest.raises(ValueError, match="keep_ratio must be >= 0"):
+        PathDecoder(keep_ratio=-0.1)
+
+
 # ------------------------------------------------------------------------------------------------ the planner
 class TwoWays:
     """A stand-in network that sees two ways round to the goal, a detour to the robot's left and one to its right
@@ -162,6 +191,12 @@ def test_replan_prior_is_a_deploy_setting_that_round_trips(tmp_path: Path) -> No
     assert compose_config("plan", ["map=x.yaml", "start=[0,0,0]", "goal=[1,1]"]).planner.replan_prior == \
         DEFAULT_REPLAN_PRIOR
     assert predictors(ckpt, [], [], {"replan_prior": 0.3})["model"].replan_prior == 0.3  # drive.planner.*
+    assert Planner(ckpt).decoder.keep_ratio is None and ros.planner.replan_keep is None  # keeping: opt-in
+    assert build_planner(OmegaConf.merge(ros, {"planner": {"replan_keep": 0.2}})).decoder.keep_ratio == 0.2
+    assert predictors(ckpt, [], [], {"replan_keep": 0.5})["model"].decoder.keep_ratio == 0.5
+    for bad in (-0.1, "some", True, float("inf")):
+        with pytest.raises(PlannerConfigError, match=r"replan_keep=.*: a ratio >= 0, e\.g\. replan_keep=0\.2"):
+            Planner(ckpt, replan_keep=bad)
 
 
 def test_the_planner_keeps_its_turn_across_replans_and_decides_afresh_with_the_prior_off(tmp_path: Path) -> None:
@@ -176,6 +211,20 @@ def test_the_planner_keeps_its_turn_across_replans_and_decides_afresh_with_the_p
             previous = result.waypoints
         first, other = sides[0], {"left": "right", "right": "left"}[sides[0]]
         assert sides == ([first] * 4 if weight > 0 else [first, other] * 2)  # off: the network's favourite each time
+
+
+def test_a_planner_that_keeps_its_plan_returns_it_while_the_network_wavers(tmp_path: Path) -> None:
+    m = room()
+    # the stand-in favours each way in turn by p 0.6 against 0.4: the other way costs 1.7x as much on the plain cost
+    planner = two_ways_planner(tmp_path / "keep.ckpt", replan_prior=0.0, replan_keep=1.0)
+    first = planner.plan(m, POSE, TARGET)
+    previous, sides = first.waypoints, [lateral(first.waypoints)]
+    for _ in range(3):
+        result = planner.plan(m, POSE, TARGET, previous=previous)
+        assert result.success and result.prior == "kept"
+        sides.append(lateral(result.waypoints))
+        previous = result.waypoints
+    assert len(set(sides)) == 1  # the prior off, the wavering network still never flips the kept plan
 
 
 # ------------------------------------------------------------------------------------------------ every caller
@@ -298,20 +347,24 @@ def test_the_replanning_page_compares_each_prior_with_off_on_the_same_students(t
     from spade.perf.replanning_page import load_drive_records, replanning_page
 
     for i, student in enumerate(("a", "b", "c")):
-        for prior, ape, switches in ((0.0, 15.0 + i, 1.0 + 0.1 * i), (0.9, 6.0 + 0.9 * i, 0.2 + 0.01 * i)):
+        for prior, keep, ape, switches in ((0.0, None, 15.0 + i, 1.0 + 0.1 * i), (0.9, None, 6.0 + 0.9 * i, 0.2 + 0.01 * i),
+                                           (0.9, 0.5, 6.5 + i, 0.1)):
             metrics = {"closed_loop/ape_cm": ape, "closed_loop/mode_switches": switches,
                        "closed_loop/commit_rate": 0.8, "closed_loop/success_rate": 1.0,
                        "closed_loop/followed/ape_cm": 4.5, "closed_loop/followed/mode_switches": 0.1,
                        "closed_loop/followed/commit_rate": 1.0, "closed_loop/followed/success_rate": 1.0}
-            (tmp_path / f"{student}_{prior}.json").write_text(json.dumps({
+            (tmp_path / f"{student}_{prior}_{keep}.json").write_text(json.dumps({
                 "run": student, "condition": "clean", "replan_prior": prior, "metrics": metrics, "scenarios": 10,
+                **({} if keep is None else {"replan_keep": keep}),  # records before the keep lever have none
                 "command": "python -m spade.perf.replanning --ckpt x", "commit": "abc", "seconds": 6.0}))
     (tmp_path / "summary.json").write_text("[]")  # not a drive record
     records = load_drive_records(tmp_path)
-    assert len(records) == 6
+    assert len(records) == 9
     page = replanning_page(records)
-    assert page.startswith("# Replanning") and "(Holm's correction over the page's 2 tests)" in page
+    assert page.startswith("# Replanning") and "(Holm's correction over the page's 3 tests)" in page  # keep's switches: no spread
     verdict = [line for line in page.splitlines() if line.startswith("- **clean**")][0]
+    assert "the best setting (prior 0.9) against off" in verdict
     assert "closed-loop APE (cm) 16.00 → 6.90" in verdict and "Every target met." in verdict
-    assert "| clean | 0.9 | 6.90 ± 0.90 |" in page and "| clean | the demonstration, followed | 4.50 |" in page
+    assert "| clean | prior 0.9 | 6.90 ± 0.90 |" in page and "| clean | prior 0.9 + keep 0.5 | 7.50 ± 1.00 |" in page
+    assert "| clean | off | 16.00 ± 1.00 |" in page and "| clean | the demonstration, followed | 4.50 |" in page
     assert page.index("- **clean**") < page.index("| condition |")  # the verdict before the table

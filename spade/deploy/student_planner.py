@@ -110,6 +110,9 @@ class Planner(WindowPlanner):
             blocks it (:mod:`spade.metrics.decoding`, replanning). 0 turns it off: every replan decides afresh. Used
             only when a query passes ``previous`` (the node, the Nav2 action and the closed loop do; one plan has
             none).
+        replan_keep: hysteresis on the whole plan (None: off): a replan returns the previous plan itself, joined
+            from the robot, unless a fresh path costs less than ``1 / (1 + replan_keep)`` of it or the map blocks it
+            (:mod:`spade.metrics.decoding`, keeping the plan). Measured in ``docs/results/replanning.md``.
     """
 
     def __init__(
@@ -136,6 +139,7 @@ class Planner(WindowPlanner):
         footprint_mismatch: str = "refuse",
         allow_unsigned: bool = False,
         replan_prior: float = DEFAULT_REPLAN_PRIOR,
+        replan_keep: float | None = None,
     ) -> None:
         path = Path(model).expanduser()
         if not path.is_file():
@@ -184,13 +188,18 @@ class Planner(WindowPlanner):
                 or not 0 <= float(replan_prior) < 1):
             raise PlannerConfigError(f"replan_prior={replan_prior!r}: a share in [0, 1), e.g. "
                                      f"replan_prior={DEFAULT_REPLAN_PRIOR:g} (0: every replan decides afresh)")
+        if replan_keep is not None and (isinstance(replan_keep, bool) or not isinstance(replan_keep, (int, float))
+                                        or not (math.isfinite(replan_keep) and replan_keep >= 0)):
+            raise PlannerConfigError(f"replan_keep={replan_keep!r}: a ratio >= 0, e.g. replan_keep=0.2 (keep the "
+                                     "previous plan unless a fresh one is 20 % cheaper), or null (off)")
         self.decode = decode
         self.fallback = None if fallback in (None, "none") else fallback
         self.low_confidence_share = float(low_confidence_share)
         # The endpoints were checked free on the map; the window's conservative rotation may still mark the robot's
         # or the goal's own cell non-free (2 x 2 footprint), which must not make a feasible plan fail.
         self.decoder = PathDecoder(num_points=num_waypoints, threshold=threshold, force_endpoints=True,
-                                   prior_weight=float(replan_prior))
+                                   prior_weight=float(replan_prior),
+                                   keep_ratio=None if replan_keep is None else float(replan_keep))
         self.threshold, self.max_gap = float(threshold), float(max_gap)
         self.goal_tolerance_px = float(goal_tolerance_px)
         self.require_goal, self.collision_check = bool(require_goal), bool(collision_check)

@@ -39,6 +39,13 @@ previous plan that crosses a non-free cell of the window (the map changed under 
 whole (``DecodedPath.prior == "blocked"``): the path is decoded as without one. Without a prior (``None``, or
 ``prior_weight`` 0) the cost is exactly the one above.
 
+**Keeping the plan** (``keep_ratio``, hysteresis): the prior still re-decodes, and a re-decoded path drifts inside
+the band or flips its turn where two turns cost about the same. With ``keep_ratio`` set, a replan whose previous plan
+is still usable (``used`` above: inside the window, on free cells) returns that plan itself, joined from the robot,
+unless the fresh path costs less than ``1 / (1 + keep_ratio)`` of it on the plain cost (no discount), as Nav2's
+planners replan only for a clearly better path (``DecodedPath.prior == "kept"``). A plan the network now finds far
+less likely, or that the map blocks, is still replaced.
+
 Its confidence: the share of the path's length through pixels with ``p < 0.5`` and the minimum ``p`` along it.
 A plan through a region the network did not predict is still a path (often the right one: a small dip), but the
 integrator can see it and fall back (``Planner(..., fallback="shortest")``).
@@ -88,7 +95,7 @@ class DecodedPath:
     ``p`` along it; ``smoothed``: whether the smoothed curve was kept (False: the grid path was, because the
     smoothed one cut a non-free cell). ``prior``: what became of a previous plan given as a prior: None (none
     given, or ``prior_weight`` 0), ``used``, ``blocked`` (it crossed a non-free cell: abandoned), ``outside`` (none
-    of it lies in the window).
+    of it lies in the window), ``kept`` (the previous plan itself, joined from the robot: ``keep_ratio``).
     """
 
     points: np.ndarray | None
@@ -130,6 +137,15 @@ def path_confidence(prob: np.ndarray, points: np.ndarray, threshold: float = 0.5
     return float(np.mean(p < threshold)), float(p.min())
 
 
+def _line_cost(cost: np.ndarray, points: np.ndarray, step_px: float = 0.25) -> float:
+    """The integral of a per-cell cost (H, W) along a polyline (x, y): the sum over its cells sampled every
+    ``step_px``, times the step (``inf`` where it crosses an impassable cell)."""
+    pts = np.asarray(points, np.float64)
+    length = polyline_length(pts)
+    values = cost[_cells_along(pts, cost.shape, step_px)]
+    return float(values.sum() * length / max(len(values) - 1, 1))
+
+
 def _cells_free(grid: np.ndarray, points: np.ndarray) -> bool:
     return bool(np.all(grid[_cells_along(points, grid.shape)] == FREE_CODE))
 
@@ -141,7 +157,7 @@ class PathDecoder:
                  lethal_cost: float = 20.0, smoothing_px: float = 0.25, simplify_px: float = 0.0,
                  threshold: float = 0.5, robot: Mapping[str, Any] | None = None,
                  force_endpoints: bool = False, centre_sigma_px: float = 0.7, prior_weight: float = 0.0,
-                 prior_sigma_px: float = PRIOR_SIGMA_PX) -> None:
+                 prior_sigma_px: float = PRIOR_SIGMA_PX, keep_ratio: float | None = None) -> None:
         if num_points < 2:
             raise ValueError(f"num_points must be >= 2, got {num_points}")
         if not 0 < p_min < 1:
@@ -162,6 +178,10 @@ class PathDecoder:
         if not (np.isfinite(prior_sigma_px) and prior_sigma_px > 0):
             raise ValueError(f"prior_sigma_px must be > 0 pixels, got {prior_sigma_px}")
         self.prior_weight, self.prior_sigma_px = float(prior_weight), float(prior_sigma_px)
+        if keep_ratio is not None and not (np.isfinite(keep_ratio) and keep_ratio >= 0):
+            raise ValueError(f"keep_ratio must be >= 0 (how much cheaper a fresh path must be to replace the previous "
+                             f"plan; None: never kept), got {keep_ratio}")
+        self.keep_ratio = None if keep_ratio is None else float(keep_ratio)
 
     def prior_discount(self, prior: np.ndarray | None, grid: np.ndarray, start: np.ndarray, goal: np.ndarray
                        ) -> tuple[np.ndarray | None, str | None]:
@@ -171,7 +191,7 @@ class PathDecoder:
         (None, ``blocked``) when it crosses a non-free cell farther than :data:`PRIOR_END_PX` from ``start`` and
         ``goal`` (whose own cells the window's rotation may mark non-free); (None, ``outside``) when none of it
         lies in the window."""
-        if prior is None or self.prior_weight == 0:
+        if prior is None or (self.prior_weight == 0 and self.keep_ratio is None):
             return None, None
         pts = np.asarray(prior, np.float64).reshape(-1, 2)
         if len(pts) == 0 or not np.isfinite(pts).all():
@@ -188,6 +208,8 @@ class PathDecoder:
                               np.linalg.norm(pts - np.asarray(goal, np.float64), axis=1)) <= PRIOR_END_PX
         if np.any((grid[cells[:, 1], cells[:, 0]] != FREE_CODE) & ~near_end):
             return None, "blocked"
+        if self.prior_weight == 0:  # kept or replaced whole (keep_ratio), never discounted
+            return None, "used"
         off = np.ones(grid.shape, bool)
         off[cells[:, 1], cells[:, 0]] = False
         distance = ndimage.distance_transform_edt(off)
@@ -197,6 +219,12 @@ class PathDecoder:
              ) -> np.ndarray:
         """The per-cell search cost (H, W) (``inf`` on obstacle and unknown cells); ``discount`` (H, W): the share
         of ``-log p`` taken off (:meth:`prior_discount`), None for none."""
+        nll, rest = self._cost_terms(prob, grid, resolution)
+        return (nll if discount is None else nll * (1.0 - discount)) + rest
+
+    def _cost_terms(self, prob: np.ndarray, grid: np.ndarray, resolution: float) -> tuple[np.ndarray, np.ndarray]:
+        """(``-log p`` of the centred probabilities, the rest of the cost: inflation, lethal band, step, ``inf`` off
+        the free cells): :meth:`cost` is ``nll x (1 - discount) + rest``."""
         costmap = build_costmap(grid, resolution, self.robot, cost_weight=1.0)
         free = grid == FREE_CODE
         inflation = np.where(np.isfinite(costmap.cost), costmap.cost - 1.0, 1.0)  # Nav2 decay in [0, 1]
@@ -204,14 +232,29 @@ class PathDecoder:
         if self.centre_sigma_px > 0:
             p = ndimage.gaussian_filter(p, self.centre_sigma_px, mode="nearest")
         nll = -np.log(np.clip(p, self.p_min, 1.0))
-        if discount is not None:
-            nll = nll * (1.0 - discount)
-        cost = nll + self.inflation_weight * inflation
-        cost[free & ~np.isfinite(costmap.cost)] += self.lethal_cost
+        rest = self.inflation_weight * inflation
+        rest[free & ~np.isfinite(costmap.cost)] += self.lethal_cost
         # A small step cost keeps the search from wandering over p = 1 plateaus (-log 1 = 0).
-        cost += 1e-3
-        cost[~free] = np.inf
-        return cost
+        rest += 1e-3
+        rest[~free] = np.inf
+        return nll, rest
+
+    def _kept(self, prior: np.ndarray, plain: np.ndarray, fresh: np.ndarray, start: np.ndarray, goal: np.ndarray,
+              prob: np.ndarray) -> DecodedPath | None:
+        """The previous plan joined from the robot, when the fresh path is not clearly cheaper on the plain cost
+        (module docstring: keeping the plan); None when it is, or when the previous plan does not reach the goal."""
+        pts = np.asarray(prior, np.float64).reshape(-1, 2)
+        goal, start = np.asarray(goal, np.float64), np.asarray(start, np.float64)
+        if len(pts) < 2 or np.linalg.norm(pts[-1] - goal) > PRIOR_END_PX:
+            return None
+        pts = pts[np.linalg.norm(pts - start, axis=1) > 0.5]
+        candidate = np.vstack([start, pts[:-1], goal])
+        kept, new = _line_cost(plain, candidate), _line_cost(plain, fresh)
+        if not (np.isfinite(kept) and kept <= (1.0 + self.keep_ratio) * new):
+            return None
+        low, pmin = path_confidence(prob, candidate, self.threshold)
+        return DecodedPath(points=resample_polyline(candidate, self.num_points), pixels=candidate, failure=None,
+                           low_share=low, min_prob=pmin, smoothed=False, prior="kept")
 
     def decode_state(self, prob: np.ndarray, state: np.ndarray, resolution: float) -> DecodedPath:
         """Decode one instance from its network input (3, H, W): occupancy ``code * 0.5``, start and goal discs."""
@@ -232,7 +275,8 @@ class PathDecoder:
             grid = np.ascontiguousarray(grid, dtype=np.uint8)
         h, w = grid.shape
         discount, prior_state = self.prior_discount(prior, grid, start, goal)
-        cost = self.cost(prob, grid, resolution, discount)
+        nll, rest = self._cost_terms(prob, grid, resolution)
+        cost = (nll if discount is None else nll * (1.0 - discount)) + rest
         ends = []
         for xy, name in ((start, "start"), (goal, "goal")):
             xy = np.asarray(xy, np.float64)
@@ -242,7 +286,8 @@ class PathDecoder:
             if not np.isfinite(cost[row, col]):
                 if not self.force_endpoints:
                     return _failed(f"{name}_blocked", prior_state)
-                cost[row, col] = self.lethal_cost - np.log(self.p_min)
+                cost[row, col] = rest[row, col] = self.lethal_cost - np.log(self.p_min)
+                nll[row, col] = 0.0
             ends.append((row, col))
         a, b = ends
         if a == b:
@@ -265,6 +310,10 @@ class PathDecoder:
                 passable[a], passable[b] = FREE_CODE, FREE_CODE
             if _cells_free(passable, smooth):
                 poly, smoothed = smooth, True
+        if self.keep_ratio is not None and prior_state == "used":
+            kept = self._kept(prior, nll + rest, poly, start, goal, prob)
+            if kept is not None:
+                return kept
         points = resample_polyline(poly, self.num_points)
         low, pmin = path_confidence(prob, poly, self.threshold)
         return DecodedPath(points=points, pixels=grid_path, failure=None, low_share=low, min_prob=pmin,

@@ -59,79 +59,97 @@ def _paired_by_student(a: dict[str, float], b: dict[str, float]) -> float | None
     return paired([a[k] for k in keys], [b[k] for k in keys])
 
 
+Setting = tuple[float, float]
+"""(replan_prior, replan_keep) of a drive, keep -1 for off (so that settings sort)."""
+OFF: Setting = (0.0, -1.0)
+
+
+def setting_label(setting: Setting) -> str:
+    """``off``, ``prior 0.9``, ``keep 0.5`` or ``prior 0.9 + keep 0.5``."""
+    prior, keep = setting
+    parts = ([f"prior {prior:g}"] if prior > 0 else []) + ([f"keep {keep:g}"] if keep >= 0 else [])
+    return " + ".join(parts) or "off"
+
+
 def replanning_page(records: list[dict[str, Any]], command: str = "") -> str:
     """The page's markdown from the drive records."""
-    groups: dict[tuple[str, float], dict[str, dict[str, float]]] = {}
+    groups: dict[tuple[str, Setting], dict[str, dict[str, float]]] = {}
     followed: dict[str, list[dict[str, float]]] = {}
     for r in records:
         metrics = r["metrics"]
-        per_student = groups.setdefault((r["condition"], float(r["replan_prior"])), {})
+        keep = r.get("replan_keep")
+        setting = (float(r["replan_prior"]), -1.0 if keep is None else float(keep))
+        per_student = groups.setdefault((r["condition"], setting), {})
         per_student[r["run"]] = {k: metrics[f"closed_loop/{k}"] for k, _, _ in FIGURES
                                  if f"closed_loop/{k}" in metrics}
         if "closed_loop/followed/ape_cm" in metrics:
             followed.setdefault(r["condition"], []).append(
                 {k: metrics.get(f"closed_loop/followed/{k}") for k, _, _ in FIGURES})
     conditions = sorted({c for c, _ in groups}, key=lambda c: (c != "clean", c))
-    tests: list[tuple[str, float, str, float | None]] = []
-    for (condition, prior), students in sorted(groups.items()):
-        off = groups.get((condition, 0.0))
-        if prior == 0.0 or off is None:
+    tests: list[tuple[str, Setting, str, float | None]] = []
+    for (condition, setting), students in sorted(groups.items()):
+        off = groups.get((condition, OFF))
+        if setting == OFF or off is None:
             continue
         for key in TESTED:
-            tests.append((condition, prior, key,
+            tests.append((condition, setting, key,
                           _paired_by_student({s: v[key] for s, v in students.items() if key in v},
                                              {s: v[key] for s, v in off.items() if key in v})))
     adjusted = dict(zip([(c, p, k) for c, p, k, _ in tests], holm([p for *_, p in tests])))
 
-    def mean(condition: str, prior: float, key: str) -> float | None:
-        values = [v[key] for v in groups.get((condition, prior), {}).values() if key in v]
+    def mean(condition: str, setting: Setting, key: str) -> float | None:
+        values = [v[key] for v in groups.get((condition, setting), {}).values() if key in v]
         return statistics.fmean(values) if values else None
 
     verdict = []
     for condition in conditions:
-        priors = sorted(p for c, p in groups if c == condition and p > 0)
-        if not priors or (condition, 0.0) not in groups:
+        settings = sorted(s for c, s in groups if c == condition and s != OFF)
+        if not settings or (condition, OFF) not in groups:
             continue
-        best = min(priors, key=lambda p: mean(condition, p, "ape_cm") or math.inf)
+        best = min(settings, key=lambda s: mean(condition, s, "ape_cm") or math.inf)
         parts = []
         for key in TESTED:
             label = next(h for k, h, _ in FIGURES if k == key)
             p = adjusted.get((condition, best, key))
             told = "no test" if p is None else f"Holm p {p:.2g}, {significance(p)}"
-            parts.append(f"{label} {mean(condition, 0.0, key):.2f} → {mean(condition, best, key):.2f} ({told})")
+            parts.append(f"{label} {mean(condition, OFF, key):.2f} → {mean(condition, best, key):.2f} ({told})")
         targets = TARGETS.get(condition, {})
         missed = [next(h for k, h, _ in FIGURES if k == key) for key, (op, goal) in targets.items()
                   if (value := mean(condition, best, key)) is not None
                   and not (value <= goal + 1e-9 if op == "<=" else value >= goal - 1e-9)]
-        verdict.append(f"- **{condition}**, replan_prior={best:g} against off: " + "; ".join(parts) + ". "
+        verdict.append(f"- **{condition}**, the best setting ({setting_label(best)}) against off: " + "; ".join(parts)
+                       + ". "
                        + (f"Targets missed: {', '.join(missed)}." if missed else "Every target met."))
     students = max((len(v) for v in groups.values()), default=0)
     provenance = provenance_lines(None)
     provenance[0] += f"; drives at {sorted({str(r.get('commit'))[:7] for r in records})}"
     body = []
     for condition in conditions:
-        for (c, prior), group in sorted(groups.items()):
+        for (c, setting), group in sorted(groups.items()):
             if c == condition:
-                body.append([condition, "off" if prior == 0 else f"{prior:g}",
+                body.append([condition, setting_label(setting),
                              *(_cell([v[k] for v in group.values() if k in v], pct) for k, _, pct in FIGURES)])
         if followed.get(condition):
             body.append([condition, "the demonstration, followed",
                          *(_cell([f[k] for f in followed[condition] if f.get(k) is not None][:1], pct)
                            for k, _, pct in FIGURES)])
-    lines = ["# Replanning that keeps its turn: the decoder's prior toward the previous plan", "",
-             f"The prior changes what a replanning student drives; each setting is compared with the prior off on the "
+    lines = ["# Replanning that keeps its turn: the decoder's prior and keeping the previous plan", "",
+             "Two levers change what a replanning student drives: the decoder's prior toward the previous plan "
+             "(`replan_prior`: its `-log p` discounted near it, then decoded afresh) and keeping the previous plan "
+             "itself unless a fresh path is clearly cheaper (`replan_keep`: hysteresis on the whole plan). "
+             f"Each setting is compared with both off on the "
              f"same {students} students by a paired t-test (Holm's correction over the page's "
              f"{sum(p is not None for *_, p in tests)} tests). The deciding figures in closed loop are success, then "
              "closed-loop APE (the [metrics reference](../reference/metrics.md) says why); mode switches and "
              "commitment say whether the plan holds its turn.", "", *verdict, "",
-             *markdown_table(["condition", "replan_prior", *(h for _, h, _ in FIGURES)], body)]
+             *markdown_table(["condition", "setting", *(h for _, h, _ in FIGURES)], body)]
     lines += ["", "Targets: " + "; ".join(f"{c}: " + ", ".join(f"{next(h for k, h, _ in FIGURES if k == key)} {op} "
                                                                   f"{_fmt(goal, key.endswith('rate'))}"
                                                                   for key, (op, goal) in t.items())
                                       for c, t in TARGETS.items()) + ".", "",
               "## Provenance", "",
               f"- drives: `{records[0].get('command', '').split(' --ckpt')[0] if records else ''} --ckpt ... "
-              f"--weights ...` ({len(records)} records in docs/results/records/replanning/, "
+              f"--weights ... --keep ...` ({len(records)} records in docs/results/records/replanning/, "
               f"{records[0].get('scenarios') if records else 0} scenarios each)",
               f"- page: `{command or 'python -m spade.perf.replanning_page'}`",
               *provenance,
