@@ -271,12 +271,6 @@ class NodeRecorder:
 
 
 # -- replay ----------------------------------------------------------------------------------------------------------
-def _reader_paths(path: Path) -> list[Path]:
-    if not path.exists():
-        raise BagError(f"replay={path} does not exist: pass a rosbag2 folder or an .mcap file")
-    return [path]
-
-
 def replay_bag(core: Any, path: str | Path, topics: Mapping[str, str] | None = None,
                out: str | Path | None = None) -> dict[str, int]:
     """Feed a recording's map, pose and goal messages (``topics``: ``map``, ``pose``, ``goal`` names as in
@@ -294,11 +288,11 @@ def replay_bag(core: Any, path: str | Path, topics: Mapping[str, str] | None = N
     core.now_ns = lambda: now[0]
     writer = BagWriter(out, latched=[names["map"]]) if out else None
     try:
+        if not path.exists():
+            raise BagError(f"replay={path} does not exist: pass a rosbag2 folder or an .mcap file")
         try:
-            reader = AnyReader(_reader_paths(path), default_typestore=_typestore())
+            reader = AnyReader([path], default_typestore=_typestore())
             reader.open()
-        except BagError:
-            raise
         except Exception as err:  # noqa: BLE001 - rosbags raises several kinds on a file that is no bag
             raise BagError(f"replay={path} cannot be read as a rosbag2 ({type(err).__name__}: {err})") from None
         try:
