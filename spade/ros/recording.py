@@ -159,8 +159,7 @@ class BagMessages:
                                            T["geometry_msgs/msg/Quaternion"](*yaw_to_quaternion(float(yaw))))
 
     def pose_stamped(self, xy_yaw: Sequence[float], frame: str, ns: int) -> Any:
-        x, y, yaw = (float(v) for v in xy_yaw)
-        return self.T["geometry_msgs/msg/PoseStamped"](self.header(frame, ns), self.pose(x, y, yaw))
+        return self.T["geometry_msgs/msg/PoseStamped"](self.header(frame, ns), self.pose(*xy_yaw))
 
     def grid(self, m: Any, frame: str, ns: int) -> Any:
         f = grid_fields(m)
