@@ -12,6 +12,7 @@ the map, the path and the state's index, so the chunking never changes the outpu
 
 from __future__ import annotations
 
+import itertools
 import logging
 import multiprocessing
 import os
@@ -329,15 +330,8 @@ def _assembled(slot: _Slot) -> ScenarioResult:
 
 def scenario_indices(first_index: int, max_per_map: int, keep: Callable[[int], bool] | None = None) -> Iterator[int]:
     """The first ``max_per_map`` scenario indices from ``first_index`` on that ``keep`` accepts (all without it)."""
-    if keep is None:
-        yield from range(first_index, first_index + max_per_map)
-        return
-    k, found = first_index, 0
-    while found < max_per_map:
-        if keep(k):
-            yield k
-            found += 1
-        k += 1
+    indices = itertools.count(first_index)
+    return itertools.islice(indices if keep is None else filter(keep, indices), max_per_map)
 
 
 def scenario_tasks(n_maps: int, shapes: list[str], max_per_map: int, first_index: int = 0,

@@ -39,7 +39,7 @@ import numpy as np
 
 from spade.ros import messages as M
 from spade.ros.action_types import CANCEL, ERROR, STATUS, action_topics, types_for
-from spade.ros.convert import MessageError, pose_from_msg, split_stamp
+from spade.ros.convert import MessageError, nanoseconds, pose_from_msg, split_stamp
 from spade.ros.dds import make_qos
 
 __all__ = ["ActionClient", "ActionServer", "ActionSettings", "GoalLogic", "PLANNER_ERRORS"]
@@ -81,10 +81,6 @@ class _Goal:
 
 def _uuid(value: Any) -> bytes:
     return bytes(int(v) & 0xFF for v in value.uuid)
-
-
-def _ns(t: Any) -> int:
-    return int(t.sec) * 1_000_000_000 + int(t.nanosec)
 
 
 class GoalLogic:
@@ -143,7 +139,7 @@ class GoalLogic:
         """``cancel_goal`` (``action_msgs/srv/CancelGoal``): a zero id and zero stamp cancel every goal; a zero id
         and a stamp, every goal accepted at or before it; an id, that goal (and, with a stamp, those before it)."""
         gid = _uuid(req.goal_info.goal_id)
-        stamp_ns = _ns(req.goal_info.stamp)
+        stamp_ns = nanoseconds(req.goal_info.stamp)
         zero_id = gid == bytes(16)
         chosen: list[_Goal] = []
         for goal in self.goals.values():
@@ -195,7 +191,7 @@ class GoalLogic:
 
     def _result(self, path: Any = None, seconds: float = 0.0, code: int = ERROR.NONE, msg: str = "") -> Any:
         kwargs: dict[str, Any] = {"path": path if path is not None else M.Path(),
-                                  "planning_time": self.T.Duration(*_duration(seconds))}
+                                  "planning_time": self.T.Duration(*split_stamp(max(0, round(float(seconds) * 1e9))))}
         if self.T.has_error_code:
             kwargs["error_code"] = int(code)
         if self.T.has_error_msg:
@@ -273,11 +269,6 @@ class GoalLogic:
         self._finish(goal, STATUS.SUCCEEDED, self._result(path, seconds))
         if self.on_path is not None:
             self.on_path(path, event)
-
-
-def _duration(seconds: float) -> tuple[int, int]:
-    ns = max(0, int(round(float(seconds) * 1e9)))
-    return ns // 1_000_000_000, ns % 1_000_000_000
 
 
 # -- DDS -----------------------------------------------------------------------------------------------------------

@@ -30,7 +30,7 @@ feedback (ROS 2 gives an empty message one ``uint8 structure_needs_at_least_one_
 """
 
 from dataclasses import dataclass, field
-from types import SimpleNamespace
+from types import SimpleNamespace, new_class
 
 import cyclonedds.idl.annotations as annotate
 from cyclonedds.idl import IdlStruct
@@ -168,63 +168,27 @@ class GetResultRequest(IdlStruct, typename="nav2_msgs::action::dds_::ComputePath
     goal_id: UUID = field(default_factory=UUID)
 
 
-RESULT_TYPENAME = "nav2_msgs::action::dds_::ComputePathToPose_Result_"
-GET_RESULT_RESPONSE_TYPENAME = "nav2_msgs::action::dds_::ComputePathToPose_GetResult_Response_"
+def _struct(name: str, typename: str, members: list[tuple[str, object, object]]) -> type:
+    """A final IDL struct of ``(field, type, default)`` rows, as the ``@dataclass @annotate.final`` classes above."""
+    def body(ns: dict) -> None:
+        ns["__module__"] = __name__
+        for member, kind, default in members:
+            ns["__annotations__"][member] = kind
+            ns[member] = default
+    return dataclass(annotate.final(new_class(name, (IdlStruct,), {"typename": typename}, body)))
 
 
-@dataclass
-@annotate.final
-class ResultHumble(IdlStruct, typename=RESULT_TYPENAME):
-    path: Path = field(default_factory=Path)
-    planning_time: Duration = field(default_factory=Duration)
-
-
-@dataclass
-@annotate.final
-class ResultIron(IdlStruct, typename=RESULT_TYPENAME):
-    path: Path = field(default_factory=Path)
-    planning_time: Duration = field(default_factory=Duration)
-    error_code: uint16 = 0
-
-
-@dataclass
-@annotate.final
-class ResultJazzy(IdlStruct, typename=RESULT_TYPENAME):
-    path: Path = field(default_factory=Path)
-    planning_time: Duration = field(default_factory=Duration)
-    error_code: uint16 = 0
-    error_msg: str = ""
-
-
-@dataclass
-@annotate.final
-class GetResultResponseHumble(IdlStruct, typename=GET_RESULT_RESPONSE_TYPENAME):
-    client_guid: uint64 = 0
-    sequence_number: int64 = 0
-    status: int8 = 0
-    result: ResultHumble = field(default_factory=ResultHumble)
-
-
-@dataclass
-@annotate.final
-class GetResultResponseIron(IdlStruct, typename=GET_RESULT_RESPONSE_TYPENAME):
-    client_guid: uint64 = 0
-    sequence_number: int64 = 0
-    status: int8 = 0
-    result: ResultIron = field(default_factory=ResultIron)
-
-
-@dataclass
-@annotate.final
-class GetResultResponseJazzy(IdlStruct, typename=GET_RESULT_RESPONSE_TYPENAME):
-    client_guid: uint64 = 0
-    sequence_number: int64 = 0
-    status: int8 = 0
-    result: ResultJazzy = field(default_factory=ResultJazzy)
-
-
-_RESULTS = {"humble": (ResultHumble, GetResultResponseHumble), "iron": (ResultIron, GetResultResponseIron),
-            "jazzy": (ResultJazzy, GetResultResponseJazzy)}
+# The result grows by distribution (humble: path, planning_time; iron: + error_code; jazzy: + error_msg); the
+# GetResult response wraps it behind the service header and the goal's status.
+_RESULTS = {}
+for _distro, _n in zip(DISTROS, (2, 3, 4)):
+    _result = _struct(f"Result{_distro.title()}", "nav2_msgs::action::dds_::ComputePathToPose_Result_", [
+        ("path", Path, field(default_factory=Path)), ("planning_time", Duration, field(default_factory=Duration)),
+        ("error_code", uint16, 0), ("error_msg", str, "")][:_n])
+    _RESULTS[_distro] = (_result, _struct(
+        f"GetResultResponse{_distro.title()}", "nav2_msgs::action::dds_::ComputePathToPose_GetResult_Response_",
+        [("client_guid", uint64, 0), ("sequence_number", int64, 0), ("status", int8, 0),
+         ("result", _result, field(default_factory=_result))]))
 
 
 def types_for(distro: str) -> SimpleNamespace:

@@ -219,14 +219,6 @@ class PlannerCore:
         ``no_path``, ``reached``."""
         return dict(self.state.counts)
 
-    def _frame_ok(self, frame: str, what: str) -> bool:
-        if frame in ("", self.state.frame):
-            return True
-        self._count("wrong_frame")
-        log.warning("%s in frame %r ignored: the map is in frame %r and this node has no TF; publish the %s in the "
-                    "map frame", what, frame, self.state.frame, what)
-        return False
-
     # -- messages ------------------------------------------------------------------------------------------------
     def handle_map(self, msg: Any) -> PlanEvent | None:
         """A ``nav_msgs/OccupancyGrid``: the map to plan on from now on (a malformed one is logged, the previous
@@ -285,17 +277,28 @@ class PlannerCore:
                         "robot) or raise node.max_map_cells")
         return None
 
-    def handle_pose(self, msg: Any) -> PlanEvent | None:
-        """A ``geometry_msgs/PoseWithCovarianceStamped`` (AMCL) or ``PoseStamped``: the robot's pose."""
+    def _read_pose(self, msg: Any, what: str) -> np.ndarray | None:
+        """The pose (x, y, yaw) of a pose or goal message, counted as ``what``; None (counted and logged) when it
+        is malformed or in another frame."""
         try:
             frame, pose = pose_from_msg(msg)
         except MessageError as err:
             self._count("malformed")
-            log.warning("malformed pose ignored: %s", err)
+            log.warning("malformed %s ignored: %s", what, err)
             return None
-        if not self._frame_ok(frame, "pose"):
+        if frame not in ("", self.state.frame):
+            self._count("wrong_frame")
+            log.warning("%s in frame %r ignored: the map is in frame %r and this node has no TF; publish the %s in "
+                        "the map frame", what, frame, self.state.frame, what)
             return None
-        self._count("pose")
+        self._count(what)
+        return pose
+
+    def handle_pose(self, msg: Any) -> PlanEvent | None:
+        """A ``geometry_msgs/PoseWithCovarianceStamped`` (AMCL) or ``PoseStamped``: the robot's pose."""
+        pose = self._read_pose(msg, "pose")
+        if pose is None:
+            return None
         first = self.state.pose is None
         self.state.pose = pose
         if first:
@@ -358,15 +361,9 @@ class PlannerCore:
 
     def handle_goal(self, msg: Any) -> PlanEvent | None:
         """A ``geometry_msgs/PoseStamped`` goal (RViz2's "2D Goal Pose"): plan to it."""
-        try:
-            frame, goal = pose_from_msg(msg)
-        except MessageError as err:
-            self._count("malformed")
-            log.warning("malformed goal ignored: %s", err)
+        goal = self._read_pose(msg, "goal")
+        if goal is None:
             return None
-        if not self._frame_ok(frame, "goal"):
-            return None
-        self._count("goal")
         self.state.goal, self.state.plan, self.state.subgoal = goal, None, False
         log.info("goal received: (%.2f, %.2f) m", goal[0], goal[1])
         if self.state.map is None or self.state.pose is None:

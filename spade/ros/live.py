@@ -29,6 +29,7 @@ the port and takes both names; a client that offers neither gets HTTP 400 with t
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import socket
 import threading
@@ -176,10 +177,8 @@ class ProtocolFront:
             for s in (conn, up):
                 if s is not None:
                     self._track(s, add=False)
-                    try:
+                    with contextlib.suppress(OSError):
                         s.close()
-                    except OSError:
-                        pass
 
     def _refuse(self, conn: socket.socket, addr: Any, offered: list[bytes]) -> None:
         names = ", ".join(p.decode(errors="replace") for p in offered) or "none"
@@ -198,34 +197,24 @@ class ProtocolFront:
 
     def close(self) -> None:
         self._closed = True
-        try:
+        with contextlib.suppress(OSError):
             self.sock.close()
-        except OSError:
-            pass
         with self._lock:
             open_socks = list(self._open)
         for s in open_socks:
-            try:
+            with contextlib.suppress(OSError):
                 s.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
 
 
 def _pipe(src: socket.socket, dst: socket.socket) -> None:
     """Copy ``src`` to ``dst`` until ``src`` ends; then end ``dst``'s sending side."""
     try:
-        while True:
-            data = src.recv(65536)
-            if not data:
-                break
-            dst.sendall(data)
-    except OSError:
-        pass
+        with contextlib.suppress(OSError):
+            while data := src.recv(65536):
+                dst.sendall(data)
     finally:
-        try:
+        with contextlib.suppress(OSError):
             dst.shutdown(socket.SHUT_WR)
-        except OSError:
-            pass
 
 
 # -- the server ---------------------------------------------------------------------------------------------------
@@ -318,10 +307,8 @@ class FoxgloveLive:
 
     def close(self) -> None:
         self.front.close()
-        try:
+        with contextlib.suppress(Exception):  # shutting down
             self.server.stop()
-        except Exception:  # noqa: BLE001 - shutting down
-            pass
 
 
 def _latch(live: FoxgloveLive) -> Any:

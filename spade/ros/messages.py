@@ -169,15 +169,13 @@ def pose(x: float, y: float, yaw: float) -> Pose:
 
 
 def pose_stamped(xy_yaw: Sequence[float], frame_id: str = "map", ns: int | None = None) -> PoseStamped:
-    x, y, yaw = (float(v) for v in xy_yaw)
-    return PoseStamped(Header(stamp(ns), frame_id), pose(x, y, yaw))
+    return PoseStamped(Header(stamp(ns), frame_id), pose(*xy_yaw))
 
 
 def pose_with_covariance(xy_yaw: Sequence[float], frame_id: str = "map", ns: int | None = None,
                          covariance: Sequence[float] | None = None) -> PoseWithCovarianceStamped:
-    x, y, yaw = (float(v) for v in xy_yaw)
     cov = [float(v) for v in covariance] if covariance is not None else [0.0] * 36
-    return PoseWithCovarianceStamped(Header(stamp(ns), frame_id), PoseWithCovariance(pose(x, y, yaw), cov))
+    return PoseWithCovarianceStamped(Header(stamp(ns), frame_id), PoseWithCovariance(pose(*xy_yaw), cov))
 
 
 def occupancy_grid(m: Any, frame_id: str = "map", ns: int | None = None) -> OccupancyGrid:

@@ -16,6 +16,7 @@ sample the DDS layer cannot decode is logged and dropped like a malformed messag
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import signal
@@ -213,10 +214,8 @@ class PlannerNode:
 
     def close(self) -> None:
         for c in self._conditions:
-            try:
+            with contextlib.suppress(Exception):  # tearing down
                 self.waitset.detach(c)
-            except Exception:  # noqa: BLE001 - tearing down
-                pass
         # Entities are deleted with the participant when it is garbage-collected.
         self._readers.clear()
 

@@ -159,8 +159,7 @@ class BagMessages:
                                            T["geometry_msgs/msg/Quaternion"](*yaw_to_quaternion(float(yaw))))
 
     def pose_stamped(self, xy_yaw: Sequence[float], frame: str, ns: int) -> Any:
-        x, y, yaw = (float(v) for v in xy_yaw)
-        return self.T["geometry_msgs/msg/PoseStamped"](self.header(frame, ns), self.pose(x, y, yaw))
+        return self.T["geometry_msgs/msg/PoseStamped"](self.header(frame, ns), self.pose(*xy_yaw))
 
     def grid(self, m: Any, frame: str, ns: int) -> Any:
         f = grid_fields(m)
@@ -271,12 +270,6 @@ class NodeRecorder:
 
 
 # -- replay ----------------------------------------------------------------------------------------------------------
-def _reader_paths(path: Path) -> list[Path]:
-    if not path.exists():
-        raise BagError(f"replay={path} does not exist: pass a rosbag2 folder or an .mcap file")
-    return [path]
-
-
 def replay_bag(core: Any, path: str | Path, topics: Mapping[str, str] | None = None,
                out: str | Path | None = None) -> dict[str, int]:
     """Feed a recording's map, pose and goal messages (``topics``: ``map``, ``pose``, ``goal`` names as in
@@ -294,11 +287,11 @@ def replay_bag(core: Any, path: str | Path, topics: Mapping[str, str] | None = N
     core.now_ns = lambda: now[0]
     writer = BagWriter(out, latched=[names["map"]]) if out else None
     try:
+        if not path.exists():
+            raise BagError(f"replay={path} does not exist: pass a rosbag2 folder or an .mcap file")
         try:
-            reader = AnyReader(_reader_paths(path), default_typestore=_typestore())
+            reader = AnyReader([path], default_typestore=_typestore())
             reader.open()
-        except BagError:
-            raise
         except Exception as err:  # noqa: BLE001 - rosbags raises several kinds on a file that is no bag
             raise BagError(f"replay={path} cannot be read as a rosbag2 ({type(err).__name__}: {err})") from None
         try:

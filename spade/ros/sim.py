@@ -38,6 +38,7 @@ from spade.utils.errors import ConfigError
 from spade.annotation.sources import parse_procedural
 from spade.deploy.follower import follow_step, FollowerSettings
 from spade.maps import generate_map, load_ros_map, MapFormatError
+from spade.ros.convert import nanoseconds
 from spade.ros.core import check_option
 from spade.ros.launch import NODE_FOXGLOVE_PORT, SIM_FOXGLOVE_PORT, domain_id, foxglove_options, require_dds
 
@@ -325,8 +326,8 @@ def _run(cfg: Any, c: dict, m: OccupancyMap, robot: SimRobot, goals: list[np.nda
                     continue
                 if live is not None:  # every plan the node publishes (an action goal's too, as planner_server)
                     live.on_plan(None, sample)
-                stamp = int(sample.header.stamp.sec) * 10**9 + int(sample.header.stamp.nanosec)
-                if client is None and stamp >= sent_ns - 50_000_000 and len(sample.poses) >= 2:
+                fresh = nanoseconds(sample.header.stamp) >= sent_ns - 50_000_000
+                if client is None and fresh and len(sample.poses) >= 2:
                     robot.plan, plans = _path_xy(sample), plans + 1
             robot.step()
             if float(np.linalg.norm(robot.pose[:2] - goal[:2])) <= s.goal_reached_m:
