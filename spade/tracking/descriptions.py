@@ -46,20 +46,17 @@ def _fmt(key: str, value: float | None) -> str:
 def figure_rows(metrics: dict[str, float]) -> list[tuple[str, dict[str, float]]]:
     """(label, {figure: value}) for the run's test figures, each classical baseline (``test/baseline/<name>/``)
     and the untrained model (``untrained/``), in that order; only those the run logged."""
-    rows: list[tuple[str, dict[str, float]]] = []
-    own = {k: metrics[f"test/{k}"] for k in FIGURES if f"test/{k}" in metrics}
-    if own:
-        rows.append((THIS_MODEL, own))
+    def logged(stage: str) -> dict[str, float]:
+        return {k: metrics[f"{stage}/{k}"] for k in FIGURES if f"{stage}/{k}" in metrics}
+
     baselines: dict[str, dict[str, float]] = {}
     for key, value in metrics.items():
         match = re.fullmatch(r"test/baseline/([^/]+)/(.+)", key)
         if match and match.group(2) in FIGURES:
             baselines.setdefault(match.group(1), {})[match.group(2)] = value
-    rows += [(f"baseline: {name}", figs) for name, figs in sorted(baselines.items())]
-    untrained = {k: metrics[f"untrained/{k}"] for k in FIGURES if f"untrained/{k}" in metrics}
-    if untrained:
-        rows.append(("untrained", untrained))
-    return rows
+    rows = [(THIS_MODEL, logged("test")), *((f"baseline: {name}", figs) for name, figs in sorted(baselines.items())),
+            ("untrained", logged("untrained"))]
+    return [(label, figs) for label, figs in rows if figs]
 
 
 THIS_MODEL = "this model"
