@@ -11,11 +11,10 @@ from typing import Any, ClassVar
 from omegaconf import DictConfig, OmegaConf
 
 from spade.annotation.sketch_file import SketchFileError, load_sketch_file
-from spade.annotation.sources import expand_map_specs
+from spade.annotation.sources import expand_map_specs, parse_procedural
 from spade.annotation.split import parse_split
 from spade.annotation.templates import SHAPES
 from spade.data.writer import check_output_dir
-from spade.annotation.sources import parse_procedural
 from spade.config.file_checks import input_file, same_file, check_map_size, check_writable
 from spade.config.options import read_options
 from spade.config.window_checks import check_window_holds_manoeuvre

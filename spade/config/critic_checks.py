@@ -11,13 +11,12 @@ from typing import Any, ClassVar
 from omegaconf import DictConfig
 
 from spade.config.checkpoint_checks import check_checkpoint, check_geometry, expert_timesteps
-from spade.config.dataset_checks import check_folder_path
+from spade.config.dataset_checks import check_existing_dataset, check_folder_path
 from spade.config.options import DataOptions, read_options
 from spade.config.file_checks import check_path_value, check_paths, check_writable
 from spade.config.store_checks import check_logger_store
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import check_bool_value, check_int_value, unset
-from spade.config.dataset_checks import check_existing_dataset
 from spade.config.preflight import check_expert_kind, margin_config
 from spade.deploy.outputs import replace_refusal
 

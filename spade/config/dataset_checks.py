@@ -9,17 +9,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
-from spade.annotation.sources import expand_map_specs
-from spade.config.file_checks import check_path_value
+from spade.annotation.sources import expand_map_specs, parse_procedural
+from spade.config.file_checks import check_map_size, check_path_value
 from spade.config.options import ModelOptions
 from spade.config.window_checks import check_window_holds_manoeuvre, check_window_size
 from spade.data.checks import check_dataset
 from spade.data.settings import dataset_settings
 from spade.utils.errors import ConfigError
 from spade.utils.option_checks import check_int_value, check_number_value, is_int, unset
-from spade.annotation.sources import parse_procedural
 from spade.config.annotate_checks import check_annotation_settings
-from spade.config.file_checks import check_map_size
 from spade.data import DatasetError
 
 

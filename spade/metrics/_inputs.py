@@ -18,7 +18,7 @@ def to_numpy(x: torch.Tensor | np.ndarray, dtype: type = np.float32) -> np.ndarr
 
 def per_instance_resolution(resolution: torch.Tensor | np.ndarray | float, b: int) -> np.ndarray:
     """Metres per pixel of each of ``b`` instances (float64, (b,)) from a scalar or one value per instance."""
-    res = to_numpy(resolution if isinstance(resolution, torch.Tensor) else np.asarray(resolution), np.float64).reshape(-1)
+    res = to_numpy(resolution, np.float64).reshape(-1)
     if res.size == 1:
         res = np.full(b, float(res[0]))
     if res.size != b or not np.all(res > 0):

@@ -73,8 +73,7 @@ class HausdorffCount(Metric):
         else:
             if resolution is None:
                 raise ValueError(f"{self.name}: a threshold in metres ({self.threshold_m} m) needs the batch's resolution")
-            res = np.asarray(to_numpy(resolution, np.float64) if isinstance(resolution, torch.Tensor) else resolution,
-                             dtype=np.float64).reshape(-1)
+            res = to_numpy(resolution, np.float64).reshape(-1)
             limits = np.broadcast_to(self.threshold_m / res, (len(dists),)).astype(np.float64)
         self.distances.append(torch.tensor(dists, dtype=torch.float64, device=self.device))
         self.limits.append(torch.tensor(limits, dtype=torch.float64, device=self.device))

@@ -17,8 +17,7 @@ from spade.metrics.baselines import draw_polylines
 from spade.metrics.decoding import PathDecoder
 from spade.metrics.fid import FID
 from spade.metrics.hausdorff import HausdorffCount
-from spade.metrics.preference import PREFERENCE_KEYS, PreferenceMetrics
-from spade.metrics.preference import instance_errors
+from spade.metrics.preference import PREFERENCE_KEYS, PreferenceMetrics, instance_errors
 
 log = logging.getLogger(__name__)
 # (images, needed) pairs already warned of: a test scores the model and every baseline on the same instances, and

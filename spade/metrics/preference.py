@@ -130,11 +130,8 @@ class PreferenceMetrics(Metric):
         self.counted += counted
 
     def compute(self) -> dict[str, torch.Tensor]:
-        def cat(name: str) -> torch.Tensor:
-            return cat_state(getattr(self, name))
-
         nan = torch.tensor(float("nan"), dtype=torch.float64)
-        floor, ape, floor_scored, plaus = cat("floor"), cat("ape"), cat("floor_scored"), cat("plausibility")
+        floor, ape, floor_scored, plaus = map(cat_state, (self.floor, self.ape, self.floor_scored, self.plausibility))
         counted = self.counted.clone()
         return {
             "floor_cm": floor.mean() if floor.numel() else nan,
@@ -194,11 +191,9 @@ class SpreadMetrics(Metric):
             append_state(self, name, values)
 
     def compute(self) -> dict[str, torch.Tensor]:
-        def cat(name: str) -> torch.Tensor:
-            return cat_state(getattr(self, name))
-
         nan = torch.tensor(float("nan"), dtype=torch.float64)
-        spread, paired, gen, gen_all = cat("spread"), cat("paired_spread"), cat("generator"), cat("generator_all")
+        spread, paired, gen, gen_all = map(cat_state, (self.spread, self.paired_spread, self.generator,
+                                                       self.generator_all))
         return {"spread_cm": spread.mean() if spread.numel() else nan,
                 "generator_spread_cm": gen_all.mean() if gen_all.numel() else nan,
                 "spread_ratio": paired.mean() / gen.mean() if paired.numel() and gen.mean() > 0 else nan}

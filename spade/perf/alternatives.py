@@ -32,9 +32,9 @@ from spade.annotation.alternative_demonstrations import (
     scenario_alternatives,
 )
 from spade.annotation.templates import SHAPES
-from spade.maps.frame import RobotFrame
+from spade.maps.frame import RobotFrame, path_heading
 from spade.metrics import catalog
-from spade.metrics.preference import floor_path
+from spade.metrics.preference import PreferenceMetrics, floor_path
 from spade.annotation.pipeline import build_contexts
 from spade.annotation.scenarios import plan_scenario, state_indices_along
 from spade.annotation.sources import load_map_sources
@@ -42,10 +42,8 @@ from spade.data.format import read_manifest
 from spade.data.path_dataset import PathDataset
 from spade.data.rasterize import robot_instance
 from spade.experiments.reporting.stats import paired
-from spade.maps.frame import path_heading
 from spade.metrics.extraction import marker_centre
-from spade.metrics.preference import PreferenceMetrics, PreferenceMetrics as _P
-from spade.utils.provenance import command_line, commit, machine, shown_path
+from spade.utils.provenance import command_line, provenance_lines, shown_path
 
 
 def prefilter_capture(costmap: Any, shape: str, goal_px: np.ndarray, points: np.ndarray, state_indices: np.ndarray,
@@ -170,7 +168,7 @@ def independent_floor(dataset: str, shape: str | None = None) -> dict[str, Any]:
         t = np.linspace(0.0, u[-1], k)
         return np.stack([np.interp(t, u, p[:, 0]), np.interp(t, u, p[:, 1])], axis=1)
 
-    tol_cm = _P().commit_tol_cm
+    tol_cm = PreferenceMetrics().commit_tol_cm
     median_cm, medoid_cm, genuine = [], [], []
     ramp = np.linspace(0.0, 1.0, k)[:, None]
     for i in keep:
@@ -205,8 +203,6 @@ def independent_floor(dataset: str, shape: str | None = None) -> dict[str, Any]:
 
 def write_page(out_dir: str, comparison: dict[str, Any], floors: list[dict[str, Any]], seconds: float) -> Path:
     """``alternatives.md`` in ``out_dir``: the prefilter's loss and the floor checks, with their provenance."""
-    import datetime
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     summ = comparison["summary"]
@@ -258,10 +254,7 @@ def write_page(out_dir: str, comparison: dict[str, Any], floors: list[dict[str, 
         "",
         "Provenance:",
         "",
-        f"- command: `{command_line('spade.perf.alternatives')}`",
-        f"- commit: {commit() or 'unknown (not a git checkout)'}",
-        f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
-        f"- machine: {machine()}",
+        *provenance_lines(command_line("spade.perf.alternatives")),
         f"- wall time: {seconds:.0f} s",
         "",
     ])

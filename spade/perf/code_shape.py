@@ -28,8 +28,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from spade.utils.provenance import REPO_ROOT
-from spade.utils.provenance import command_line, machine
+from spade.utils.provenance import REPO_ROOT, command_line, machine
 
 __all__ = ["measure", "render", "main"]
 

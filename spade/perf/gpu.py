@@ -164,6 +164,23 @@ def _timed_steps(step: Callable[[], torch.Tensor], device: torch.device, timed_s
     return out
 
 
+def _optimiser_step(optimizer: torch.optim.Optimizer, loss_of: Callable[[], torch.Tensor], device: torch.device,
+                    precision: str, after: Callable[[], None] | None = None) -> Callable[[], torch.Tensor]:
+    """One optimisation step of ``loss_of()`` under the precision's autocast (then ``after()``), returning the loss."""
+
+    def step() -> torch.Tensor:
+        optimizer.zero_grad(set_to_none=True)
+        with _autocast(device, precision):
+            loss = loss_of()
+        loss.backward()
+        optimizer.step()
+        if after is not None:
+            after()
+        return loss
+
+    return step
+
+
 def expert_step(conditional: bool, preset: str, image_size: int, batch_size: int, device: torch.device,
                 precision: str = "bf16", timed_steps: int = 10, warmup: int = 2,
                 prediction_type: str = "sample", peak_tflops: float | None = None) -> dict[str, Any]:
@@ -176,16 +193,8 @@ def expert_step(conditional: bool, preset: str, image_size: int, batch_size: int
     optimizer = torch.optim.AdamW(module.net.parameters(), lr=1e-4)
     while True:
         batch = _batch(batch_size, image_size, device)
-
-        def step() -> torch.Tensor:
-            optimizer.zero_grad(set_to_none=True)
-            with _autocast(device, precision):
-                loss = module.denoising_loss(module.net, batch)
-            loss.backward()
-            optimizer.step()
-            module.ema.update_parameters(module.net)
-            return loss
-
+        step = _optimiser_step(optimizer, lambda: module.denoising_loss(module.net, batch), device, precision,
+                               after=lambda: module.ema.update_parameters(module.net))
         try:
             with _peak_memory(device, row):
                 row.update(_timed_steps(step, device, timed_steps, warmup, peak_tflops))
@@ -211,15 +220,7 @@ def student_step(size: str, expert_preset: str | None, image_size: int, batch_si
     module = student_with_margin(size, expert if expert_preset else None, expert_preset or "tiny").to(device)
     optimizer = torch.optim.AdamW([p for p in module.parameters() if p.requires_grad], lr=1e-3)
     batch = _batch(batch_size, image_size, device)
-
-    def step() -> torch.Tensor:
-        optimizer.zero_grad(set_to_none=True)
-        with _autocast(device, precision):
-            loss = module.losses(batch)["loss"]
-        loss.backward()
-        optimizer.step()
-        return loss
-
+    step = _optimiser_step(optimizer, lambda: module.losses(batch)["loss"], device, precision)
     approach = ("Cond-DBC" if expert == "cond" else "DBC") if expert_preset else "BC"
     row: dict[str, Any] = {"approach": approach, "student": size, "expert_preset": expert_preset,
                            "image_size": image_size, "batch_size": batch_size}
@@ -297,17 +298,13 @@ def gpu_check(cfg: dict[str, Any]) -> dict[str, Any]:
     torch.manual_seed(int(cfg.get("seed", 0)))
     t0 = time.perf_counter()
     if "steps" in sections:
-        peak = cfg.get("peak_tflops")
+        timing = {"precision": precision, "timed_steps": steps, "warmup": warmup, "peak_tflops": cfg.get("peak_tflops")}
         student_expert = cfg.get("student_uncond_preset") or cfg["uncond_preset"]
-        rows = [expert_step(True, cfg["cond_preset"], size, batch, device, precision, steps, warmup,
-                            peak_tflops=peak),
-                expert_step(False, cfg["uncond_preset"], size, int(cfg["uncond_batch_size"]), device, precision,
-                            steps, warmup, peak_tflops=peak),
-                student_step(cfg["student"], None, size, batch, device, precision, steps, warmup, peak_tflops=peak),
-                student_step(cfg["student"], student_expert, size, batch, device, precision, steps, warmup,
-                             expert="uncond", peak_tflops=peak),
-                student_step(cfg["student"], cfg["cond_preset"], size, batch, device, precision, steps, warmup,
-                             peak_tflops=peak)]
+        rows = [expert_step(True, cfg["cond_preset"], size, batch, device, **timing),
+                expert_step(False, cfg["uncond_preset"], size, int(cfg["uncond_batch_size"]), device, **timing),
+                student_step(cfg["student"], None, size, batch, device, **timing),
+                student_step(cfg["student"], student_expert, size, batch, device, expert="uncond", **timing),
+                student_step(cfg["student"], cfg["cond_preset"], size, batch, device, **timing)]
         bc = rows[2]["step_ms"]
         for row in rows[3:]:
             row["ratio_to_bc"] = float(f"{row['step_ms'] / bc:.3g}")  # 3 significant digits at any ratio

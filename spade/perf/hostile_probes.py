@@ -36,7 +36,7 @@ import numpy as np
 from skimage.draw import disk, line
 
 from spade.data import DatasetWriter, resample_polyline
-from spade.utils.provenance import REPO_ROOT
+from spade.utils.provenance import REPO_ROOT, commit, machine
 from spade.deploy.export import export_student
 from spade.deploy.mlflow_models import mlflow_client
 from spade.deploy.mlflow_store import ensure_store
@@ -45,7 +45,6 @@ from spade.maps import OccupancyMap, save_ros_map
 from spade.maps.frame import RobotFrame
 from spade.models.builders import build_model
 from spade.models.modelfile import read_metadata
-from spade.utils.provenance import commit, machine
 
 REPO = Path(__file__).resolve().parents[2]
 RECORD = REPO / "docs" / "results" / "records" / "reliability" / "probes.json"

@@ -25,45 +25,38 @@ from omegaconf import DictConfig, OmegaConf
 from spade.data.fingerprint import dataset_fingerprint
 from spade.metrics import catalog
 from spade.paths import CONF_DIR
-from spade.tracking.dataset_inputs import DatasetUse
+from spade.tracking.dataset_inputs import DatasetUse, dataset_profile
 from spade.tracking.links import artifact_url, relative_run_link
 from spade.utils import provenance
 from spade.utils.markdown import markdown_table
 from spade.metrics.closed_loop_verdict import closed_loop_verdict
 from spade.metrics.verdict import verdict_lines
-from spade.tracking.dataset_inputs import dataset_profile
 from spade.tracking.registry import data_fingerprint
 
 log = logging.getLogger(__name__)
 
-REPO_CONF = CONF_DIR  # the configs (spade.paths): a row is conf/experiment/<row>.yaml
 FIGURES = catalog.DESCRIPTION  # the test figures a description shows, in this order
 
 
 def _fmt(key: str, value: float | None) -> str:
     """A figure as a description shows it: a tenth of a centimetre, shares in per cent (the header says %)."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "n/a"
     return catalog.fmt(key, value, compact=True)
 
 
 def figure_rows(metrics: dict[str, float]) -> list[tuple[str, dict[str, float]]]:
     """(label, {figure: value}) for the run's test figures, each classical baseline (``test/baseline/<name>/``)
     and the untrained model (``untrained/``), in that order; only those the run logged."""
-    rows: list[tuple[str, dict[str, float]]] = []
-    own = {k: metrics[f"test/{k}"] for k in FIGURES if f"test/{k}" in metrics}
-    if own:
-        rows.append((THIS_MODEL, own))
+    def logged(stage: str) -> dict[str, float]:
+        return {k: metrics[f"{stage}/{k}"] for k in FIGURES if f"{stage}/{k}" in metrics}
+
     baselines: dict[str, dict[str, float]] = {}
     for key, value in metrics.items():
         match = re.fullmatch(r"test/baseline/([^/]+)/(.+)", key)
         if match and match.group(2) in FIGURES:
             baselines.setdefault(match.group(1), {})[match.group(2)] = value
-    rows += [(f"baseline: {name}", figs) for name, figs in sorted(baselines.items())]
-    untrained = {k: metrics[f"untrained/{k}"] for k in FIGURES if f"untrained/{k}" in metrics}
-    if untrained:
-        rows.append(("untrained", untrained))
-    return rows
+    rows = [(THIS_MODEL, logged("test")), *((f"baseline: {name}", figs) for name, figs in sorted(baselines.items())),
+            ("untrained", logged("untrained"))]
+    return [(label, figs) for label, figs in rows if figs]
 
 
 THIS_MODEL = "this model"
@@ -157,7 +150,7 @@ def regenerate_command(cfg: DictConfig) -> str | None:
     from hydra.core.hydra_config import HydraConfig
 
     overrides = list(HydraConfig.get().overrides.task) if HydraConfig.initialized() else []
-    if run_name and (REPO_CONF / "experiment" / f"{run_name}.yaml").is_file():
+    if run_name and (CONF_DIR / "experiment" / f"{run_name}.yaml").is_file():
         # the row at its scale and seed, with the command line's other overrides (its data, above all: a run on
         # the user's datasets regenerates on them, not on the built-in ones); a sweep's own keys are dropped
         dropped = ("+experiment=", "experiment=", "scale=", "seed=", "rows=", "seeds=", "hydra.")

@@ -24,8 +24,7 @@ from typing import Any
 
 from omegaconf import DictConfig
 
-from spade.tracking.figure_tags import FIGURES as FIGURE_TAGS
-from spade.tracking.figure_tags import tag_key
+from spade.tracking.figure_tags import FIGURES as FIGURE_TAGS, tag_key
 from spade.tracking.links import VIEW_KEY
 from spade.tracking.tables import METRICS, TABLES
 

@@ -39,16 +39,14 @@ from omegaconf import DictConfig, OmegaConf
 
 from spade.tracking.client import ensure_store, mlflow_client
 from spade.tracking.dataset_inputs import DatasetUse, dataset_uses, log_dataset_inputs
-from spade.tracking.descriptions import prerequisite_uses, run_description
+from spade.tracking.descriptions import prerequisite_uses, run_description, what_it_is
 from spade.tracking.experiment_tags import NOTE_TAG, ensure_experiment_tags
 from spade.tracking.figure_tags import log_figure_tags
 from spade.tracking.logged_model import LoggedStudent, describe_logged_model, model_note
 from spade.tracking.logger import held_metrics
-from spade.tracking.predictors import is_predictor_run
+from spade.tracking.predictors import is_predictor_run, log_predictor_runs, predictors
 from spade.utils.processes import pid_alive, process_start
-from spade.tracking.descriptions import what_it_is
 from spade.tracking.links import artifact_url
-from spade.tracking.predictors import log_predictor_runs, predictors
 from spade.tracking.progress_picture import epoch_series
 from spade.tracking.run_report import CSV, MARKDOWN, REPORT_DIR, log_run_report
 from spade.utils.errors import UserError

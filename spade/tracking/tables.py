@@ -12,9 +12,7 @@ import math
 from dataclasses import dataclass, field
 
 from spade.metrics import catalog
-from spade.metrics.catalog import BASELINE_ROW_LABELS as BASELINE_LABELS
-from spade.metrics.catalog import Figure as Metric
-from spade.metrics.catalog import format_params
+from spade.metrics.catalog import BASELINE_ROW_LABELS as BASELINE_LABELS, Figure as Metric, format_params
 from spade.models.paper_sizes import PAPER_COND_EXPERT_PARAMETERS, PAPER_PARAMETER_COUNTS as PAPER_PARAMS
 
 __all__ = [
