@@ -400,10 +400,12 @@ def test_run_description_links_prerequisites_and_puts_figures_next_to_baselines(
     assert "Trained on `tiny/lshape` (160 instances)" in text and "Tested on `tiny/test`: 43 instances." in text
     assert "registered model `spade-cond_expert-L-tiny-abc v1`, run [cond_expert_L](#/experiments/" in text
     assert "Regenerate: `python -m spade.train +experiment=t1_small_conddbc_L scale=tiny`" in text
-    # aligned columns: labels left, figures right, every line of the table as wide as its header
-    assert "| **this model**     |    4.5 |      2 |      3 |" in text
-    assert "| baseline: straight |   30.2 |      0 |    n/a |" in text
-    assert "| untrained          |  190.0 |" in text
+    # aligned columns: labels left, figures right, every line of the table as wide as its header; no-break spaces
+    # before each figure, which MLflow's HTML does not collapse (else the cells run together)
+    assert "| **this model**     |    \u00a0\u00a04.5 |      \u00a0\u00a02 |      \u00a0\u00a03 |" in text
+    plain = text.replace("\u00a0", " ")
+    assert "| baseline: straight |     30.2 |        0 |      n/a |" in plain
+    assert "| untrained          |    190.0 |" in plain
     table = [line for line in text.splitlines() if line.startswith("|")]
     assert len({len(line) for line in table}) == 1 and table[0].startswith("| test set ")
     assert "APE cm: mean distance between" in text and "Hd19 n: instances whose Hausdorff distance" in text

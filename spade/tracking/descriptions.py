@@ -92,6 +92,12 @@ def _shown_override(override: str) -> str:
     return f"{key}={provenance.shown_path(value)}"
 
 
+GAP = "\u00a0\u00a0"
+"""Two no-break spaces before each figure and header: MLflow's markdown tables have no cell padding and HTML collapses
+the table's aligning spaces, which ran neighbouring cells together ("FID Hd19 n", "45.3340"); no-break spaces are
+not collapsed, and read as spaces in the raw text."""
+
+
 def figures_table(metrics: dict[str, float]) -> str:
     """The test figures next to the baselines and the untrained model as a markdown table with aligned columns,
     followed by one line saying what each figure means ('' when the run has no test figures)."""
@@ -99,9 +105,9 @@ def figures_table(metrics: dict[str, float]) -> str:
     if not rows:
         return ""
     shown = tuple(k for k in FIGURES if any(k in figs for _, figs in rows))  # no column of n/a only
-    cells = [["test set", *(catalog.header(k) for k in shown)]]
+    cells = [["test set", *(GAP + catalog.header(k) for k in shown)]]
     for label, figs in rows:
-        cells.append([f"**{label}**" if label == THIS_MODEL else label, *(_fmt(k, figs.get(k)) for k in shown)])
+        cells.append([f"**{label}**" if label == THIS_MODEL else label, *(GAP + _fmt(k, figs.get(k)) for k in shown)])
     return "\n".join(markdown_table(cells[0], cells[1:], padded=True)) + "\n\n" + figures_meaning(shown)
 
 
