@@ -83,8 +83,32 @@ def test_the_constructors_refuse_with_their_options_checks() -> None:
         (lambda: PathDataModule(None, batch_size=0), "data.batch_size=0 is out of range"),
         (lambda: PathDataModule(None, target_width_px=2), "data.target_width_px=2 is not an odd number"),
         (lambda: PathDataModule(None, encoding="square"), "data.encoding='square' is not a marker encoding"),
+        (lambda: PathDataModule(None, shuffle_buffer=4), "data.shuffle_buffer is not an option of the data module"),
     ]
     for build, message in cases:
         with pytest.raises(ConfigError) as err:
             build()
         assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_new_data_option_is_one_field_of_data_options(monkeypatch) -> None:
+    """The code map's example: a field added to DataOptions reaches the data module (``self.options``) and its
+    check refuses a bad value, with no change to PathDataModule."""
+    from dataclasses import dataclass
+
+    import spade.data.datamodule as datamodule
+    from spade.data.datamodule_options import DataOptions
+    from spade.utils.option_checks import check_int_value
+
+    @dataclass(frozen=True)
+    class WithShuffle(DataOptions):
+        shuffle_buffer: int = 0
+
+        def __post_init__(self) -> None:
+            super().__post_init__()
+            check_int_value("data.shuffle_buffer", self.shuffle_buffer, 0)
+
+    monkeypatch.setattr(datamodule, "DataOptions", WithShuffle)
+    assert datamodule.PathDataModule(None, shuffle_buffer=64).options.shuffle_buffer == 64
+    with pytest.raises(ConfigError, match="data.shuffle_buffer=-1 is out of range"):
+        datamodule.PathDataModule(None, shuffle_buffer=-1)

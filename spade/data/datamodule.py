@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +19,7 @@ from spade.data.path_dataset import PathDataset
 from spade.data.augment import augment_batch, check_augmentation, widen_path
 from spade.data.checks import check_dataset, split_pair_problems
 from spade.data.datamodule_options import DataOptions
+from spade.utils.errors import ConfigError
 from spade.data.settings import Generator
 from spade.data.labelled import StateView
 from spade.data.plausible import ceiling_map, plausible_images
@@ -74,35 +76,25 @@ class PathDataModule(L.LightningDataModule):
         test_dir: str | Path | None = None,
         train_generate: Any = None,
         test_generate: Any = None,
-        val_fraction: float = 0.1,
-        split_seed: int = 0,
-        batch_size: int = 32,
-        eval_batch_size: int | None = None,
-        num_workers: int = 0,
         pin_memory: bool = False,
         persistent_workers: bool = False,
         augment: str | bool | None = "none",
-        target_width_px: int = 1,
-        max_train_instances: int | None = None,
-        max_test_instances: int | None = None,
         test_shape: str | None = None,
         generator: Generator | None = None,
         experiment: str | None = None,
-        encoding: str = "binary",
-        target_source: str = "demonstration",
         unlabelled_dir: str | Path | None = None,
         unlabelled_generate: Any = None,
-        max_unlabelled_instances: int | None = None,
         unlabelled_labels: bool = False,
         unlabelled_teacher: str | Path | None = None,
-        unlabelled_teacher_samples: int = 4,
+        **loader_options: Any,
     ) -> None:
-        options = DataOptions(batch_size=batch_size, eval_batch_size=eval_batch_size, num_workers=num_workers,
-                              val_fraction=val_fraction, split_seed=split_seed,
-                              max_train_instances=max_train_instances, max_test_instances=max_test_instances,
-                              target_width_px=target_width_px, encoding=encoding, target_source=target_source,
-                              max_unlabelled_instances=max_unlabelled_instances,
-                              unlabelled_teacher_samples=unlabelled_teacher_samples)
+        unknown = sorted(set(loader_options) - {f.name for f in fields(DataOptions)})
+        if unknown:
+            raise ConfigError(f"data.{unknown[0]} is not an option of the data module; its options are the "
+                              f"arguments of PathDataModule and the fields of DataOptions "
+                              f"(spade/data/datamodule_options.py): remove it or add it there")
+        options = DataOptions(**loader_options)
+        self.options = options  # every loader option, typed and checked: a new one is a DataOptions field
         super().__init__()
         self.experiment = experiment
         self.encoding = options.encoding
