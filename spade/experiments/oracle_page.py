@@ -231,12 +231,12 @@ def _verdict(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], agains
         outcome = _outcome(rows, name, own_ape, test)
         groups[outcome].append(f"{labels.get(name, name)} {ape:.2f} cm ({ape - own_ape:+.2f}{twin_text}{closed})")
         if outcome == "better":
-            winners.append(f"{labels.get(name, name)} ({ape:.2f} cm against {own_ape:.2f})")
+            winners.append(f"{labels.get(name, name)} ({ape:.2f} cm against {own_ape:.2f}{twin_text})")
     rule = ("told apart only when Welch's test over seeds (Holm's correction over the page) and the paired "
             "bootstrap over scenarios agree")
     head = (f"- **Where a teacher teaches here**: {'; '.join(winners)} beat{'s' if len(winners) == 1 else ''} "
-            f"{labels.get(against, against)} (or its twin) by the deciding figure, the planner's APE ({rule}); no "
-            "other row does."
+            f"{labels.get(against, against)} by the deciding figure, the planner's APE ({rule}); no other row "
+            "does."
             if winners else f"- **No row beats BC** by the deciding figure, the planner's APE ({rule}).")
     lines = [head]
     if ceiling is not None:
