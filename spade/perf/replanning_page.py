@@ -59,6 +59,9 @@ def _paired_by_student(a: dict[str, float], b: dict[str, float]) -> float | None
     return paired([a[k] for k in keys], [b[k] for k in keys])
 
 
+ALWAYS = 100.0
+"""A ``replan_keep`` this large keeps the previous plan whenever it is usable (a fresh path would have to cost a
+hundredth of it): the diagnostic bound of what holding one plan could buy."""
 Setting = tuple[float, float]
 """(replan_prior, replan_keep) of a drive, keep -1 for off (so that settings sort)."""
 OFF: Setting = (0.0, -1.0)
@@ -67,8 +70,8 @@ OFF: Setting = (0.0, -1.0)
 def setting_label(setting: Setting) -> str:
     """``off``, ``prior 0.9``, ``keep 0.5`` or ``prior 0.9 + keep 0.5``."""
     prior, keep = setting
-    parts = ([f"prior {prior:g}"] if prior > 0 else []) + ([f"keep {keep:g}"] if keep >= 0 else [])
-    return " + ".join(parts) or "off"
+    kept = [] if keep < 0 else [f"keep {keep:g}" if keep < ALWAYS else "keep while usable"]
+    return " + ".join(([f"prior {prior:g}"] if prior > 0 else []) + kept) or "off"
 
 
 def replanning_page(records: list[dict[str, Any]], command: str = "") -> str:
@@ -136,7 +139,8 @@ def replanning_page(records: list[dict[str, Any]], command: str = "") -> str:
     lines = ["# Replanning that keeps its turn: the decoder's prior and keeping the previous plan", "",
              "Two levers change what a replanning student drives: the decoder's prior toward the previous plan "
              "(`replan_prior`: its `-log p` discounted near it, then decoded afresh) and keeping the previous plan "
-             "itself unless a fresh path is clearly cheaper (`replan_keep`: hysteresis on the whole plan). "
+             "itself unless a fresh path is clearly cheaper (`replan_keep`: hysteresis on the whole plan; \"keep while usable\" "
+             "holds the first plan wherever the map allows it, the bound of what holding one plan could buy). "
              f"Each setting is compared with both off on the "
              f"same {students} students by a paired t-test (Holm's correction over the page's "
              f"{sum(p is not None for *_, p in tests)} tests). The deciding figures in closed loop are success, then "
