@@ -189,7 +189,7 @@ def test_the_precision_page_tells_a_moved_figure_from_noise(tmp_path: Path) -> N
     rows = {tuple(c.strip() for c in line.split("|")[1:3]): line for line in text.splitlines() if line.startswith("| ")}
     assert rows[("teacher", "planner APE")].rstrip(" |").endswith("told apart")
     assert rows[("BC", "planner APE")].rstrip(" |").endswith("not told apart")
-    assert "4 / 4" in rows[("BC", "planner APE")] and files["markdown"].read_text().startswith("# bf16")
+    assert "(4) | 4." in rows[("BC", "planner APE")] and files["markdown"].read_text().startswith("# bf16")
     with pytest.raises(ValueError, match="precision.pairs is empty"):
         precision_report(f"sqlite:///{tmp_path}/missing.db", None, {"records_dir": str(records)})
 

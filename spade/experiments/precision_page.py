@@ -101,17 +101,17 @@ def precision_report(tracking_uri: str, output_dir: str | Path | None, settings:
     body = []
     for test in tests:
         low = test["pair"]
-        body.append([labels.get(low, low), test["label"], f"{len(test['a'])} / {len(test['b'])}",
-                     _shown(test["a"], test["unit"]), _shown(test["b"], test["unit"]),
-                     "-" if test["p"] is None else f"{test['p']:.3g}",
-                     "-" if test["holm"] is None else f"{test['holm']:.3g}",
+        body.append([labels.get(low, low), test["label"],
+                     f"{_shown(test['a'], test['unit'])} ({len(test['a'])})",
+                     f"{_shown(test['b'], test['unit'])} ({len(test['b'])})",
+                     "-" if test["p"] is None else f"{test['p']:.2g} / {test['holm']:.2g}",
                      "no test" if test["holm"] is None else "told apart" if test in told_apart else "not told apart"])
     lines = [f"# {title}", "", "## Verdict", "", *verdict, "",
              "## Figures, bf16 against fp32", "",
-             "The oracle page's science test set (held-out maps); mean ± sd over seeds. The deciding figure is the "
-             "planner's APE ([metrics reference](../reference/metrics.md#which-figure-decides)).", "",
-             *markdown_table(["row", "figure", "seeds (bf16 / fp32)", "bf16", "fp32", "Welch p", "Holm p", "outcome"],
-                            body), "",
+             "The oracle page's science test set (held-out maps); mean ± sd over seeds (their number in brackets); "
+             "Welch's p, then Holm's over the page. The deciding figure is the planner's APE "
+             "([metrics reference](../reference/metrics.md#which-figure-decides)).", "",
+             *markdown_table(["row", "figure", "bf16", "fp32", "p / Holm p", "outcome"], body), "",
              "## How it was made", "", *provenance_lines(command_line("spade.report")),
              f"- records: {shown_path(records_dir)} (shared with the oracle page; the page regenerates from them)", ""]
     text = "\n".join(lines)
