@@ -339,6 +339,25 @@ def test_the_desk_simulators_robot_and_the_closed_loop_drive_replan_from_their_p
     assert [p.prior for p in episode.plans[1:]] == ["used"] * (len(episode.plans) - 1)
 
 
+def test_the_node_and_the_closed_loop_drive_keep_the_plan_itself_with_replan_keep(tmp_path: Path) -> None:
+    """replan_keep is the decoder's, so every caller of the planner gets it: the node's replans on a map update
+    return the first plan (joined from the robot) while the stand-in network wavers; the drive's replans keep too."""
+    planner = Recording(two_ways_planner(tmp_path / "node.ckpt", replan_prior=0.0, replan_keep=1.0))
+    core = PlannerCore(planner, CoreSettings(min_replan_interval_s=0.0))
+    core.handle_map(grid_msg(room()))
+    core.handle_pose(pose_msg(*POSE))
+    events = [core.handle_goal(pose_msg(*TARGET, 0.0))] + [core.handle_map(grid_msg(room())) for _ in range(3)]
+    assert [e.result.prior for e in events] == [None, "kept", "kept", "kept"]
+    for event in events[1:]:
+        np.testing.assert_allclose(event.result.waypoints, events[0].result.waypoints, atol=0.06)
+    from factories import arc_l, scenario
+
+    planner = Recording(two_ways_planner(tmp_path / "drive.ckpt", far_goal="clip", replan_prior=0.0,
+                                         replan_keep=1.0))
+    (episode,) = drive(planner, [scenario(room(), arc_l(np.array([2.0, 2.0]), 1.5, 0.5, 1.5))], ClosedLoopSettings())
+    assert "kept" in {p.prior for p in episode.plans[1:]}
+
+
 def test_the_replanning_page_compares_each_prior_with_off_on_the_same_students(tmp_path) -> None:
     """spade.perf.replanning_page: a paired t-test over the students, Holm over the page, the targets said met or
     missed, the followed demonstration beside; written from the drive records alone."""
