@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import runpy
 import sys
@@ -116,8 +117,16 @@ def run_main(monkeypatch, tmp_path: Path, capsys):
     monkeypatch.setenv("SPADE_HOME", str(tmp_path / "home"))
     monkeypatch.setenv("OMP_WAIT_POLICY", "PASSIVE")  # what spade.train sets as a command (undone after the test)
 
+    def drop_log_handlers() -> None:
+        """Hydra points the root logger at this test's captured stderr; a later test's lazy import that logs
+        before its own Hydra run (numexpr's thread count, under mlflow) would write to that closed stream and print
+        "--- Logging error ---" into the next refusal: each run starts and ends without them."""
+        for handler in list(logging.root.handlers):
+            logging.root.removeHandler(handler)
+
     def run(module: str, args: list[str], hydra: bool = True) -> tuple[int, str]:
         GlobalHydra.instance().clear()
+        drop_log_handlers()
         extra = [f"hydra.run.dir={tmp_path / 'hydra'}"] if hydra else []
         monkeypatch.setattr(sys, "argv", [module, *args, *extra])
         capsys.readouterr()
@@ -128,6 +137,7 @@ def run_main(monkeypatch, tmp_path: Path, capsys):
             code = exc.code
         finally:
             GlobalHydra.instance().clear()
+            drop_log_handlers()
         return int(code or 0), capsys.readouterr().err
 
     return run

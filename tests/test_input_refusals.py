@@ -42,36 +42,6 @@ def test_a_procedural_spec_with_a_non_integer_seed_is_one_line(tmp_path: Path, r
     assert not (tmp_path / "ds").exists()
 
 
-def test_a_missing_registry_version_names_the_versions_that_exist(tmp_path: Path, run_main) -> None:
-    """``model=models:/NAME/99`` answered MLflow's error for an unknown version; now one line naming the versions
-    (and aliases) NAME has, and an unknown name is answered with the names that are registered."""
-    from factories import site_map
-    from spade.deploy.mlflow_models import mlflow_client
-    from spade.deploy.mlflow_store import ensure_store
-
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    ensure_store(uri)
-    client = mlflow_client(uri)
-    client.create_registered_model("stu")
-    for _ in range(2):
-        client.create_model_version("stu", source=str(tmp_path / "nowhere"))
-    client.set_registered_model_alias("stu", "champion", "2")
-    yaml_path = site_map(tmp_path)
-    query = [f"map={yaml_path}", "start=[0.0,1.0,0.0]", "goal=[2.0,1.0]", f"paths.mlflow_tracking_uri={uri}",
-             f"out={tmp_path / 'plan.png'}"]
-    code, err = run_main("spade.plan", [*query, "model_path=models:/stu/99"])
-    assert code == 2, err
-    line = one_error_line(err)
-    assert "models:/stu/99" in line and "stu has versions [1, 2]" in line and "champion" in line, line
-    code, err = run_main("spade.plan", [*query, "model_path=models:/stu@best"])
-    assert code == 2 and "stu has versions [1, 2]" in one_error_line(err), err
-    code, err = run_main("spade.plan", [*query, "model_path=models:/other/1"])
-    assert code == 2, err
-    line = one_error_line(err)
-    assert "no model is registered as 'other'" in line and "['stu']" in line, line
-    assert not (tmp_path / "plan.png").exists()
-
-
 @pytest.fixture
 def inputs(tmp_path: Path) -> dict[str, Path]:
     """Files a demanding user points the entry points at: a map, a student, a folder, a plain file, a dataset."""
@@ -218,3 +188,33 @@ def test_huge_maps_are_refused_before_they_are_read(tmp_path: Path, run_main) ->
                                         f"out={tmp_path / 'plan.png'}"])
     assert code == 2 and "20000 x 20000 px" in one_error_line(err), err
     assert not (tmp_path / "ds").exists() and not (tmp_path / "plan.png").exists()
+
+
+def test_a_missing_registry_version_names_the_versions_that_exist(tmp_path: Path, run_main) -> None:
+    """``model=models:/NAME/99`` answered MLflow's error for an unknown version; now one line naming the versions
+    (and aliases) NAME has, and an unknown name is answered with the names that are registered."""
+    from factories import site_map
+    from spade.deploy.mlflow_models import mlflow_client
+    from spade.deploy.mlflow_store import ensure_store
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    ensure_store(uri)
+    client = mlflow_client(uri)
+    client.create_registered_model("stu")
+    for _ in range(2):
+        client.create_model_version("stu", source=str(tmp_path / "nowhere"))
+    client.set_registered_model_alias("stu", "champion", "2")
+    yaml_path = site_map(tmp_path)
+    query = [f"map={yaml_path}", "start=[0.0,1.0,0.0]", "goal=[2.0,1.0]", f"paths.mlflow_tracking_uri={uri}",
+             f"out={tmp_path / 'plan.png'}"]
+    code, err = run_main("spade.plan", [*query, "model_path=models:/stu/99"])
+    assert code == 2, err
+    line = one_error_line(err)
+    assert "models:/stu/99" in line and "stu has versions [1, 2]" in line and "champion" in line, line
+    code, err = run_main("spade.plan", [*query, "model_path=models:/stu@best"])
+    assert code == 2 and "stu has versions [1, 2]" in one_error_line(err), err
+    code, err = run_main("spade.plan", [*query, "model_path=models:/other/1"])
+    assert code == 2, err
+    line = one_error_line(err)
+    assert "no model is registered as 'other'" in line and "['stu']" in line, line
+    assert not (tmp_path / "plan.png").exists()
