@@ -112,9 +112,27 @@ def test_a_page_without_records_keeps_its_committed_copy_under_the_lost_store_no
     teacher, _ = teacher_report(uri, None, settings)
     assert teacher.count(LOST_STORE) == 1 and "table=teacher teacher=width" in teacher
     # the committed pages whose store was lost say so, once, under their title
-    for name in ("teacher.md", "teacher_width.md", "closed_loop.md"):
+    for name in ("teacher.md", "teacher_width.md", "closed_loop.md", "encoding.md", "guidance.md", "sizing.md"):
         page = (RESULTS / name).read_text().splitlines()
         assert page[2].startswith(LOST_STORE) and sum(line.startswith(LOST_STORE) for line in page) == 1, name
+
+
+def test_a_paper_table_without_runs_keeps_its_committed_page_under_the_notice(tmp_path: Path) -> None:
+    """spade.report table=encoding committed=PAGE: no store (or none of the table's runs in it) keeps the committed
+    page, naming the commands that rerun it; never creating the store."""
+    from spade.experiments.reporting.pages import page
+    from spade.experiments.run_records import LOST_STORE
+    from spade.utils.config import compose_config
+
+    committed = tmp_path / "encoding.md"
+    committed.write_text("# Markers\n\nIts verdict.\n")
+    cfg = compose_config("report", ["table=encoding", f"committed={committed}", f"output_dir={tmp_path / 'out'}",
+                                    f"tracking_uri=sqlite:///{tmp_path}/lost.db"])
+    (report,) = page("encoding").build(cfg)
+    lines = (tmp_path / "out" / "encoding.md").read_text().splitlines()
+    assert lines[0] == "# Markers" and lines[2].startswith(LOST_STORE) and lines[4] == "Its verdict."
+    assert "`python -m spade.train +experiment=encoding`, then `python -m spade.report table=encoding`" in lines[2]
+    assert "run records" not in lines[2] and not (tmp_path / "lost.db").exists()
 
 
 #: Pages written by a bench or a critic command (spade.perf.*, spade.critic) that lead with no verdict yet: the

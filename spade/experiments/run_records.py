@@ -28,8 +28,8 @@ from spade.experiments.reporting.results import _search_all_runs
 from spade.tracking.client import mlflow_client
 from spade.utils.provenance import shown_path
 
-__all__ = ["RunRecord", "export_records", "load_records", "has_records", "with_lost_store_notice",
-           "keep_committed_page", "store_exists", "REFERENCES_FILE", "LOST_STORE"]
+__all__ = ["RunRecord", "export_records", "load_records", "has_records", "experiment_has_runs",
+           "with_lost_store_notice", "keep_committed_page", "store_exists", "REFERENCES_FILE", "LOST_STORE"]
 
 REFERENCES_FILE = "_references.json"
 KEPT_PREFIXES = ("test/", "closed_loop/", "model/", "margin/")
@@ -214,19 +214,30 @@ def store_exists(tracking_uri: str) -> bool:
     return tracking_uri.startswith(("http://", "https://"))
 
 
+def experiment_has_runs(tracking_uri: str, experiment: str) -> bool:
+    """Whether the store exists and holds a run of MLflow ``experiment`` (never creating the store)."""
+    if not store_exists(tracking_uri):
+        return False
+    client = mlflow_client(tracking_uri)
+    found = client.get_experiment_by_name(experiment)
+    return found is not None and bool(client.search_runs([found.experiment_id], max_results=1))
+
+
 def has_records(records_dir: str | Path) -> bool:
     """Whether ``records_dir`` (or a folder in it: a page of several experiments) holds a run record."""
     root = Path(records_dir)
     return root.is_dir() and any(p.name != REFERENCES_FILE for p in root.rglob("*.json"))
 
 
-def with_lost_store_notice(text: str, command: str, records_dir: str | Path) -> str:
+def with_lost_store_notice(text: str, command: str, records_dir: str | Path | None) -> str:
     """``text`` (a committed page) with one line under its title (``command``: Markdown, its commands in code spans) saying that its runs' store was lost, which
     command reruns its rows (and writes their records into ``records_dir``), and that the figures below are the lost
     store's. An earlier notice is replaced, so the page carries one however often it is kept."""
+    records = "" if records_dir is None else (f" (which also writes their run records into "
+                                              f"`{shown_path(records_dir)}`, from which the page then regenerates "
+                                              "without a store)")
     notice = (f"{LOST_STORE} the MLflow store that held this page's runs was lost, so the figures below are from "
-              f"that store and cannot be regenerated until its rows are rerun: {command} (which also writes their "
-              f"run records into `{shown_path(records_dir)}`, from which the page then regenerates without a store).")
+              f"that store and cannot be regenerated until its rows are rerun: {command}{records}.")
     lines = [line for line in text.splitlines() if not line.startswith(LOST_STORE)]
     while len(lines) > 2 and lines[1] == "" and lines[2] == "":  # the blank line the removed notice left
         del lines[1]
@@ -237,7 +248,7 @@ def with_lost_store_notice(text: str, command: str, records_dir: str | Path) -> 
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
-def keep_committed_page(committed: str | Path | None, command: str, records_dir: str | Path,
+def keep_committed_page(committed: str | Path | None, command: str, records_dir: str | Path | None,
                         output_dir: str | Path | None, name: str) -> tuple[str, dict[str, Path]] | None:
     """A page without records: its committed copy under the lost-store notice (:func:`with_lost_store_notice`),
     written as ``output_dir/name`` too; ``None`` when there is no committed copy (the page is then built from what

@@ -19,6 +19,7 @@ from spade.experiments.closed_loop_table import closed_loop_report
 from spade.experiments.oracle_page import oracle_report
 from spade.experiments.precision_page import precision_report
 from spade.experiments.reporting.build import Report, build_report
+from spade.experiments.run_records import experiment_has_runs, keep_committed_page
 from spade.tracking.tables import TABLES, Table, get_table
 from spade.experiments.teacher_table import TEACHER_TABLE, teacher_files, teacher_report
 
@@ -55,7 +56,8 @@ def page(name: Any) -> Page:
         return Page("all", lambda chart, _: [f for t in TABLES.values() for f in _table_files(t, chart)],
                     lambda cfg: [_build_table(t, cfg) for t in TABLES.values()])
     table = get_table(name)
-    return Page(table.key, lambda chart, _: _table_files(table, chart), lambda cfg: [_build_table(table, cfg)])
+    return Page(table.key, lambda chart, _: _table_files(table, chart), lambda cfg: [_build_table(table, cfg)],
+                ("committed",))
 
 
 def report_files(table: Any, chart: bool = True, teacher_page: Any = None) -> list[str]:
@@ -74,6 +76,15 @@ def _scale(cfg: DictConfig) -> str | None:
 
 
 def _build_table(table: Table, cfg: DictConfig) -> Any:
+    """One paper table's report; without any of its runs in the store, its ``committed`` page (when given) is kept
+    under the lost-store notice, naming the commands that rerun it."""
+    committed = cfg.get("committed")
+    if committed and not experiment_has_runs(cfg.tracking_uri, table.experiment):
+        command = (f"`python -m spade.train +experiment={table.composition}`, then "
+                   f"`python -m spade.report table={table.key}`")
+        kept = keep_committed_page(committed, command, None, cfg.get("output_dir"), f"{table.key}.md")
+        if kept is not None:
+            return _page_report(*kept)
     # `scale` is the config group of conf/scale (so that scale=cpu reads as everywhere else); its name filters runs.
     return build_report(table, cfg.tracking_uri, cfg.get("output_dir"), _scale(cfg), cfg.get("paper", True),
                         cfg.get("chart", True), cfg.get("log_to_runs", False) is True)
