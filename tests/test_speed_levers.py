@@ -137,3 +137,97 @@ def test_speed_page_is_written_from_the_results(tmp_path: Path) -> None:
 
     (tmp_path / "speed.md").write_text("stale")
     assert rerender(tmp_path / "speed.json").read_text() == text  # the recorded figures, written again
+
+
+# -- the evaluation's cost: one test pass and one closed-loop drive (spade/perf/evaluation_cost.py) ----------------
+def _parts_add_up(result: dict) -> None:
+    *parts, total = result["rows"]
+    assert total["part"] == "total" and total["share"] == 1.0 and total["ms"] > 0
+    assert all(r["ms"] > 0 and r["ms_each"] > 0 and 0 < r["share"] < 1 for r in parts)
+    assert sum(r["ms"] for r in parts) == pytest.approx(total["ms"], rel=1e-6)
+    assert sum(r["share"] for r in parts) == pytest.approx(1.0, rel=1e-6)
+
+
+def test_a_test_pass_and_a_drive_say_where_their_time_goes() -> None:
+    from spade.perf.evaluation_cost import one_drive_cost, one_test_pass_cost
+
+    test = one_test_pass_cost("small", image_size=32, instances=3, batch_size=2)
+    assert (test["student"], test["instances"], test["batch_size"]) == ("small", 3, 2)
+    assert [r["part"] for r in test["rows"]][:6] == ["network (forward)", "search decoder", "metrics update (model)",
+                                                    "baselines' and references' paths",
+                                                    "baselines' and references' metrics", "metrics compute"]
+    _parts_add_up(test)
+    drive = one_drive_cost("small", scenarios=2, image_size=32)
+    assert drive["scenarios"] == 2 and drive["queries"] >= 2 and drive["control_steps"] > 0
+    assert [r["part"] for r in drive["rows"]][:3] == ["network (forward)", "search decoder",
+                                                      "windows (resample, rotate, encode)"]
+    assert all(r["ms_per_query"] > 0 for r in drive["rows"][:3]) and drive["query_ms"] > 0
+    _parts_add_up(drive)
+    with pytest.raises(ValueError, match="instances >= 1"):
+        one_test_pass_cost("small", 32, 0)
+
+
+def test_the_bench_training_section_times_the_evaluation_and_zero_skips_it() -> None:
+    from spade.perf.bench import _training
+
+    t = {"student": "small", "image_sizes": [32], "batch_size": 2, "cond_presets": [], "uncond_preset": None,
+         "runs": 1, "warmup": 0, "batched_terms": False, "matmul_size": 32, "matmul_seconds": 0.001, "levers": [],
+         "profile_levers": [], "lightning_steps": 0, "lever_image_size": 32, "evaluation_instances": 2,
+         "drive_scenarios": 1}
+    _, speed = _training(t)
+    assert speed["evaluation"]["test_pass"]["instances"] == 2 and speed["evaluation"]["drive"]["scenarios"] == 1
+    _, speed = _training({**t, "evaluation_instances": 0, "drive_scenarios": 0})
+    assert "evaluation" not in speed
+
+
+def test_evaluation_cost_settings_are_checked_and_small_in_quick_mode(tmp_path: Path) -> None:
+    from spade.config.bench_checks import validate_bench_config
+    from spade.perf.bench import SECTIONS  # registers the quick_or resolver
+
+    quick, full = compose_config("bench", ["quick=true"]), compose_config("bench", [])
+    assert quick.training.evaluation_instances < full.training.evaluation_instances
+    assert quick.training.drive_scenarios < full.training.drive_scenarios
+    for override, expected in (("training.evaluation_instances=-1", "training.evaluation_instances=-1 is out of range"),
+                               ("training.drive_scenarios=two", "training.drive_scenarios='two' is not an integer")):
+        with pytest.raises(ConfigError, match=expected) as err:
+            validate_bench_config(compose_config("bench", ["quick=true", f"out_json={tmp_path / 'b.json'}", override]),
+                                  SECTIONS)
+        assert "\n" not in str(err.value) and "0: no" in str(err.value)
+
+
+def _evaluation_results() -> dict:
+    def rows(parts: dict[str, float], per: int, queries: int = 0) -> list[dict]:
+        total = sum(parts.values())
+        out = [{"part": k, "ms": v, "ms_each": v / per, "share": v / total} for k, v in [*parts.items(),
+                                                                                         ("total", total)]]
+        for r in out[:3] if queries else []:
+            r["ms_per_query"] = r["ms"] / queries
+        return out
+
+    test = {"student": "medium", "image_size": 64, "instances": 32, "batch_size": 32,
+            "rows": rows({"network (forward)": 1266.0, "search decoder": 124.0, "metrics update (model)": 306.0,
+                          "baselines' and references' paths": 1866.0, "baselines' and references' metrics": 300.0,
+                          "metrics compute": 19.0}, 32)}
+    drive = {"student": "medium", "image_size": 64, "scenarios": 4, "queries": 20, "control_steps": 376,
+             "successes": 4, "query_ms": 41.7,
+             "rows": rows({"network (forward)": 680.0, "search decoder": 76.0, "windows (resample, rotate, encode)":
+                           77.0, "follower, collision checks, loop": 72.0, "metrics": 14.0}, 4, 20)}
+    return {"machine": {"cpu": "CPU", "cpu_count": 2, "torch": "2", "torch_threads": 1},
+            "training_speed": {"hardware": {}, "evaluation": {"test_pass": test, "drive": drive}}}
+
+
+def test_the_speed_page_and_the_report_show_where_evaluation_time_goes() -> None:
+    from spade.perf.bench_report import format_report
+    from spade.perf.speed_page import speed_page
+
+    results = _evaluation_results()
+    page = speed_page(results, "python -m spade.bench", "abc", 60.0, date="today")
+    section = page.split("## One test pass and one closed-loop drive: where the time goes\n\n", 1)[1]
+    assert "| part | ms | ms / instance | share |" in section and "| search decoder | 124 | 3.88 | 3% |" in section
+    assert "| part | ms | ms / scenario | ms / query | share |" in section
+    assert "| network (forward) | 680 | 170 | 34 | 74% |" in section and "| metrics | 14 | 3.5 | - | 2% |" in section
+    assert "20 planning queries, 376 control steps, 4 of 4 reached the goal" in section
+    assert all(line.count("|") <= 7 for line in section.splitlines() if line.startswith("|"))  # <= 6 columns
+    assert "### One test pass and one closed-loop drive: where the time goes" in format_report(results)
+    del results["training_speed"]["evaluation"]["drive"]
+    assert "ms / scenario" not in speed_page(results, "python -m spade.bench", "abc", 60.0, date="today")

@@ -54,7 +54,7 @@ _SECTIONS: dict[str, dict[str, str]] = {
     "training": {"image_sizes": "sizes", "batch_size": "count", "runs": "count", "warmup": "count0",
                  "batched_terms": "flag", "lever_rounds": "count", "lever_image_size": "count", "matmul_size": "count",
                  "lightning_rounds": "count", "profile_top": "count", "lightning_steps": "count0", "levers": "names",
-                 "profile_levers": "names"},
+                 "profile_levers": "names", "evaluation_instances": "count0", "drive_scenarios": "count0"},
     "decoder": {"image_sizes": "sizes", "instances": "count"},
     "metrics": {"image_size": "count", "instances": "count", "fid_images": "count", "batch": "count",
                 "sensitivity": "flag"},
@@ -66,7 +66,9 @@ _SECTIONS: dict[str, dict[str, str]] = {
 }
 _TYPES = {"sizes": list[int] | None, "count": int | None, "count0": int | None, "length": float | None,
           "flag": bool | None, "names": list[str] | None}
-_FIXES = {"training.lightning_steps": " (0: no Lightning overhead table)"}
+_FIXES = {"training.lightning_steps": " (0: no Lightning overhead table)",
+          "training.evaluation_instances": " (0: no test pass timed)",
+          "training.drive_scenarios": " (0: no closed-loop drive timed)"}
 
 
 def _check_section(options: Any) -> None:

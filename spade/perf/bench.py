@@ -170,6 +170,15 @@ def _training(t: dict[str, Any]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
         log.info("Lightning's per-step overhead at %d px", px)
         speed["lightning"] = lightning_overhead(t["student"], px, batch, t["lightning_steps"],
                                                 t.get("lightning_rounds", 1), t.get("lightning_settings") or [])
+    instances, scenarios = t.get("evaluation_instances") or 0, t.get("drive_scenarios") or 0
+    if instances or scenarios:
+        from spade.perf.evaluation_cost import one_drive_cost, one_test_pass_cost
+
+        log.info("evaluation cost at %d px: a test pass of %d instances, a drive of %d scenarios", px, instances,
+                 scenarios)
+        speed["evaluation"] = {
+            "test_pass": one_test_pass_cost(t["student"], px, instances, batch) if instances else None,
+            "drive": one_drive_cost(t["student"], scenarios, px) if scenarios else None}
     return rows, speed
 
 

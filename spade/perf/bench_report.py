@@ -58,8 +58,8 @@ def format_report(results: dict[str, Any]) -> str:
                      + number_table(["decoder", "px", "instances", "median ms", "p95 ms", "CPU ms / instance"], table))
     if results.get("training"):
         parts.append("### Training step\n\n" + steps_table(results["training"]))
-        if results.get("training_speed"):
-            parts.append(format_training_speed(results["training_speed"]))
+    if results.get("training_speed") and format_training_speed(results["training_speed"]):
+        parts.append(format_training_speed(results["training_speed"]))
     if results.get("metrics"):
         parts.append(_metrics(results["metrics"]))
     if results.get("data"):

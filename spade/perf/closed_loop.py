@@ -15,6 +15,7 @@ from spade.closedloop.planners import BaselinePlanner
 from spade.closedloop.scenario_loading import load_scenarios
 from spade.closedloop.simulate import ClosedLoopSettings, drive
 from spade.deploy.student_planner import Planner
+from spade.utils.timing import clocked
 
 __all__ = ["closed_loop_costs"]
 
@@ -30,18 +31,8 @@ def closed_loop_costs(ckpt: str | Path, dataset: str | Path, scenarios: int | No
     loading = time.perf_counter() - t0
     planner = Planner(ckpt, far_goal="clip")
     spent = {"network": 0.0, "decoding": 0.0}
-
-    def timed(name: str, fn: Any) -> Any:
-        def wrapper(*args: Any, **kwargs: Any) -> Any:
-            start = time.perf_counter()
-            try:
-                return fn(*args, **kwargs)
-            finally:
-                spent[name] += time.perf_counter() - start
-        return wrapper
-
-    planner.predict = timed("network", planner.predict)  # type: ignore[method-assign]
-    planner._extract = timed("decoding", planner._extract)  # type: ignore[method-assign]
+    planner.predict = clocked(spent, "network", planner.predict)  # type: ignore[method-assign]
+    planner._extract = clocked(spent, "decoding", planner._extract)  # type: ignore[method-assign]
     settings = ClosedLoopSettings()
     start = time.perf_counter()
     episodes = drive(planner, scen, settings)

@@ -1,5 +1,6 @@
-"""The training section's tables (steps, levers, profiles, Lightning's overhead) and the results page
-``docs/results/speed.md`` that ``python -m spade.bench sections=[training] speed_page=...`` writes from them.
+"""The training section's tables (steps, levers, profiles, Lightning's overhead, the evaluation's cost) and the
+results page ``docs/results/speed.md`` that ``python -m spade.bench sections=[training] speed_page=...`` writes
+from them.
 
 Every figure on the page comes from the results dict of the run that writes it; the prose around them is fixed
 or computed from those figures (what the ratio target needs, what bounds it)."""
@@ -52,8 +53,32 @@ def lightning_table(rows: list[dict[str, Any]]) -> str:
     return number_table(["how the BC step runs", "ms / step", "vs bare loop ms", "share", "steps timed"], table)
 
 
+def evaluation_tables(evaluation: dict[str, Any]) -> str:
+    """One test pass and one closed-loop drive (:mod:`spade.perf.evaluation_cost`): ms per part, per instance or
+    scenario (and per planning query) and share, each under a line saying what was run."""
+    parts = []
+    test = evaluation.get("test_pass")
+    if test:
+        rows = [[r["part"], r["ms"], r["ms_each"], f"{r['share']:.0%}"] for r in test["rows"]]
+        parts.append(f"**Test pass**: a fresh {test['student']} student over {test['instances']} synthetic "
+                     f"{test['image_size']} px windows, batch {test['batch_size']} (network, the planner's search "
+                     "decoder per instance, the metrics, the baselines and references scored beside it).\n\n"
+                     + number_table(["part", "ms", "ms / instance", "share"], rows))
+    drive = evaluation.get("drive")
+    if drive:
+        rows = [[r["part"], r["ms"], r["ms_each"], r.get("ms_per_query", "-"), f"{r['share']:.0%}"]
+                for r in drive["rows"]]
+        parts.append(f"**Closed-loop drive**: the same student's planner drives {drive['scenarios']} L scenarios "
+                     f"in a walled room ({drive['image_size']} px windows): {drive['queries']} planning queries, "
+                     f"{drive['control_steps']} control steps, {drive['successes']} of {drive['scenarios']} reached "
+                     f"the goal; {drive['query_ms']:.1f} ms per query.\n\n"
+                     + number_table(["part", "ms", "ms / scenario", "ms / query", "share"], rows))
+    return "\n\n".join(parts)
+
+
 def format_training_speed(speed: dict[str, Any]) -> str:
-    """The levers, profiles and Lightning's overhead as Markdown (also part of the bench's printed report)."""
+    """The levers, profiles, Lightning's overhead and the evaluation's cost as Markdown (also part of the bench's
+    printed report)."""
     parts = []
     if speed.get("levers"):
         parts.append("### Training levers (each alone, same rounds as its baseline)\n\n"
@@ -63,6 +88,9 @@ def format_training_speed(speed: dict[str, Any]) -> str:
                      + profile_tables(speed["profiles"]))
     if speed.get("lightning"):
         parts.append("### Lightning's per-step overhead\n\n" + lightning_table(speed["lightning"]))
+    if speed.get("evaluation"):
+        parts.append("### One test pass and one closed-loop drive: where the time goes\n\n"
+                     + evaluation_tables(speed["evaluation"]))
     return "\n\n".join(parts)
 
 
@@ -125,7 +153,7 @@ def _defaults() -> str:
 def speed_page(results: dict[str, Any], command: str, commit: str | None, wall_s: float,
                date: str | None = None) -> str:
     """The page: the verdict (:func:`~spade.perf.targets.bench_verdict`), provenance, the step table, the levers,
-    the bound, the profiles, Lightning's overhead."""
+    the bound, the profiles, Lightning's overhead, where a test pass's and a drive's time goes."""
     m = results.get("machine", {})
     speed = results.get("training_speed") or {}
     hw = speed.get("hardware") or {}
@@ -177,6 +205,11 @@ def speed_page(results: dict[str, Any], command: str, commit: str | None, wall_s
                      + "\n\nThe settings run one after another (each a short `Trainer.fit`), not interleaved step by "
                        "step: a change of the machine's load between them moves these rows as much as the setting "
                        "does; the bare loop and the fits share a median, not a round.")
+    if speed.get("evaluation"):
+        parts.append("## One test pass and one closed-loop drive: where the time goes\n\n"
+                     "Random weights (the cost does not depend on their values); each part clocked where it runs "
+                     "during the one pass (spade/perf/evaluation_cost.py), so the parts add up to the total.\n\n"
+                     + evaluation_tables(speed["evaluation"]))
     return "\n\n".join(parts) + "\n"
 
 

@@ -39,6 +39,18 @@ def measure(fn: Callable[[], Any], runs: int = 10, warmup: int = 2, min_seconds:
     return Timing(median_ms=statistics.median(times), min_ms=min(times), runs=len(times))
 
 
+def clocked(spent: dict[str, float], name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``fn`` that also adds its wall time (seconds) to ``spent[name]`` at every call: a part of a larger run timed
+    where it runs (wrap a bound method and assign it to the instance)."""
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        start = time.perf_counter()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            spent[name] = spent.get(name, 0.0) + time.perf_counter() - start
+    return wrapper
+
+
 def machine_info() -> dict[str, Any]:
     """What a timing depends on: CPU model and count, load at the start, torch and its thread count."""
     import torch
