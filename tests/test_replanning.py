@@ -14,7 +14,7 @@ import pytest
 
 from spade.closedloop.simulate import ClosedLoopSettings, drive
 from spade.deploy.plan_result import PlannerConfigError
-from spade.deploy.student_planner import DEFAULT_REPLAN_PRIOR, Planner
+from spade.deploy.student_planner import DEFAULT_REPLAN_KEEP, DEFAULT_REPLAN_PRIOR, Planner
 from spade.maps import FREE, OCCUPIED, OccupancyMap
 from spade.metrics.decoding import PathDecoder
 from spade.metrics.synthetic import rasterise_polyline
@@ -151,6 +151,8 @@ class TwoWays:
 
 
 def two_ways_planner(path: Path, **options) -> Planner:  # noqa: ANN003
+    """The planner on the stand-in network; keeping the plan off unless asked (the prior's own tests)."""
+    options.setdefault("replan_keep", None)
     planner = Planner(fresh_checkpoint(path, ROBOT_DATA), **options)
     planner.backend = TwoWays()
     return planner
@@ -191,7 +193,8 @@ def test_replan_prior_is_a_deploy_setting_that_round_trips(tmp_path: Path) -> No
     assert compose_config("plan", ["map=x.yaml", "start=[0,0,0]", "goal=[1,1]"]).planner.replan_prior == \
         DEFAULT_REPLAN_PRIOR
     assert predictors(ckpt, [], [], {"replan_prior": 0.3})["model"].replan_prior == 0.3  # drive.planner.*
-    assert Planner(ckpt).decoder.keep_ratio is None and ros.planner.replan_keep is None  # keeping: opt-in
+    assert Planner(ckpt).decoder.keep_ratio == DEFAULT_REPLAN_KEEP == ros.planner.replan_keep  # the measured default
+    assert Planner(ckpt, replan_keep=None).decoder.keep_ratio is None  # off
     assert build_planner(OmegaConf.merge(ros, {"planner": {"replan_keep": 0.2}})).decoder.keep_ratio == 0.2
     assert predictors(ckpt, [], [], {"replan_keep": 0.5})["model"].decoder.keep_ratio == 0.5
     for bad in (-0.1, "some", True, float("inf")):

@@ -123,6 +123,17 @@ def replanning_page(records: list[dict[str, Any]], command: str = "") -> str:
         verdict.append(f"- **{condition}**, the best setting ({setting_label(best)}) against off: " + "; ".join(parts)
                        + ". "
                        + (f"Targets missed: {', '.join(missed)}." if missed else "Every target met."))
+        held = [s for s in settings if s[1] >= ALWAYS]
+        follow = followed.get(condition, [{}])[0]
+        if held and follow.get("ape_cm") is not None:
+            h = min(held, key=lambda s: mean(condition, s, "ape_cm") or math.inf)
+            ape, switches = mean(condition, h, "ape_cm"), mean(condition, h, "mode_switches")
+            if (ape is not None and switches is not None and switches <= (follow.get("mode_switches") or 0) + 0.1
+                    and ape > 1.5 * follow["ape_cm"]):
+                verdict.append(f"- **What bounds it** ({condition}): holding one plan wherever the map allows "
+                               f"({setting_label(h)}) drives at {ape:.2f} cm with {switches:.2f} mode switches per "
+                               f"scenario, against {follow['ape_cm']:.2f} cm for the demonstration followed: the "
+                               "error left is the plans' own, not their wavering.")
     students = max((len(v) for v in groups.values()), default=0)
     provenance = provenance_lines(None)
     provenance[0] += f"; drives at {sorted({str(r.get('commit'))[:7] for r in records})}"
