@@ -88,7 +88,7 @@ def drive_records(ckpts: list[str], weights: list[float], conditions: list[str],
         for condition in conditions:
             for weight, keep in settings_of(weights, keeps or [None]):
                 drive = {**base, **CONDITIONS[condition],
-                         "planner": {"replan_prior": weight, **({} if keep is None else {"replan_keep": keep})}}
+                         "planner": {"replan_prior": weight, "replan_keep": keep}}  # None: off, not the default
                 t0 = time.perf_counter()
                 metrics, episodes = run_closed_loop(ckpt, chosen, drive, seed)
                 priors: dict[str, int] = {}

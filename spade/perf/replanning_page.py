@@ -62,6 +62,9 @@ def _paired_by_student(a: dict[str, float], b: dict[str, float]) -> float | None
 ALWAYS = 100.0
 """A ``replan_keep`` this large keeps the previous plan whenever it is usable (a fresh path would have to cost a
 hundredth of it): the diagnostic bound of what holding one plan could buy."""
+DATA = "site_L"
+"""The drives' test set the targets are set on (the science test's held-out maps); another one (the unseen real maps,
+``realmap_L``) is its own condition, whose direction the page shows without targets."""
 Setting = tuple[float, float]
 """(replan_prior, replan_keep) of a drive, keep -1 for off (so that settings sort)."""
 OFF: Setting = (0.0, -1.0)
@@ -81,12 +84,13 @@ def replanning_page(records: list[dict[str, Any]], command: str = "") -> str:
     for r in records:
         metrics = r["metrics"]
         keep = r.get("replan_keep")
+        condition = r["condition"] if r.get("data") in (None, DATA) else f"{r['condition']}, {r['data']}"
         setting = (float(r["replan_prior"]), -1.0 if keep is None else float(keep))
-        per_student = groups.setdefault((r["condition"], setting), {})
+        per_student = groups.setdefault((condition, setting), {})
         per_student[r["run"]] = {k: metrics[f"closed_loop/{k}"] for k, _, _ in FIGURES
                                  if f"closed_loop/{k}" in metrics}
         if "closed_loop/followed/ape_cm" in metrics:
-            followed.setdefault(r["condition"], []).append(
+            followed.setdefault(condition, []).append(
                 {k: metrics.get(f"closed_loop/followed/{k}") for k, _, _ in FIGURES})
     conditions = sorted({c for c, _ in groups}, key=lambda c: (c != "clean", c))
     tests: list[tuple[str, Setting, str, float | None]] = []
