@@ -389,10 +389,12 @@ def test_the_replanning_page_compares_each_prior_with_off_on_the_same_students(t
     assert "closed-loop APE (cm) 16.00 → 6.90" in verdict and "Every target met." in verdict
     assert "| clean | prior 0.9 | 6.90 ± 0.90 |" in page and "| clean | prior 0.9 + keep 0.5 | 7.50 ± 1.00 |" in page
     assert "| clean | off | 16.00 ± 1.00 |" in page
-    for student in ("a", "b"):  # another test set is its own condition: its direction, no targets
-        (tmp_path / f"{student}_real.json").write_text(json.dumps({
-            "run": student, "condition": "clean", "data": "realmap_L", "replan_prior": 0.0, "scenarios": 5,
-            "metrics": {"closed_loop/ape_cm": 20.0, "closed_loop/mode_switches": 1.0}, "seconds": 1.0}))
+    for student, prior in (("a", 0.0), ("b", 0.0), ("a", 0.9), ("b", 0.9)):  # another test set: its own condition
+        (tmp_path / f"{student}_{prior}_real.json").write_text(json.dumps({
+            "run": student, "condition": "clean", "data": "realmap_L", "replan_prior": prior, "scenarios": 5,
+            "metrics": {"closed_loop/ape_cm": 20.0 - 5 * prior, "closed_loop/mode_switches": 1.0}, "seconds": 1.0}))
     page = replanning_page(load_drive_records(tmp_path))
-    assert "| clean, realmap_L | off | 20.00 ± 0.00 |" in page and "| clean | off | 16.00 ± 1.00 |" in page and "| clean | the demonstration, followed | 4.50 |" in page
+    assert "| clean, realmap_L | off | 20.00 ± 0.00 |" in page and "| clean | off | 16.00 ± 1.00 |" in page
+    real = next(line for line in page.splitlines() if line.startswith("- **clean, realmap_L**"))
+    assert real.endswith("No targets on this test set: its direction only.") and "20.00 → 15.50" in real and "| clean | the demonstration, followed | 4.50 |" in page
     assert page.index("- **clean**") < page.index("| condition |")  # the verdict before the table

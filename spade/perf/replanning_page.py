@@ -126,7 +126,8 @@ def replanning_page(records: list[dict[str, Any]], command: str = "") -> str:
                   and not (value <= goal + 1e-9 if op == "<=" else value >= goal - 1e-9)]
         verdict.append(f"- **{condition}**, the best setting ({setting_label(best)}) against off: " + "; ".join(parts)
                        + ". "
-                       + (f"Targets missed: {', '.join(missed)}." if missed else "Every target met."))
+                       + (f"Targets missed: {', '.join(missed)}." if missed else "Every target met." if targets
+                          else "No targets on this test set: its direction only."))
         held = [s for s in settings if s[1] >= ALWAYS]
         follow = followed.get(condition, [{}])[0]
         if held and follow.get("ape_cm") is not None:
