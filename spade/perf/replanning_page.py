@@ -170,7 +170,8 @@ def replanning_page(records: list[dict[str, Any]], command: str = "") -> str:
               "## Provenance", "",
               f"- drives: `{records[0].get('command', '').split(' --ckpt')[0] if records else ''} --ckpt ... "
               f"--weights ... --keep ...` ({len(records)} records in docs/results/records/replanning/, "
-              f"{records[0].get('scenarios') if records else 0} scenarios each)",
+              "scenarios per test set: " + ", ".join(f"{d or DATA} {n}" for d, n in sorted(
+                  {(r.get("data"), r.get("scenarios")) for r in records}, key=str)) + ")",
               f"- page: `{command or 'python -m spade.perf.replanning_page'}`",
               *provenance,
               f"- drive wall time: {sum(float(r.get('seconds') or 0) for r in records) / 60:.0f} min in all", ""]
