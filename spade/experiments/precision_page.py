@@ -10,13 +10,15 @@ the store.
 
 from __future__ import annotations
 
-import statistics
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from omegaconf import OmegaConf
+
 from spade.experiments.reporting.stats import ALPHA, holm, mean_sd, welch
 from spade.experiments.run_records import RunRecord, export_records, load_records, store_exists
+from spade.paths import CONF_DIR
 from spade.utils.markdown import markdown_table
 from spade.utils.provenance import command_line, provenance_lines, shown_path
 
@@ -41,11 +43,6 @@ def _shown(values: list[float], unit: str) -> str:
     scale, fmt = (100.0, ".0f") if unit == "%" else (1.0, ".2f")
     text = mean_sd([v * scale for v in values], fmt)
     return f"{text} %" if unit == "%" else text
-
-
-def _wall(runs: list[RunRecord]) -> float | None:
-    walls = [r.wall_s for r in runs if r.wall_s]
-    return statistics.fmean(walls) / 60 if walls else None
 
 
 def precision_report(tracking_uri: str, output_dir: str | Path | None, settings: Mapping[str, Any]) -> tuple[str, dict]:
@@ -91,12 +88,14 @@ def precision_report(tracking_uri: str, output_dir: str | Path | None, settings:
             verdict.append(f"- **bf16 is within noise of fp32** on {', '.join(labels.get(n, n) for n in tested)}: "
                            "no figure below is told apart (Welch over seeds, Holm over the page). Not told apart is "
                            "not shown equal: the sd columns say how large a change the seeds could hide.")
-    for low in tested:
-        full = pairs[low]
-        a, b = _wall(by_name[low]), _wall(by_name[full])
-        if a and b:
-            verdict.append(f"- {labels.get(low, low)}: {a:.1f} min a run against {b:.1f} in fp32 "
-                           f"({b / a:.2f}x; whole runs, training and test, on a shared machine).")
+    default = str(OmegaConf.load(CONF_DIR / "trainer" / "cpu.yaml").get("precision"))
+    verdict.append(f"- `trainer=cpu`'s precision is `{default}`" + (
+        ": bf16-mixed where the CPU (AVX-512 BF16 or AMX) or the GPU has native bf16, 32-true elsewhere."
+        if default == "auto" else "; bf16 is opt-in (`trainer.precision=bf16-mixed`)."))
+    if tested:
+        verdict.append("- What bf16 buys in time is the [speed page](speed.md)'s lever table (each lever against "
+                       "the same run's baseline, interleaved): the rows' own wall times come from different "
+                       "machines and loads, so they are not compared here.")
 
     body = []
     for test in tests:
