@@ -54,14 +54,15 @@ from torch import nn
 from spade.models.onnx_session import OUTPUT_NAME, OnnxSession
 from spade.utils.devices import device_name
 from spade.utils.errors import UserError
-from spade.models.builders import model_from_config
+from spade.maps.frame import RobotFrame
+from spade.models.builders import build_model, model_from_config
 from spade.models.onnx_check import archive_sha256, check_student_export, weights_sha256
 
 __all__ = [
     "INPUT_ENCODING", "SAFE_GLOBALS", "ModelFileError", "ModelRunner", "UnsafeModelFileError", "build_network",
     "checkpoint_entry", "export_metadata", "file_format", "load_checkpoint", "load_lightning", "load_network",
     "open_model", "plain", "read_info", "read_metadata", "require_role", "resolve_device", "robot_frame",
-    "safe_loading",
+    "safe_loading", "untrained_student",
 ]
 
 INPUT_ENCODING = "occupancy code * 0.5 (unknown 0, free 0.5, occupied 1), start, goal"
@@ -367,6 +368,19 @@ def require_role(info: Mapping[str, Any], role: str, path: str | Path) -> None:
             "exported nor planned with; pass a student checkpoint (a BC / DBC / Cond-DBC run, e.g. "
             "+experiment=t1_medium_conddbc_L)")
     raise ModelFileError(f"{path} has role {have!r}, not {role!r}: pass a {role} checkpoint")
+
+
+def untrained_student(size: str = "small", image_size: int = 64, resolution: float = 0.1, seed: int = 0
+                      ) -> dict[str, Any]:
+    """A student checkpoint as ``spade.train`` writes it (``torch.save`` it), with seeded untrained weights and the
+    data record of a robot-frame window of ``image_size`` px at ``resolution`` m/px: what a bench or a probe plans
+    with when the cost or the refusal is measured, not the plan."""
+    torch.manual_seed(seed)
+    net = build_model("student", size)
+    data = {"image_size": [image_size, image_size], "resolution_m": resolution,
+            "frame": RobotFrame.for_size(image_size).to_json()}
+    return {ENTRY_KEY: {"role": "student", "config": dict(net.config), "data": data},
+            "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}
 
 
 def robot_frame(info: Mapping[str, Any], path: str | Path) -> dict[str, Any]:

@@ -31,11 +31,10 @@ from spade.closedloop.simulate import ClosedLoopSettings, drive
 from spade.data.polyline import resample_polyline
 from spade.deploy.student_planner import Planner
 from spade.maps.costmap import build_costmap
-from spade.maps.frame import RobotFrame
 from spade.maps.occupancy import FREE, OCCUPIED, OccupancyMap
 from spade.metrics.closed_loop import ClosedLoopMetrics
 from spade.metrics.synthetic import synthetic_batch
-from spade.models.builders import build_model
+from spade.models.modelfile import untrained_student
 from spade.training.student_module import StudentModule
 from spade.utils.timing import clocked
 
@@ -105,16 +104,6 @@ def one_test_pass_cost(size: str = "medium", image_size: int = 64, instances: in
             "rows": _parts(parts, total, instances)}
 
 
-def _student_file(path: Path, size: str, image_size: int, resolution: float) -> Path:
-    """A student checkpoint as ``spade.train`` writes it (random weights), for :class:`Planner`."""
-    net = build_model("student", size)
-    data = {"image_size": [image_size] * 2, "resolution_m": resolution,
-            "frame": RobotFrame.for_size(image_size).to_json()}
-    torch.save({"spade": {"role": "student", "config": dict(net.config), "data": data},
-                "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}, path)
-    return path
-
-
 def room_scenarios(n: int, leg_m: float = 1.5) -> list[Any]:
     """``n`` L-shaped scenarios (a ``leg_m`` leg along +x, a left turn, a ``leg_m`` tail) in a walled 12 m room
     at 0.05 m/px, their starts on a 3 x 3 grid (repeated beyond 9, under their own ids)."""
@@ -139,7 +128,8 @@ def one_drive_cost(size: str = "medium", scenarios: int = 4, image_size: int = 6
         raise ValueError(f"a drive needs scenarios >= 1, got {scenarios}")
     scen = room_scenarios(scenarios)
     with tempfile.TemporaryDirectory(prefix="spade_drive_cost_") as tmp:
-        ckpt = _student_file(Path(tmp) / "student.ckpt", size, image_size, resolution or 6.4 / image_size)
+        ckpt = Path(tmp) / "student.ckpt"
+        torch.save(untrained_student(size, image_size, resolution or 6.4 / image_size), ckpt)
         planner = Planner(ckpt, far_goal="clip")
     planner.plan_batch([scen[0].map], [scen[0].start], [scen[0].goal])  # warm-up
     spent = dict.fromkeys(("network", "decoder", "planning"), 0.0)

@@ -42,9 +42,7 @@ from spade.deploy.mlflow_models import mlflow_client
 from spade.deploy.mlflow_store import ensure_store
 from spade.data.format import MANIFEST, MANIFEST_CHECKSUM, manifest_checksum
 from spade.maps import OccupancyMap, save_ros_map
-from spade.maps.frame import RobotFrame
-from spade.models.builders import build_model
-from spade.models.modelfile import read_metadata
+from spade.models.modelfile import read_metadata, untrained_student
 
 REPO = Path(__file__).resolve().parents[2]
 RECORD = REPO / "docs" / "results" / "records" / "reliability" / "probes.json"
@@ -190,15 +188,13 @@ def student(path: Path, role: str = "student", size: int = 64, resolution: float
     import lightning
     import torch
 
-    torch.manual_seed(0)
-    net = build_model("student", "small")
-    config = dict(net.config) if role == "student" else {**dict(net.config), "role": "cond_expert"}
-    info = {"role": role, "config": config, "data": {"image_size": [size, size], "resolution_m": resolution,
-                                                     "frame": RobotFrame.for_size(size).to_json()}}
+    checkpoint = untrained_student("small", size, resolution)
+    if role != "student":
+        info = checkpoint["spade"]
+        info["role"], info["config"] = role, {**info["config"], "role": "cond_expert"}
     path.parent.mkdir(parents=True, exist_ok=True)
-    torch.save({"spade": info, "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()},
-                "pytorch-lightning_version": lightning.__version__, "hyper_parameters": {"size": "small"},
-                **(extra or {})}, path)
+    torch.save({**checkpoint, "pytorch-lightning_version": lightning.__version__,
+                "hyper_parameters": {"size": "small"}, **(extra or {})}, path)
     return path
 
 
