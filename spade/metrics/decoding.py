@@ -219,7 +219,11 @@ class PathDecoder:
              ) -> np.ndarray:
         """The per-cell search cost (H, W) (``inf`` on obstacle and unknown cells); ``discount`` (H, W): the share
         of ``-log p`` taken off (:meth:`prior_discount`), None for none."""
-        nll, rest = self._cost_terms(prob, grid, resolution)
+        return self._combined(*self._cost_terms(prob, grid, resolution), discount)
+
+    @staticmethod
+    def _combined(nll: np.ndarray, rest: np.ndarray, discount: np.ndarray | None) -> np.ndarray:
+        """:meth:`cost` from its terms: ``nll x (1 - discount) + rest``."""
         return (nll if discount is None else nll * (1.0 - discount)) + rest
 
     def _cost_terms(self, prob: np.ndarray, grid: np.ndarray, resolution: float) -> tuple[np.ndarray, np.ndarray]:
@@ -276,7 +280,7 @@ class PathDecoder:
         h, w = grid.shape
         discount, prior_state = self.prior_discount(prior, grid, start, goal)
         nll, rest = self._cost_terms(prob, grid, resolution)
-        cost = (nll if discount is None else nll * (1.0 - discount)) + rest
+        cost = self._combined(nll, rest, discount)
         ends = []
         for xy, name in ((start, "start"), (goal, "goal")):
             xy = np.asarray(xy, np.float64)
