@@ -177,7 +177,7 @@ def _tests(rows: dict[str, list[RunRecord]], bases: Mapping[str, str]) -> dict[s
         a = _by_scenario([i for r in rows[name] for i in r.instances], "planner_ape_cm")
         b = _by_scenario([i for r in base for i in r.instances], "planner_ape_cm")
         out[name] = {"p": p, "wording": wording, "paired": paired_difference(a, b) if a and b else None,
-                     "against": against}
+                     "against": against, "base_ape": _mean(base, DECIDING)}
     return out
 
 
@@ -221,8 +221,7 @@ def _verdict(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], agains
     groups: dict[str, list[str]] = {"better": [], "worse": [], "not told apart": [], "one seed": []}
     winners = []
     for name, test in tests.items():
-        ape, twin = _mean(rows[name], DECIDING), test.get("against", against)
-        own_ape = _mean(rows.get(twin, []), DECIDING)
+        ape, twin, own_ape = _mean(rows[name], DECIDING), test["against"], test["base_ape"]
         if ape is None or own_ape is None:
             continue
         closed = "" if ceiling is None or own_ape - ceiling <= 0 else \
@@ -279,8 +278,7 @@ def _headline(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], again
                 if interval is not None and not math.isnan(interval.low):
                     text = f"{text} [{interval.low:.2f}, {interval.high:.2f}]"
             cells.append(text)
-        twin = tests.get(name, {}).get("against")
-        own_ape = _mean(rows.get(twin, []), DECIDING) if twin else None
+        twin, own_ape = tests.get(name, {}).get("against"), tests.get(name, {}).get("base_ape")
         if own_ape is None or base_ape is None:
             outcome = "—"
         else:
@@ -302,13 +300,13 @@ def _tests_table(rows: dict[str, list[RunRecord]], labels: Mapping[str, str], ag
     order = sorted(tests, key=lambda n: (not _significant(tests[n]), tests[n].get("holm") or 2.0))
     for name in order:
         test, ape = tests[name], _mean(rows[name], DECIDING)
-        own_ape = _mean(rows.get(test.get("against", against), []), DECIDING)
+        own_ape = test["base_ape"]
         if ape is None or own_ape is None:
             continue
         p, holm_p, paired = test.get("p"), test.get("holm"), test.get("paired")
         paired_text = "n/a" if paired is None or math.isnan(paired.low) else \
             f"{paired.mean:+.2f} [{paired.low:+.2f}, {paired.high:+.2f}]"
-        twin = test.get("against", against)
+        twin = test["against"]
         label = labels.get(name, name) + ("" if twin == against else f" (against {labels.get(twin, twin)})")
         body.append([label, f"{ape - own_ape:+.2f}", "n/a" if p is None else f"{p:.3g}",
                      "n/a" if holm_p is None else f"{holm_p:.3g}", paired_text, _outcome(rows, name, own_ape, test)])
