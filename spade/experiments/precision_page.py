@@ -3,8 +3,7 @@
 Each bf16 row (``conf/experiment/site_*_bf16_L.yaml``: ``trainer.precision=bf16-mixed``, fp32 weights, optimiser and
 losses) is tested against its fp32 twin on the oracle page's science test set, figure by figure: the deciding
 planner APE, the floor ratio, plausibility and commitment, by Welch's test over seeds with Holm's correction over
-every test of the page. bf16 stays opt-in (``trainer.precision: 32-true``) unless no figure is told apart; the page
-says which. It reads the oracle page's run records (the rows share its MLflow experiment), so it regenerates without
+every test of the page; the page also states ``trainer=cpu``'s precision as the config sets it. It reads the oracle page's run records (the rows share its MLflow experiment), so it regenerates without
 the store.
 """
 
@@ -82,8 +81,7 @@ def precision_report(tracking_uri: str, output_dir: str | Path | None, settings:
         if told_apart:
             moved = "; ".join(f"{labels.get(t['pair'], t['pair'])}: {t['label']} (Holm p {t['holm']:.3g})"
                               for t in told_apart)
-            verdict.append(f"- **bf16 changes the science**: told apart from fp32 on {moved}. It stays opt-in "
-                           "(`trainer.precision=bf16-mixed`).")
+            verdict.append(f"- **bf16 changes the science**: told apart from fp32 on {moved}.")
         else:
             verdict.append(f"- **bf16 is within noise of fp32** on {', '.join(labels.get(n, n) for n in tested)}: "
                            "no figure below is told apart (Welch over seeds, Holm over the page). Not told apart is "
