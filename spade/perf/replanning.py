@@ -98,15 +98,16 @@ def drive_records(ckpts: list[str], weights: list[float], conditions: list[str],
                         priors[key] = priors.get(key, 0) + 1
                 records.append({
                     "checkpoint": _shown(str(ckpt)), "run": Path(ckpt).parent.parent.name, "condition": condition,
-                    "replan_prior": float(weight), "replan_keep": keep, "scenarios": len(chosen), "data": data, "scale": scale,
+                    "replan_prior": weight, "replan_keep": keep, "scenarios": len(chosen), "data": data,
+                    "scale": scale,
                     "seed": seed, "settings": {k: drive[k] for k in sorted(drive) if k not in ("pictures", "mcap")},
                     "metrics": {k: (None if not math.isfinite(v) else round(v, 6)) for k, v in sorted(metrics.items())},
                     "priors": dict(sorted(priors.items())), "seconds": round(time.perf_counter() - t0, 1),
                     "commit": _git_commit(), "command": " ".join(_shown(w) for w in command.split(" ")),
                 })
                 m = records[-1]["metrics"]
-                print(f"{records[-1]['run']} {condition} replan_prior={weight:g} replan_keep={keep}: APE {m['closed_loop/ape_cm']:.2f} "
-                      f"cm, mode switches {m['closed_loop/mode_switches']:.2f}, commits "
+                print(f"{records[-1]['run']} {condition} replan_prior={weight:g} replan_keep={keep}: APE "
+                      f"{m['closed_loop/ape_cm']:.2f} cm, mode switches {m['closed_loop/mode_switches']:.2f}, commits "
                       f"{m['closed_loop/commit_rate']:.2f}, success {m['closed_loop/success_rate']:.2f} "
                       f"({records[-1]['seconds']:.0f} s)", flush=True)
     return records
